@@ -1,0 +1,5 @@
+//! One module per subcommand: its clap `Args` and its `run`.
+
+pub mod dead_reckon;
+pub mod demo;
+pub mod print_config;

@@ -1,0 +1,21 @@
+//! `pfslam print-config`.
+
+use pfslam::config::Config;
+
+/// Arguments of `print-config`.
+#[derive(Debug, Default, clap::Args)]
+pub struct Args {
+    /// Print this file's configuration resolved over the defaults instead.
+    #[arg(long)]
+    pub config: Option<std::path::PathBuf>,
+}
+
+/// Prints the resolved configuration.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let config = match &args.config {
+        Some(p) => Config::from_toml_file(p)?,
+        None => Config::default(),
+    };
+    print!("{}", config.to_toml());
+    Ok(())
+}

@@ -1,0 +1,64 @@
+//! `pfslam`: the command-line front end of the pfslam library.
+//!
+//! Arguments are parsed by clap and validated into a configuration before any work starts.
+//! Exit codes: 0 success, 2 any error (bad input, bad arguments, failed output).
+
+mod cmd;
+
+use clap::{Parser, Subcommand};
+use std::process::ExitCode;
+
+/// Particle-filter SLAM for 2-D LiDAR: dead reckoning, occupancy mapping, SLAM, evaluation.
+#[derive(Debug, Parser)]
+#[command(name = "pfslam", version, about, long_about = None)]
+pub struct Cli {
+    /// What to do; with no subcommand, runs the built-in demo on the simulator.
+    #[command(subcommand)]
+    pub command: Option<Command>,
+    /// Log verbosity (error, warn, info, debug, trace).
+    #[arg(long, global = true, default_value = "info")]
+    pub log: String,
+}
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Simulate, dead-reckon, map and run SLAM on the built-in world (the default).
+    Demo(cmd::demo::Args),
+    /// Dead-reckon a dataset: trajectory.tum/.csv/.png.
+    DeadReckon(cmd::dead_reckon::Args),
+    /// Print the full default configuration as TOML.
+    PrintConfig(cmd::print_config::Args),
+}
+
+/// Runs the CLI on already-parsed arguments.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    init_logging(&cli.log);
+    match cli.command {
+        None => cmd::demo::run(cmd::demo::Args::default()),
+        Some(Command::Demo(a)) => cmd::demo::run(a),
+        Some(Command::DeadReckon(a)) => cmd::dead_reckon::run(a),
+        Some(Command::PrintConfig(a)) => cmd::print_config::run(a),
+    }
+}
+
+fn init_logging(level: &str) {
+    let filter = tracing_subscriber::EnvFilter::try_new(level)
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .try_init();
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(2)
+        }
+    }
+}

@@ -1,0 +1,22 @@
+//! End-to-end tests of the `pfslam` binary.
+
+use std::process::Command;
+
+fn pfslam() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_pfslam"))
+}
+
+#[test]
+fn print_config_is_valid_toml() {
+    let out = pfslam().arg("print-config").output().unwrap();
+    assert!(out.status.success());
+    let text = String::from_utf8(out.stdout).unwrap();
+    let parsed: Result<pfslam::config::Config, _> = toml::from_str(&text);
+    assert!(parsed.is_ok(), "{text}");
+}
+
+#[test]
+fn unknown_subcommand_exits_2() {
+    let out = pfslam().arg("no-such-command").output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+}

@@ -1,0 +1,1 @@
+//! OpenCV calibration YAML (placeholder).

@@ -1,0 +1,245 @@
+//! Typed, timestamped sensor measurements and calibrations, independent of any file format.
+//!
+//! Readers in [`crate::io`] produce these; everything downstream (motion, filter, map) consumes
+//! them. Two shapes exist:
+//! - [`CarDataset`]: the seed car's raw streams (encoder counts, FOG increments, LiDAR ranges)
+//!   with its calibration, as recorded;
+//! - [`Recording`]: the common input of mapping and SLAM: odometry poses, LiDAR scans with their
+//!   geometry and mount, optional ground truth. Every source (car, humanoid, CARMEN, ROS bags,
+//!   MCAP) is turned into a `Recording`.
+
+use crate::geometry::{Rigid3, StampedPose2, Trajectory};
+use serde::{Deserialize, Serialize};
+
+/// One row of `encoder.csv`: cumulative wheel tick counts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct EncoderSample {
+    /// Time (ns).
+    pub stamp_ns: i64,
+    /// Cumulative left wheel count (ticks).
+    pub left_count: i64,
+    /// Cumulative right wheel count (ticks).
+    pub right_count: i64,
+}
+
+/// One row of `fog.csv`: attitude increments since the previous row.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FogSample {
+    /// Time (ns).
+    pub stamp_ns: i64,
+    /// Roll increment (rad).
+    pub delta_roll_rad: f64,
+    /// Pitch increment (rad).
+    pub delta_pitch_rad: f64,
+    /// Yaw increment (rad), counter-clockwise positive about the body's z (up) axis.
+    pub delta_yaw_rad: f64,
+}
+
+/// Beam geometry of a planar scanner: beam `i` points at `angle_min_rad + i *
+/// angle_increment_rad` in the sensor's x-y plane (x forward, counter-clockwise positive).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct LidarGeometry {
+    /// Angle of the first beam (rad).
+    pub angle_min_rad: f64,
+    /// Angle step between beams (rad).
+    pub angle_increment_rad: f64,
+    /// Number of beams per scan.
+    pub beam_count: usize,
+    /// Largest valid range (m); readings at or above it mean "no return".
+    pub range_max_m: f32,
+}
+
+impl LidarGeometry {
+    /// The seed car's SICK LMS511: 286 beams from -5 deg in 0.666 deg steps, 80 m.
+    pub fn ucsd_lms511() -> Self {
+        LidarGeometry {
+            angle_min_rad: (-5.0f64).to_radians(),
+            angle_increment_rad: 0.666f64.to_radians(),
+            beam_count: 286,
+            range_max_m: 80.0,
+        }
+    }
+
+    /// Angle of beam `i` (rad).
+    #[inline]
+    pub fn beam_angle_rad(&self, i: usize) -> f64 {
+        self.angle_min_rad + i as f64 * self.angle_increment_rad
+    }
+}
+
+/// A set of scans stored flat: `ranges_m[i * beam_count .. (i + 1) * beam_count]` is scan `i`.
+/// Ranges are `f32` metres; `0.0` (or anything non-finite, or >= the sensor's maximum) means
+/// "no return".
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ScanSet {
+    /// Beams per scan.
+    pub beam_count: usize,
+    /// Time of each scan (ns).
+    pub stamps_ns: Vec<i64>,
+    /// All ranges, scan after scan (m).
+    pub ranges_m: Vec<f32>,
+}
+
+impl ScanSet {
+    /// An empty set for scans of `beam_count` beams.
+    pub fn new(beam_count: usize) -> Self {
+        ScanSet {
+            beam_count,
+            stamps_ns: Vec::new(),
+            ranges_m: Vec::new(),
+        }
+    }
+
+    /// Number of scans.
+    #[inline]
+    pub fn len(&self) -> usize {
+        self.stamps_ns.len()
+    }
+
+    /// True when empty.
+    #[inline]
+    pub fn is_empty(&self) -> bool {
+        self.stamps_ns.is_empty()
+    }
+
+    /// The ranges of scan `i`.
+    #[inline]
+    pub fn ranges(&self, i: usize) -> &[f32] {
+        &self.ranges_m[i * self.beam_count..(i + 1) * self.beam_count]
+    }
+
+    /// Appends a scan; `ranges_m.len()` must equal `beam_count` (checked by the caller, which
+    /// knows the file and line to report).
+    #[inline]
+    pub fn push(&mut self, stamp_ns: i64, ranges_m: &[f32]) {
+        debug_assert_eq!(ranges_m.len(), self.beam_count);
+        self.stamps_ns.push(stamp_ns);
+        self.ranges_m.extend_from_slice(ranges_m);
+    }
+}
+
+/// Wheel encoder calibration (`EncoderParameter.txt`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct EncoderParams {
+    /// Ticks per wheel revolution.
+    pub resolution_ticks: u32,
+    /// Left wheel diameter (m).
+    pub left_wheel_diameter_m: f64,
+    /// Right wheel diameter (m).
+    pub right_wheel_diameter_m: f64,
+    /// Distance between the wheels (m).
+    pub wheel_base_m: f64,
+}
+
+impl Default for EncoderParams {
+    /// The seed car's calibration.
+    fn default() -> Self {
+        EncoderParams {
+            resolution_ticks: 4096,
+            left_wheel_diameter_m: 0.623479,
+            right_wheel_diameter_m: 0.622806,
+            wheel_base_m: 1.52439,
+        }
+    }
+}
+
+/// Intrinsics of one camera as OpenCV's calibration YAML stores them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraInfo {
+    /// Image width (px).
+    pub width: u32,
+    /// Image height (px).
+    pub height: u32,
+    /// 3x3 camera matrix K, row-major.
+    pub camera_matrix: [f64; 9],
+    /// Distortion model name (`plumb_bob`).
+    pub distortion_model: String,
+    /// Distortion coefficients (k1, k2, p1, p2, k3 for plumb_bob).
+    pub distortion: Vec<f64>,
+    /// 3x3 rectification rotation, row-major.
+    pub rectification: [f64; 9],
+    /// 3x4 projection matrix, row-major.
+    pub projection: [f64; 12],
+}
+
+/// The stereo rig: both cameras, the baseline and the left camera's mount.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StereoCalibration {
+    /// Left camera.
+    pub left: CameraInfo,
+    /// Right camera.
+    pub right: CameraInfo,
+    /// Baseline (m).
+    pub baseline_m: f64,
+    /// Left camera frame in the body frame.
+    pub body_from_camera: Rigid3,
+}
+
+/// All calibration of the seed car.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CarCalibration {
+    /// Wheel encoders.
+    pub encoder: EncoderParams,
+    /// FOG mount.
+    pub body_from_fog: Rigid3,
+    /// LiDAR mount (equation 8 of the UCSD seed).
+    pub body_from_lidar: Rigid3,
+    /// LiDAR beam geometry.
+    pub lidar: LidarGeometry,
+    /// The stereo rig, when its files are present.
+    pub stereo: Option<StereoCalibration>,
+}
+
+/// The seed car's raw recording.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CarDataset {
+    /// Calibration.
+    pub calibration: CarCalibration,
+    /// Encoder rows, time ordered.
+    pub encoder: Vec<EncoderSample>,
+    /// FOG rows, time ordered.
+    pub fog: Vec<FogSample>,
+    /// LiDAR scans, time ordered.
+    pub lidar: ScanSet,
+    /// Stamps of the stereo pairs found on disk (images are loaded lazily).
+    pub stereo_stamps_ns: Vec<i64>,
+}
+
+/// The common input of mapping and SLAM, whatever the source.
+#[derive(Debug, Clone, Default)]
+pub struct Recording {
+    /// A short name (file stem) for reports.
+    pub name: String,
+    /// Odometry poses in the odometry frame, time ordered (dead reckoning of the source).
+    pub odometry: Trajectory,
+    /// Optional absolute yaw from an IMU/gyro at odometry stamps or its own stamps (rad).
+    pub imu_yaw: Option<Vec<(i64, f64)>>,
+    /// Scans.
+    pub scans: ScanSet,
+    /// Beam geometry.
+    pub lidar: LidarGeometry,
+    /// Default LiDAR mount in the body frame.
+    pub body_from_lidar: Rigid3,
+    /// Per-scan LiDAR mount when the sensor moves on the body (a humanoid's head); same
+    /// length as `scans` when present.
+    pub body_from_lidar_per_scan: Option<Vec<Rigid3>>,
+    /// Ground-truth poses (simulator) when known.
+    pub ground_truth: Option<Vec<StampedPose2>>,
+}
+
+impl Default for LidarGeometry {
+    fn default() -> Self {
+        LidarGeometry::ucsd_lms511()
+    }
+}
+
+impl Recording {
+    /// The mount of scan `i`.
+    #[inline]
+    pub fn body_from_lidar_at(&self, i: usize) -> &Rigid3 {
+        match &self.body_from_lidar_per_scan {
+            Some(v) => &v[i],
+            None => &self.body_from_lidar,
+        }
+    }
+}

@@ -1,0 +1,8 @@
+//! Stereo (placeholder: see ARCHITECTURE.md).
+
+use serde::{Deserialize, Serialize};
+
+/// Options of the stereo component (`[stereo]` in the configuration).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct StereoOptions {}

@@ -1,0 +1,14 @@
+//! Helpers shared by the integration tests.
+
+use std::path::PathBuf;
+
+/// The real-data directory (`$PFSLAM_DATA` or `shared/data` beside the workspace root), or
+/// `None` after printing a skip notice naming the test.
+#[allow(dead_code)]
+pub fn data_dir(test: &str) -> Option<PathBuf> {
+    let d = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR"));
+    if d.is_none() {
+        eprintln!("SKIP {test}: real data not found (set PFSLAM_DATA or provide ../shared/data)");
+    }
+    d
+}

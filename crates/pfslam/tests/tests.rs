@@ -1,0 +1,4 @@
+//! The library's integration tests: one binary (link time matters on 2 cores), one module per
+//! area.
+
+mod common;
