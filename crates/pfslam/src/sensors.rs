@@ -220,6 +220,8 @@ impl CarCalibration {
     }
 }
 
+// Digits exactly as OpenCV wrote them in the calibration YAML.
+#[allow(clippy::excessive_precision)]
 impl StereoCalibration {
     /// The seed car's stereo rig (`left_camera.yaml`, `right_camera.yaml`,
     /// `stereo_param.txt`, `Vehicle2Stereo.txt`), built in.
