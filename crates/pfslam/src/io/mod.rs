@@ -6,6 +6,7 @@
 
 pub mod opencv_yaml;
 pub mod tum;
+pub mod ucsd;
 
 use std::fmt;
 use std::io::Write;
