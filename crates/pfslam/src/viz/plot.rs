@@ -93,7 +93,8 @@ pub fn plot_trajectories(path: &Path, series: &[Series<'_>], title: &str) -> Res
 /// Renders the plot of [`plot_trajectories`] into PNG bytes.
 pub fn render_trajectories_png(series: &[Series<'_>], title: &str) -> Result<Vec<u8>, PlotError> {
     ensure_font();
-    let paths: Vec<(&str, Vec<(f64, f64)>, RGBColor)> = series
+    type Drawn<'s> = (&'s str, Vec<(f64, f64)>, RGBColor);
+    let paths: Vec<Drawn<'_>> = series
         .iter()
         .map(|(l, p, c)| (*l, p.points(), RGBColor(c[0], c[1], c[2])))
         .collect();
