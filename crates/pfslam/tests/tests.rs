@@ -3,4 +3,5 @@
 
 mod common;
 mod motion;
+mod sim;
 mod ucsd;
