@@ -2,3 +2,5 @@
 //! area.
 
 mod common;
+mod motion;
+mod ucsd;

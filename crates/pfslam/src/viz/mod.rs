@@ -25,3 +25,5 @@ pub fn ensure_font() {
         );
     });
 }
+
+pub mod plot;
