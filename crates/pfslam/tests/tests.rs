@@ -4,3 +4,4 @@
 mod common;
 mod motion;
 mod ucsd;
+mod map;
