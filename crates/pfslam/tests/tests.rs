@@ -5,3 +5,4 @@ mod common;
 mod motion;
 mod sim;
 mod ucsd;
+mod map;
