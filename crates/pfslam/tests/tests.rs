@@ -2,7 +2,7 @@
 //! area.
 
 mod common;
+mod map;
 mod motion;
 mod sim;
 mod ucsd;
-mod map;

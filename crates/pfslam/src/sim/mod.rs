@@ -34,7 +34,7 @@ pub enum SimError {
     #[error(transparent)]
     Io(#[from] crate::io::IoError),
     /// No built-in world has this name.
-    #[error("unknown built-in world {0:?} (known: campus, office)")]
+    #[error("{0:?} is neither a built-in world (campus, office) nor an existing world file")]
     UnknownWorld(String),
     /// The route cannot be driven.
     #[error("bad route: {0}")]
