@@ -45,6 +45,20 @@ pub struct CarSimOutput {
     pub distance_m: f64,
 }
 
+impl CarSimOutput {
+    /// The car's common [`crate::sensors::Recording`] (odometry = dead reckoning of the
+    /// simulated encoders and FOG, scans, mount; see [`crate::motion::car_recording`]) with
+    /// the ground truth attached.
+    pub fn recording(
+        &self,
+        motion: &crate::motion::MotionOptions,
+    ) -> Result<crate::sensors::Recording, crate::motion::MotionError> {
+        let mut r = crate::motion::car_recording(&self.dataset, motion, "car-sim")?;
+        r.ground_truth = Some(self.ground_truth.clone());
+        Ok(r)
+    }
+}
+
 /// Simulates the car on `world` with `opts` (seed included).
 pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, SimError> {
     opts.validate()?;

@@ -74,7 +74,10 @@ pub struct SimOptions {
     /// Cell size of the true map (m).
     pub truth_map_resolution_m: f64,
     /// Lower end of the height band whose obstacles the car's true map shows (m); the
-    /// humanoid's band is in [`HumanoidSimOptions`].
+    /// humanoid's band is in [`HumanoidSimOptions`]. The default 1.7 m is just below the
+    /// car's LiDAR (1.76 m): its beams run level sideways and rise forwards, so obstacles
+    /// lower than the LiDAR (parked cars) are never hit, only overflown (the two edge beams
+    /// that dip 3 deg reach the ground ~33 m to the sides).
     pub truth_band_min_m: f64,
     /// Upper end of that band (m).
     pub truth_band_max_m: f64,
@@ -93,7 +96,7 @@ impl Default for SimOptions {
             duration_s: 180.0,
             start_stamp_ns: 1_544_582_648_000_000_000,
             truth_map_resolution_m: 0.1,
-            truth_band_min_m: 1.0,
+            truth_band_min_m: 1.7,
             truth_band_max_m: 4.0,
             car: CarSimOptions::default(),
             humanoid: HumanoidSimOptions::default(),
