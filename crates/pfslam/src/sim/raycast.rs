@@ -378,6 +378,58 @@ mod tests {
         assert!(rc.cast([0.0, 0.0, 1.0], [0.6, 0.0, 0.8], 80.0).is_none());
     }
 
+    /// Every segment and the ground, no grid: the reference for the grid walk.
+    fn brute_force(rc: &RayCaster, o: [f64; 3], d: [f64; 3], max_range_m: f64) -> Option<f64> {
+        let mut best = max_range_m;
+        let mut found = false;
+        if d[2] < 0.0 && o[2] > 0.0 && -o[2] / d[2] < best {
+            best = -o[2] / d[2];
+            found = true;
+        }
+        for s in &rc.segments {
+            if let Some(t) = rc.intersect(s, o, d)
+                && t < best
+            {
+                best = t;
+                found = true;
+            }
+        }
+        found.then_some(best)
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn grid_walk_matches_brute_force(
+            boxes in proptest::collection::vec(
+                (-40.0f64..40.0, -40.0f64..40.0, 0.2f64..8.0, 0.2f64..8.0, 0.0f64..3.0,
+                 0.0f64..2.0, 0.5f64..20.0),
+                1..30,
+            ),
+            rays in proptest::collection::vec(
+                (-30.0f64..30.0, -30.0f64..30.0, 0.1f64..5.0, 0.0f64..6.3, -1.2f64..1.2),
+                1..40,
+            ),
+            cell in 0.5f64..6.0,
+        ) {
+            let prisms = boxes
+                .iter()
+                .filter_map(|&(x, y, l, w, yaw, z0, h)| Prism::rect("b", [x, y], l, w, yaw, z0, z0 + h))
+                .collect();
+            let w = World { name: "p".into(), prisms, ground: Default::default(), route: vec![] };
+            let rc = RayCaster::new(&w, cell, 100.0);
+            for &(x, y, z, az, el) in &rays {
+                let d = [el.cos() * az.cos(), el.cos() * az.sin(), el.sin()];
+                let got = rc.cast([x, y, z], d, 80.0).map(|h| h.range_m);
+                let want = brute_force(&rc, [x, y, z], d, 80.0);
+                match (got, want) {
+                    (Some(a), Some(b)) => proptest::prop_assert!((a - b).abs() < 1e-9, "{a} vs {b}"),
+                    (None, None) => {}
+                    _ => proptest::prop_assert!(false, "{got:?} vs {want:?}"),
+                }
+            }
+        }
+    }
+
     #[test]
     fn floating_canopy_bottom() {
         let w = one(Prism::rect("t", [5.0, 0.0], 2.0, 2.0, 0.0, 3.0, 6.0).unwrap());
