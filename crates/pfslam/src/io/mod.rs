@@ -6,6 +6,8 @@
 
 pub mod carmen;
 pub mod opencv_yaml;
+pub mod ros1;
+pub mod ros_msgs;
 pub mod tum;
 
 use std::fmt;
