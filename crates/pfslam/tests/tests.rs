@@ -2,4 +2,5 @@
 //! area.
 
 mod common;
+mod eval;
 mod readers;
