@@ -29,6 +29,8 @@ pub enum Command {
     DeadReckon(cmd::dead_reckon::Args),
     /// Print the full default configuration as TOML.
     PrintConfig(cmd::print_config::Args),
+    /// Accuracy of a trajectory: ATE/RPE against ground truth, or the relations metric.
+    Eval(cmd::eval::Args),
 }
 
 /// Runs the CLI on already-parsed arguments.
@@ -39,6 +41,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Demo(a)) => cmd::demo::run(a),
         Some(Command::DeadReckon(a)) => cmd::dead_reckon::run(a),
         Some(Command::PrintConfig(a)) => cmd::print_config::run(a),
+        Some(Command::Eval(a)) => cmd::eval::run(a),
     }
 }
 

@@ -2,4 +2,5 @@
 
 pub mod dead_reckon;
 pub mod demo;
+pub mod eval;
 pub mod print_config;
