@@ -1,5 +1,7 @@
 //! Motion (placeholder: see ARCHITECTURE.md).
 
+pub mod odometry_model;
+
 use serde::{Deserialize, Serialize};
 
 /// Options of the motion component (`[motion]` in the configuration).
