@@ -222,3 +222,125 @@ fn ros1_bags_counts_geometry_and_relation_stamps() {
         }
     }
 }
+
+#[test]
+fn mcap_from_bag_slice_roundtrip() {
+    use pfslam::geometry::Trajectory;
+    use pfslam::io::mcap::{read_mcap, write_mcap};
+    use pfslam::io::ros_msgs::{BeamGeometry, RosOptions};
+    use pfslam::io::ros1::read_ros1_bag;
+    use pfslam::sensors::ScanSet;
+    let Some(root) = data_dir("mcap_from_bag_slice_roundtrip") else {
+        return;
+    };
+    let rec = read_ros1_bag(&root.join("freiburg/aces/aces.bag"), &RosOptions::default()).unwrap();
+    // a slice: scans 100..400 and the odometry over the same time span
+    let mut scans = ScanSet::new(rec.scans.beam_count);
+    for i in 100..400 {
+        scans.push(rec.scans.stamps_ns[i], rec.scans.ranges(i));
+    }
+    let (t0, t1) = (scans.stamps_ns[0], *scans.stamps_ns.last().unwrap());
+    let odometry = Trajectory::new(
+        rec.odometry
+            .poses
+            .iter()
+            .filter(|p| p.stamp_ns >= t0 && p.stamp_ns <= t1)
+            .copied()
+            .collect(),
+    );
+    let slice = pfslam::sensors::Recording {
+        scans,
+        odometry,
+        ..rec.clone()
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("aces-slice.mcap");
+    let opts = RosOptions::default();
+    write_mcap(&path, &slice, &opts).unwrap();
+    let back = read_mcap(
+        &path,
+        &RosOptions {
+            beam_geometry: BeamGeometry::AsRecorded,
+            ..RosOptions::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(back.name, "aces-slice");
+    assert_eq!(back.scans.stamps_ns, slice.scans.stamps_ns);
+    assert_eq!(back.scans.ranges_m, slice.scans.ranges_m);
+    assert_eq!(back.odometry.len(), slice.odometry.len());
+    for (a, b) in back.odometry.poses.iter().zip(&slice.odometry.poses) {
+        assert_eq!(a.stamp_ns, b.stamp_ns);
+        assert_eq!((a.pose.x_m, a.pose.y_m), (b.pose.x_m, b.pose.y_m));
+        assert!(pfslam::geometry::wrap_angle(a.pose.yaw_rad - b.pose.yaw_rad).abs() < 1e-12);
+    }
+    assert!((back.lidar.angle_min_rad - slice.lidar.angle_min_rad).abs() < 1e-6);
+    assert!((back.lidar.angle_increment_rad - slice.lidar.angle_increment_rad).abs() < 1e-7);
+    assert_eq!(back.lidar.range_max_m, slice.lidar.range_max_m);
+
+    // truncated MCAP: an error naming the file and a message index or byte, no panic
+    let bytes = std::fs::read(&path).unwrap();
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let e = read_mcap(&cut, &RosOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("cut.mcap") && (e.contains("message") || e.contains("byte")),
+        "{e}"
+    );
+    // wrong topic names: a clear error
+    let e = read_mcap(
+        &path,
+        &RosOptions {
+            scan_topic: "/base_scan".into(),
+            ..RosOptions::default()
+        },
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("no LaserScan message on /base_scan"), "{e}");
+}
+
+#[test]
+fn ros1_malformed_bags_name_positions() {
+    use pfslam::io::ros_msgs::RosOptions;
+    use pfslam::io::ros1::read_ros1_bag;
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(dir.path(), "text.bag", "hello\n");
+    let e = read_ros1_bag(&p, &RosOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("text.bag: byte 0"), "{e}");
+    let p = write(dir.path(), "short.bag", "#ROSBAG V2.0\n\x10\0");
+    let e = read_ros1_bag(&p, &RosOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("short.bag: byte 13"), "{e}");
+    let Some(root) = data_dir("ros1_malformed_bags_name_positions") else {
+        return;
+    };
+    let bytes = std::fs::read(root.join("freiburg/mit-csail/mit-csail.bag")).unwrap();
+    // truncated: the index lies past the end
+    let cut = dir.path().join("cut.bag");
+    std::fs::write(&cut, &bytes[..bytes.len() / 3]).unwrap();
+    let e = read_ros1_bag(&cut, &RosOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("cut.bag: byte") && e.contains("truncated"),
+        "{e}"
+    );
+    // corrupted chunk data: an error naming the chunk
+    let mut bad = bytes.clone();
+    let mid = bad.len() / 2;
+    for b in &mut bad[mid..mid + 64] {
+        *b ^= 0x5a;
+    }
+    let badp = dir.path().join("corrupt.bag");
+    std::fs::write(&badp, &bad).unwrap();
+    let e = read_ros1_bag(&badp, &RosOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("corrupt.bag: chunk"), "{e}");
+}
