@@ -7,6 +7,7 @@
 pub mod carmen;
 pub mod mcap;
 pub mod opencv_yaml;
+pub mod recording;
 pub mod ros1;
 pub mod ros_msgs;
 pub mod tum;

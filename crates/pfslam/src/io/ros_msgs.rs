@@ -635,4 +635,50 @@ mod tests {
         assert!((back.pose.yaw_rad - 3.0).abs() < 1e-12);
         assert!(Decoder::cdr(&[0, 0, 0, 0]).is_err());
     }
+
+    #[test]
+    fn mount_follows_static_chain() {
+        let mut b = RecordingBuilder::new();
+        b.add_scan(ScanMsg {
+            stamp_ns: 10,
+            frame_id: "laser".into(),
+            angle_min: -1.0,
+            angle_max: 1.0,
+            angle_increment: 1.0,
+            range_min: 0.0,
+            range_max: 30.0,
+            ranges: vec![1.0, 2.0, 3.0],
+        })
+        .unwrap();
+        b.add_odometry(OdomMsg {
+            stamp_ns: 5,
+            frame_id: "odom".into(),
+            child_frame_id: "base_link".into(),
+            pose: Pose2::IDENTITY,
+        });
+        let tf = |parent: &str, child: &str, p: Pose2| TfMsg {
+            parent: parent.into(),
+            child: child.into(),
+            parent_from_child: Rigid3::from_pose2(&p),
+        };
+        b.add_tf_static(vec![
+            tf("mast", "laser", Pose2::new(0.1, 0.0, 0.0)),
+            tf(
+                "base_link",
+                "mast",
+                Pose2::new(0.2, 0.0, std::f64::consts::FRAC_PI_2),
+            ),
+        ]);
+        let rec = b.finish("t".into(), &RosOptions::default()).unwrap();
+        // base_from_laser = base_from_mast * mast_from_laser: (0.2, 0.1)
+        let t = rec.body_from_lidar.translation;
+        assert!(
+            (t.x - 0.2).abs() < 1e-12 && (t.y - 0.1).abs() < 1e-12,
+            "{t:?}"
+        );
+        // not CARMEN-shaped: geometry as recorded
+        assert_eq!(rec.lidar.beam_count, 3);
+        assert_eq!(rec.lidar.angle_increment_rad, 1.0);
+        assert_eq!(rec.lidar.range_max_m, 30.0);
+    }
 }
