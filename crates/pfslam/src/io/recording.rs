@@ -52,17 +52,7 @@ pub enum ReadError {
 
 /// The format of `path`, from its magic bytes or else its name; `None` if unrecognised.
 pub fn detect_format(path: &Path) -> Result<Option<RecordingFormat>, IoError> {
-    let mut f = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
-    let mut head = [0u8; 13];
-    let mut n = 0;
-    while n < head.len() {
-        let k = f.read(&mut head[n..]).map_err(|e| IoError::io(path, e))?;
-        if k == 0 {
-            break;
-        }
-        n += k;
-    }
-    let head = &head[..n];
+    let head = read_head(path, 13)?;
     if head.starts_with(b"#ROSBAG V2.0") {
         return Ok(Some(RecordingFormat::Ros1Bag));
     }
@@ -83,6 +73,16 @@ pub fn detect_format(path: &Path) -> Result<Option<RecordingFormat>, IoError> {
     } else {
         None
     })
+}
+
+/// The first `n` bytes of a file (fewer if it is shorter).
+pub(crate) fn read_head(path: &Path, n: usize) -> Result<Vec<u8>, IoError> {
+    let f = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
+    let mut head = Vec::with_capacity(n);
+    f.take(n as u64)
+        .read_to_end(&mut head)
+        .map_err(|e| IoError::io(path, e))?;
+    Ok(head)
 }
 
 /// Reads a recording in any supported format.

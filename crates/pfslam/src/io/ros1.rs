@@ -15,25 +15,16 @@ use super::ros_msgs::{
 use crate::sensors::Recording;
 use rosbag::{ChunkRecord, MessageRecord, RosBag};
 use std::collections::HashMap;
-use std::io::Read;
 use std::path::Path;
 
 const MAGIC: &[u8] = b"#ROSBAG V2.0\n";
 
 /// Checks the bag header; returns `(first record offset, index_pos)`.
 fn check_header(path: &Path) -> Result<(u64, u64), RosError> {
-    let mut f = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
-    let file_len = f.metadata().map_err(|e| IoError::io(path, e))?.len();
-    let mut head = vec![0u8; 4096];
-    let mut n = 0;
-    while n < head.len() {
-        let k = f.read(&mut head[n..]).map_err(|e| IoError::io(path, e))?;
-        if k == 0 {
-            break;
-        }
-        n += k;
-    }
-    head.truncate(n);
+    let file_len = std::fs::metadata(path)
+        .map_err(|e| IoError::io(path, e))?
+        .len();
+    let head = super::recording::read_head(path, 4096)?;
     if !head.starts_with(MAGIC) {
         return Err(RosError::format(
             path,
