@@ -51,7 +51,9 @@ fn carmen_intel_corrected_gz_backwards_stamps() {
     .unwrap();
     let s = &log.stats;
     let rec = &log.recording;
+    eprintln!("intel-corrected: {s:?}");
     assert_eq!(rec.name, "intel-corrected");
+    assert_eq!(s.laser_out_of_order, 4);
     assert_eq!(s.odom_lines, 14_541);
     assert_eq!(s.laser_lines, 910);
     assert_eq!(rec.scans.beam_count, 180);
@@ -157,18 +159,30 @@ fn relation_stamps_found(rec: &pfslam::sensors::Recording, relations: &Path) -> 
 #[test]
 fn ros1_bags_counts_geometry_and_relation_stamps() {
     use pfslam::io::ros_msgs::{BeamGeometry, RosOptions};
-    use pfslam::io::ros1::read_ros1_bag;
+    use pfslam::io::ros1::{read_ros1_bag, read_ros1_bag_with_stats};
     let Some(root) = data_dir("ros1_bags_counts_geometry_and_relation_stamps") else {
         return;
     };
-    // name, scans, beams, relations
-    for (name, scans, beams, relations) in [
-        ("intel", 13_631, 180, 2_984),
-        ("aces", 7_374, 180, 1_279),
-        ("mit-csail", 1_988, 361, 1_172),
+    // name, scans, beams, odometry messages, relations (README table)
+    for (name, scans, beams, odom, relations) in [
+        ("intel", 13_631, 180, 26_915, 2_984),
+        ("aces", 7_374, 180, 7_375, 1_279),
+        ("mit-csail", 1_988, 361, 1_988, 1_172),
     ] {
         let dir = root.join("freiburg").join(name);
-        let rec = read_ros1_bag(&dir.join(format!("{name}.bag")), &RosOptions::default()).unwrap();
+        let (rec, stats) =
+            read_ros1_bag_with_stats(&dir.join(format!("{name}.bag")), &RosOptions::default())
+                .unwrap();
+        eprintln!("{name}: {stats:?}");
+        assert_eq!(stats.scan_messages, scans, "{name} scan messages");
+        assert_eq!(stats.odometry_messages, odom, "{name} odometry messages");
+        assert_eq!(
+            rec.odometry.len() + stats.odometry_out_of_order,
+            stats.odometry_messages
+        );
+        assert!(stats.mount_from_tf);
+        let backwards = if name == "intel" { 631 } else { 0 };
+        assert_eq!(stats.scans_out_of_order, backwards, "{name}");
         assert_eq!(rec.name, name);
         assert_eq!(rec.scans.len(), scans, "{name} scans");
         assert_eq!(rec.scans.beam_count, beams, "{name} beams");
@@ -322,4 +336,67 @@ fn ros1_malformed_bags_name_positions() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("corrupt.bag: chunk"), "{e}");
+}
+
+#[test]
+fn carmen_robotlaser_rlaser_param() {
+    use pfslam::io::carmen::CarmenLaser;
+    let dir = tempfile::tempdir().unwrap();
+    // ROBOTLASER1: 3 readings from -0.5 rad in 0.5 rad steps, 1 remission, laser 0.3 m ahead
+    let rl = |stamp: &str, x: f64| {
+        format!(
+            "ROBOTLASER1 0 -0.5 1.0 0.5 30 0.01 0 3 1.0 2.0 3.0 1 0.5 {} 0 0 {x} 0 0 0 0 0 0 0 {stamp} host 0\n",
+            x + 0.3
+        )
+    };
+    let text = format!(
+        "# header\nPARAM robot_frontlaser_offset 0.1 host 0\n{}{}ODOM 0 0 0 0 0 0 1.0 h 1\nODOM 0.5 0 0 0 0 0 3.0 h 3\n",
+        rl("1.5", 0.0),
+        rl("2.5", 1.0)
+    );
+    let p = write(dir.path(), "robot.log", &text);
+    let log = read_carmen(&p, &CarmenOptions::default()).unwrap();
+    let rec = &log.recording;
+    assert_eq!(rec.scans.len(), 2);
+    assert_eq!(rec.scans.ranges(1), &[1.0, 2.0, 3.0]);
+    assert_eq!(rec.lidar.beam_count, 3);
+    assert_eq!(rec.lidar.angle_min_rad, -0.5);
+    assert_eq!(rec.lidar.angle_increment_rad, 0.5);
+    // the mount from the laser and robot poses of ROBOTLASER1 wins over PARAM
+    assert!((rec.body_from_lidar.translation.x - 0.3).abs() < 1e-12);
+    // ODOM lines present: they are the odometry
+    assert!(!log.stats.odometry_from_laser);
+    assert_eq!(rec.odometry.len(), 2);
+    assert_eq!(rec.odometry.poses[1].pose.x_m, 0.5);
+
+    // FLASER + RLASER with PARAM offsets
+    let text = "PARAM robot_frontlaser_offset 0.25 h 0\nPARAM robot_rearlaser_offset -0.2 h 0\n\
+FLASER 2 1.0 2.0 0 0 0 5 6 0.1 1.0 h 1\n\
+RLASER 2 3.0 4.0 0 0 0 5 6 0.1 1.1 h 1\n\
+FLASER 2 1.5 2.5 0 0 0 7 6 0.2 2.0 h 2\n";
+    let p = write(dir.path(), "two.clf", text);
+    let front = read_carmen(&p, &CarmenOptions::default()).unwrap();
+    assert_eq!(front.recording.scans.len(), 2);
+    assert!((front.recording.body_from_lidar.translation.x - 0.25).abs() < 1e-12);
+    // odometry from the FLASER lines' odom_x odom_y odom_theta
+    assert!(front.stats.odometry_from_laser);
+    assert_eq!(front.recording.odometry.poses[1].pose.x_m, 7.0);
+    // 2 beams over 180 deg
+    assert!((front.recording.lidar.angle_increment_rad - std::f64::consts::PI).abs() < 1e-12);
+    let rear = read_carmen(
+        &p,
+        &CarmenOptions {
+            laser: CarmenLaser::Rear,
+            ..CarmenOptions::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(rear.recording.scans.len(), 1);
+    assert_eq!(rear.recording.scans.ranges(0), &[3.0, 4.0]);
+    let r = rear.recording.body_from_lidar;
+    assert!((r.translation.x + 0.2).abs() < 1e-12);
+    assert!(
+        (r.rotation[(0, 0)] + 1.0).abs() < 1e-12,
+        "rear laser faces backwards"
+    );
 }

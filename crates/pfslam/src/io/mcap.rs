@@ -8,7 +8,7 @@
 
 use super::IoError;
 use super::ros_msgs::{
-    Decoder, OdomMsg, RecordingBuilder, RosError, RosOptions, ScanMsg, decode_odometry,
+    Decoder, OdomMsg, RecordingBuilder, RosError, RosOptions, RosStats, ScanMsg, decode_odometry,
     decode_scan, decode_tf, encode,
 };
 use crate::sensors::Recording;
@@ -17,6 +17,14 @@ use std::path::Path;
 
 /// Reads an MCAP file into a [`Recording`].
 pub fn read_mcap(path: &Path, options: &RosOptions) -> Result<Recording, RosError> {
+    read_mcap_with_stats(path, options).map(|(r, _)| r)
+}
+
+/// Reads a MCAP file into a [`Recording`], with what was read and dropped.
+pub fn read_mcap_with_stats(
+    path: &Path,
+    options: &RosOptions,
+) -> Result<(Recording, RosStats), RosError> {
     let file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
     // SAFETY: the file is opened read-only; as with any memory map, another process
     // truncating it while we read is outside what we can guard against.

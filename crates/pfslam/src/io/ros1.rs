@@ -10,7 +10,8 @@
 
 use super::IoError;
 use super::ros_msgs::{
-    Decoder, RecordingBuilder, RosError, RosOptions, decode_odometry, decode_scan, decode_tf,
+    Decoder, RecordingBuilder, RosError, RosOptions, RosStats, decode_odometry, decode_scan,
+    decode_tf,
 };
 use crate::sensors::Recording;
 use rosbag::{ChunkRecord, MessageRecord, RosBag};
@@ -86,6 +87,14 @@ fn check_header(path: &Path) -> Result<(u64, u64), RosError> {
 
 /// Reads a ROS 1 bag into a [`Recording`].
 pub fn read_ros1_bag(path: &Path, options: &RosOptions) -> Result<Recording, RosError> {
+    read_ros1_bag_with_stats(path, options).map(|(r, _)| r)
+}
+
+/// Reads a ROS 1 bag into a [`Recording`], with what was read and dropped.
+pub fn read_ros1_bag_with_stats(
+    path: &Path,
+    options: &RosOptions,
+) -> Result<(Recording, RosStats), RosError> {
     check_header(path)?;
     let bag = RosBag::new(path).map_err(|e| RosError::format(path, "byte 0", e.to_string()))?;
     let mut builder = RecordingBuilder::new();

@@ -357,6 +357,22 @@ pub fn decode_tf(d: &mut Decoder<'_>) -> Result<Vec<TfMsg>, String> {
     Ok(out)
 }
 
+/// What a ROS reader read and dropped.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RosStats {
+    /// `LaserScan` messages read.
+    pub scan_messages: usize,
+    /// Scans whose stamp is not above the previous one's (sorted into place; a repeated stamp
+    /// is dropped).
+    pub scans_out_of_order: usize,
+    /// `Odometry` messages read.
+    pub odometry_messages: usize,
+    /// Odometry messages dropped because their stamp is out of order or repeated.
+    pub odometry_out_of_order: usize,
+    /// True when the laser mount came from `/tf_static` (else identity).
+    pub mount_from_tf: bool,
+}
+
 /// Collects decoded messages and turns them into a [`Recording`].
 #[derive(Debug, Default)]
 pub struct RecordingBuilder {
@@ -440,8 +456,13 @@ impl RecordingBuilder {
         None
     }
 
-    /// The recording; `Err` with a message when there is no scan or no odometry.
-    pub fn finish(self, name: String, options: &RosOptions) -> Result<Recording, String> {
+    /// The recording and what was dropped; `Err` with a message when there is no scan or no
+    /// odometry.
+    pub fn finish(
+        self,
+        name: String,
+        options: &RosOptions,
+    ) -> Result<(Recording, RosStats), String> {
         let (Some(scans), Some(first)) = (self.scans.as_ref(), self.first_scan.as_ref()) else {
             return Err(format!("no LaserScan message on {}", options.scan_topic));
         };
@@ -468,7 +489,9 @@ impl RecordingBuilder {
                 range_max_m: options.range_max_m.unwrap_or(first.range_max),
             }
         };
-        let body_from_lidar = match self.mount() {
+        let mount = self.mount();
+        let mount_from_tf = mount.is_some();
+        let body_from_lidar = match mount {
             Some(m) => m,
             None => {
                 tracing::warn!(
@@ -480,11 +503,19 @@ impl RecordingBuilder {
             }
         };
         let scans = self.scans.unwrap_or_default();
-        let (scans, _) = super::carmen::sort_scans(scans);
+        let scan_messages = scans.len();
+        let (scans, scans_out_of_order) = super::carmen::sort_scans(scans);
         let stamps: Vec<i64> = self.odom.iter().map(|p| p.stamp_ns).collect();
         let keep = super::carmen::longest_increasing(&stamps);
         let odometry = Trajectory::new(keep.iter().map(|&i| self.odom[i]).collect());
-        Ok(Recording {
+        let stats = RosStats {
+            scan_messages,
+            scans_out_of_order,
+            odometry_messages: self.odom.len(),
+            odometry_out_of_order: self.odom.len() - keep.len(),
+            mount_from_tf,
+        };
+        let rec = Recording {
             name,
             odometry,
             imu_yaw: None,
@@ -493,7 +524,8 @@ impl RecordingBuilder {
             body_from_lidar,
             body_from_lidar_per_scan: None,
             ground_truth: None,
-        })
+        };
+        Ok((rec, stats))
     }
 }
 
@@ -669,7 +701,8 @@ mod tests {
                 Pose2::new(0.2, 0.0, std::f64::consts::FRAC_PI_2),
             ),
         ]);
-        let rec = b.finish("t".into(), &RosOptions::default()).unwrap();
+        let (rec, stats) = b.finish("t".into(), &RosOptions::default()).unwrap();
+        assert!(stats.mount_from_tf);
         // base_from_laser = base_from_mast * mast_from_laser: (0.2, 0.1)
         let t = rec.body_from_lidar.translation;
         assert!(
