@@ -104,6 +104,7 @@ fn carmen_malformed_inputs_name_file_and_line() {
             ":2:",
         ),
         ("empty.clf", "# nothing\n", ":0:"),
+        ("zero.clf", "FLASER 0 0 0 0 0 0 0 1.5 h 1.5\n", ":1:"),
     ];
     for (name, text, pos) in cases {
         let p = write(dir.path(), name, text);
@@ -399,4 +400,23 @@ FLASER 2 1.5 2.5 0 0 0 7 6 0.2 2.0 h 2\n";
         (r.rotation[(0, 0)] + 1.0).abs() < 1e-12,
         "rear laser faces backwards"
     );
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(128))]
+    // any jumble of CARMEN-like tokens is read or refused with a position, never a panic
+    #[test]
+    fn carmen_never_panics(tokens in proptest::collection::vec(0usize..14, 0..120)) {
+        const T: [&str; 14] = [
+            "FLASER", "ODOM", "ROBOTLASER1", "RLASER", "PARAM", "robot_frontlaser_offset",
+            "3", "1.5", "-2", "x", "nan", "1e400", "\n", "0",
+        ];
+        let text: Vec<&str> = tokens.iter().map(|&i| T[i]).collect();
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(dir.path(), "fuzz.clf", &text.join(" "));
+        if let Err(e) = read_carmen(&p, &CarmenOptions::default()) {
+            let e = e.to_string();
+            proptest::prop_assert!(e.contains("fuzz.clf:"), "{}", e);
+        }
+    }
 }

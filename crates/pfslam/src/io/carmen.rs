@@ -542,6 +542,9 @@ fn push_scan(
     stamp_ns: i64,
     ranges: &[f32],
 ) -> Result<(), IoError> {
+    if ranges.is_empty() {
+        return Err(IoError::parse(path, line, "laser line with 0 readings"));
+    }
     match geometry {
         Some(prev) if *prev != g => {
             return Err(IoError::parse(

@@ -390,8 +390,12 @@ impl RecordingBuilder {
         RecordingBuilder::default()
     }
 
-    /// Adds a scan; `Err` with a message when its beam count differs from the first scan's.
+    /// Adds a scan; `Err` with a message when it is empty or its beam count differs from the
+    /// first scan's.
     pub fn add_scan(&mut self, msg: ScanMsg) -> Result<(), String> {
+        if msg.ranges.is_empty() {
+            return Err("scan has no range".into());
+        }
         let set = self
             .scans
             .get_or_insert_with(|| ScanSet::new(msg.ranges.len()));
@@ -666,6 +670,17 @@ mod tests {
         assert_eq!(back.child_frame_id, "base_link");
         assert!((back.pose.yaw_rad - 3.0).abs() < 1e-12);
         assert!(Decoder::cdr(&[0, 0, 0, 0]).is_err());
+    }
+
+    proptest::proptest! {
+        // arbitrary bytes never panic the decoders, in either serialisation
+        #[test]
+        fn decoders_never_panic(bytes in proptest::collection::vec(proptest::num::u8::ANY, 0..200), cdr in proptest::bool::ANY) {
+            let mk = || if cdr { Decoder::cdr(&bytes).ok() } else { Some(Decoder::ros1(&bytes)) };
+            if let Some(mut d) = mk() { let _ = decode_scan(&mut d); }
+            if let Some(mut d) = mk() { let _ = decode_odometry(&mut d); }
+            if let Some(mut d) = mk() { let _ = decode_tf(&mut d); }
+        }
     }
 
     #[test]
