@@ -20,7 +20,8 @@ pub struct Args {
     /// Relations file (`t1 t2 x y z roll pitch yaw`): prints the relations metric.
     #[arg(long, value_name = "FILE")]
     pub relations: Option<PathBuf>,
-    /// Print JSON instead of text.
+    /// Print JSON instead of text: one object with `ate` and `rpe` (ground truth) and/or
+    /// `relations`.
     #[arg(long)]
     pub json: bool,
     /// Stamp tolerance (ns). Ground truth: nearest pose within it (default 1000). Relations:
@@ -74,6 +75,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
     };
     let estimate = read_tum(&args.trajectory)?;
+    // with --json, one object holding every metric asked for
+    let mut json = serde_json::Map::new();
     if let Some(gt_path) = &args.ground_truth {
         let gt = read_tum(gt_path)?;
         let pairs = associate(&estimate, &gt, association);
@@ -81,8 +84,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .with_context(|| format!("{} vs {}", args.trajectory.display(), gt_path.display()))?;
         let rpe = rpe_of_pairs(&pairs, delta)?;
         if args.json {
-            let v = serde_json::json!({ "ate": ate, "rpe": rpe });
-            println!("{}", serde_json::to_string_pretty(&v)?);
+            json.insert("ate".into(), serde_json::to_value(&ate)?);
+            json.insert("rpe".into(), serde_json::to_value(&rpe)?);
         } else {
             println!(
                 "associated poses: {} ({} estimate poses without ground truth)",
@@ -125,7 +128,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let r = evaluate_relations(&estimate, &rel, &options)
             .with_context(|| format!("{} vs {}", args.trajectory.display(), rel_path.display()))?;
         if args.json {
-            println!("{}", serde_json::to_string_pretty(&r)?);
+            json.insert("relations".into(), serde_json::to_value(&r)?);
         } else {
             println!(
                 "relations: {} used of {} ({} skipped: a stamp without pose)",
@@ -150,6 +153,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 r.rot_deg.squared.max
             );
         }
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&json)?);
     }
     Ok(())
 }
