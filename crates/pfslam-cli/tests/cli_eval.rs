@@ -202,4 +202,20 @@ fn eval_relations_of_raw_odometry_on_real_data() {
     assert_eq!(v["used"], 1279);
     let mean = v["trans_m"]["abs"]["mean"].as_f64().unwrap();
     assert!((mean - lib.trans_m.abs.mean).abs() < 1e-6, "{mean}");
+    // the recording itself as the trajectory: its raw odometry, the same figures
+    let out = pfslam()
+        .args(["eval", "--relations"])
+        .arg(&rel_path)
+        .arg(dir.join("aces.bag"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(text.contains("raw odometry of"), "{text}");
+    let want = format!("translational error: {:.4} +-", lib.trans_m.abs.mean);
+    assert!(text.contains(&want), "{text}");
 }

@@ -5,6 +5,7 @@ use anyhow::Context;
 use pfslam::eval::relations::{RelationsOptions, evaluate_relations, read_relations};
 use pfslam::eval::rpe::{RpeDelta, rpe_of_pairs};
 use pfslam::eval::{Association, ErrorStats, associate, ate::ate_of_pairs};
+use pfslam::io::recording::{ReaderOptions, detect_format, read_recording};
 use pfslam::io::tum::read_tum;
 use std::path::PathBuf;
 
@@ -12,7 +13,9 @@ use std::path::PathBuf;
 #[derive(Debug, clap::Args)]
 #[command(group(clap::ArgGroup::new("reference").required(true).args(["ground_truth", "relations"])))]
 pub struct Args {
-    /// The estimated trajectory (TUM: `stamp_s x y z qx qy qz qw`).
+    /// The estimated trajectory (TUM: `stamp_s x y z qx qy qz qw`), or a recording (CARMEN
+    /// log, ROS 1 bag, MCAP), whose raw odometry at its scan stamps is then scored: the
+    /// baseline a SLAM result must beat.
     pub trajectory: PathBuf,
     /// Ground-truth trajectory (TUM): prints ATE (aligned and unaligned) and RPE.
     #[arg(long, value_name = "GT.tum")]
@@ -74,7 +77,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             tolerance_ns: args.tolerance_ns.unwrap_or(1_000),
         },
     };
-    let estimate = read_tum(&args.trajectory)?;
+    let estimate = match detect_format(&args.trajectory)? {
+        Some(_) => {
+            let rec = read_recording(&args.trajectory, &ReaderOptions::default())?;
+            let t = pfslam::eval::sample_at(&rec.odometry, &rec.scans.stamps_ns);
+            if !args.json {
+                println!(
+                    "raw odometry of {} at its {} scan stamps ({} inside the odometry's time span)",
+                    args.trajectory.display(),
+                    rec.scans.len(),
+                    t.len()
+                );
+            }
+            t
+        }
+        None => read_tum(&args.trajectory)?,
+    };
     // with --json, one object holding every metric asked for
     let mut json = serde_json::Map::new();
     if let Some(gt_path) = &args.ground_truth {
