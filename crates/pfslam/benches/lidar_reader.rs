@@ -17,7 +17,11 @@ fn generate(dir: &std::path::Path, scans: usize) -> (std::path::PathBuf, u64) {
             state ^= state >> 7;
             state ^= state << 17;
             let mm = (state % 80_000) as f32;
-            *r = if state % 13 == 0 { 0.0 } else { mm / 1000.0 };
+            *r = if state.is_multiple_of(13) {
+                0.0
+            } else {
+                mm / 1000.0
+            };
         }
         set.push(1_544_582_648_735_140_000 + i as i64 * 10_000_000, &row);
     }
