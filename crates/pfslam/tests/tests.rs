@@ -3,4 +3,6 @@
 
 mod common;
 mod eval;
+mod motion;
 mod readers;
+mod ucsd;

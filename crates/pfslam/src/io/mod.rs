@@ -11,6 +11,7 @@ pub mod recording;
 pub mod ros1;
 pub mod ros_msgs;
 pub mod tum;
+pub mod ucsd;
 
 use std::fmt;
 use std::io::Write;

@@ -23,3 +23,5 @@ pub fn ensure_font() {
         );
     });
 }
+
+pub mod plot;
