@@ -174,7 +174,9 @@ fn eval_relations_of_raw_odometry_on_real_data() {
         &pfslam::io::recording::ReaderOptions::default(),
     )
     .unwrap();
-    let traj = pfslam::eval::sample_at(&rec.odometry, &rec.scans.stamps_ns);
+    let traj = pfslam::geometry::Trajectory::new(
+        pfslam::sensors::sync::poses_at_stamps(&rec.odometry, &rec.scans.stamps_ns).0,
+    );
     let tmp = tempfile::tempdir().unwrap();
     let path = tmp.path().join("odometry.tum");
     write_tum(&path, &traj.poses).unwrap();

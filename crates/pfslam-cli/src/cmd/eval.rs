@@ -7,6 +7,7 @@ use pfslam::eval::rpe::{RpeDelta, rpe_of_pairs};
 use pfslam::eval::{Association, ErrorStats, associate, ate::ate_of_pairs};
 use pfslam::io::recording::{ReaderOptions, detect_format, read_recording};
 use pfslam::io::tum::read_tum;
+use pfslam::sensors::sync::poses_at_stamps;
 use std::path::PathBuf;
 
 /// Arguments of `eval`.
@@ -80,16 +81,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let estimate = match detect_format(&args.trajectory)? {
         Some(_) => {
             let rec = read_recording(&args.trajectory, &ReaderOptions::default())?;
-            let t = pfslam::eval::sample_at(&rec.odometry, &rec.scans.stamps_ns);
+            let (poses, clamped) = poses_at_stamps(&rec.odometry, &rec.scans.stamps_ns);
             if !args.json {
                 println!(
-                    "raw odometry of {} at its {} scan stamps ({} inside the odometry's time span)",
+                    "raw odometry of {} at its {} scan stamps ({clamped} outside the odometry's time span, given its first/last pose)",
                     args.trajectory.display(),
                     rec.scans.len(),
-                    t.len()
                 );
             }
-            t
+            pfslam::geometry::Trajectory::new(poses)
         }
         None => read_tum(&args.trajectory)?,
     };
