@@ -197,9 +197,7 @@ pub fn read_carmen(path: &Path, options: &CarmenOptions) -> Result<CarmenLog, Io
     let mut ranges: Vec<f32> = Vec::new();
 
     let mut odom: Vec<StampedPose2> = Vec::new();
-    let mut laser_odom: Vec<StampedPose2> = Vec::new();
-    let mut scans: Option<ScanSet> = None;
-    let mut geometry: Option<LidarGeometry> = None;
+    let mut laser = LaserLines::default();
     let mut robotlaser_mount: Option<Pose2> = None;
     let mut front = LaserMount {
         x_m: 0.0,
@@ -301,19 +299,8 @@ pub fn read_carmen(path: &Path, options: &CarmenOptions) -> Result<CarmenLog, Io
                 let oth = parse_finite_f64(path, line_no, "odom_theta", fields[o + 5])?;
                 let stamp_ns = parse_stamp(path, line_no, "ipc_timestamp", fields[o + 6])?;
                 let g = carmen_geometry(n, options.range_max_m);
-                push_scan(
-                    path,
-                    line_no,
-                    &mut scans,
-                    &mut geometry,
-                    g,
-                    stamp_ns,
-                    &ranges,
-                )?;
-                laser_odom.push(StampedPose2 {
-                    stamp_ns,
-                    pose: Pose2::new(ox, oy, oth),
-                });
+                let odom_pose = Pose2::new(ox, oy, oth);
+                laser.push(path, line_no, g, stamp_ns, odom_pose, &ranges)?;
             }
             "ROBOTLASER1" => {
                 if options.laser != CarmenLaser::Front || saw_flaser {
@@ -361,24 +348,12 @@ pub fn read_carmen(path: &Path, options: &CarmenOptions) -> Result<CarmenLog, Io
                     beam_count: n,
                     range_max_m: options.range_max_m,
                 };
-                push_scan(
-                    path,
-                    line_no,
-                    &mut scans,
-                    &mut geometry,
-                    g,
-                    stamp_ns,
-                    &ranges,
-                )?;
-                let laser = Pose2::new(v[0], v[1], v[2]);
+                let laser_pose = Pose2::new(v[0], v[1], v[2]);
                 let robot = Pose2::new(v[3], v[4], v[5]);
                 if robotlaser_mount.is_none() {
-                    robotlaser_mount = Some(robot.between(&laser));
+                    robotlaser_mount = Some(robot.between(&laser_pose));
                 }
-                laser_odom.push(StampedPose2 {
-                    stamp_ns,
-                    pose: robot,
-                });
+                laser.push(path, line_no, g, stamp_ns, robot, &ranges)?;
             }
             "PARAM" => {
                 if fields.len() < 3 {
@@ -406,6 +381,11 @@ pub fn read_carmen(path: &Path, options: &CarmenOptions) -> Result<CarmenLog, Io
         }
     }
 
+    let LaserLines {
+        scans,
+        geometry,
+        odom: laser_odom,
+    } = laser;
     let Some(scans) = scans else {
         return Err(IoError::parse(
             path,
@@ -533,41 +513,56 @@ fn parse_ranges(
     Ok(())
 }
 
-fn push_scan(
-    path: &Path,
-    line: usize,
-    scans: &mut Option<ScanSet>,
-    geometry: &mut Option<LidarGeometry>,
-    g: LidarGeometry,
-    stamp_ns: i64,
-    ranges: &[f32],
-) -> Result<(), IoError> {
-    if ranges.is_empty() {
-        return Err(IoError::parse(path, line, "laser line with 0 readings"));
-    }
-    match geometry {
-        Some(prev) if *prev != g => {
-            return Err(IoError::parse(
-                path,
-                line,
-                format!(
-                    "laser geometry changes within the log ({} beams from {:.4} rad step {:.6} rad, earlier {} beams from {:.4} step {:.6})",
-                    g.beam_count,
-                    g.angle_min_rad,
-                    g.angle_increment_rad,
-                    prev.beam_count,
-                    prev.angle_min_rad,
-                    prev.angle_increment_rad
-                ),
-            ));
+/// The scans of the chosen laser and the odometry poses embedded in its lines.
+#[derive(Default)]
+struct LaserLines {
+    scans: Option<ScanSet>,
+    geometry: Option<LidarGeometry>,
+    odom: Vec<StampedPose2>,
+}
+
+impl LaserLines {
+    /// Adds one laser line; its geometry must match the first line's.
+    fn push(
+        &mut self,
+        path: &Path,
+        line: usize,
+        g: LidarGeometry,
+        stamp_ns: i64,
+        odom_pose: Pose2,
+        ranges: &[f32],
+    ) -> Result<(), IoError> {
+        if ranges.is_empty() {
+            return Err(IoError::parse(path, line, "laser line with 0 readings"));
         }
-        Some(_) => {}
-        None => *geometry = Some(g),
+        match &self.geometry {
+            Some(prev) if *prev != g => {
+                return Err(IoError::parse(
+                    path,
+                    line,
+                    format!(
+                        "laser geometry changes within the log ({} beams from {:.4} rad step {:.6} rad, earlier {} beams from {:.4} step {:.6})",
+                        g.beam_count,
+                        g.angle_min_rad,
+                        g.angle_increment_rad,
+                        prev.beam_count,
+                        prev.angle_min_rad,
+                        prev.angle_increment_rad
+                    ),
+                ));
+            }
+            Some(_) => {}
+            None => self.geometry = Some(g),
+        }
+        self.scans
+            .get_or_insert_with(|| ScanSet::new(g.beam_count))
+            .push(stamp_ns, ranges);
+        self.odom.push(StampedPose2 {
+            stamp_ns,
+            pose: odom_pose,
+        });
+        Ok(())
     }
-    scans
-        .get_or_insert_with(|| ScanSet::new(g.beam_count))
-        .push(stamp_ns, ranges);
-    Ok(())
 }
 
 #[cfg(test)]
