@@ -363,6 +363,7 @@ fn carmen_robotlaser_rlaser_param() {
     assert_eq!(rec.lidar.beam_count, 3);
     assert_eq!(rec.lidar.angle_min_rad, -0.5);
     assert_eq!(rec.lidar.angle_increment_rad, 0.5);
+    assert!(rec.ground_truth.is_none());
     // the mount from the laser and robot poses of ROBOTLASER1 wins over PARAM
     assert!((rec.body_from_lidar.translation.x - 0.3).abs() < 1e-12);
     // ODOM lines present: they are the odometry
@@ -374,13 +375,17 @@ fn carmen_robotlaser_rlaser_param() {
     let text = "PARAM robot_frontlaser_offset 0.25 h 0\nPARAM robot_rearlaser_offset -0.2 h 0\n\
 FLASER 2 1.0 2.0 0 0 0 5 6 0.1 1.0 h 1\n\
 RLASER 2 3.0 4.0 0 0 0 5 6 0.1 1.1 h 1\n\
-FLASER 2 1.5 2.5 0 0 0 7 6 0.2 2.0 h 2\n";
+FLASER 2 1.5 2.5 0 0 0 7 6 0.2 2.0 h 2\n\
+TRUEPOS 1 2 0.5 7 6 0.2 2.0 h 2\n";
     let p = write(dir.path(), "two.clf", text);
     let front = read_carmen(&p, &CarmenOptions::default()).unwrap();
     assert_eq!(front.recording.scans.len(), 2);
     assert!((front.recording.body_from_lidar.translation.x - 0.25).abs() < 1e-12);
     // odometry from the FLASER lines' odom_x odom_y odom_theta
     assert!(front.stats.odometry_from_laser);
+    let gt = front.recording.ground_truth.as_ref().unwrap();
+    assert_eq!(gt.len(), 1);
+    assert_eq!((gt[0].stamp_ns, gt[0].pose.y_m), (2_000_000_000, 2.0));
     assert_eq!(front.recording.odometry.poses[1].pose.x_m, 7.0);
     // 2 beams over 180 deg
     assert!((front.recording.lidar.angle_increment_rad - std::f64::consts::PI).abs() < 1e-12);

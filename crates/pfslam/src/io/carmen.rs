@@ -1,6 +1,6 @@
 //! CARMEN logs (`.clf`, `.log`, optionally gzipped), read line by line (streaming).
 //!
-//! Messages understood (all others, e.g. `SYNC`, `NEFF`, `TRUEPOS`, `RAWLASER*`, are counted
+//! Messages understood (all others, e.g. `SYNC`, `NEFF`, `RAWLASER*`, are counted
 //! and skipped; `#` lines are comments):
 //! - `ODOM x y theta tv rv accel ipc_timestamp host logger_timestamp`
 //! - `FLASER n r_1..r_n x y theta odom_x odom_y odom_theta ipc_timestamp host logger_timestamp`
@@ -8,6 +8,8 @@
 //! - `ROBOTLASER1 type start_angle fov resolution max_range accuracy remission_mode n r_1..r_n
 //!   m rem_1..rem_m laser_x laser_y laser_theta robot_x robot_y robot_theta tv rv
 //!   forward_safety side_safety turn_axis ipc_timestamp host logger_timestamp`
+//! - `TRUEPOS true_x true_y true_theta odom_x odom_y odom_theta ipc_timestamp host
+//!   logger_timestamp` (simulated logs): becomes the recording's ground truth
 //! - `PARAM name value [host stamp]`: `robot_{front,rear}laser_{offset,side_offset,angular_offset}`
 //!   give the laser mount.
 //!
@@ -91,6 +93,8 @@ pub struct CarmenStats {
     /// Laser lines whose stamp is not above the previous one's (sorted into place; a repeated
     /// stamp is dropped).
     pub laser_out_of_order: usize,
+    /// `TRUEPOS` lines (ground truth of simulated logs).
+    pub truepos_lines: usize,
     /// Lines of other message types (skipped).
     pub other_lines: usize,
     /// True when the odometry came from the poses embedded in laser lines.
@@ -198,6 +202,7 @@ pub fn read_carmen(path: &Path, options: &CarmenOptions) -> Result<CarmenLog, Io
 
     let mut odom: Vec<StampedPose2> = Vec::new();
     let mut laser = LaserLines::default();
+    let mut truepos: Vec<StampedPose2> = Vec::new();
     let mut robotlaser_mount: Option<Pose2> = None;
     let mut front = LaserMount {
         x_m: 0.0,
@@ -355,6 +360,27 @@ pub fn read_carmen(path: &Path, options: &CarmenOptions) -> Result<CarmenLog, Io
                 }
                 laser.push(path, line_no, g, stamp_ns, robot, &ranges)?;
             }
+            "TRUEPOS" => {
+                stats.truepos_lines += 1;
+                if fields.len() < 8 {
+                    return Err(IoError::parse(
+                        path,
+                        line_no,
+                        format!(
+                            "TRUEPOS: expected 9 fields (true_x true_y true_theta odom_x odom_y odom_theta ipc_timestamp host logger_timestamp), found {}",
+                            fields.len() - 1
+                        ),
+                    ));
+                }
+                let x = parse_finite_f64(path, line_no, "TRUEPOS true_x", fields[1])?;
+                let y = parse_finite_f64(path, line_no, "TRUEPOS true_y", fields[2])?;
+                let th = parse_finite_f64(path, line_no, "TRUEPOS true_theta", fields[3])?;
+                let stamp_ns = parse_stamp(path, line_no, "TRUEPOS ipc_timestamp", fields[7])?;
+                truepos.push(StampedPose2 {
+                    stamp_ns,
+                    pose: Pose2::new(x, y, th),
+                });
+            }
             "PARAM" => {
                 if fields.len() < 3 {
                     continue;
@@ -439,7 +465,13 @@ pub fn read_carmen(path: &Path, options: &CarmenOptions) -> Result<CarmenLog, Io
         lidar,
         body_from_lidar,
         body_from_lidar_per_scan: None,
-        ground_truth: None,
+        ground_truth: (!truepos.is_empty()).then(|| {
+            let stamps: Vec<i64> = truepos.iter().map(|p| p.stamp_ns).collect();
+            longest_increasing(&stamps)
+                .iter()
+                .map(|&i| truepos[i])
+                .collect()
+        }),
     };
     Ok(CarmenLog { recording, stats })
 }
