@@ -2,6 +2,6 @@
 //! area.
 
 mod common;
+mod map;
 mod motion;
 mod ucsd;
-mod map;
