@@ -4,4 +4,5 @@
 mod common;
 mod map;
 mod motion;
+mod sim;
 mod ucsd;
