@@ -3,6 +3,8 @@
 
 mod common;
 mod eval;
+mod map;
 mod motion;
 mod readers;
+mod sim;
 mod ucsd;
