@@ -1,5 +1,7 @@
 //! End-to-end tests of the `pfslam` binary.
 
+mod cli_simulate;
+
 use std::process::Command;
 
 fn pfslam() -> Command {

@@ -34,7 +34,7 @@ pub enum SimError {
     #[error(transparent)]
     Io(#[from] crate::io::IoError),
     /// No built-in world has this name.
-    #[error("unknown built-in world {0:?} (known: campus, office)")]
+    #[error("{0:?} is neither a built-in world (campus, office) nor an existing world file")]
     UnknownWorld(String),
     /// The route cannot be driven.
     #[error("bad route: {0}")]
@@ -441,6 +441,45 @@ impl HumanoidSimOptions {
         }
         Ok(())
     }
+}
+
+/// `N` independent random streams: `base`, then each the previous one jumped by 2^128 steps.
+pub(crate) fn jumped_streams<const N: usize>(
+    base: rand_xoshiro::Xoshiro256PlusPlus,
+) -> [rand_xoshiro::Xoshiro256PlusPlus; N] {
+    let v = jumped_stream_vec(base, N);
+    std::array::from_fn(|i| v[i].clone())
+}
+
+/// `n` independent random streams (one per parallel block), as [`jumped_streams`].
+pub(crate) fn jumped_stream_vec(
+    base: rand_xoshiro::Xoshiro256PlusPlus,
+    n: usize,
+) -> Vec<rand_xoshiro::Xoshiro256PlusPlus> {
+    let mut r = base;
+    (0..n)
+        .map(|_| {
+            let out = r.clone();
+            r.jump();
+            out
+        })
+        .collect()
+}
+
+/// Writes what every simulated recording has: `ground_truth.tum`, `true_map.{png,pgm,yaml}`,
+/// `world.world` and `sim.toml`.
+pub(crate) fn write_truth(
+    dir: &std::path::Path,
+    ground_truth: &[crate::geometry::StampedPose2],
+    true_map: &TrueMap,
+    world_text: &str,
+    options: &SimOptions,
+) -> Result<(), SimError> {
+    crate::io::tum::write_tum(&dir.join("ground_truth.tum"), ground_truth)?;
+    true_map.write(dir, "true_map")?;
+    crate::io::write_bytes_atomic(&dir.join("world.world"), world_text.as_bytes())?;
+    crate::io::write_bytes_atomic(&dir.join("sim.toml"), sim_toml(options)?.as_bytes())?;
+    Ok(())
 }
 
 /// A standard normal sample.

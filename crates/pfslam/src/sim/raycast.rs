@@ -257,6 +257,82 @@ impl RayCaster {
     }
 }
 
+/// Beam label: no return.
+pub const BEAM_NONE: u8 = 0;
+/// Beam label: hit an obstacle.
+pub const BEAM_OBSTACLE: u8 = 1;
+/// Beam label: hit the ground (floor).
+pub const BEAM_FLOOR: u8 = 2;
+
+/// Errors applied to every beam of a simulated scan.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct BeamErrors {
+    /// Range noise (m, standard deviation).
+    pub(crate) range_noise_std_m: f64,
+    /// Probability that a return is lost (0.0).
+    pub(crate) dropout_prob: f64,
+    /// Probability that a beam reads the maximum range ("no return").
+    pub(crate) max_range_prob: f64,
+}
+
+/// Casts one scan: unit beam directions `beams` in the sensor frame, from
+/// `world_from_sensor`. Writes ranges (f32 m, 0.0 = no return, with the errors) and, when
+/// given, what each beam truly hit ([`BEAM_NONE`], [`BEAM_OBSTACLE`], [`BEAM_FLOOR`]; the label
+/// is the truth even when the return was dropped).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn cast_scan(
+    caster: &RayCaster,
+    world_from_sensor: &crate::geometry::Rigid3,
+    beams: &[nalgebra::Vector3<f64>],
+    max_range_m: f64,
+    err: &BeamErrors,
+    rng: &mut rand_xoshiro::Xoshiro256PlusPlus,
+    ranges: &mut [f32],
+    mut labels: Option<&mut [u8]>,
+) {
+    use rand::RngExt;
+    let t = &world_from_sensor.translation;
+    let o = [t[0], t[1], t[2]];
+    for (k, (b, out)) in beams.iter().zip(ranges.iter_mut()).enumerate() {
+        let d = world_from_sensor.rotation * b;
+        let hit = caster.cast(o, [d[0], d[1], d[2]], max_range_m);
+        if let Some(l) = labels.as_deref_mut() {
+            l[k] = match hit {
+                None => BEAM_NONE,
+                Some(Hit {
+                    kind: HitKind::Ground,
+                    ..
+                }) => BEAM_FLOOR,
+                Some(_) => BEAM_OBSTACLE,
+            };
+        }
+        let mut range = hit.map_or(0.0, |h| h.range_m);
+        if range > 0.0 {
+            if err.range_noise_std_m > 0.0 {
+                range = (range + err.range_noise_std_m * super::normal(rng))
+                    .clamp(0.001, max_range_m - 1e-3);
+            }
+            if err.dropout_prob > 0.0 && rng.random::<f64>() < err.dropout_prob {
+                range = 0.0;
+            }
+        }
+        if err.max_range_prob > 0.0 && rng.random::<f64>() < err.max_range_prob {
+            range = max_range_m;
+        }
+        *out = range as f32;
+    }
+}
+
+/// Unit beam directions of a planar scanner in its own frame.
+pub(crate) fn beam_directions(geom: &crate::sensors::LidarGeometry) -> Vec<nalgebra::Vector3<f64>> {
+    (0..geom.beam_count)
+        .map(|i| {
+            let a = geom.beam_angle_rad(i);
+            nalgebra::Vector3::new(a.cos(), a.sin(), 0.0)
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

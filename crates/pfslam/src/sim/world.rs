@@ -240,6 +240,8 @@ impl World {
     pub fn from_name_or_file(name_or_path: &str) -> Result<World, SimError> {
         if BUILTIN_WORLDS.contains(&name_or_path) {
             World::builtin(name_or_path)
+        } else if !Path::new(name_or_path).exists() {
+            Err(SimError::UnknownWorld(name_or_path.to_string()))
         } else {
             World::from_file(Path::new(name_or_path))
         }
