@@ -57,6 +57,15 @@ fn bench(c: &mut Criterion) {
     proj.to_body(&ranges, &mut body).unwrap();
     to_world(&body, &pose, &mut world);
     assert_eq!(world.points.len(), 286);
+    let st = grid()
+        .insert_scan(&world, &mut InsertScratch::new())
+        .unwrap();
+    eprintln!(
+        "street scan: {} rays, {} cells updated ({} occupied)",
+        st.rays,
+        st.occupied_cells + st.free_cells,
+        st.occupied_cells
+    );
 
     let mut group = c.benchmark_group("insert");
     group.throughput(Throughput::Elements(world.points.len() as u64));
