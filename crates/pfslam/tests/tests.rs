@@ -2,7 +2,9 @@
 //! area.
 
 mod common;
+mod eval;
 mod map;
 mod motion;
+mod readers;
 mod sim;
 mod ucsd;

@@ -2,5 +2,7 @@
 
 pub mod dead_reckon;
 pub mod demo;
+pub mod eval;
+pub mod map;
 pub mod print_config;
 pub mod simulate;
