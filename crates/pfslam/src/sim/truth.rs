@@ -5,7 +5,9 @@
 //! footprint of an obstacle whose vertical extent `[z_min, z_max]` intersects the LiDAR's
 //! scanning band `[band_min, band_max]` (options `truth_band_min_m`, `truth_band_max_m`):
 //! those are the obstacles a horizontal-ish scanner at that height range can hit and a 2-D
-//! SLAM map can show. Everything else (ground, obstacles entirely below or above the band) is
+//! SLAM map can show. Defaults: car 1.7-4 m (the LiDAR is at 1.76 m and its beams run level
+//! sideways and rise forwards, so lower obstacles such as parked cars are overflown, not
+//! hit); humanoid 0.2-2 m (walls, furniture; the floor is never in the map). Everything else (ground, obstacles entirely below or above the band) is
 //! free. Footprints are filled: the SLAM map only ever sees their outlines, so compare
 //! boundaries (or "occupied cells near a true occupied cell"), not interiors.
 
