@@ -43,7 +43,7 @@ pub fn resample<R: Rng + ?Sized>(
         return;
     }
     let total: f64 = weights.iter().sum();
-    if !(total.is_finite() && total > 0.0) || weights.iter().any(|w| !(*w >= 0.0)) {
+    if !(total.is_finite() && total > 0.0) || weights.iter().any(|w| w.is_nan() || *w < 0.0) {
         out.extend(0..n);
         return;
     }
