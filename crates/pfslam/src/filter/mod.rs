@@ -10,6 +10,7 @@
 //!   [`ParticleMaps`], so one shared map (the seeds) and per-particle maps fit the same code.
 
 pub mod correlate;
+pub mod odometry;
 pub mod particles;
 pub mod resample;
 pub mod rng;
