@@ -100,18 +100,18 @@ pub fn field_docs() -> Vec<FieldDoc> {
                 current = t.ends_with('{').then_some(name);
             } else if t == "}" {
                 current = None;
-            } else if let (Some(s), Some(rest)) = (&current, t.strip_prefix("pub ")) {
-                if let Some((field, ty)) = rest.split_once(':') {
-                    let ty = ty.trim().trim_end_matches(',');
-                    let base = ty.split('<').next().unwrap_or(ty);
-                    let type_name = base.rsplit("::").next().unwrap_or(base).trim();
-                    out.push(FieldDoc {
-                        struct_name: s.clone(),
-                        field: field.trim().to_string(),
-                        type_name: type_name.to_string(),
-                        doc: std::mem::take(&mut pending),
-                    });
-                }
+            } else if let (Some(s), Some(rest)) = (&current, t.strip_prefix("pub "))
+                && let Some((field, ty)) = rest.split_once(':')
+            {
+                let ty = ty.trim().trim_end_matches(',');
+                let base = ty.split('<').next().unwrap_or(ty);
+                let type_name = base.rsplit("::").next().unwrap_or(base).trim();
+                out.push(FieldDoc {
+                    struct_name: s.clone(),
+                    field: field.trim().to_string(),
+                    type_name: type_name.to_string(),
+                    doc: std::mem::take(&mut pending),
+                });
             }
             pending.clear();
         }
