@@ -182,15 +182,24 @@ impl ParticleFilter {
     where
         F: Fn(&mut Pose2, &mut Xoshiro256PlusPlus) + Sync,
     {
+        self.predict_chunks(|poses, rng| {
+            for p in poses {
+                step(p, rng);
+            }
+        });
+    }
+
+    /// Runs `work(chunk, rng)` on each fixed chunk of [`CHUNK_PARTICLES`] particle poses with
+    /// that chunk's random stream, in parallel; results do not depend on the thread count.
+    pub fn predict_chunks<F>(&mut self, work: F)
+    where
+        F: Fn(&mut [Pose2], &mut Xoshiro256PlusPlus) + Sync,
+    {
         self.particles
             .poses
             .par_chunks_mut(CHUNK_PARTICLES)
             .zip(self.rng.chunks.par_iter_mut())
-            .for_each(|(poses, rng)| {
-                for p in poses {
-                    step(p, rng);
-                }
-            });
+            .for_each(|(poses, rng)| work(poses, rng));
     }
 
     /// Correlates every particle's view of `points_body` with its map over `search`, moves it
