@@ -7,37 +7,16 @@
 //! floating point.
 
 use crate::geometry::Pose2;
-
-/// Where cell `(0, 0)` lies and how large cells are: world <-> cell for the correlation.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct CellFrame {
-    /// World x of the lower-left corner of cell (0, 0) (m).
-    pub origin_x_m: f64,
-    /// World y of the lower-left corner of cell (0, 0) (m).
-    pub origin_y_m: f64,
-    /// Cell edge (m).
-    pub resolution_m: f64,
-}
-
-impl CellFrame {
-    /// The cell containing world point `(x_m, y_m)`.
-    #[inline]
-    pub fn cell_of(&self, x_m: f64, y_m: f64) -> [i32; 2] {
-        [
-            ((x_m - self.origin_x_m) / self.resolution_m).floor() as i32,
-            ((y_m - self.origin_y_m) / self.resolution_m).floor() as i32,
-        ]
-    }
-}
+use crate::map::{Cell, MapLimits};
 
 /// What the correlation needs of a map: its cell frame and which cells are occupied. Cells
 /// outside the map are free. Implemented by the occupancy grid; a per-particle map policy
 /// hands each particle its own.
 pub trait OccupancyLookup: Sync {
     /// World <-> cell.
-    fn cell_frame(&self) -> CellFrame;
-    /// True when cell `(cell_x, cell_y)` is believed occupied.
-    fn is_occupied(&self, cell_x: i32, cell_y: i32) -> bool;
+    fn cell_limits(&self) -> MapLimits;
+    /// True when `cell` is believed occupied.
+    fn occupied(&self, cell: Cell) -> bool;
 }
 
 /// The search space around a particle.
@@ -61,7 +40,7 @@ pub struct ScanMatch {
 /// Caller-owned buffers of [`best_match`], reused across particles.
 #[derive(Debug, Clone, Default)]
 pub struct CorrelationScratch {
-    cells: Vec<[i32; 2]>,
+    cells: Vec<Cell>,
     scores: Vec<u32>,
 }
 
@@ -72,13 +51,12 @@ pub fn correlation<M: OccupancyLookup + ?Sized>(
     points_body: &[[f64; 2]],
     world_from_body: &Pose2,
 ) -> u32 {
-    let frame = map.cell_frame();
+    let frame = map.cell_limits();
     points_body
         .iter()
         .map(|p| {
             let (x, y) = world_from_body.transform_point(p[0], p[1]);
-            let [cx, cy] = frame.cell_of(x, y);
-            u32::from(map.is_occupied(cx, cy))
+            u32::from(map.occupied(frame.cell_of(x, y)))
         })
         .sum()
 }
@@ -94,7 +72,7 @@ pub fn best_match<M: OccupancyLookup + ?Sized>(
     search: &CorrelationSearch,
     scratch: &mut CorrelationScratch,
 ) -> ScanMatch {
-    let frame = map.cell_frame();
+    let frame = map.cell_limits();
     let r = search.xy_radius_cells.max(0);
     let side = (2 * r + 1) as usize;
     // (score, -|yaw index|, -(dx^2 + dy^2)) compared lexicographically.
@@ -118,11 +96,11 @@ pub fn best_match<M: OccupancyLookup + ?Sized>(
         }));
         scratch.scores.clear();
         scratch.scores.resize(side * side, 0);
-        for &[cx, cy] in &scratch.cells {
+        for &Cell { i: cx, j: cy } in &scratch.cells {
             for (iy, dy) in (-r..=r).enumerate() {
                 let row = &mut scratch.scores[iy * side..(iy + 1) * side];
                 for (slot, dx) in row.iter_mut().zip(-r..=r) {
-                    *slot += u32::from(map.is_occupied(cx + dx, cy + dy));
+                    *slot += u32::from(map.occupied(Cell::new(cx + dx, cy + dy)));
                 }
             }
         }
@@ -134,8 +112,8 @@ pub fn best_match<M: OccupancyLookup + ?Sized>(
                 let key = (score, yaw_rank, -i64::from(dx * dx + dy * dy));
                 if best.as_ref().is_none_or(|(k, _)| key > *k) {
                     let moved = Pose2::new(
-                        pose.x_m + f64::from(dx) * frame.resolution_m,
-                        pose.y_m + f64::from(dy) * frame.resolution_m,
+                        pose.x_m + f64::from(dx) * frame.resolution_m(),
+                        pose.y_m + f64::from(dy) * frame.resolution_m(),
                         pose.yaw_rad,
                     );
                     best = Some((key, moved));
@@ -158,27 +136,24 @@ mod tests {
 
     /// A dense test grid.
     struct Dense {
-        frame: CellFrame,
+        frame: MapLimits,
         w: i32,
         h: i32,
         occ: Vec<bool>,
     }
 
     impl OccupancyLookup for Dense {
-        fn cell_frame(&self) -> CellFrame {
+        fn cell_limits(&self) -> MapLimits {
             self.frame
         }
-        fn is_occupied(&self, x: i32, y: i32) -> bool {
+        fn occupied(&self, c: Cell) -> bool {
+            let (x, y) = (c.i, c.j);
             x >= 0 && y >= 0 && x < self.w && y < self.h && self.occ[(y * self.w + x) as usize]
         }
     }
 
     fn room() -> (Dense, Vec<[f64; 2]>) {
-        let frame = CellFrame {
-            origin_x_m: -10.0,
-            origin_y_m: -10.0,
-            resolution_m: 0.1,
-        };
+        let frame = MapLimits::new(0.1, -10.0, -10.0);
         let (w, h) = (200, 200);
         let mut occ = vec![false; (w * h) as usize];
         let mut pts = Vec::new();
@@ -190,8 +165,8 @@ mod tests {
         }
         pts.push([2.05, -2.05]);
         for p in &pts {
-            let [cx, cy] = frame.cell_of(p[0], p[1]);
-            occ[(cy * w + cx) as usize] = true;
+            let c = frame.cell_of(p[0], p[1]);
+            occ[(c.j * w + c.i) as usize] = true;
         }
         (Dense { frame, w, h, occ }, pts)
     }

@@ -14,8 +14,10 @@ pub mod odometry;
 pub mod particles;
 pub mod resample;
 pub mod rng;
+pub mod slam;
 pub mod weights;
 
+use crate::config::Config;
 use crate::geometry::Pose2;
 use correlate::{CorrelationScratch, CorrelationSearch, OccupancyLookup, ScanMatch};
 use particles::ParticleSet;
@@ -125,6 +127,14 @@ pub trait ParticleMaps: Sync {
     type Map: OccupancyLookup + ?Sized;
     /// The map of particle `i`.
     fn map_of(&self, i: usize) -> &Self::Map;
+}
+
+/// The noisy motion model `[filter] motion_model` selects, with the noise of `[motion]`.
+pub fn motion_model(config: &Config) -> Result<Box<dyn slam::MotionModel>, slam::SlamError> {
+    let _ = config;
+    Err(slam::SlamError::Motion(
+        "the motion models are not merged yet".to_string(),
+    ))
 }
 
 /// One map for all particles (the seeds' behaviour).
