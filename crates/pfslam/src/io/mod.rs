@@ -4,6 +4,7 @@
 //! and the problem; every writer writes to a temporary file in the target directory and renames
 //! it into place ([`write_atomic`]), so a failed or interrupted run leaves no half-written file.
 
+pub mod carmen;
 pub mod opencv_yaml;
 pub mod tum;
 
