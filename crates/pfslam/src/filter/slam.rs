@@ -217,7 +217,14 @@ pub fn run_slam(
     let motion = super::motion_model(config)?;
     let grid = OccupancyGrid::new(&config.map)?;
     let mut policy = BestParticleMap::new(grid);
-    run_slam_with(recording, config, seed, motion.as_ref(), &mut policy, observer)
+    run_slam_with(
+        recording,
+        config,
+        seed,
+        motion.as_ref(),
+        &mut policy,
+        observer,
+    )
 }
 
 /// [`run_slam`] with an explicit motion model and map policy.
@@ -247,15 +254,19 @@ pub fn run_slam_with<P: MapPolicy>(
     {
         return Err(input_err("per-scan LiDAR mounts do not match the scans"));
     }
-    let Some(first) = (0..total).find(|&i| recording.odometry.pose_at(scans.stamps_ns[i]).is_some())
+    let Some(first) =
+        (0..total).find(|&i| recording.odometry.pose_at(scans.stamps_ns[i]).is_some())
     else {
         return Err(input_err("no scan lies within the odometry's time span"));
     };
     let mut cursor = OdometryCursor::new(&recording.odometry, scans.stamps_ns[first])
         .ok_or_else(|| input_err("no odometry at the first scan"))?;
     let start = cursor.current().pose;
-    let mut projector =
-        ScanProjector::new(&recording.lidar, &recording.body_from_lidar, &config.map.scan)?;
+    let mut projector = ScanProjector::new(
+        &recording.lidar,
+        &recording.body_from_lidar,
+        &config.map.scan,
+    )?;
     let search: CorrelationSearch = opts.search();
     let mut pf = ParticleFilter::new(opts.particles, start, seed);
     let mut stats = SlamStats {
@@ -290,7 +301,7 @@ pub fn run_slam_with<P: MapPolicy>(
         }
         stats.timings.predict_s += t.elapsed().as_secs_f64();
         let k = i - first;
-        let estimate = if k % opts.update_every_scans == 0 {
+        let estimate = if k.is_multiple_of(opts.update_every_scans) {
             let t = Instant::now();
             if recording.body_from_lidar_per_scan.is_some() {
                 projector.set_mount(&recording.lidar, recording.body_from_lidar_at(i));
@@ -339,10 +350,13 @@ pub fn run_slam_with<P: MapPolicy>(
         dead_reckoning.push(odom);
         stats.scans_processed += 1;
         let done = i + 1;
-        if done % progress_every == 0 || done == total {
+        if done.is_multiple_of(progress_every) || done == total {
             observer(SlamEvent::Progress { done, total });
         }
-        if opts.snapshot_every_scans > 0 && stats.scans_processed % opts.snapshot_every_scans == 0
+        if opts.snapshot_every_scans > 0
+            && stats
+                .scans_processed
+                .is_multiple_of(opts.snapshot_every_scans)
         {
             observer(SlamEvent::Snapshot {
                 scans_done: done,
@@ -372,7 +386,11 @@ pub fn run_slam_with<P: MapPolicy>(
 impl ParticleFilter {
     /// Applies the odometry steps `(from, to)` in order to every particle with `motion`, in
     /// parallel over fixed chunks (deterministic for any thread count).
-    pub fn predict_steps(&mut self, steps: &[(StampedPose2, StampedPose2)], motion: &dyn MotionModel) {
+    pub fn predict_steps(
+        &mut self,
+        steps: &[(StampedPose2, StampedPose2)],
+        motion: &dyn MotionModel,
+    ) {
         self.predict_chunks(|poses, rng| {
             for (from, to) in steps {
                 for p in poses.iter_mut() {
@@ -382,4 +400,3 @@ impl ParticleFilter {
         });
     }
 }
-
