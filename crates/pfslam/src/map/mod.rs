@@ -7,13 +7,16 @@
 //! (centre at `+0.5`), `i` along world x, `j` along world y, both unbounded (negative indices
 //! are fine). Log-odds are stored in fixed point (`i16`, 1/256 units); a never-written cell is
 //! 0 (p = 0.5, unknown). Occupied when `p >= occupied_prob`, free when `p <= free_prob`.
-
+pub mod binary;
+pub mod compare;
 pub mod grid;
 pub mod limits;
 pub mod logodds;
 pub mod ray;
 pub mod scan;
 
+pub use binary::BinaryMap;
+pub use compare::{MapComparison, compare_maps};
 pub use grid::{InsertScratch, InsertStats, OccupancyGrid, TILE_SIZE};
 pub use limits::{Cell, CellRect, MapLimits};
 pub use logodds::{CellState, FixedLogOdds, LogOddsParams, LogOddsPreset, logit, sigmoid};
