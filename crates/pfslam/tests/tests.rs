@@ -3,4 +3,6 @@
 
 mod common;
 mod filter;
+mod motion;
 mod readers;
+mod ucsd;

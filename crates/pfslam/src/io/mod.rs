@@ -8,6 +8,7 @@ pub mod carmen;
 pub mod map_files;
 pub mod opencv_yaml;
 pub mod tum;
+pub mod ucsd;
 
 use std::fmt;
 use std::io::Write;
