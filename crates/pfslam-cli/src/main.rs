@@ -31,6 +31,8 @@ pub enum Command {
     Simulate(cmd::simulate::Args),
     /// Print the full default configuration as TOML.
     PrintConfig(cmd::print_config::Args),
+    /// Accuracy of a trajectory: ATE/RPE against ground truth, or the relations metric.
+    Eval(cmd::eval::Args),
 }
 
 /// Runs the CLI on already-parsed arguments.
@@ -42,6 +44,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::DeadReckon(a)) => cmd::dead_reckon::run(a),
         Some(Command::PrintConfig(a)) => cmd::print_config::run(a),
         Some(Command::Simulate(a)) => cmd::simulate::run(a),
+        Some(Command::Eval(a)) => cmd::eval::run(a),
     }
 }
 

@@ -2,6 +2,7 @@
 //! area.
 
 mod common;
+mod eval;
 mod filter;
 mod motion;
 mod readers;

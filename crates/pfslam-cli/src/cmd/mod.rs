@@ -2,5 +2,6 @@
 
 pub mod dead_reckon;
 pub mod demo;
+pub mod eval;
 pub mod print_config;
 pub mod simulate;

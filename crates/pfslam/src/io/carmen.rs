@@ -31,10 +31,11 @@
 //!   ahead and the following ones continue from before the jump). We keep the longest
 //!   subsequence of messages whose stamps strictly increase in file order (longest increasing
 //!   subsequence) and drop the others, which removes each wrong stamp and every duplicate
-//!   stamp (the first of equal stamps is kept). `ODOM` lines whose stamp is 0 once rounded to the
+//!   stamp (the first of equal stamps is kept). The benchmark's relations name scans by their
+//!   stamps, so scans are all kept and sorted by stamp instead (stable; a scan whose stamp
+//!   repeats an earlier one is dropped). `ODOM` lines whose stamp is 0 once rounded to the
 //!   nanosecond are dropped first: corrected logs write the corrected pose of each keyframe as
-//!   an `ODOM` line with stamp `0` (or garbage like `1e-42`), which is not odometry. The same rule orders the scans. [`CarmenStats`] counts what
-//!   was dropped.
+//!   an `ODOM` line with stamp `0` (or garbage like `1e-42`), which is not odometry. [`CarmenStats`] counts what was dropped or moved.
 
 use super::tum::parse_stamp_ns;
 use super::{IoError, parse_finite_f64};
@@ -87,7 +88,7 @@ pub struct CarmenStats {
     pub odom_out_of_order: usize,
     /// Laser lines of the chosen laser.
     pub laser_lines: usize,
-    /// Laser lines dropped because their stamp is out of order or repeated.
+    /// Laser lines whose stamp is out of order (moved by sorting) or repeated (dropped).
     pub laser_out_of_order: usize,
     /// Lines of other message types (skipped).
     pub other_lines: usize,
@@ -144,6 +145,30 @@ pub(crate) fn longest_increasing(stamps: &[i64]) -> Vec<usize> {
     }
     out.reverse();
     out
+}
+
+/// Scans sorted by stamp (stable; of scans with equal stamps the first is kept) and the
+/// number of scans that were out of order or dropped as duplicates.
+pub(crate) fn sort_scans(scans: ScanSet) -> (ScanSet, usize) {
+    if scans.stamps_ns.windows(2).all(|w| w[0] < w[1]) {
+        return (scans, 0);
+    }
+    let mut order: Vec<usize> = (0..scans.len()).collect();
+    order.sort_by_key(|&i| scans.stamps_ns[i]);
+    let mut out = ScanSet::new(scans.beam_count);
+    let mut changed = 0;
+    for (k, &i) in order.iter().enumerate() {
+        let s = scans.stamps_ns[i];
+        if out.stamps_ns.last() == Some(&s) {
+            changed += 1;
+            continue;
+        }
+        if i != k {
+            changed += 1;
+        }
+        out.push(s, scans.ranges(i));
+    }
+    (out, changed)
 }
 
 /// Opens a possibly gzipped text file for buffered reading (gzip detected by its magic bytes).
@@ -397,18 +422,8 @@ pub fn read_carmen(path: &Path, options: &CarmenOptions) -> Result<CarmenLog, Io
     };
     let lidar = geometry.unwrap_or_else(|| carmen_geometry(scans.beam_count, options.range_max_m));
 
-    // Scans: keep the longest run of increasing stamps.
-    let keep = longest_increasing(&scans.stamps_ns);
-    stats.laser_out_of_order = scans.len() - keep.len();
-    let scans = if keep.len() == scans.len() {
-        scans
-    } else {
-        let mut s = ScanSet::new(scans.beam_count);
-        for &i in &keep {
-            s.push(scans.stamps_ns[i], scans.ranges(i));
-        }
-        s
-    };
+    let (scans, moved) = sort_scans(scans);
+    stats.laser_out_of_order = moved;
 
     let odometry_src = if odom.is_empty() {
         stats.odometry_from_laser = true;

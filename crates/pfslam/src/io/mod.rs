@@ -7,6 +7,8 @@
 pub mod carmen;
 pub mod map_files;
 pub mod opencv_yaml;
+pub mod ros1;
+pub mod ros_msgs;
 pub mod tum;
 pub mod ucsd;
 
