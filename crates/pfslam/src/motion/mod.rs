@@ -8,6 +8,7 @@
 //! per wheel with its own diameter; the car's distance is the mean of the two wheels.
 
 pub mod dead_reckoning;
+pub mod odometry_model;
 
 pub use dead_reckoning::{OdometryStep, car_recording, dead_reckon, odometry_steps};
 
