@@ -426,3 +426,158 @@ fn correlation_search_recovers_a_perturbed_pose() {
         assert!(err.yaw_rad.abs() < 1e-9, "{err:?}");
     }
 }
+
+// ---------------------------------------------------------------------------------------
+// The simulated car.
+// ---------------------------------------------------------------------------------------
+
+struct SimRun {
+    slam_ate_m: f64,
+    dr_ate_m: f64,
+    precision: f64,
+    recall: f64,
+    result: pfslam::filter::slam::SlamResult,
+}
+
+fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> SimRun {
+    use pfslam::filter::slam::{anchor_odometry_to_ground_truth, run_slam, true_map_as_binary};
+    use pfslam::sim::{SimOptions, World, simulate_car};
+    let mut opts = SimOptions {
+        duration_s,
+        ..SimOptions::default()
+    };
+    if let Some(b) = std::env::var("PF_BAND").ok().and_then(|v| v.parse().ok()) {
+        opts.truth_band_max_m = b;
+    }
+    if std::env::var("PF_NOISEFREE").is_ok() {
+        opts.car = pfslam::sim::CarSimOptions::noise_free();
+    }
+    let world = World::builtin(opts.world_name()).unwrap();
+    let out = simulate_car(&world, &opts).unwrap();
+    let mut rec =
+        pfslam::motion::car_recording(&out.dataset, &config.motion, "sim-campus").unwrap();
+    rec.ground_truth = Some(out.ground_truth.clone());
+    assert!(anchor_odometry_to_ground_truth(&mut rec));
+    let result = run_slam(&rec, config, seed, &mut |_| {}).unwrap();
+    let gt = &out.ground_truth;
+    let truth = true_map_as_binary(&out.true_map);
+    if std::env::var("PF_GTMAP").is_ok() {
+        let gt_traj = pfslam::geometry::Trajectory::new(gt.clone());
+        let mut mo = config.map.clone();
+        mo.scan_step = config.filter.update_every_scans;
+        let (g, _, _) = pfslam::map::map_with_poses(&rec, &gt_traj, &mo).unwrap();
+        let c = pfslam::map::compare_maps(&g.to_binary_map(None), &truth, 1).unwrap();
+        eprintln!("GT-POSE MAP precision {:.3} recall {:.3} recall_all {:.3}", c.precision(), c.recall(), c.recall_all());
+    }
+    let est = result.map.to_binary_map(None);
+    let cmp = pfslam::map::compare_maps(&est, &truth, 1).unwrap();
+    SimRun {
+        slam_ate_m: ate_rmse(&result.trajectory, gt),
+        dr_ate_m: ate_rmse(&result.dead_reckoning, gt),
+        precision: cmp.precision(),
+        recall: cmp.recall(),
+        result,
+    }
+}
+
+#[test]
+fn simulated_car_slam() {
+    let config = pfslam::config::Config::default();
+    let r = sim_car_slam(60.0, &config, 1);
+    eprintln!(
+        "simulated car (60 s): ATE RMSE slam {:.3} m, dead reckoning {:.3} m, map precision {:.3} recall {:.3}; {:?}",
+        r.slam_ate_m, r.dr_ate_m, r.precision, r.recall, r.result.stats
+    );
+    assert!(r.slam_ate_m * 5.0 < r.dr_ate_m);
+    assert!(r.precision >= 0.9 && r.recall >= 0.9);
+}
+
+/// Exploration helper (ignored): `PF_DUR`, `PF_N`, `PF_T`, `PF_NOISE` (0/1/2/3 = off/Table 1),
+/// `PF_K`, `PF_R` (search radius), `PF_YAW` (deg step), `PF_RES`.
+#[test]
+#[ignore]
+fn explore_sim() {
+    let env = |k: &str, d: f64| {
+        std::env::var(k)
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(d)
+    };
+    let mut config = pfslam::config::Config::default();
+    config.filter.particles = env("PF_N", 40.0) as usize;
+    config.filter.temperature = env("PF_T", 10.0);
+    config.filter.update_every_scans = env("PF_K", 5.0) as usize;
+    config.filter.xy_search_radius_cells = env("PF_R", 4.0) as u32;
+    let y = env("PF_YAW", 0.5);
+    config.filter.yaw_offsets_deg = if y > 0.0 { vec![-y, 0.0, y] } else { vec![0.0] };
+    config.map.resolution_m = env("PF_RES", 0.1);
+    config.filter.move_to_best_offset = env("PF_MOVE", 1.0) > 0.5;
+    let zmin = env("PF_ZMIN", -1e9);
+    if zmin > -1e8 {
+        config.map.scan.z_min_m = Some(zmin);
+    }
+    config.motion.noise = match env("PF_NOISE", 1.0) as u32 {
+        0 => pfslam::motion::VelocityNoise::OFF,
+        2 => pfslam::motion::VelocityNoise::seed_iteration_2(),
+        3 => pfslam::motion::VelocityNoise::seed_iteration_3(),
+        _ => pfslam::motion::VelocityNoise::seed_iteration_1(),
+    };
+    let r = sim_car_slam(env("PF_DUR", 20.0), &config, 1);
+    if let Ok(path) = std::env::var("PF_DUMP") {
+        pfslam::io::tum::write_tum(std::path::Path::new(&path), &r.result.trajectory).unwrap();
+    }
+    eprintln!(
+        "EXPLORE ate slam {:.3} dr {:.3} precision {:.3} recall {:.3} neff_mean {:.1} resamples {} score {:.0} t {:.1}s",
+        r.slam_ate_m,
+        r.dr_ate_m,
+        r.precision,
+        r.recall,
+        r.result.stats.neff_mean,
+        r.result.stats.resamples,
+        r.result.stats.best_score_mean,
+        r.result.stats.timings.total_s
+    );
+}
+
+#[test]
+#[ignore]
+fn explore_score_grid() {
+    use pfslam::filter::correlate::correlation;
+    use pfslam::map::{InsertScratch, OccupancyGrid, PlanarScan, ScanProjector, to_world};
+    use pfslam::sim::{CarSimOptions, SimOptions, World, simulate_car};
+    let opts = SimOptions {
+        duration_s: 20.0,
+        car: CarSimOptions::noise_free(),
+        ..SimOptions::default()
+    };
+    let world = World::builtin(opts.world_name()).unwrap();
+    let out = simulate_car(&world, &opts).unwrap();
+    let mut config = pfslam::config::Config::default();
+    config.map.scan.z_min_m = Some(0.5);
+    let rec = pfslam::motion::car_recording(&out.dataset, &config.motion, "x").unwrap();
+    let proj = ScanProjector::new(&rec.lidar, &rec.body_from_lidar, &config.map.scan).unwrap();
+    let mut grid = OccupancyGrid::new(&config.map).unwrap();
+    let mut ins = InsertScratch::new();
+    let (mut body, mut w) = (PlanarScan::default(), PlanarScan::default());
+    let gt = &out.ground_truth;
+    let mut sum = [[0f64; 9]; 9];
+    for k in (0..rec.scans.len()).step_by(5) {
+        let pose = gt[k].pose;
+        proj.to_body(rec.scans.ranges(k), &mut body).unwrap();
+        let hits: Vec<[f64; 2]> = body.points.iter().filter(|p| p.hit).map(|p| [p.x_m, p.y_m]).collect();
+        if k > 0 {
+            // Offsets in the body frame (along-track x, left y), one cell steps.
+            for (a, row) in sum.iter_mut().enumerate() {
+                for (b, v) in row.iter_mut().enumerate() {
+                    let d = pfslam::geometry::Pose2::new((b as f64 - 4.0) * 0.1, (a as f64 - 4.0) * 0.1, 0.0);
+                    *v += f64::from(correlation(&grid, &hits, &pose.compose(&d)));
+                }
+            }
+        }
+        to_world(&body, &pose, &mut w);
+        grid.insert_scan(&w, &mut ins).unwrap();
+    }
+    for row in sum.iter().rev() {
+        eprintln!("{}", row.iter().map(|v| format!("{:7.0}", v)).collect::<Vec<_>>().join(" "));
+    }
+}

@@ -12,6 +12,7 @@
 pub mod correlate;
 pub mod odometry;
 pub mod particles;
+pub mod prediction;
 pub mod resample;
 pub mod rng;
 pub mod slam;
@@ -20,7 +21,9 @@ pub mod weights;
 use crate::config::Config;
 use crate::geometry::Pose2;
 use correlate::{CorrelationScratch, CorrelationSearch, OccupancyLookup, ScanMatch};
+use crate::motion::odometry_model::OdometryModelOptions;
 use particles::ParticleSet;
+use prediction::PredictionModel;
 use rand_xoshiro::Xoshiro256PlusPlus;
 use rayon::prelude::*;
 use resample::ResampleMethod;
@@ -39,6 +42,10 @@ pub struct FilterOptions {
     pub xy_search_radius_cells: u32,
     /// Yaw offsets tried by the correlation search (deg); should contain 0.
     pub yaw_offsets_deg: Vec<f64>,
+    /// Move each particle to its best search offset (true: the particle takes the offset's
+    /// pose) or only score it with the best offset's correlation (false: the seeds'
+    /// `mapCorrelation` maximum as the weight, the pose stays).
+    pub move_to_best_offset: bool,
     /// Divisor of the correlations in the softmax (1 = UCSD seed, 10 = ESE650 seed).
     pub temperature: f64,
     /// Resample when Neff < this fraction of the particle count (ESE650 seed: 0.1).
@@ -47,6 +54,12 @@ pub struct FilterOptions {
     pub resample_method: ResampleMethod,
     /// Write a map snapshot every this many scans (0 = never; the UCSD seed: 10000).
     pub snapshot_every_scans: usize,
+    /// Prediction: "velocity" (UCSD seed; noise in `[motion.noise]`) or "odometry" (relative
+    /// motion between odometry poses; noise in `[filter.odometry_model]`).
+    pub motion_model: PredictionModel,
+    /// The odometry model when `motion_model = "odometry"` ("ese650": the ESE650 seed's
+    /// sigmas `[0.005, 0.005, 0.005]`; "thrun": four alphas).
+    pub odometry_model: OdometryModelOptions,
 }
 
 impl Default for FilterOptions {
@@ -56,10 +69,13 @@ impl Default for FilterOptions {
             update_every_scans: 5,
             xy_search_radius_cells: 4,
             yaw_offsets_deg: vec![-0.5, 0.0, 0.5],
+            move_to_best_offset: true,
             temperature: 10.0,
             resample_threshold: 0.1,
             resample_method: ResampleMethod::Stratified,
             snapshot_every_scans: 10_000,
+            motion_model: PredictionModel::Velocity,
+            odometry_model: OdometryModelOptions::ese650(),
         }
     }
 }
@@ -129,12 +145,38 @@ pub trait ParticleMaps: Sync {
     fn map_of(&self, i: usize) -> &Self::Map;
 }
 
-/// The noisy motion model `[filter] motion_model` selects, with the noise of `[motion]`.
-pub fn motion_model(config: &Config) -> Result<Box<dyn slam::MotionModel>, slam::SlamError> {
-    let _ = config;
-    Err(slam::SlamError::Motion(
-        "the motion models are not merged yet".to_string(),
-    ))
+/// The noisy motion model `[filter] motion_model` selects: velocity noise from
+/// `[motion.noise]` or the odometry model of `[filter.odometry_model]` (using the recording's
+/// IMU yaw, when it has one, for the ESE650 variant).
+pub fn motion_model(
+    config: &Config,
+    recording: &crate::sensors::Recording,
+) -> Result<Box<dyn slam::MotionModel>, slam::SlamError> {
+    config
+        .motion
+        .validate()
+        .map_err(|e| slam::SlamError::Motion(e.to_string()))?;
+    Ok(match config.filter.motion_model {
+        PredictionModel::Velocity => Box::new(prediction::VelocityMotion {
+            noise: config.motion.noise,
+            step: config.motion.step,
+        }),
+        PredictionModel::Odometry => {
+            let o = &config.filter.odometry_model;
+            let sigmas = [o.alpha1, o.alpha2, o.alpha3, o.alpha4]
+                .into_iter()
+                .chain(o.ese650_sigma);
+            if sigmas.into_iter().any(|v| !(v.is_finite() && v >= 0.0)) {
+                return Err(slam::SlamError::Motion(
+                    "filter.odometry_model: alphas and sigmas must be finite and >= 0".into(),
+                ));
+            }
+            Box::new(prediction::OdometryMotion {
+                options: *o,
+                imu_yaw: recording.imu_yaw.clone(),
+            })
+        }
+    })
 }
 
 /// One map for all particles (the seeds' behaviour).
@@ -213,7 +255,7 @@ impl ParticleFilter {
     }
 
     /// Correlates every particle's view of `points_body` with its map over `search`, moves it
-    /// to its best offset, and multiplies its weight by `exp(score / temperature)` (log space).
+    /// to its best offset when `move_to_best`, and multiplies its weight by `exp(score / temperature)` (log space).
     /// Returns Neff after reweighting and the best particle; does not resample.
     pub fn reweight<P: ParticleMaps>(
         &mut self,
@@ -221,6 +263,7 @@ impl ParticleFilter {
         points_body: &[[f64; 2]],
         search: &CorrelationSearch,
         temperature: f64,
+        move_to_best: bool,
     ) -> UpdateReport {
         let n = self.particles.len();
         self.matches.clear();
@@ -243,8 +286,10 @@ impl ParticleFilter {
         self.scores.clear();
         self.scores
             .extend(self.matches.iter().map(|m| f64::from(m.score)));
-        for (p, m) in self.particles.poses.iter_mut().zip(&self.matches) {
-            *p = m.pose;
+        if move_to_best {
+            for (p, m) in self.particles.poses.iter_mut().zip(&self.matches) {
+                *p = m.pose;
+            }
         }
         weights::update_log_space(&mut self.particles.weights, &self.scores, temperature);
         let best = self.particles.best_index();

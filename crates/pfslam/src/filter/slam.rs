@@ -214,7 +214,7 @@ pub fn run_slam(
     seed: u64,
     observer: &mut dyn FnMut(SlamEvent<'_>),
 ) -> Result<SlamResult, SlamError> {
-    let motion = super::motion_model(config)?;
+    let motion = super::motion_model(config, recording)?;
     let grid = OccupancyGrid::new(&config.map)?;
     let mut policy = BestParticleMap::new(grid);
     run_slam_with(
@@ -315,7 +315,13 @@ pub fn run_slam_with<P: MapPolicy>(
                 0
             } else {
                 let t = Instant::now();
-                let report = pf.reweight(&*policy, &hits, &search, opts.temperature);
+                let report = pf.reweight(
+                    &*policy,
+                    &hits,
+                    &search,
+                    opts.temperature,
+                    opts.move_to_best_offset,
+                );
                 stats.timings.correlate_s += t.elapsed().as_secs_f64();
                 stats.updates += 1;
                 neff_sum += report.neff;
@@ -398,5 +404,43 @@ impl ParticleFilter {
                 }
             }
         });
+    }
+}
+
+/// Re-expresses the odometry of `recording` in its ground truth's frame, anchored at the first
+/// scan both cover: `odometry' = gt(t0) * odometry(t0)^-1 * odometry`. SLAM then starts at
+/// the true initial pose, so its map and trajectory can be drawn over and compared with the
+/// true ones without alignment (only the start is used, never later ground truth). Returns
+/// false (recording unchanged) without ground truth or overlap.
+pub fn anchor_odometry_to_ground_truth(recording: &mut Recording) -> bool {
+    let Some(gt) = &recording.ground_truth else {
+        return false;
+    };
+    let gt = crate::geometry::Trajectory::new(gt.clone());
+    let anchor = recording.scans.stamps_ns.iter().find_map(|&t| {
+        Some(gt.pose_at(t)?.compose(&recording.odometry.pose_at(t)?.inverse()))
+    });
+    let Some(world_from_odom) = anchor else {
+        return false;
+    };
+    for p in &mut recording.odometry.poses {
+        p.pose = world_from_odom.compose(&p.pose);
+    }
+    true
+}
+
+/// The simulator's true map as a [`crate::map::BinaryMap`] (occupied / free), for
+/// [`crate::map::compare::compare_maps`].
+pub fn true_map_as_binary(truth: &crate::sim::TrueMap) -> crate::map::BinaryMap {
+    use crate::map::CellState;
+    crate::map::BinaryMap {
+        limits: MapLimits::new(truth.resolution_m, truth.origin_m[0], truth.origin_m[1]),
+        width: truth.width,
+        height: truth.height,
+        cells: truth
+            .occupied
+            .iter()
+            .map(|&o| if o { CellState::Occupied } else { CellState::Free })
+            .collect(),
     }
 }
