@@ -21,4 +21,5 @@ fn unknown_subcommand_exits_2() {
     assert_eq!(out.status.code(), Some(2));
 }
 
+mod cli_data;
 mod cli_eval;

@@ -7,3 +7,4 @@ mod filter;
 mod motion;
 mod readers;
 mod ucsd;
+mod map;

@@ -5,6 +5,7 @@
 //! it into place ([`write_atomic`]), so a failed or interrupted run leaves no half-written file.
 
 pub mod carmen;
+pub mod humanoid;
 pub mod map_files;
 pub mod opencv_yaml;
 pub mod ros1;

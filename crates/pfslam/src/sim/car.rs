@@ -11,21 +11,18 @@
 //! the true times plus jitter; the ground truth pairs each recorded LiDAR stamp with the true
 //! pose of that scan.
 
-use super::path::Path as DrivePath;
+use super::path::{DRIVE_DT_S, Motion, Path as DrivePath};
 use super::raycast::RayCaster;
 use super::truth::TrueMap;
 use super::world::World;
-use super::{SimError, SimOptions, sim_toml};
+use super::{SimError, SimOptions, normal, sample_times, sim_toml};
 use crate::geometry::{Pose2, StampedPose2};
 use crate::sensors::{CarCalibration, CarDataset, EncoderSample, FogSample, ScanSet};
 use rand::{RngExt, SeedableRng};
-use rand_distr::StandardNormal;
 use rand_xoshiro::Xoshiro256PlusPlus;
 use rayon::prelude::*;
 use std::path::Path;
 
-/// Time step of the motion integration (s).
-const DRIVE_DT_S: f64 = 1e-3;
 /// Scans per parallel block (each block has its own jumped random stream).
 const SCAN_BLOCK: usize = 256;
 
@@ -44,55 +41,6 @@ pub struct CarSimOutput {
     pub world_text: String,
     /// Distance driven (m).
     pub distance_m: f64,
-}
-
-/// The true motion: arc length sampled every [`DRIVE_DT_S`].
-struct Motion {
-    path: DrivePath,
-    s: Vec<f64>,
-    standstill_s: f64,
-}
-
-impl Motion {
-    fn s_at(&self, t_s: f64) -> f64 {
-        let t = (t_s - self.standstill_s).max(0.0) / DRIVE_DT_S;
-        let k = (t.floor() as usize).min(self.s.len() - 2);
-        let f = (t - k as f64).min(1.0);
-        self.s[k] + f * (self.s[k + 1] - self.s[k])
-    }
-
-    fn pose_at(&self, t_s: f64) -> (Pose2, f64) {
-        let p = self.path.at(self.s_at(t_s));
-        (Pose2::new(p.x_m, p.y_m, p.yaw_rad), p.yaw_rad)
-    }
-}
-
-fn normal(rng: &mut Xoshiro256PlusPlus) -> f64 {
-    rng.sample(StandardNormal)
-}
-
-/// Nominal sample times `phase + k / rate` over the duration, with recorded stamps (ns) =
-/// start + time + clipped jitter.
-fn sample_times(
-    opts: &SimOptions,
-    rate_hz: f64,
-    phase_s: f64,
-    rng: &mut Xoshiro256PlusPlus,
-) -> Vec<(f64, i64)> {
-    let n = ((opts.duration_s - phase_s) * rate_hz).floor().max(0.0) as usize + 1;
-    let period_ns = 1e9 / rate_hz;
-    let clip = 0.4 * period_ns;
-    (0..n)
-        .map(|k| {
-            let t = phase_s + k as f64 / rate_hz;
-            let jitter = if opts.car.stamp_jitter_std_ns > 0.0 {
-                (normal(rng) * opts.car.stamp_jitter_std_ns).clamp(-clip, clip)
-            } else {
-                0.0
-            };
-            (t, opts.start_stamp_ns + (t * 1e9 + jitter).round() as i64)
-        })
-        .collect()
 }
 
 /// Simulates the car on `world` with `opts` (seed included).
@@ -135,9 +83,10 @@ pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, Si
     let mut rng_drop = stream();
     let lidar_base = stream();
 
-    let enc_times = sample_times(opts, c.encoder_rate_hz, 0.0, &mut rng_stamps);
-    let fog_times = sample_times(opts, c.fog_rate_hz, 0.000_37, &mut rng_stamps);
-    let lidar_times = sample_times(opts, c.lidar_rate_hz, 0.003_1, &mut rng_stamps);
+    let jitter = c.stamp_jitter_std_ns;
+    let enc_times = sample_times(opts, c.encoder_rate_hz, 0.0, jitter, &mut rng_stamps);
+    let fog_times = sample_times(opts, c.fog_rate_hz, 0.000_37, jitter, &mut rng_stamps);
+    let lidar_times = sample_times(opts, c.lidar_rate_hz, 0.003_1, jitter, &mut rng_stamps);
 
     // Encoders: cumulative TRUE wheel rotation (m of tyre circumference), with slip.
     let e = &calib.encoder;
@@ -338,6 +287,7 @@ fn cast_scan(
 /// `ground_truth.tum`, `true_map.{png,pgm,yaml}`, `world.world` and `sim.toml`.
 pub fn write_car_sim(dir: &Path, out: &CarSimOutput) -> Result<(), SimError> {
     std::fs::create_dir_all(dir).map_err(|e| crate::io::IoError::io(dir, e))?;
+    crate::io::ucsd::write_car_dataset(dir, &out.dataset)?;
     crate::io::tum::write_tum(&dir.join("ground_truth.tum"), &out.ground_truth)?;
     out.true_map.write(dir, "true_map")?;
     crate::io::write_bytes_atomic(&dir.join("world.world"), out.world_text.as_bytes())?;

@@ -289,6 +289,35 @@ impl Path {
     }
 }
 
+/// Time step of the motion integration (s).
+pub(crate) const DRIVE_DT_S: f64 = 1e-3;
+
+/// The true motion along a path: arc length sampled every [`DRIVE_DT_S`] after a standstill.
+pub(crate) struct Motion {
+    pub(crate) path: Path,
+    pub(crate) s: Vec<f64>,
+    pub(crate) standstill_s: f64,
+}
+
+impl Motion {
+    /// Arc length at time `t_s` (linear between samples).
+    pub(crate) fn s_at(&self, t_s: f64) -> f64 {
+        let t = (t_s - self.standstill_s).max(0.0) / DRIVE_DT_S;
+        let k = (t.floor() as usize).min(self.s.len().saturating_sub(2));
+        let f = (t - k as f64).min(1.0);
+        self.s[k] + f * (self.s[k + 1] - self.s[k])
+    }
+
+    /// Pose (yaw wrapped) and unwrapped yaw at time `t_s`.
+    pub(crate) fn pose_at(&self, t_s: f64) -> (crate::geometry::Pose2, f64) {
+        let p = self.path.at(self.s_at(t_s));
+        (
+            crate::geometry::Pose2::new(p.x_m, p.y_m, p.yaw_rad),
+            p.yaw_rad,
+        )
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -426,6 +426,29 @@ impl World {
         s
     }
 
+    /// Shifts everything (obstacles, ground, route) by `(dx_m, dy_m)`.
+    pub fn translate(&mut self, dx_m: f64, dy_m: f64) {
+        let shift = |p: &mut [f64; 2]| {
+            p[0] += dx_m;
+            p[1] += dy_m;
+        };
+        self.prisms
+            .iter_mut()
+            .flat_map(|p| p.footprint.iter_mut())
+            .for_each(shift);
+        self.ground
+            .regions
+            .iter_mut()
+            .flat_map(|r| r.polygon.iter_mut())
+            .for_each(shift);
+        self.ground
+            .markings
+            .iter_mut()
+            .flat_map(|m| m.points.iter_mut())
+            .for_each(shift);
+        self.route.iter_mut().for_each(shift);
+    }
+
     /// Axis-aligned bounds of obstacles and route: `[x_min, y_min, x_max, y_max]`.
     pub fn bounds(&self) -> [f64; 4] {
         let mut b = [
@@ -566,10 +589,12 @@ fn campus() -> World {
         }
     }
     let p = |i: usize, j: usize| [CAMPUS_X[i], CAMPUS_Y[j]];
-    // Loop 1 around block (0,0), then the long perimeter past the park, then around block
-    // (1,1) and (0,1): the same streets are driven several times in both loops.
+    // Start on the first street (so the car starts on a straight, at the origin, heading +x);
+    // loop 1 around block (0,0), then the long perimeter past the park, then around block
+    // (1,1) and (0,1): the same streets are driven several times in both directions of travel.
+    let start = [CAMPUS_X[0] + 20.0, CAMPUS_Y[0]];
     let route = vec![
-        p(0, 0),
+        start,
         p(1, 0),
         p(1, 1),
         p(0, 1),
@@ -581,8 +606,9 @@ fn campus() -> World {
         p(1, 1),
         p(1, 2),
         p(0, 2),
+        p(0, 0),
     ];
-    World {
+    let mut w = World {
         name: "campus".to_string(),
         prisms,
         ground: GroundTexture {
@@ -590,30 +616,14 @@ fn campus() -> World {
             regions,
             markings,
         },
-        route: dedup_collinear(route),
-    }
+        route,
+    };
+    w.translate(-start[0], -start[1]);
+    w
 }
 
 fn rect_poly(x0: f64, y0: f64, x1: f64, y1: f64) -> Vec<[f64; 2]> {
     vec![[x0, y0], [x1, y0], [x1, y1], [x0, y1]]
-}
-
-/// Removes waypoints that lie on the straight line through their neighbours (they would give
-/// zero-angle corners) — the route stays the same.
-fn dedup_collinear(route: Vec<[f64; 2]>) -> Vec<[f64; 2]> {
-    let n = route.len();
-    let mut out = Vec::with_capacity(n);
-    for i in 0..n {
-        let a = route[(i + n - 1) % n];
-        let b = route[i];
-        let c = route[(i + 1) % n];
-        let cross = (b[0] - a[0]) * (c[1] - b[1]) - (b[1] - a[1]) * (c[0] - b[0]);
-        let dot = (b[0] - a[0]) * (c[0] - b[0]) + (b[1] - a[1]) * (c[1] - b[1]);
-        if cross.abs() > 1e-9 || dot < 0.0 {
-            out.push(b);
-        }
-    }
-    out
 }
 
 fn uniform(rng: &mut Xoshiro256PlusPlus, lo: f64, hi: f64) -> f64 {
@@ -782,12 +792,12 @@ fn office() -> World {
         }
         // a table in the middle of each room, floating top on four legs
         for yt in [5.0, h - 5.0] {
-            if let Some(p) = Prism::rect("table", [rx0 + 2.2, yt], 1.4, 0.9, 0.0, 0.7, 0.75) {
+            if let Some(p) = Prism::rect("table", [rx0 + 4.0, yt], 1.4, 0.9, 0.0, 0.7, 0.75) {
                 prisms.push(p);
             }
             for (lx, ly) in [(-0.6, -0.35), (0.6, -0.35), (0.6, 0.35), (-0.6, 0.35)] {
                 if let Some(p) =
-                    Prism::rect("leg", [rx0 + 2.2 + lx, yt + ly], 0.06, 0.06, 0.0, 0.0, 0.7)
+                    Prism::rect("leg", [rx0 + 4.0 + lx, yt + ly], 0.06, 0.06, 0.0, 0.0, 0.7)
                 {
                     prisms.push(p);
                 }
@@ -800,9 +810,12 @@ fn office() -> World {
             prisms.push(p);
         }
     }
-    // route: along the corridor, into room 1 (south), back, along, into room 3 (north)
+    // Route: start in the corridor heading +x, tour a south room, a north room at the east
+    // end, walk back west and tour the first north room; rooms are entered and left through
+    // their doors, around their tables.
+    let start = [6.0, 12.0];
     let route = vec![
-        [2.0, 12.0],
+        start,
         [20.0, 12.0],
         [20.0, 7.0],
         [17.5, 7.0],
@@ -820,11 +833,15 @@ fn office() -> World {
         [36.0, 16.5],
         [36.0, 12.0],
         [4.0, 12.0],
-        [4.0, 17.0],
-        [2.0, 17.0],
-        [2.0, 12.0],
+        [4.0, 16.5],
+        [1.5, 16.5],
+        [1.5, 20.5],
+        [6.5, 20.5],
+        [6.5, 16.5],
+        [4.0, 16.5],
+        [4.0, 12.0],
     ];
-    World {
+    let mut w = World {
         name: "office".to_string(),
         prisms,
         ground: GroundTexture {
@@ -835,8 +852,10 @@ fn office() -> World {
             }],
             markings: Vec::new(),
         },
-        route: dedup_collinear(route),
-    }
+        route,
+    };
+    w.translate(-start[0], -start[1]);
+    w
 }
 
 #[cfg(test)]
@@ -887,8 +906,10 @@ mod tests {
     #[test]
     fn ground_texture_layers() {
         let w = World::builtin("campus").unwrap();
-        assert_eq!(w.ground.rgb_at(0.0, 50.0), [230, 230, 230]); // lane line
-        assert_eq!(w.ground.rgb_at(3.0, 50.0), [60, 60, 64]); // asphalt
-        assert_eq!(w.ground.rgb_at(350.0, 60.0), [70, 120, 50]); // park
+        // the campus is shifted by -20 m in x so the car starts at the origin
+        assert_eq!(w.route[0], [0.0, 0.0]);
+        assert_eq!(w.ground.rgb_at(-20.0, 50.0), [230, 230, 230]); // lane line
+        assert_eq!(w.ground.rgb_at(-17.0, 50.0), [60, 60, 64]); // asphalt
+        assert_eq!(w.ground.rgb_at(330.0, 60.0), [70, 120, 50]); // park
     }
 }
