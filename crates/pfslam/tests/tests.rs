@@ -4,7 +4,8 @@
 mod common;
 mod eval;
 mod filter;
+mod map;
 mod motion;
 mod readers;
+mod sim;
 mod ucsd;
-mod map;

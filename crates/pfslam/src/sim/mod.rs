@@ -134,7 +134,7 @@ impl SimOptions {
         if !(self.truth_map_resolution_m >= 0.01 && self.truth_map_resolution_m <= 10.0) {
             return bad("truth_map_resolution_m must be in [0.01, 10]");
         }
-        if !(self.truth_band_max_m >= self.truth_band_min_m) {
+        if self.truth_band_max_m.is_nan() || self.truth_band_max_m < self.truth_band_min_m {
             return bad("truth_band_max_m must be >= truth_band_min_m");
         }
         self.car.validate()?;
@@ -281,7 +281,7 @@ impl CarSimOptions {
                 self.right_wheel_diameter_error,
             ),
         ] {
-            if !(v.abs() < 0.5) {
+            if v.is_nan() || v.abs() >= 0.5 {
                 return Err(SimError::BadOption(format!(
                     "car.{name} must be in (-0.5, 0.5)"
                 )));
@@ -434,7 +434,7 @@ impl HumanoidSimOptions {
                 "humanoid.lidar_dropout_prob must be in [0, 1]".into(),
             ));
         }
-        if !(self.truth_band_max_m >= self.truth_band_min_m) {
+        if self.truth_band_max_m.is_nan() || self.truth_band_max_m < self.truth_band_min_m {
             return Err(SimError::BadOption(
                 "humanoid.truth_band_max_m must be >= truth_band_min_m".into(),
             ));

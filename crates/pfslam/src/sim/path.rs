@@ -354,7 +354,7 @@ mod tests {
         for w in s.windows(3) {
             let v0 = (w[1] - w[0]) / 0.01;
             let v1 = (w[2] - w[1]) / 0.01;
-            assert!(v1 >= 0.0 && v1 <= 11.0 + 1e-9);
+            assert!((0.0..=11.0 + 1e-9).contains(&v1));
             assert!((v1 - v0).abs() <= 2.0 * 0.01 + 1e-9);
         }
         assert!(s[10_000] > 500.0);

@@ -177,11 +177,11 @@ impl RayCaster {
             let (s0, s1) = (self.cell_start[c] as usize, self.cell_start[c + 1] as usize);
             for &si in &self.cell_items[s0..s1] {
                 let s = &self.segments[si as usize];
-                if let Some(t) = self.intersect(s, o, d) {
-                    if t < best_t {
-                        best_t = t;
-                        best_kind = Some(HitKind::Obstacle(s.prism));
-                    }
+                if let Some(t) = self.intersect(s, o, d)
+                    && t < best_t
+                {
+                    best_t = t;
+                    best_kind = Some(HitKind::Obstacle(s.prism));
                 }
             }
             let t_next = t_max_x.min(t_max_y);
@@ -285,8 +285,8 @@ mod tests {
         // reaches z = 2 at x = 10.5 (inside): t = sqrt(2)
         assert!((h.range_m - 2f64.sqrt()).abs() < 1e-9, "{h:?}");
         // over it and beyond: ground at x = 20 from z = 3 with slope 3/20... misses the top
-        let dir = [20.0, 0.0, -2.5];
-        let n = (dir[0] * dir[0] + dir[2] * dir[2] as f64).sqrt();
+        let dir: [f64; 3] = [20.0, 0.0, -2.5];
+        let n = (dir[0] * dir[0] + dir[2] * dir[2]).sqrt();
         let h = rc
             .cast([0.0, 0.0, 2.5], [dir[0] / n, 0.0, dir[2] / n], 80.0)
             .unwrap();

@@ -59,9 +59,10 @@ impl Prism {
         z_max_m: f64,
     ) -> Option<Self> {
         if footprint.len() < 3
-            || !(z_max_m > z_min_m)
-            || z_min_m < 0.0
+            || !z_min_m.is_finite()
             || !z_max_m.is_finite()
+            || z_max_m <= z_min_m
+            || z_min_m < 0.0
             || footprint
                 .iter()
                 .any(|p| !p[0].is_finite() || !p[1].is_finite())
@@ -294,7 +295,7 @@ impl World {
             };
             let points = |from: usize, min: usize| -> Result<Vec<[f64; 2]>, SimError> {
                 let rest = toks.len().saturating_sub(from);
-                if rest % 2 != 0 {
+                if !rest.is_multiple_of(2) {
                     return Err(err(format!("{}: odd number of coordinates", toks[0])));
                 }
                 if rest / 2 < min {
@@ -543,20 +544,21 @@ fn campus() -> World {
     }
     // Outer row of buildings, except south of the park (open field on both sides there).
     let outer = STREET_HALF_M + 6.0;
-    let mut sides: Vec<([f64; 2], [f64; 2], [f64; 2])> = Vec::new();
     // (start, end, outward normal) along the outside of the outer streets
-    sides.push((
-        [x0 - 20.0, y0 - outer],
-        [CAMPUS_X[2] - 10.0, y0 - outer],
-        [0.0, -1.0],
-    ));
-    sides.push(([x0 - 20.0, y1 + outer], [x1 + 20.0, y1 + outer], [0.0, 1.0]));
-    sides.push((
-        [x0 - outer, y0 + 15.0],
-        [x0 - outer, y1 - 15.0],
-        [-1.0, 0.0],
-    ));
-    sides.push(([x1 + outer, y0 + 40.0], [x1 + outer, y1 - 15.0], [1.0, 0.0]));
+    let sides: [([f64; 2], [f64; 2], [f64; 2]); 4] = [
+        (
+            [x0 - 20.0, y0 - outer],
+            [CAMPUS_X[2] - 10.0, y0 - outer],
+            [0.0, -1.0],
+        ),
+        ([x0 - 20.0, y1 + outer], [x1 + 20.0, y1 + outer], [0.0, 1.0]),
+        (
+            [x0 - outer, y0 + 15.0],
+            [x0 - outer, y1 - 15.0],
+            [-1.0, 0.0],
+        ),
+        ([x1 + outer, y0 + 40.0], [x1 + outer, y1 - 15.0], [1.0, 0.0]),
+    ];
     for (a, b, n) in sides {
         facade_row(&mut rng, &mut prisms, a, b, n);
     }
@@ -699,7 +701,7 @@ fn street_furniture(
         return;
     }
     // trees on every other street
-    if street % 2 == 0 {
+    if street.is_multiple_of(2) {
         let mut s = 20.0;
         while s < len - 15.0 {
             for side in [-1.0, 1.0] {
