@@ -158,3 +158,45 @@ fn eval_bad_input_exits_2_with_position() {
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("none of the 1 relations"));
 }
+
+#[test]
+fn eval_relations_of_raw_odometry_on_real_data() {
+    use pfslam::eval::relations::{RelationsOptions, evaluate_relations, read_relations};
+    let Some(root) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+        eprintln!("SKIP eval_relations_of_raw_odometry_on_real_data: real data not found");
+        return;
+    };
+    let dir = root.join("freiburg/aces");
+    let rec = pfslam::io::recording::read_recording(
+        &dir.join("aces.bag"),
+        &pfslam::io::recording::ReaderOptions::default(),
+    )
+    .unwrap();
+    let traj = pfslam::eval::sample_at(&rec.odometry, &rec.scans.stamps_ns);
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("odometry.tum");
+    write_tum(&path, &traj.poses).unwrap();
+    let rel_path = dir.join("aces.relations");
+    let out = pfslam()
+        .args(["eval", "--json", "--relations"])
+        .arg(&rel_path)
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    // the TUM round trip (9 decimals) keeps the figures of the library
+    let lib = evaluate_relations(
+        &traj,
+        &read_relations(&rel_path).unwrap(),
+        &RelationsOptions::default(),
+    )
+    .unwrap();
+    assert_eq!(v["used"], 1279);
+    let mean = v["trans_m"]["abs"]["mean"].as_f64().unwrap();
+    assert!((mean - lib.trans_m.abs.mean).abs() < 1e-6, "{mean}");
+}

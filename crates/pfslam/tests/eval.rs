@@ -201,3 +201,25 @@ fn raw_odometry_relations_baseline() {
     assert_eq!(r.used, bag.used);
     assert!((r.trans_m.abs.mean - bag.trans_m.abs.mean).abs() < 1e-4);
 }
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+    // any rigid move of any trajectory aligns back to zero error
+    #[test]
+    fn alignment_undoes_any_rigid_move(
+        steps in proptest::collection::vec((-1.0f64..1.0, -0.5f64..0.5), 3..60),
+        tx in -100.0f64..100.0, ty in -100.0f64..100.0, yaw in -3.0f64..3.0,
+    ) {
+        let mut p = Pose2::IDENTITY;
+        let mut gt = Vec::new();
+        for (k, (d, r)) in steps.iter().enumerate() {
+            gt.push(StampedPose2 { stamp_ns: k as i64, pose: p });
+            p = p.compose(&Pose2::new(*d, 0.1, *r));
+        }
+        let t = Pose2::new(tx, ty, yaw);
+        let est: Vec<StampedPose2> = gt.iter().map(|s| StampedPose2 { stamp_ns: s.stamp_ns, pose: t.compose(&s.pose) }).collect();
+        let r = ate(&Trajectory::new(est), &Trajectory::new(gt), Association::Nearest { tolerance_ns: 0 }).unwrap();
+        proptest::prop_assert!(r.aligned_m.rmse < 1e-6, "{}", r.aligned_m.rmse);
+        proptest::prop_assert!(r.aligned_rot_deg.max < 1e-6);
+    }
+}

@@ -1,7 +1,7 @@
 //! Readers of real recordings: CARMEN logs, ROS 1 bags, MCAP; malformed input.
 
 use crate::common::data_dir;
-use pfslam::eval::relations::{RelationsOptions, pose_for_stamp, read_relations};
+use pfslam::eval::relations::{pose_for_stamp, read_relations};
 use pfslam::io::carmen::{CarmenOptions, read_carmen};
 use std::path::Path;
 
@@ -33,31 +33,10 @@ fn carmen_mit_csail_counts_and_relation_stamps() {
     assert_eq!(rec.scans.stamps_ns[0], 1_134_864_629_895_182_000);
     // every relation stamp is a scan stamp (ipc_timestamp), within half a unit of the last
     // printed decimal
-    let scans = pfslam::geometry::Trajectory::new(
-        rec.scans
-            .stamps_ns
-            .iter()
-            .map(|&s| pfslam::geometry::StampedPose2 {
-                stamp_ns: s,
-                pose: pfslam::geometry::Pose2::IDENTITY,
-            })
-            .collect(),
+    assert_eq!(
+        relation_stamps_found(rec, &dir.join("mit-csail.relations")),
+        1172
     );
-    let rel = read_relations(&dir.join("mit-csail.relations")).unwrap();
-    assert_eq!(rel.len(), 1172);
-    let _ = RelationsOptions::default();
-    for r in &rel {
-        assert!(
-            pose_for_stamp(&scans, r.t1_ns, r.t1_tolerance_ns).is_some(),
-            "t1 {}",
-            r.t1_ns
-        );
-        assert!(
-            pose_for_stamp(&scans, r.t2_ns, r.t2_tolerance_ns).is_some(),
-            "t2 {}",
-            r.t2_ns
-        );
-    }
 }
 
 #[test]
@@ -72,7 +51,9 @@ fn carmen_intel_corrected_gz_backwards_stamps() {
     .unwrap();
     let s = &log.stats;
     let rec = &log.recording;
+    eprintln!("intel-corrected: {s:?}");
     assert_eq!(rec.name, "intel-corrected");
+    assert_eq!(s.laser_out_of_order, 4);
     assert_eq!(s.odom_lines, 14_541);
     assert_eq!(s.laser_lines, 910);
     assert_eq!(rec.scans.beam_count, 180);
@@ -123,6 +104,7 @@ fn carmen_malformed_inputs_name_file_and_line() {
             ":2:",
         ),
         ("empty.clf", "# nothing\n", ":0:"),
+        ("zero.clf", "FLASER 0 0 0 0 0 0 0 1.5 h 1.5\n", ":1:"),
     ];
     for (name, text, pos) in cases {
         let p = write(dir.path(), name, text);
@@ -178,18 +160,30 @@ fn relation_stamps_found(rec: &pfslam::sensors::Recording, relations: &Path) -> 
 #[test]
 fn ros1_bags_counts_geometry_and_relation_stamps() {
     use pfslam::io::ros_msgs::{BeamGeometry, RosOptions};
-    use pfslam::io::ros1::read_ros1_bag;
+    use pfslam::io::ros1::{read_ros1_bag, read_ros1_bag_with_stats};
     let Some(root) = data_dir("ros1_bags_counts_geometry_and_relation_stamps") else {
         return;
     };
-    // name, scans, beams, relations
-    for (name, scans, beams, relations) in [
-        ("intel", 13_631, 180, 2_984),
-        ("aces", 7_374, 180, 1_279),
-        ("mit-csail", 1_988, 361, 1_172),
+    // name, scans, beams, odometry messages, relations (README table)
+    for (name, scans, beams, odom, relations) in [
+        ("intel", 13_631, 180, 26_915, 2_984),
+        ("aces", 7_374, 180, 7_375, 1_279),
+        ("mit-csail", 1_988, 361, 1_988, 1_172),
     ] {
         let dir = root.join("freiburg").join(name);
-        let rec = read_ros1_bag(&dir.join(format!("{name}.bag")), &RosOptions::default()).unwrap();
+        let (rec, stats) =
+            read_ros1_bag_with_stats(&dir.join(format!("{name}.bag")), &RosOptions::default())
+                .unwrap();
+        eprintln!("{name}: {stats:?}");
+        assert_eq!(stats.scan_messages, scans, "{name} scan messages");
+        assert_eq!(stats.odometry_messages, odom, "{name} odometry messages");
+        assert_eq!(
+            rec.odometry.len() + stats.odometry_out_of_order,
+            stats.odometry_messages
+        );
+        assert!(stats.mount_from_tf);
+        let backwards = if name == "intel" { 631 } else { 0 };
+        assert_eq!(stats.scans_out_of_order, backwards, "{name}");
         assert_eq!(rec.name, name);
         assert_eq!(rec.scans.len(), scans, "{name} scans");
         assert_eq!(rec.scans.beam_count, beams, "{name} beams");
@@ -219,6 +213,210 @@ fn ros1_bags_counts_geometry_and_relation_stamps() {
             };
             let rec = read_ros1_bag(&dir.join("intel.bag"), &raw).unwrap();
             assert!((rec.lidar.angle_increment_rad - (180.0f64 / 179.0).to_radians()).abs() < 1e-6);
+        }
+    }
+}
+
+#[test]
+fn mcap_from_bag_slice_roundtrip() {
+    use pfslam::geometry::Trajectory;
+    use pfslam::io::mcap::{read_mcap, write_mcap};
+    use pfslam::io::ros_msgs::{BeamGeometry, RosOptions};
+    use pfslam::io::ros1::read_ros1_bag;
+    use pfslam::sensors::ScanSet;
+    let Some(root) = data_dir("mcap_from_bag_slice_roundtrip") else {
+        return;
+    };
+    let rec = read_ros1_bag(&root.join("freiburg/aces/aces.bag"), &RosOptions::default()).unwrap();
+    // a slice: scans 100..400 and the odometry over the same time span
+    let mut scans = ScanSet::new(rec.scans.beam_count);
+    for i in 100..400 {
+        scans.push(rec.scans.stamps_ns[i], rec.scans.ranges(i));
+    }
+    let (t0, t1) = (scans.stamps_ns[0], *scans.stamps_ns.last().unwrap());
+    let odometry = Trajectory::new(
+        rec.odometry
+            .poses
+            .iter()
+            .filter(|p| p.stamp_ns >= t0 && p.stamp_ns <= t1)
+            .copied()
+            .collect(),
+    );
+    let slice = pfslam::sensors::Recording {
+        scans,
+        odometry,
+        ..rec.clone()
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("aces-slice.mcap");
+    let opts = RosOptions::default();
+    write_mcap(&path, &slice, &opts).unwrap();
+    let back = read_mcap(
+        &path,
+        &RosOptions {
+            beam_geometry: BeamGeometry::AsRecorded,
+            ..RosOptions::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(back.name, "aces-slice");
+    assert_eq!(back.scans.stamps_ns, slice.scans.stamps_ns);
+    assert_eq!(back.scans.ranges_m, slice.scans.ranges_m);
+    assert_eq!(back.odometry.len(), slice.odometry.len());
+    for (a, b) in back.odometry.poses.iter().zip(&slice.odometry.poses) {
+        assert_eq!(a.stamp_ns, b.stamp_ns);
+        assert_eq!((a.pose.x_m, a.pose.y_m), (b.pose.x_m, b.pose.y_m));
+        assert!(pfslam::geometry::wrap_angle(a.pose.yaw_rad - b.pose.yaw_rad).abs() < 1e-12);
+    }
+    assert!((back.lidar.angle_min_rad - slice.lidar.angle_min_rad).abs() < 1e-6);
+    assert!((back.lidar.angle_increment_rad - slice.lidar.angle_increment_rad).abs() < 1e-7);
+    assert_eq!(back.lidar.range_max_m, slice.lidar.range_max_m);
+
+    // truncated MCAP: an error naming the file and a message index or byte, no panic
+    let bytes = std::fs::read(&path).unwrap();
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let e = read_mcap(&cut, &RosOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("cut.mcap") && (e.contains("message") || e.contains("byte")),
+        "{e}"
+    );
+    // wrong topic names: a clear error
+    let e = read_mcap(
+        &path,
+        &RosOptions {
+            scan_topic: "/base_scan".into(),
+            ..RosOptions::default()
+        },
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("no LaserScan message on /base_scan"), "{e}");
+}
+
+#[test]
+fn ros1_malformed_bags_name_positions() {
+    use pfslam::io::ros_msgs::RosOptions;
+    use pfslam::io::ros1::read_ros1_bag;
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(dir.path(), "text.bag", "hello\n");
+    let e = read_ros1_bag(&p, &RosOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("text.bag: byte 0"), "{e}");
+    let p = write(dir.path(), "short.bag", "#ROSBAG V2.0\n\x10\0");
+    let e = read_ros1_bag(&p, &RosOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("short.bag: byte 13"), "{e}");
+    let Some(root) = data_dir("ros1_malformed_bags_name_positions") else {
+        return;
+    };
+    let bytes = std::fs::read(root.join("freiburg/mit-csail/mit-csail.bag")).unwrap();
+    // truncated: the index lies past the end
+    let cut = dir.path().join("cut.bag");
+    std::fs::write(&cut, &bytes[..bytes.len() / 3]).unwrap();
+    let e = read_ros1_bag(&cut, &RosOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("cut.bag: byte") && e.contains("truncated"),
+        "{e}"
+    );
+    // corrupted chunk data: an error naming the chunk
+    let mut bad = bytes.clone();
+    let mid = bad.len() / 2;
+    for b in &mut bad[mid..mid + 64] {
+        *b ^= 0x5a;
+    }
+    let badp = dir.path().join("corrupt.bag");
+    std::fs::write(&badp, &bad).unwrap();
+    let e = read_ros1_bag(&badp, &RosOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("corrupt.bag: chunk"), "{e}");
+}
+
+#[test]
+fn carmen_robotlaser_rlaser_param() {
+    use pfslam::io::carmen::CarmenLaser;
+    let dir = tempfile::tempdir().unwrap();
+    // ROBOTLASER1: 3 readings from -0.5 rad in 0.5 rad steps, 1 remission, laser 0.3 m ahead
+    let rl = |stamp: &str, x: f64| {
+        format!(
+            "ROBOTLASER1 0 -0.5 1.0 0.5 30 0.01 0 3 1.0 2.0 3.0 1 0.5 {} 0 0 {x} 0 0 0 0 0 0 0 {stamp} host 0\n",
+            x + 0.3
+        )
+    };
+    let text = format!(
+        "# header\nPARAM robot_frontlaser_offset 0.1 host 0\n{}{}ODOM 0 0 0 0 0 0 1.0 h 1\nODOM 0.5 0 0 0 0 0 3.0 h 3\n",
+        rl("1.5", 0.0),
+        rl("2.5", 1.0)
+    );
+    let p = write(dir.path(), "robot.log", &text);
+    let log = read_carmen(&p, &CarmenOptions::default()).unwrap();
+    let rec = &log.recording;
+    assert_eq!(rec.scans.len(), 2);
+    assert_eq!(rec.scans.ranges(1), &[1.0, 2.0, 3.0]);
+    assert_eq!(rec.lidar.beam_count, 3);
+    assert_eq!(rec.lidar.angle_min_rad, -0.5);
+    assert_eq!(rec.lidar.angle_increment_rad, 0.5);
+    // the mount from the laser and robot poses of ROBOTLASER1 wins over PARAM
+    assert!((rec.body_from_lidar.translation.x - 0.3).abs() < 1e-12);
+    // ODOM lines present: they are the odometry
+    assert!(!log.stats.odometry_from_laser);
+    assert_eq!(rec.odometry.len(), 2);
+    assert_eq!(rec.odometry.poses[1].pose.x_m, 0.5);
+
+    // FLASER + RLASER with PARAM offsets
+    let text = "PARAM robot_frontlaser_offset 0.25 h 0\nPARAM robot_rearlaser_offset -0.2 h 0\n\
+FLASER 2 1.0 2.0 0 0 0 5 6 0.1 1.0 h 1\n\
+RLASER 2 3.0 4.0 0 0 0 5 6 0.1 1.1 h 1\n\
+FLASER 2 1.5 2.5 0 0 0 7 6 0.2 2.0 h 2\n";
+    let p = write(dir.path(), "two.clf", text);
+    let front = read_carmen(&p, &CarmenOptions::default()).unwrap();
+    assert_eq!(front.recording.scans.len(), 2);
+    assert!((front.recording.body_from_lidar.translation.x - 0.25).abs() < 1e-12);
+    // odometry from the FLASER lines' odom_x odom_y odom_theta
+    assert!(front.stats.odometry_from_laser);
+    assert_eq!(front.recording.odometry.poses[1].pose.x_m, 7.0);
+    // 2 beams over 180 deg
+    assert!((front.recording.lidar.angle_increment_rad - std::f64::consts::PI).abs() < 1e-12);
+    let rear = read_carmen(
+        &p,
+        &CarmenOptions {
+            laser: CarmenLaser::Rear,
+            ..CarmenOptions::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(rear.recording.scans.len(), 1);
+    assert_eq!(rear.recording.scans.ranges(0), &[3.0, 4.0]);
+    let r = rear.recording.body_from_lidar;
+    assert!((r.translation.x + 0.2).abs() < 1e-12);
+    assert!(
+        (r.rotation[(0, 0)] + 1.0).abs() < 1e-12,
+        "rear laser faces backwards"
+    );
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(128))]
+    // any jumble of CARMEN-like tokens is read or refused with a position, never a panic
+    #[test]
+    fn carmen_never_panics(tokens in proptest::collection::vec(0usize..14, 0..120)) {
+        const T: [&str; 14] = [
+            "FLASER", "ODOM", "ROBOTLASER1", "RLASER", "PARAM", "robot_frontlaser_offset",
+            "3", "1.5", "-2", "x", "nan", "1e400", "\n", "0",
+        ];
+        let text: Vec<&str> = tokens.iter().map(|&i| T[i]).collect();
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(dir.path(), "fuzz.clf", &text.join(" "));
+        if let Err(e) = read_carmen(&p, &CarmenOptions::default()) {
+            let e = e.to_string();
+            proptest::prop_assert!(e.contains("fuzz.clf:"), "{}", e);
         }
     }
 }

@@ -88,7 +88,8 @@ pub struct CarmenStats {
     pub odom_out_of_order: usize,
     /// Laser lines of the chosen laser.
     pub laser_lines: usize,
-    /// Laser lines whose stamp is out of order (moved by sorting) or repeated (dropped).
+    /// Laser lines whose stamp is not above the previous one's (sorted into place; a repeated
+    /// stamp is dropped).
     pub laser_out_of_order: usize,
     /// Lines of other message types (skipped).
     pub other_lines: usize,
@@ -148,27 +149,22 @@ pub(crate) fn longest_increasing(stamps: &[i64]) -> Vec<usize> {
 }
 
 /// Scans sorted by stamp (stable; of scans with equal stamps the first is kept) and the
-/// number of scans that were out of order or dropped as duplicates.
+/// number of scans whose stamp is not above the previous one's in file order.
 pub(crate) fn sort_scans(scans: ScanSet) -> (ScanSet, usize) {
-    if scans.stamps_ns.windows(2).all(|w| w[0] < w[1]) {
+    let backwards = scans.stamps_ns.windows(2).filter(|w| w[1] <= w[0]).count();
+    if backwards == 0 {
         return (scans, 0);
     }
     let mut order: Vec<usize> = (0..scans.len()).collect();
     order.sort_by_key(|&i| scans.stamps_ns[i]);
     let mut out = ScanSet::new(scans.beam_count);
-    let mut changed = 0;
-    for (k, &i) in order.iter().enumerate() {
+    for &i in &order {
         let s = scans.stamps_ns[i];
-        if out.stamps_ns.last() == Some(&s) {
-            changed += 1;
-            continue;
+        if out.stamps_ns.last() != Some(&s) {
+            out.push(s, scans.ranges(i));
         }
-        if i != k {
-            changed += 1;
-        }
-        out.push(s, scans.ranges(i));
     }
-    (out, changed)
+    (out, backwards)
 }
 
 /// Opens a possibly gzipped text file for buffered reading (gzip detected by its magic bytes).
@@ -546,6 +542,9 @@ fn push_scan(
     stamp_ns: i64,
     ranges: &[f32],
 ) -> Result<(), IoError> {
+    if ranges.is_empty() {
+        return Err(IoError::parse(path, line, "laser line with 0 readings"));
+    }
     match geometry {
         Some(prev) if *prev != g => {
             return Err(IoError::parse(

@@ -7,7 +7,9 @@
 pub mod carmen;
 pub mod humanoid;
 pub mod map_files;
+pub mod mcap;
 pub mod opencv_yaml;
+pub mod recording;
 pub mod ros1;
 pub mod ros_msgs;
 pub mod tum;

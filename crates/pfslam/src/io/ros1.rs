@@ -10,30 +10,22 @@
 
 use super::IoError;
 use super::ros_msgs::{
-    Decoder, RecordingBuilder, RosError, RosOptions, decode_odometry, decode_scan, decode_tf,
+    Decoder, RecordingBuilder, RosError, RosOptions, RosStats, decode_odometry, decode_scan,
+    decode_tf,
 };
 use crate::sensors::Recording;
 use rosbag::{ChunkRecord, MessageRecord, RosBag};
 use std::collections::HashMap;
-use std::io::Read;
 use std::path::Path;
 
 const MAGIC: &[u8] = b"#ROSBAG V2.0\n";
 
 /// Checks the bag header; returns `(first record offset, index_pos)`.
 fn check_header(path: &Path) -> Result<(u64, u64), RosError> {
-    let mut f = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
-    let file_len = f.metadata().map_err(|e| IoError::io(path, e))?.len();
-    let mut head = vec![0u8; 4096];
-    let mut n = 0;
-    while n < head.len() {
-        let k = f.read(&mut head[n..]).map_err(|e| IoError::io(path, e))?;
-        if k == 0 {
-            break;
-        }
-        n += k;
-    }
-    head.truncate(n);
+    let file_len = std::fs::metadata(path)
+        .map_err(|e| IoError::io(path, e))?
+        .len();
+    let head = super::recording::read_head(path, 4096)?;
     if !head.starts_with(MAGIC) {
         return Err(RosError::format(
             path,
@@ -95,6 +87,14 @@ fn check_header(path: &Path) -> Result<(u64, u64), RosError> {
 
 /// Reads a ROS 1 bag into a [`Recording`].
 pub fn read_ros1_bag(path: &Path, options: &RosOptions) -> Result<Recording, RosError> {
+    read_ros1_bag_with_stats(path, options).map(|(r, _)| r)
+}
+
+/// Reads a ROS 1 bag into a [`Recording`], with what was read and dropped.
+pub fn read_ros1_bag_with_stats(
+    path: &Path,
+    options: &RosOptions,
+) -> Result<(Recording, RosStats), RosError> {
     check_header(path)?;
     let bag = RosBag::new(path).map_err(|e| RosError::format(path, "byte 0", e.to_string()))?;
     let mut builder = RecordingBuilder::new();

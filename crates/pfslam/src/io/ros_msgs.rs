@@ -357,6 +357,22 @@ pub fn decode_tf(d: &mut Decoder<'_>) -> Result<Vec<TfMsg>, String> {
     Ok(out)
 }
 
+/// What a ROS reader read and dropped.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RosStats {
+    /// `LaserScan` messages read.
+    pub scan_messages: usize,
+    /// Scans whose stamp is not above the previous one's (sorted into place; a repeated stamp
+    /// is dropped).
+    pub scans_out_of_order: usize,
+    /// `Odometry` messages read.
+    pub odometry_messages: usize,
+    /// Odometry messages dropped because their stamp is out of order or repeated.
+    pub odometry_out_of_order: usize,
+    /// True when the laser mount came from `/tf_static` (else identity).
+    pub mount_from_tf: bool,
+}
+
 /// Collects decoded messages and turns them into a [`Recording`].
 #[derive(Debug, Default)]
 pub struct RecordingBuilder {
@@ -374,8 +390,12 @@ impl RecordingBuilder {
         RecordingBuilder::default()
     }
 
-    /// Adds a scan; `Err` with a message when its beam count differs from the first scan's.
+    /// Adds a scan; `Err` with a message when it is empty or its beam count differs from the
+    /// first scan's.
     pub fn add_scan(&mut self, msg: ScanMsg) -> Result<(), String> {
+        if msg.ranges.is_empty() {
+            return Err("scan has no range".into());
+        }
         let set = self
             .scans
             .get_or_insert_with(|| ScanSet::new(msg.ranges.len()));
@@ -440,8 +460,13 @@ impl RecordingBuilder {
         None
     }
 
-    /// The recording; `Err` with a message when there is no scan or no odometry.
-    pub fn finish(self, name: String, options: &RosOptions) -> Result<Recording, String> {
+    /// The recording and what was dropped; `Err` with a message when there is no scan or no
+    /// odometry.
+    pub fn finish(
+        self,
+        name: String,
+        options: &RosOptions,
+    ) -> Result<(Recording, RosStats), String> {
         let (Some(scans), Some(first)) = (self.scans.as_ref(), self.first_scan.as_ref()) else {
             return Err(format!("no LaserScan message on {}", options.scan_topic));
         };
@@ -468,7 +493,9 @@ impl RecordingBuilder {
                 range_max_m: options.range_max_m.unwrap_or(first.range_max),
             }
         };
-        let body_from_lidar = match self.mount() {
+        let mount = self.mount();
+        let mount_from_tf = mount.is_some();
+        let body_from_lidar = match mount {
             Some(m) => m,
             None => {
                 tracing::warn!(
@@ -480,11 +507,19 @@ impl RecordingBuilder {
             }
         };
         let scans = self.scans.unwrap_or_default();
-        let (scans, _) = super::carmen::sort_scans(scans);
+        let scan_messages = scans.len();
+        let (scans, scans_out_of_order) = super::carmen::sort_scans(scans);
         let stamps: Vec<i64> = self.odom.iter().map(|p| p.stamp_ns).collect();
         let keep = super::carmen::longest_increasing(&stamps);
         let odometry = Trajectory::new(keep.iter().map(|&i| self.odom[i]).collect());
-        Ok(Recording {
+        let stats = RosStats {
+            scan_messages,
+            scans_out_of_order,
+            odometry_messages: self.odom.len(),
+            odometry_out_of_order: self.odom.len() - keep.len(),
+            mount_from_tf,
+        };
+        let rec = Recording {
             name,
             odometry,
             imu_yaw: None,
@@ -493,7 +528,8 @@ impl RecordingBuilder {
             body_from_lidar,
             body_from_lidar_per_scan: None,
             ground_truth: None,
-        })
+        };
+        Ok((rec, stats))
     }
 }
 
@@ -634,5 +670,63 @@ mod tests {
         assert_eq!(back.child_frame_id, "base_link");
         assert!((back.pose.yaw_rad - 3.0).abs() < 1e-12);
         assert!(Decoder::cdr(&[0, 0, 0, 0]).is_err());
+    }
+
+    proptest::proptest! {
+        // arbitrary bytes never panic the decoders, in either serialisation
+        #[test]
+        fn decoders_never_panic(bytes in proptest::collection::vec(proptest::num::u8::ANY, 0..200), cdr in proptest::bool::ANY) {
+            let mk = || if cdr { Decoder::cdr(&bytes).ok() } else { Some(Decoder::ros1(&bytes)) };
+            if let Some(mut d) = mk() { let _ = decode_scan(&mut d); }
+            if let Some(mut d) = mk() { let _ = decode_odometry(&mut d); }
+            if let Some(mut d) = mk() { let _ = decode_tf(&mut d); }
+        }
+    }
+
+    #[test]
+    fn mount_follows_static_chain() {
+        let mut b = RecordingBuilder::new();
+        b.add_scan(ScanMsg {
+            stamp_ns: 10,
+            frame_id: "laser".into(),
+            angle_min: -1.0,
+            angle_max: 1.0,
+            angle_increment: 1.0,
+            range_min: 0.0,
+            range_max: 30.0,
+            ranges: vec![1.0, 2.0, 3.0],
+        })
+        .unwrap();
+        b.add_odometry(OdomMsg {
+            stamp_ns: 5,
+            frame_id: "odom".into(),
+            child_frame_id: "base_link".into(),
+            pose: Pose2::IDENTITY,
+        });
+        let tf = |parent: &str, child: &str, p: Pose2| TfMsg {
+            parent: parent.into(),
+            child: child.into(),
+            parent_from_child: Rigid3::from_pose2(&p),
+        };
+        b.add_tf_static(vec![
+            tf("mast", "laser", Pose2::new(0.1, 0.0, 0.0)),
+            tf(
+                "base_link",
+                "mast",
+                Pose2::new(0.2, 0.0, std::f64::consts::FRAC_PI_2),
+            ),
+        ]);
+        let (rec, stats) = b.finish("t".into(), &RosOptions::default()).unwrap();
+        assert!(stats.mount_from_tf);
+        // base_from_laser = base_from_mast * mast_from_laser: (0.2, 0.1)
+        let t = rec.body_from_lidar.translation;
+        assert!(
+            (t.x - 0.2).abs() < 1e-12 && (t.y - 0.1).abs() < 1e-12,
+            "{t:?}"
+        );
+        // not CARMEN-shaped: geometry as recorded
+        assert_eq!(rec.lidar.beam_count, 3);
+        assert_eq!(rec.lidar.angle_increment_rad, 1.0);
+        assert_eq!(rec.lidar.range_max_m, 30.0);
     }
 }
