@@ -29,6 +29,8 @@ pub enum Command {
     DeadReckon(cmd::dead_reckon::Args),
     /// Simulate the car (or the humanoid) in a world: dataset + ground truth.
     Simulate(cmd::simulate::Args),
+    /// Particle-filter SLAM on a dataset: trajectory, maps, summary.
+    Run(cmd::run::Args),
     /// Print the full default configuration as TOML.
     PrintConfig(cmd::print_config::Args),
     /// Accuracy of a trajectory: ATE/RPE against ground truth, or the relations metric.
@@ -43,6 +45,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Demo(a)) => cmd::demo::run(a),
         Some(Command::DeadReckon(a)) => cmd::dead_reckon::run(a),
         Some(Command::PrintConfig(a)) => cmd::print_config::run(a),
+        Some(Command::Run(a)) => cmd::run::run(a),
         Some(Command::Simulate(a)) => cmd::simulate::run(a),
         Some(Command::Eval(a)) => cmd::eval::run(a),
     }

@@ -467,7 +467,12 @@ fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> 
         mo.scan_step = config.filter.update_every_scans;
         let (g, _, _) = pfslam::map::map_with_poses(&rec, &gt_traj, &mo).unwrap();
         let c = pfslam::map::compare_maps(&g.to_binary_map(None), &truth, 1).unwrap();
-        eprintln!("GT-POSE MAP precision {:.3} recall {:.3} recall_all {:.3}", c.precision(), c.recall(), c.recall_all());
+        eprintln!(
+            "GT-POSE MAP precision {:.3} recall {:.3} recall_all {:.3}",
+            c.precision(),
+            c.recall(),
+            c.recall_all()
+        );
     }
     let est = result.map.to_binary_map(None);
     let cmp = pfslam::map::compare_maps(&est, &truth, 1).unwrap();
@@ -564,12 +569,21 @@ fn explore_score_grid() {
     for k in (0..rec.scans.len()).step_by(5) {
         let pose = gt[k].pose;
         proj.to_body(rec.scans.ranges(k), &mut body).unwrap();
-        let hits: Vec<[f64; 2]> = body.points.iter().filter(|p| p.hit).map(|p| [p.x_m, p.y_m]).collect();
+        let hits: Vec<[f64; 2]> = body
+            .points
+            .iter()
+            .filter(|p| p.hit)
+            .map(|p| [p.x_m, p.y_m])
+            .collect();
         if k > 0 {
             // Offsets in the body frame (along-track x, left y), one cell steps.
             for (a, row) in sum.iter_mut().enumerate() {
                 for (b, v) in row.iter_mut().enumerate() {
-                    let d = pfslam::geometry::Pose2::new((b as f64 - 4.0) * 0.1, (a as f64 - 4.0) * 0.1, 0.0);
+                    let d = pfslam::geometry::Pose2::new(
+                        (b as f64 - 4.0) * 0.1,
+                        (a as f64 - 4.0) * 0.1,
+                        0.0,
+                    );
                     *v += f64::from(correlation(&grid, &hits, &pose.compose(&d)));
                 }
             }
@@ -578,6 +592,12 @@ fn explore_score_grid() {
         grid.insert_scan(&w, &mut ins).unwrap();
     }
     for row in sum.iter().rev() {
-        eprintln!("{}", row.iter().map(|v| format!("{:7.0}", v)).collect::<Vec<_>>().join(" "));
+        eprintln!(
+            "{}",
+            row.iter()
+                .map(|v| format!("{:7.0}", v))
+                .collect::<Vec<_>>()
+                .join(" ")
+        );
     }
 }

@@ -4,8 +4,8 @@
 use pfslam::geometry::{Pose2, Rigid3, StampedPose2, Trajectory};
 use pfslam::io::map_files::{read_map_server, read_npy_f32, write_logodds_npy, write_map_server};
 use pfslam::map::{
-    BinaryMap, Cell, CellState, InsertScratch, MapLimits, MapOptions, OccupancyGrid,
-    ScanProjector, ScanOptions, compare_maps, map_with_poses, to_world,
+    BinaryMap, Cell, CellState, InsertScratch, MapLimits, MapOptions, OccupancyGrid, ScanOptions,
+    ScanProjector, compare_maps, map_with_poses, to_world,
 };
 use pfslam::sensors::{LidarGeometry, Recording, ScanSet};
 
@@ -204,9 +204,17 @@ fn simulated_campus_with_ground_truth_matches_the_true_map() {
     let inside = out
         .ground_truth
         .iter()
-        .filter(|g| world.prisms.iter().any(|p| p.contains_xy(g.pose.x_m, g.pose.y_m)))
+        .filter(|g| {
+            world
+                .prisms
+                .iter()
+                .any(|p| p.contains_xy(g.pose.x_m, g.pose.y_m))
+        })
         .count();
-    eprintln!("ground-truth poses inside an obstacle: {inside} of {}", out.ground_truth.len());
+    eprintln!(
+        "ground-truth poses inside an obstacle: {inside} of {}",
+        out.ground_truth.len()
+    );
     let truth_poses = Trajectory::new(out.ground_truth.clone());
     // 0.1 m, UCSD log-odds, 2-75 m; the car's LiDAR is tilted 37 deg up at its centre beam,
     // so only returns in the true map's height band are kept (a ray from the sensor at 1.76 m
@@ -226,12 +234,25 @@ fn simulated_campus_with_ground_truth_matches_the_true_map() {
     out.true_map.write(dir.path(), "true_map").unwrap();
     let truth = read_map_server(&dir.path().join("true_map.yaml")).unwrap();
     let c = compare_maps(&grid.to_binary_map(None), &truth, 1).unwrap();
-    eprintln!("campus, {} scans, ground-truth poses: {c}", stats.scans_inserted);
+    eprintln!(
+        "campus, {} scans, ground-truth poses: {c}",
+        stats.scans_inserted
+    );
     if let Ok(d) = std::env::var("PFSLAM_MAP_DEBUG_DIR") {
         let d = std::path::Path::new(&d);
         let poses: Vec<Pose2> = out.ground_truth.iter().map(|s| s.pose).collect();
-        let ov = [pfslam::viz::map_image::TrajectoryOverlay { label: "ground truth", poses: &poses }];
-        pfslam::viz::map_image::write_map_png(&d.join("campus_map.png"), &grid, &ov, None, &Default::default()).unwrap();
+        let ov = [pfslam::viz::map_image::TrajectoryOverlay {
+            label: "ground truth",
+            poses: &poses,
+        }];
+        pfslam::viz::map_image::write_map_png(
+            &d.join("campus_map.png"),
+            &grid,
+            &ov,
+            None,
+            &Default::default(),
+        )
+        .unwrap();
         out.true_map.write(d, "true_map").unwrap();
         let est = grid.to_binary_map(None);
         let mut img = image::RgbImage::new(est.width as u32, est.height as u32);

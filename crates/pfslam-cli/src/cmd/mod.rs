@@ -4,4 +4,5 @@ pub mod dead_reckon;
 pub mod demo;
 pub mod eval;
 pub mod print_config;
+pub mod run;
 pub mod simulate;

@@ -20,8 +20,8 @@ pub mod weights;
 
 use crate::config::Config;
 use crate::geometry::Pose2;
-use correlate::{CorrelationScratch, CorrelationSearch, OccupancyLookup, ScanMatch};
 use crate::motion::odometry_model::OdometryModelOptions;
+use correlate::{CorrelationScratch, CorrelationSearch, OccupancyLookup, ScanMatch};
 use particles::ParticleSet;
 use prediction::PredictionModel;
 use rand_xoshiro::Xoshiro256PlusPlus;

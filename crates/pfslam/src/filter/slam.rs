@@ -418,7 +418,10 @@ pub fn anchor_odometry_to_ground_truth(recording: &mut Recording) -> bool {
     };
     let gt = crate::geometry::Trajectory::new(gt.clone());
     let anchor = recording.scans.stamps_ns.iter().find_map(|&t| {
-        Some(gt.pose_at(t)?.compose(&recording.odometry.pose_at(t)?.inverse()))
+        Some(
+            gt.pose_at(t)?
+                .compose(&recording.odometry.pose_at(t)?.inverse()),
+        )
     });
     let Some(world_from_odom) = anchor else {
         return false;
@@ -440,7 +443,13 @@ pub fn true_map_as_binary(truth: &crate::sim::TrueMap) -> crate::map::BinaryMap 
         cells: truth
             .occupied
             .iter()
-            .map(|&o| if o { CellState::Occupied } else { CellState::Free })
+            .map(|&o| {
+                if o {
+                    CellState::Occupied
+                } else {
+                    CellState::Free
+                }
+            })
             .collect(),
     }
 }
