@@ -23,3 +23,4 @@ fn unknown_subcommand_exits_2() {
 
 mod cli_data;
 mod cli_eval;
+mod cli_run;

@@ -140,9 +140,26 @@ pub fn annotate_toml(toml: &str) -> String {
             }
         }
     };
+    // Optional keys left out of the TOML (`None`) are listed as comments at the end of their
+    // table, so every option is visible.
+    let flush_unset = |out: &mut String, table: Option<&str>, printed: &[String]| {
+        let Some(t) = table else { return };
+        for d in docs
+            .iter()
+            .filter(|d| d.struct_name == t && d.type_name == "Option")
+        {
+            if !printed.contains(&d.field) {
+                push_doc(out, Some(d));
+                out.push_str(&format!("# {} = (unset)\n", d.field));
+            }
+        }
+    };
+    let mut printed: Vec<String> = Vec::new();
     for line in toml.lines() {
         let t = line.trim();
         if t.starts_with('[') && !line.starts_with(' ') {
+            flush_unset(&mut out, table.as_deref(), &printed);
+            printed.clear();
             let path = t.trim_matches(|c| c == '[' || c == ']');
             let mut s = Some("Config".to_string());
             let mut last = None;
@@ -160,6 +177,7 @@ pub fn annotate_toml(toml: &str) -> String {
             && key.chars().all(|c| c.is_alphanumeric() || c == '_')
         {
             push_doc(&mut out, table.as_deref().and_then(|s| find(s, key)));
+            printed.push(key.to_string());
         } else if t.is_empty() {
             // Section spacing is handled at headers.
             continue;
@@ -167,6 +185,7 @@ pub fn annotate_toml(toml: &str) -> String {
         out.push_str(line);
         out.push('\n');
     }
+    flush_unset(&mut out, table.as_deref(), &printed);
     out
 }
 
