@@ -523,6 +523,7 @@ fn explore_sim() {
     config.filter.yaw_offsets_deg = if y > 0.0 { vec![-y, 0.0, y] } else { vec![0.0] };
     config.map.resolution_m = env("PF_RES", 0.1);
     config.filter.move_to_best_offset = env("PF_MOVE", 1.0) > 0.5;
+    config.filter.map_between_updates = env("PF_MAPALL", 0.0) > 0.5;
     let zmin = env("PF_ZMIN", -1e9);
     if zmin > -1e8 {
         config.map.scan.z_min_m = Some(zmin);

@@ -38,6 +38,9 @@ pub struct FilterOptions {
     pub particles: usize,
     /// Update (correlate, reweight, map) with every k-th scan; the seeds use 5.
     pub update_every_scans: usize,
+    /// Also insert the scans between updates into the map, at the output pose (the last
+    /// estimate moved by odometry). The seeds map only at updates (false).
+    pub map_between_updates: bool,
     /// Half-width of the x/y correlation search in cells (4 = the seeds' 9x9 grid).
     pub xy_search_radius_cells: u32,
     /// Yaw offsets tried by the correlation search (deg); should contain 0.
@@ -67,6 +70,7 @@ impl Default for FilterOptions {
         FilterOptions {
             particles: 40,
             update_every_scans: 5,
+            map_between_updates: false,
             xy_search_radius_cells: 4,
             yaw_offsets_deg: vec![-0.5, 0.0, 0.5],
             move_to_best_offset: true,

@@ -71,6 +71,13 @@ pub trait MapPolicy: ParticleMaps {
         best: usize,
         body_scan: &PlanarScan,
     ) -> Result<(), MapError>;
+    /// Integrates a scan between updates at `world_from_body` (the output pose: the last
+    /// estimate moved by odometry) into every map.
+    fn integrate_at(
+        &mut self,
+        world_from_body: &Pose2,
+        body_scan: &PlanarScan,
+    ) -> Result<(), MapError>;
     /// The particles were resampled: particle `k` is now a copy of old particle
     /// `ancestors[k]`.
     fn resampled(&mut self, ancestors: &[usize]);
@@ -116,6 +123,13 @@ impl MapPolicy for BestParticleMap {
         to_world(body_scan, &pose, &mut self.world);
         self.grid.insert_scan(&self.world, &mut self.scratch)?;
         Ok(())
+    }
+    fn integrate_at(
+        &mut self,
+        world_from_body: &Pose2,
+        body_scan: &PlanarScan,
+    ) -> Result<(), MapError> {
+        self.integrate(std::slice::from_ref(world_from_body), 0, body_scan)
     }
     fn resampled(&mut self, _ancestors: &[usize]) {}
     fn map_for_output(&self, _best: usize) -> &OccupancyGrid {
@@ -347,7 +361,21 @@ pub fn run_slam_with<P: MapPolicy>(
             last_update_odom = odom.pose;
             estimate
         } else {
-            last_estimate.compose(&last_update_odom.between(&odom.pose))
+            let estimate = last_estimate.compose(&last_update_odom.between(&odom.pose));
+            if opts.map_between_updates {
+                // Insert this scan at the composed pose: the map then reaches up to the
+                // latest scan when the next update correlates against it.
+                let t = Instant::now();
+                if recording.body_from_lidar_per_scan.is_some() {
+                    projector.set_mount(&recording.lidar, recording.body_from_lidar_at(i));
+                }
+                projector.to_body(scans.ranges(i), &mut body)?;
+                stats.timings.preprocess_s += t.elapsed().as_secs_f64();
+                let t = Instant::now();
+                policy.integrate_at(&estimate, &body)?;
+                stats.timings.map_update_s += t.elapsed().as_secs_f64();
+            }
+            estimate
         };
         trajectory.push(StampedPose2 {
             stamp_ns,
