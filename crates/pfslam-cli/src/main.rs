@@ -29,6 +29,8 @@ pub enum Command {
     DeadReckon(cmd::dead_reckon::Args),
     /// Simulate the car (or the humanoid) in a world: dataset + ground truth.
     Simulate(cmd::simulate::Args),
+    /// Reproduce an experiment table (`seeds`: particles x Table 1 noise on the simulator).
+    Experiment(cmd::experiment::Args),
     /// Particle-filter SLAM on a dataset: trajectory, maps, summary.
     Run(cmd::run::Args),
     /// Print the full default configuration as TOML.
@@ -46,6 +48,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::DeadReckon(a)) => cmd::dead_reckon::run(a),
         Some(Command::PrintConfig(a)) => cmd::print_config::run(a),
         Some(Command::Run(a)) => cmd::run::run(a),
+        Some(Command::Experiment(a)) => cmd::experiment::run(a),
         Some(Command::Simulate(a)) => cmd::simulate::run(a),
         Some(Command::Eval(a)) => cmd::eval::run(a),
     }
