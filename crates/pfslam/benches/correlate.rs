@@ -30,29 +30,38 @@ fn bench(c: &mut Criterion) {
         to_world(&body, &out.ground_truth[k].pose, &mut world_scan);
         grid.insert_scan(&world_scan, &mut ins).expect("insert");
     }
-    proj.to_body(rec.scans.ranges(n - 1), &mut body).expect("scan");
-    let hits: Vec<[f64; 2]> = body
-        .points
-        .iter()
-        .filter(|p| p.hit)
-        .map(|p| [p.x_m, p.y_m])
-        .collect();
+    proj.to_body(rec.scans.ranges(n - 1), &mut body)
+        .expect("scan");
+    let mut hits = Vec::new();
+    pfslam::filter::correlate::hit_points(&body, &mut hits);
     let pose = out.ground_truth[n - 1].pose;
     let search = config.filter.search();
     let mut g = c.benchmark_group("correlate");
     let mut scratch = CorrelationScratch::default();
     g.bench_function(format!("one_particle_{}_points", hits.len()), |b| {
-        b.iter(|| black_box(best_match(&grid, black_box(&hits), &pose, &search, &mut scratch)))
+        b.iter(|| {
+            black_box(best_match(
+                &grid,
+                black_box(&hits),
+                &pose,
+                &search,
+                &mut scratch,
+            ))
+        })
     });
     let policy = BestParticleMap::new(grid.clone());
     for particles in [40usize, 100] {
         let mut pf = ParticleFilter::new(particles, pose, 1);
-        g.bench_with_input(BenchmarkId::new("reweight", particles), &particles, |b, _| {
-            b.iter(|| {
-                pf.particles.poses.fill(pose);
-                black_box(pf.reweight(&SharedMap(&policy.grid), &hits, &search, 10.0, true))
-            })
-        });
+        g.bench_with_input(
+            BenchmarkId::new("reweight", particles),
+            &particles,
+            |b, _| {
+                b.iter(|| {
+                    pf.particles.poses.fill(pose);
+                    black_box(pf.reweight(&SharedMap(&policy.grid), &hits, &search, 10.0, true))
+                })
+            },
+        );
     }
     g.finish();
 }

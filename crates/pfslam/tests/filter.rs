@@ -158,7 +158,6 @@ fn prediction_is_thread_count_independent() {
 // ---------------------------------------------------------------------------------------
 
 mod synthetic {
-    use pfslam::filter::slam::MotionModel;
     use pfslam::geometry::{Pose2, Rigid3, StampedPose2, Trajectory};
     use pfslam::sensors::{LidarGeometry, Recording, ScanSet};
     use rand::SeedableRng;
@@ -277,30 +276,6 @@ mod synthetic {
             ground_truth: Some(gt),
         }
     }
-
-    /// Test motion model: the odometry step with additive Gaussian noise per step.
-    pub struct RelativeNoise {
-        pub xy_sd_m: f64,
-        pub yaw_sd_rad: f64,
-    }
-
-    impl MotionModel for RelativeNoise {
-        fn sample(
-            &self,
-            pose: &Pose2,
-            from: &StampedPose2,
-            to: &StampedPose2,
-            rng: &mut Xoshiro256PlusPlus,
-        ) -> Pose2 {
-            let rel = from.pose.between(&to.pose);
-            let n = Normal::new(0.0, 1.0).unwrap();
-            pose.compose(&Pose2::new(
-                rel.x_m + self.xy_sd_m * n.sample(rng),
-                rel.y_m + self.xy_sd_m * n.sample(rng),
-                rel.yaw_rad + self.yaw_sd_rad * n.sample(rng),
-            ))
-        }
-    }
 }
 
 fn ate_rmse(est: &[pfslam::geometry::StampedPose2], gt: &[pfslam::geometry::StampedPose2]) -> f64 {
@@ -326,9 +301,13 @@ fn run_synthetic(
     config.filter.particles = particles;
     config.map.scan.range_min_m = 0.5;
     config.map.scan.range_max_m = 29.0;
-    let motion = synthetic::RelativeNoise {
-        xy_sd_m: 0.01,
-        yaw_sd_rad: 0.003,
+    // The ESE650 seed's model (additive noise on the odometry step), sigmas for 50 Hz steps.
+    let motion = pfslam::filter::prediction::OdometryMotion {
+        options: pfslam::motion::odometry_model::OdometryModelOptions {
+            ese650_sigma: [0.01, 0.01, 0.003],
+            ..pfslam::motion::odometry_model::OdometryModelOptions::ese650()
+        },
+        imu_yaw: None,
     };
     let grid = pfslam::map::OccupancyGrid::new(&config.map).unwrap();
     let mut policy = BestParticleMap::new(grid);
@@ -386,12 +365,8 @@ fn correlation_search_recovers_a_perturbed_pose() {
     to_world(&body, &truth, &mut world);
     let mut grid = OccupancyGrid::new(&config.map).unwrap();
     grid.insert_scan(&world, &mut InsertScratch::new()).unwrap();
-    let hits: Vec<[f64; 2]> = body
-        .points
-        .iter()
-        .filter(|p| p.hit)
-        .map(|p| [p.x_m, p.y_m])
-        .collect();
+    let mut hits = Vec::new();
+    pfslam::filter::correlate::hit_points(&body, &mut hits);
     let at_truth = correlation(&grid, &hits, &truth);
     assert!(
         at_truth as usize > hits.len() * 9 / 10,

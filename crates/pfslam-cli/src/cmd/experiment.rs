@@ -70,9 +70,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     anchor_odometry_to_ground_truth(&mut rec);
     let gt = &out.ground_truth;
     let levels = [
-        ("Table 1 #1 (var 0.5 / 0.05)", VelocityNoise::seed_iteration_1()),
-        ("Table 1 #2 (var 1 / 0.05)", VelocityNoise::seed_iteration_2()),
-        ("Table 1 #3 (var 2 / 0.1)", VelocityNoise::seed_iteration_3()),
+        (
+            "Table 1 #1 (var 0.5 / 0.05)",
+            VelocityNoise::seed_iteration_1(),
+        ),
+        (
+            "Table 1 #2 (var 1 / 0.05)",
+            VelocityNoise::seed_iteration_2(),
+        ),
+        (
+            "Table 1 #3 (var 2 / 0.1)",
+            VelocityNoise::seed_iteration_3(),
+        ),
     ];
     let mut rows = Vec::new();
     let mut dr_ate = f64::NAN;
@@ -109,7 +118,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.seed,
         dr_ate
     );
-    let _ = writeln!(md, "| velocity noise | particles | SLAM ATE RMSE (m) | SLAM time (s) |");
+    let _ = writeln!(
+        md,
+        "| velocity noise | particles | SLAM ATE RMSE (m) | SLAM time (s) |"
+    );
     let _ = writeln!(md, "|---|---|---|---|");
     for r in &rows {
         let _ = writeln!(

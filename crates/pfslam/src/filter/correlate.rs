@@ -7,7 +7,7 @@
 //! floating point.
 
 use crate::geometry::Pose2;
-use crate::map::{Cell, MapLimits};
+use crate::map::{Cell, MapLimits, PlanarScan};
 
 /// What the correlation needs of a map: its cell frame and which cells are occupied. Cells
 /// outside the map are free. Implemented by the occupancy grid; a per-particle map policy
@@ -42,6 +42,13 @@ pub struct ScanMatch {
 pub struct CorrelationScratch {
     cells: Vec<Cell>,
     scores: Vec<u32>,
+}
+
+/// The returns of a preprocessed scan as correlation points (`hit` points only: "no return"
+/// clearing rays say nothing about occupied cells), into a caller-owned buffer.
+pub fn hit_points(scan: &PlanarScan, out: &mut Vec<[f64; 2]>) {
+    out.clear();
+    out.extend(scan.points.iter().filter(|p| p.hit).map(|p| [p.x_m, p.y_m]));
 }
 
 /// Occupied cells hit by `points_body` (body-frame end points, m) seen from

@@ -321,8 +321,7 @@ pub fn run_slam_with<P: MapPolicy>(
                 projector.set_mount(&recording.lidar, recording.body_from_lidar_at(i));
             }
             projector.to_body(scans.ranges(i), &mut body)?;
-            hits.clear();
-            hits.extend(body.points.iter().filter(|p| p.hit).map(|p| [p.x_m, p.y_m]));
+            super::correlate::hit_points(&body, &mut hits);
             stats.timings.preprocess_s += t.elapsed().as_secs_f64();
             let best = if k == 0 {
                 // The first scan seeds the map at the start pose; nothing to correlate with.
