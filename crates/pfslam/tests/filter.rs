@@ -499,6 +499,7 @@ fn explore_sim() {
     config.map.resolution_m = env("PF_RES", 0.1);
     config.filter.move_to_best_offset = env("PF_MOVE", 1.0) > 0.5;
     config.filter.map_between_updates = env("PF_MAPALL", 0.0) > 0.5;
+    config.filter.offset_penalty_hits_per_cell2 = env("PF_PEN", 0.0);
     let zmin = env("PF_ZMIN", -1e9);
     if zmin > -1e8 {
         config.map.scan.z_min_m = Some(zmin);

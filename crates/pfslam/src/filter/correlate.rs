@@ -26,6 +26,10 @@ pub struct CorrelationSearch {
     pub xy_radius_cells: i32,
     /// Yaw offsets tried (rad); should contain 0.
     pub yaw_offsets_rad: Vec<f64>,
+    /// Hits an x/y offset must gain per squared cell of offset to be taken (0 = the seeds:
+    /// the plain maximum). A prior towards the predicted pose: near-ties along a street's
+    /// walls no longer move the particle by whole cells.
+    pub offset_penalty_hits_per_cell2: f64,
 }
 
 /// The best offset found for one particle.
@@ -82,8 +86,10 @@ pub fn best_match<M: OccupancyLookup + ?Sized>(
     let frame = map.cell_limits();
     let r = search.xy_radius_cells.max(0);
     let side = (2 * r + 1) as usize;
-    // (score, -|yaw index|, -(dx^2 + dy^2)) compared lexicographically.
-    let mut best: Option<((u32, i64, i64), Pose2)> = None;
+    // (penalised score in milli-hits, -|yaw|, -(dx^2 + dy^2)) compared lexicographically,
+    // in integers so ties compare exactly.
+    let mut best: Option<((i64, i64, i64), u32, Pose2)> = None;
+    let penalty_milli = (search.offset_penalty_hits_per_cell2.max(0.0) * 1000.0).round() as i64;
     let zero_yaw = [0.0];
     let yaws: &[f64] = if search.yaw_offsets_rad.is_empty() {
         &zero_yaw
@@ -116,20 +122,21 @@ pub fn best_match<M: OccupancyLookup + ?Sized>(
         for (iy, dy) in (-r..=r).enumerate() {
             for (ix, dx) in (-r..=r).enumerate() {
                 let score = scratch.scores[iy * side + ix];
-                let key = (score, yaw_rank, -i64::from(dx * dx + dy * dy));
-                if best.as_ref().is_none_or(|(k, _)| key > *k) {
+                let d2 = i64::from(dx * dx + dy * dy);
+                let key = (i64::from(score) * 1000 - penalty_milli * d2, yaw_rank, -d2);
+                if best.as_ref().is_none_or(|(k, _, _)| key > *k) {
                     let moved = Pose2::new(
                         pose.x_m + f64::from(dx) * frame.resolution_m(),
                         pose.y_m + f64::from(dy) * frame.resolution_m(),
                         pose.yaw_rad,
                     );
-                    best = Some((key, moved));
+                    best = Some((key, score, moved));
                 }
             }
         }
     }
     match best {
-        Some(((score, _, _), pose)) => ScanMatch { pose, score },
+        Some((_, score, pose)) => ScanMatch { pose, score },
         None => ScanMatch {
             pose: *world_from_body,
             score: 0,
@@ -184,6 +191,7 @@ mod tests {
         let search = CorrelationSearch {
             xy_radius_cells: 4,
             yaw_offsets_rad: vec![-0.02, 0.0, 0.02],
+            offset_penalty_hits_per_cell2: 0.0,
         };
         let truth = Pose2::IDENTITY;
         let full = correlation(&map, &pts, &truth);
@@ -203,6 +211,7 @@ mod tests {
         let search = CorrelationSearch {
             xy_radius_cells: 4,
             yaw_offsets_rad: vec![-0.02, 0.0, 0.02],
+            offset_penalty_hits_per_cell2: 0.0,
         };
         let p = Pose2::new(0.31, -0.2, 0.1);
         let m = best_match(&map, &pts, &p, &search, &mut CorrelationScratch::default());

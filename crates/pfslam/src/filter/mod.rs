@@ -45,6 +45,9 @@ pub struct FilterOptions {
     pub xy_search_radius_cells: u32,
     /// Yaw offsets tried by the correlation search (deg); should contain 0.
     pub yaw_offsets_deg: Vec<f64>,
+    /// Hits an x/y search offset must gain per squared cell of offset to be preferred over the
+    /// particle's own pose (0 = the seeds' plain maximum).
+    pub offset_penalty_hits_per_cell2: f64,
     /// Move each particle to its best search offset (true: the particle takes the offset's
     /// pose) or only score it with the best offset's correlation (false: the seeds'
     /// `mapCorrelation` maximum as the weight, the pose stays).
@@ -73,6 +76,7 @@ impl Default for FilterOptions {
             map_between_updates: false,
             xy_search_radius_cells: 4,
             yaw_offsets_deg: vec![-0.5, 0.0, 0.5],
+            offset_penalty_hits_per_cell2: 0.0,
             move_to_best_offset: true,
             temperature: 10.0,
             resample_threshold: 0.1,
@@ -118,6 +122,11 @@ impl FilterOptions {
         if self.yaw_offsets_deg.iter().any(|d| !d.is_finite()) {
             return bad("yaw_offsets_deg", "must be finite");
         }
+        if !(self.offset_penalty_hits_per_cell2.is_finite()
+            && self.offset_penalty_hits_per_cell2 >= 0.0)
+        {
+            return bad("offset_penalty_hits_per_cell2", "must be finite and >= 0");
+        }
         if !(self.temperature.is_finite() && self.temperature > 0.0) {
             return bad("temperature", "must be positive and finite");
         }
@@ -136,6 +145,7 @@ impl FilterOptions {
                 .iter()
                 .map(|d| d.to_radians())
                 .collect(),
+            offset_penalty_hits_per_cell2: self.offset_penalty_hits_per_cell2,
         }
     }
 }
