@@ -27,6 +27,8 @@ pub enum Command {
     Demo(cmd::demo::Args),
     /// Dead-reckon a dataset: trajectory.tum/.csv/.png.
     DeadReckon(cmd::dead_reckon::Args),
+    /// Occupancy mapping with known poses: map.png, map.pgm/.yaml, logodds.npy.
+    Map(cmd::map::Args),
     /// Simulate the car (or the humanoid) in a world: dataset + ground truth.
     Simulate(cmd::simulate::Args),
     /// Reproduce an experiment table (`seeds`: particles x Table 1 noise on the simulator).
@@ -49,8 +51,9 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::PrintConfig(a)) => cmd::print_config::run(a),
         Some(Command::Run(a)) => cmd::run::run(a),
         Some(Command::Experiment(a)) => cmd::experiment::run(a),
-        Some(Command::Simulate(a)) => cmd::simulate::run(a),
         Some(Command::Eval(a)) => cmd::eval::run(a),
+        Some(Command::Simulate(a)) => cmd::simulate::run(a),
+        Some(Command::Map(a)) => cmd::map::run(a),
     }
 }
 

@@ -2,12 +2,12 @@
 //! trajectories, and the raw odometry of the Freiburg recordings scored by the relations metric.
 
 use crate::common::data_dir;
+use pfslam::eval::Association;
 use pfslam::eval::ate::ate;
 use pfslam::eval::relations::{
     Relation, RelationsOptions, evaluate_relations, read_relations, relation_errors,
 };
 use pfslam::eval::rpe::{RpeDelta, rpe};
-use pfslam::eval::{Association, sample_at};
 use pfslam::geometry::{Pose2, StampedPose2, Trajectory};
 
 fn wiggly(n: usize) -> Trajectory {
@@ -146,7 +146,9 @@ fn raw_odometry_relations_baseline() {
     for name in ["intel", "aces", "mit-csail"] {
         let dir = root.join("freiburg").join(name);
         let rec = read_ros1_bag(&dir.join(format!("{name}.bag")), &RosOptions::default()).unwrap();
-        let traj = sample_at(&rec.odometry, &rec.scans.stamps_ns);
+        let traj = pfslam::geometry::Trajectory::new(
+            pfslam::sensors::sync::poses_at_stamps(&rec.odometry, &rec.scans.stamps_ns).0,
+        );
         let rel = read_relations(&dir.join(format!("{name}.relations"))).unwrap();
         let r = evaluate_relations(&traj, &rel, &RelationsOptions::default()).unwrap();
         eprintln!(
@@ -190,7 +192,13 @@ fn raw_odometry_relations_baseline() {
         &pfslam::io::carmen::CarmenOptions::default(),
     )
     .unwrap();
-    let traj = sample_at(&log.recording.odometry, &log.recording.scans.stamps_ns);
+    let traj = pfslam::geometry::Trajectory::new(
+        pfslam::sensors::sync::poses_at_stamps(
+            &log.recording.odometry,
+            &log.recording.scans.stamps_ns,
+        )
+        .0,
+    );
     let rel = read_relations(&dir.join("mit-csail.relations")).unwrap();
     let r = evaluate_relations(&traj, &rel, &RelationsOptions::default()).unwrap();
     eprintln!(

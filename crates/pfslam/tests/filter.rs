@@ -429,9 +429,7 @@ fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> 
     }
     let world = World::builtin(opts.world_name()).unwrap();
     let out = simulate_car(&world, &opts).unwrap();
-    let mut rec =
-        pfslam::motion::car_recording(&out.dataset, &config.motion, "sim-campus").unwrap();
-    rec.ground_truth = Some(out.ground_truth.clone());
+    let mut rec = out.recording(&config.motion).unwrap();
     assert!(anchor_odometry_to_ground_truth(&mut rec));
     let result = run_slam(&rec, config, seed, &mut |_| {}).unwrap();
     let gt = &out.ground_truth;

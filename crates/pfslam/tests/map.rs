@@ -179,20 +179,38 @@ fn synthetic_drive_with_exact_poses_matches_the_truth() {
     eprintln!("synthetic drive: {c}");
     assert!(c.precision() >= 0.99, "{c}");
     assert!(c.recall() >= 0.99, "{c}");
-    assert!(c.recall_all() >= 0.95, "{c}");
+    // Unmatched true walls: only the pillar's interior (never reachable), <= 8 x 8 cells.
+    let unmatched = c.true_occupied_in_extent - c.true_occupied_in_extent_matched;
+    assert!(unmatched <= 64, "{unmatched}: {c}");
     assert!(c.free_agreement() >= 0.999, "{c}");
     // Memory follows the visited area: 22 x 12 m at 0.1 m is a few 6.4 m tiles.
     assert!(grid.tile_count() <= 16, "{}", grid.tile_count());
 }
 
-#[test]
-fn simulated_campus_with_ground_truth_matches_the_true_map() {
-    use pfslam::sim::{SimOptions, simulate_car};
+/// Maps the simulator's default car world (`campus`, noise-free car) with its ground-truth
+/// poses and compares with true maps written and read back as map_server files.
+///
+/// Two deviations from "the whole default drive against the default true map", both stated
+/// in the report:
+/// - only the second leg of the route (north along the inner street x = 120 m) is mapped: on
+///   the first leg the car drives through the outer row of buildings (the simulator's
+///   `facade_row` places the outer rows on the outer streets: 1,350 of the first 3,600 true
+///   poses lie inside a building footprint);
+/// - the map keeps returns between 2.1 and 2.5 m above the ground, and the true map used for
+///   the assertions shows the obstacles in that same band (`TrueMap::rasterize` with that
+///   band). The car's LiDAR sits at 1.76 m and is tilted (its centre beam rises 37 deg): a
+///   2-D map of a 3-D world is only well defined for a height band in which every obstacle
+///   is full height. In 2.1-2.5 m no obstacle of the campus starts or ends (parked cars are
+///   at most 2.1 m, tree canopies start at 2.6 m), so a ray to a return in the band is free
+///   where the band is free. The default band (1-4 m) contains car roofs and canopy bottoms
+///   that rays pass over or under; the figures against it are printed too.
+fn campus_leg(z_window_m: [f64; 2], band_m: [f64; 2]) -> (OccupancyGrid, BinaryMap, BinaryMap) {
+    use pfslam::sim::{SimOptions, TrueMap, World, simulate_car};
     let sim_opts = SimOptions {
-        duration_s: 20.0,
+        duration_s: 36.0,
         ..SimOptions::noise_free()
     };
-    let world = pfslam::sim::World::builtin(sim_opts.world_name()).unwrap();
+    let world = World::builtin(sim_opts.world_name()).unwrap();
     let out = simulate_car(&world, &sim_opts).unwrap();
     let rec = Recording {
         name: "campus".into(),
@@ -201,81 +219,77 @@ fn simulated_campus_with_ground_truth_matches_the_true_map() {
         body_from_lidar: out.dataset.calibration.body_from_lidar,
         ..Recording::default()
     };
-    let inside = out
+    let leg: Vec<StampedPose2> = out
         .ground_truth
         .iter()
-        .filter(|g| {
-            world
-                .prisms
-                .iter()
-                .any(|p| p.contains_xy(g.pose.x_m, g.pose.y_m))
-        })
-        .count();
-    eprintln!(
-        "ground-truth poses inside an obstacle: {inside} of {}",
-        out.ground_truth.len()
-    );
-    let truth_poses = Trajectory::new(out.ground_truth.clone());
-    // 0.1 m, UCSD log-odds, 2-75 m; the car's LiDAR is tilted 37 deg up at its centre beam,
-    // so only returns in the true map's height band are kept (a ray from the sensor at 1.76 m
-    // to a return in the band stays in the band, so its free cells are free in that band).
+        .filter(|g| (g.pose.yaw_rad - std::f64::consts::FRAC_PI_2).abs() < 0.02)
+        .copied()
+        .collect();
+    assert!(leg.len() > 1000, "{}", leg.len());
+    assert!(leg.iter().all(|g| {
+        !world
+            .prisms
+            .iter()
+            .any(|p| p.contains_xy(g.pose.x_m, g.pose.y_m))
+    }));
     let opts = MapOptions {
         scan: ScanOptions {
-            z_min_m: Some(sim_opts.truth_band_min_m),
-            z_max_m: Some(sim_opts.truth_band_max_m),
+            z_min_m: Some(z_window_m[0]),
+            z_max_m: Some(z_window_m[1]),
             ..ScanOptions::default()
         },
         ..MapOptions::default()
     };
-    let (grid, _, stats) = map_with_poses(&rec, &truth_poses, &opts).unwrap();
+    let (grid, _, stats) = map_with_poses(&rec, &Trajectory::new(leg), &opts).unwrap();
     assert!(stats.scans_inserted > 1000);
-    // The true map through its files, as a user would compare.
     let dir = tempfile::tempdir().unwrap();
-    out.true_map.write(dir.path(), "true_map").unwrap();
-    let truth = read_map_server(&dir.path().join("true_map.yaml")).unwrap();
-    let c = compare_maps(&grid.to_binary_map(None), &truth, 1).unwrap();
-    eprintln!(
-        "campus, {} scans, ground-truth poses: {c}",
-        stats.scans_inserted
+    let read = |band: [f64; 2], stem: &str| {
+        let t = TrueMap::rasterize(&world, sim_opts.truth_map_resolution_m, band, 20.0);
+        t.write(dir.path(), stem).unwrap();
+        read_map_server(&dir.path().join(format!("{stem}.yaml"))).unwrap()
+    };
+    let matched = read(band_m, "true_map_band");
+    let default = read(
+        [sim_opts.truth_band_min_m, sim_opts.truth_band_max_m],
+        "true_map",
     );
+    (grid, matched, default)
+}
+
+#[test]
+fn simulated_campus_with_ground_truth_matches_the_true_map() {
+    let (grid, truth, default_truth) = campus_leg([2.1, 2.5], [2.1, 2.5]);
+    let est = grid.to_binary_map(None);
+    let c = compare_maps(&est, &truth, 1).unwrap();
+    let d = compare_maps(&est, &default_truth, 1).unwrap();
+    eprintln!("campus leg, band 2.1-2.5 m: {c}");
+    eprintln!("campus leg vs default true map (1-4 m): {d}");
     if let Ok(d) = std::env::var("PFSLAM_MAP_DEBUG_DIR") {
-        let d = std::path::Path::new(&d);
-        let poses: Vec<Pose2> = out.ground_truth.iter().map(|s| s.pose).collect();
-        let ov = [pfslam::viz::map_image::TrajectoryOverlay {
-            label: "ground truth",
-            poses: &poses,
-        }];
-        pfslam::viz::map_image::write_map_png(
-            &d.join("campus_map.png"),
-            &grid,
-            &ov,
-            None,
-            &Default::default(),
-        )
-        .unwrap();
-        out.true_map.write(d, "true_map").unwrap();
-        let est = grid.to_binary_map(None);
-        let mut img = image::RgbImage::new(est.width as u32, est.height as u32);
-        for j in 0..est.height {
-            for i in 0..est.width {
-                let (x, y) = est.limits.cell_centre(Cell::new(i as i32, j as i32));
-                let t = truth.state_at(x, y);
-                let e = est.get(i as i64, j as i64);
-                let c = match (e, t) {
-                    (CellState::Free, CellState::Occupied) => [255, 0, 0],
-                    (CellState::Occupied, _) => [0, 0, 0],
-                    (CellState::Free, _) => [255, 255, 255],
-                    (_, CellState::Occupied) => [0, 0, 160],
-                    _ => [128, 128, 128],
-                };
-                img.put_pixel(i as u32, (est.height - 1 - j) as u32, image::Rgb(c));
-            }
-        }
-        img.save(d.join("diff.png")).unwrap();
+        write_diff_png(&est, &truth, &std::path::Path::new(&d).join("diff.png"));
     }
     assert!(c.precision() >= 0.95, "{c}");
     assert!(c.recall() >= 0.95, "{c}");
     assert!(c.free_agreement() >= 0.95, "{c}");
+}
+
+/// Debugging aid: estimate vs truth (black: estimated occupied, white: free on true free,
+/// red: free on a true wall, blue: true wall not estimated, grey: unknown).
+fn write_diff_png(est: &BinaryMap, truth: &BinaryMap, path: &std::path::Path) {
+    let mut img = image::RgbImage::new(est.width as u32, est.height as u32);
+    for j in 0..est.height {
+        for i in 0..est.width {
+            let (x, y) = est.limits.cell_centre(Cell::new(i as i32, j as i32));
+            let c = match (est.get(i as i64, j as i64), truth.state_at(x, y)) {
+                (CellState::Occupied, _) => [0, 0, 0],
+                (CellState::Free, CellState::Occupied) => [255, 0, 0],
+                (CellState::Free, _) => [255, 255, 255],
+                (_, CellState::Occupied) => [0, 0, 160],
+                _ => [128, 128, 128],
+            };
+            img.put_pixel(i as u32, (est.height - 1 - j) as u32, image::Rgb(c));
+        }
+    }
+    img.save(path).unwrap();
 }
 
 #[test]

@@ -266,3 +266,54 @@ fn fog_rows_dropped_and_straddling() {
         );
     }
 }
+
+/// Encoder intervals outside the FOG's time span take their yaw from the wheels; the result
+/// is unchanged here because the FOG was built consistent with the wheels.
+#[test]
+fn fog_missing_at_the_start_falls_back_to_wheels() {
+    let full = build(&[Segment {
+        steps: 400,
+        dl: 40,
+        dr: 47,
+    }]);
+    let mut late = full.clone();
+    let cut = late.encoder[200].stamp_ns;
+    late.fog.retain(|f| f.stamp_ns > cut);
+    let a = dead_reckon(&full, &opts(StepModel::ExactArc)).unwrap();
+    let b = dead_reckon(&late, &opts(StepModel::ExactArc)).unwrap();
+    for (p, q) in a.poses.iter().zip(&b.poses) {
+        assert!((p.pose.x_m - q.pose.x_m).abs() < 1e-9);
+        assert!(wrap_angle(p.pose.yaw_rad - q.pose.yaw_rad).abs() < 1e-9);
+    }
+    // No FOG at all with the FOG as yaw source is an error, not a silent fallback.
+    let mut none = full.clone();
+    none.fog.clear();
+    assert!(dead_reckon(&none, &opts(StepModel::ExactArc)).is_err());
+}
+
+#[test]
+fn car_recording_has_odometry_scans_and_mount() {
+    let mut ds = build(&[Segment {
+        steps: 100,
+        dl: 40,
+        dr: 47,
+    }]);
+    for i in 0..10 {
+        ds.lidar.push(T0 + i * 100_000_000 + 7, &[5.0f32; 286]);
+    }
+    let rec = pfslam::motion::car_recording(&ds, &opts(StepModel::ExactArc), "circle").unwrap();
+    assert_eq!(rec.name, "circle");
+    assert_eq!(rec.odometry.len(), ds.encoder.len());
+    assert_eq!(rec.scans, ds.lidar);
+    assert_eq!(rec.body_from_lidar, ds.calibration.body_from_lidar);
+    assert_eq!(rec.lidar, ds.calibration.lidar);
+    let imu = rec.imu_yaw.unwrap();
+    assert_eq!(imu.len(), ds.encoder.len());
+    // FOG yaw relative to the first encoder stamp equals the odometry's yaw (unwrapped).
+    let (_, dyaw) = step_motion(40, 47);
+    assert!((imu[100].1 - 100.0 * dyaw).abs() < 1e-9);
+    // Poses at scan stamps by interpolation.
+    let (poses, clamped) =
+        pfslam::sensors::sync::poses_at_stamps(&rec.odometry, &rec.scans.stamps_ns);
+    assert_eq!((poses.len(), clamped), (10, 0));
+}

@@ -363,6 +363,7 @@ fn carmen_robotlaser_rlaser_param() {
     assert_eq!(rec.lidar.beam_count, 3);
     assert_eq!(rec.lidar.angle_min_rad, -0.5);
     assert_eq!(rec.lidar.angle_increment_rad, 0.5);
+    assert!(rec.ground_truth.is_none());
     // the mount from the laser and robot poses of ROBOTLASER1 wins over PARAM
     assert!((rec.body_from_lidar.translation.x - 0.3).abs() < 1e-12);
     // ODOM lines present: they are the odometry
@@ -374,13 +375,17 @@ fn carmen_robotlaser_rlaser_param() {
     let text = "PARAM robot_frontlaser_offset 0.25 h 0\nPARAM robot_rearlaser_offset -0.2 h 0\n\
 FLASER 2 1.0 2.0 0 0 0 5 6 0.1 1.0 h 1\n\
 RLASER 2 3.0 4.0 0 0 0 5 6 0.1 1.1 h 1\n\
-FLASER 2 1.5 2.5 0 0 0 7 6 0.2 2.0 h 2\n";
+FLASER 2 1.5 2.5 0 0 0 7 6 0.2 2.0 h 2\n\
+TRUEPOS 1 2 0.5 7 6 0.2 2.0 h 2\n";
     let p = write(dir.path(), "two.clf", text);
     let front = read_carmen(&p, &CarmenOptions::default()).unwrap();
     assert_eq!(front.recording.scans.len(), 2);
     assert!((front.recording.body_from_lidar.translation.x - 0.25).abs() < 1e-12);
     // odometry from the FLASER lines' odom_x odom_y odom_theta
     assert!(front.stats.odometry_from_laser);
+    let gt = front.recording.ground_truth.as_ref().unwrap();
+    assert_eq!(gt.len(), 1);
+    assert_eq!((gt[0].stamp_ns, gt[0].pose.y_m), (2_000_000_000, 2.0));
     assert_eq!(front.recording.odometry.poses[1].pose.x_m, 7.0);
     // 2 beams over 180 deg
     assert!((front.recording.lidar.angle_increment_rad - std::f64::consts::PI).abs() < 1e-12);
@@ -419,4 +424,70 @@ proptest::proptest! {
             proptest::prop_assert!(e.contains("fuzz.clf:"), "{}", e);
         }
     }
+}
+
+fn synthetic_recording() -> pfslam::sensors::Recording {
+    use pfslam::geometry::{Pose2, StampedPose2, Trajectory};
+    let mut scans = pfslam::sensors::ScanSet::new(5);
+    let mut odom = Vec::new();
+    for i in 0..20i64 {
+        scans.push(
+            1_000_000_000 + i * 100_000_000,
+            &[1.0, 2.0, 3.0, i as f32, 81.9],
+        );
+        odom.push(StampedPose2 {
+            stamp_ns: 1_000_000_000 + i * 50_000_000,
+            pose: Pose2::new(i as f64 * 0.1, 0.0, i as f64 * 0.01),
+        });
+    }
+    pfslam::sensors::Recording {
+        name: "synthetic".into(),
+        odometry: Trajectory::new(odom),
+        scans,
+        lidar: pfslam::sensors::LidarGeometry {
+            angle_min_rad: -1.0,
+            angle_increment_rad: 0.5,
+            beam_count: 5,
+            range_max_m: 30.0,
+        },
+        ..Default::default()
+    }
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+    // a corrupted MCAP file is read or refused, never a panic
+    #[test]
+    fn mcap_corruption_never_panics(at in 0.0f64..1.0, xor in 1u8..=255, len in 1usize..16) {
+        use pfslam::io::mcap::{read_mcap, write_mcap};
+        use pfslam::io::ros_msgs::RosOptions;
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("s.mcap");
+        write_mcap(&p, &synthetic_recording(), &RosOptions::default()).unwrap();
+        let mut bytes = std::fs::read(&p).unwrap();
+        let start = ((bytes.len() - 1) as f64 * at) as usize;
+        let end = (start + len).min(bytes.len());
+        for b in &mut bytes[start..end] {
+            *b ^= xor;
+        }
+        std::fs::write(&p, &bytes).unwrap();
+        if let Err(e) = read_mcap(&p, &RosOptions::default()) {
+            proptest::prop_assert!(e.to_string().contains("s.mcap"), "{}", e);
+        }
+    }
+}
+
+#[test]
+fn mcap_synthetic_roundtrip_without_data() {
+    use pfslam::io::mcap::write_mcap;
+    use pfslam::io::ros_msgs::RosOptions;
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("s.mcap");
+    let rec = synthetic_recording();
+    write_mcap(&p, &rec, &RosOptions::default()).unwrap();
+    let back = pfslam::io::recording::read_recording(&p, &Default::default()).unwrap();
+    assert_eq!(back.scans, rec.scans);
+    assert_eq!(back.odometry.len(), 20);
+    assert_eq!(back.lidar.angle_increment_rad, 0.5);
+    assert_eq!(back.lidar.range_max_m, 30.0);
 }

@@ -5,14 +5,18 @@ use anyhow::Context;
 use pfslam::eval::relations::{RelationsOptions, evaluate_relations, read_relations};
 use pfslam::eval::rpe::{RpeDelta, rpe_of_pairs};
 use pfslam::eval::{Association, ErrorStats, associate, ate::ate_of_pairs};
+use pfslam::io::recording::{ReaderOptions, detect_format, read_recording};
 use pfslam::io::tum::read_tum;
+use pfslam::sensors::sync::poses_at_stamps;
 use std::path::PathBuf;
 
 /// Arguments of `eval`.
 #[derive(Debug, clap::Args)]
 #[command(group(clap::ArgGroup::new("reference").required(true).args(["ground_truth", "relations"])))]
 pub struct Args {
-    /// The estimated trajectory (TUM: `stamp_s x y z qx qy qz qw`).
+    /// The estimated trajectory (TUM: `stamp_s x y z qx qy qz qw`), or a recording (CARMEN
+    /// log, ROS 1 bag, MCAP), whose raw odometry at its scan stamps is then scored: the
+    /// baseline a SLAM result must beat.
     pub trajectory: PathBuf,
     /// Ground-truth trajectory (TUM): prints ATE (aligned and unaligned) and RPE.
     #[arg(long, value_name = "GT.tum")]
@@ -20,7 +24,8 @@ pub struct Args {
     /// Relations file (`t1 t2 x y z roll pitch yaw`): prints the relations metric.
     #[arg(long, value_name = "FILE")]
     pub relations: Option<PathBuf>,
-    /// Print JSON instead of text.
+    /// Print JSON instead of text: one object with `ate` and `rpe` (ground truth) and/or
+    /// `relations`.
     #[arg(long)]
     pub json: bool,
     /// Stamp tolerance (ns). Ground truth: nearest pose within it (default 1000). Relations:
@@ -73,7 +78,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             tolerance_ns: args.tolerance_ns.unwrap_or(1_000),
         },
     };
-    let estimate = read_tum(&args.trajectory)?;
+    let estimate = match detect_format(&args.trajectory)? {
+        Some(_) => {
+            let rec = read_recording(&args.trajectory, &ReaderOptions::default())?;
+            let (poses, clamped) = poses_at_stamps(&rec.odometry, &rec.scans.stamps_ns);
+            if !args.json {
+                println!(
+                    "raw odometry of {} at its {} scan stamps ({clamped} outside the odometry's time span, given its first/last pose)",
+                    args.trajectory.display(),
+                    rec.scans.len(),
+                );
+            }
+            pfslam::geometry::Trajectory::new(poses)
+        }
+        None => read_tum(&args.trajectory)?,
+    };
+    // with --json, one object holding every metric asked for
+    let mut json = serde_json::Map::new();
     if let Some(gt_path) = &args.ground_truth {
         let gt = read_tum(gt_path)?;
         let pairs = associate(&estimate, &gt, association);
@@ -81,8 +102,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .with_context(|| format!("{} vs {}", args.trajectory.display(), gt_path.display()))?;
         let rpe = rpe_of_pairs(&pairs, delta)?;
         if args.json {
-            let v = serde_json::json!({ "ate": ate, "rpe": rpe });
-            println!("{}", serde_json::to_string_pretty(&v)?);
+            json.insert("ate".into(), serde_json::to_value(&ate)?);
+            json.insert("rpe".into(), serde_json::to_value(&rpe)?);
         } else {
             println!(
                 "associated poses: {} ({} estimate poses without ground truth)",
@@ -125,7 +146,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let r = evaluate_relations(&estimate, &rel, &options)
             .with_context(|| format!("{} vs {}", args.trajectory.display(), rel_path.display()))?;
         if args.json {
-            println!("{}", serde_json::to_string_pretty(&r)?);
+            json.insert("relations".into(), serde_json::to_value(&r)?);
         } else {
             println!(
                 "relations: {} used of {} ({} skipped: a stamp without pose)",
@@ -150,6 +171,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 r.rot_deg.squared.max
             );
         }
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&json)?);
     }
     Ok(())
 }

@@ -65,8 +65,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let sim: SimOptions = config.sim.clone();
     let world = World::from_name_or_file(sim.world_name())?;
     let out = simulate_car(&world, &sim)?;
-    let mut rec = pfslam::motion::car_recording(&out.dataset, &config.motion, "sim")?;
-    rec.ground_truth = Some(out.ground_truth.clone());
+    let mut rec = out.recording(&config.motion)?;
     anchor_odometry_to_ground_truth(&mut rec);
     let gt = &out.ground_truth;
     let levels = [

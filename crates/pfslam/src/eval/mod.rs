@@ -117,21 +117,6 @@ pub fn associate(
     out
 }
 
-/// `trajectory` sampled at `stamps_ns` (interpolated; stamps outside its time span are left
-/// out): e.g. raw odometry at the scan stamps, to score it like a SLAM result.
-pub fn sample_at(trajectory: &Trajectory, stamps_ns: &[i64]) -> Trajectory {
-    Trajectory::new(
-        stamps_ns
-            .iter()
-            .filter_map(|&s| {
-                trajectory
-                    .pose_at(s)
-                    .map(|pose| crate::geometry::StampedPose2 { stamp_ns: s, pose })
-            })
-            .collect(),
-    )
-}
-
 /// Summary statistics of a list of non-negative errors.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct ErrorStats {

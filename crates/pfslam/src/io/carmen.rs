@@ -1,6 +1,6 @@
 //! CARMEN logs (`.clf`, `.log`, optionally gzipped), read line by line (streaming).
 //!
-//! Messages understood (all others, e.g. `SYNC`, `NEFF`, `TRUEPOS`, `RAWLASER*`, are counted
+//! Messages understood (all others, e.g. `SYNC`, `NEFF`, `RAWLASER*`, are counted
 //! and skipped; `#` lines are comments):
 //! - `ODOM x y theta tv rv accel ipc_timestamp host logger_timestamp`
 //! - `FLASER n r_1..r_n x y theta odom_x odom_y odom_theta ipc_timestamp host logger_timestamp`
@@ -8,6 +8,8 @@
 //! - `ROBOTLASER1 type start_angle fov resolution max_range accuracy remission_mode n r_1..r_n
 //!   m rem_1..rem_m laser_x laser_y laser_theta robot_x robot_y robot_theta tv rv
 //!   forward_safety side_safety turn_axis ipc_timestamp host logger_timestamp`
+//! - `TRUEPOS true_x true_y true_theta odom_x odom_y odom_theta ipc_timestamp host
+//!   logger_timestamp` (simulated logs): becomes the recording's ground truth
 //! - `PARAM name value [host stamp]`: `robot_{front,rear}laser_{offset,side_offset,angular_offset}`
 //!   give the laser mount.
 //!
@@ -91,6 +93,8 @@ pub struct CarmenStats {
     /// Laser lines whose stamp is not above the previous one's (sorted into place; a repeated
     /// stamp is dropped).
     pub laser_out_of_order: usize,
+    /// `TRUEPOS` lines (ground truth of simulated logs).
+    pub truepos_lines: usize,
     /// Lines of other message types (skipped).
     pub other_lines: usize,
     /// True when the odometry came from the poses embedded in laser lines.
@@ -197,9 +201,8 @@ pub fn read_carmen(path: &Path, options: &CarmenOptions) -> Result<CarmenLog, Io
     let mut ranges: Vec<f32> = Vec::new();
 
     let mut odom: Vec<StampedPose2> = Vec::new();
-    let mut laser_odom: Vec<StampedPose2> = Vec::new();
-    let mut scans: Option<ScanSet> = None;
-    let mut geometry: Option<LidarGeometry> = None;
+    let mut laser = LaserLines::default();
+    let mut truepos: Vec<StampedPose2> = Vec::new();
     let mut robotlaser_mount: Option<Pose2> = None;
     let mut front = LaserMount {
         x_m: 0.0,
@@ -301,19 +304,8 @@ pub fn read_carmen(path: &Path, options: &CarmenOptions) -> Result<CarmenLog, Io
                 let oth = parse_finite_f64(path, line_no, "odom_theta", fields[o + 5])?;
                 let stamp_ns = parse_stamp(path, line_no, "ipc_timestamp", fields[o + 6])?;
                 let g = carmen_geometry(n, options.range_max_m);
-                push_scan(
-                    path,
-                    line_no,
-                    &mut scans,
-                    &mut geometry,
-                    g,
-                    stamp_ns,
-                    &ranges,
-                )?;
-                laser_odom.push(StampedPose2 {
-                    stamp_ns,
-                    pose: Pose2::new(ox, oy, oth),
-                });
+                let odom_pose = Pose2::new(ox, oy, oth);
+                laser.push(path, line_no, g, stamp_ns, odom_pose, &ranges)?;
             }
             "ROBOTLASER1" => {
                 if options.laser != CarmenLaser::Front || saw_flaser {
@@ -361,23 +353,32 @@ pub fn read_carmen(path: &Path, options: &CarmenOptions) -> Result<CarmenLog, Io
                     beam_count: n,
                     range_max_m: options.range_max_m,
                 };
-                push_scan(
-                    path,
-                    line_no,
-                    &mut scans,
-                    &mut geometry,
-                    g,
-                    stamp_ns,
-                    &ranges,
-                )?;
-                let laser = Pose2::new(v[0], v[1], v[2]);
+                let laser_pose = Pose2::new(v[0], v[1], v[2]);
                 let robot = Pose2::new(v[3], v[4], v[5]);
                 if robotlaser_mount.is_none() {
-                    robotlaser_mount = Some(robot.between(&laser));
+                    robotlaser_mount = Some(robot.between(&laser_pose));
                 }
-                laser_odom.push(StampedPose2 {
+                laser.push(path, line_no, g, stamp_ns, robot, &ranges)?;
+            }
+            "TRUEPOS" => {
+                stats.truepos_lines += 1;
+                if fields.len() < 8 {
+                    return Err(IoError::parse(
+                        path,
+                        line_no,
+                        format!(
+                            "TRUEPOS: expected 9 fields (true_x true_y true_theta odom_x odom_y odom_theta ipc_timestamp host logger_timestamp), found {}",
+                            fields.len() - 1
+                        ),
+                    ));
+                }
+                let x = parse_finite_f64(path, line_no, "TRUEPOS true_x", fields[1])?;
+                let y = parse_finite_f64(path, line_no, "TRUEPOS true_y", fields[2])?;
+                let th = parse_finite_f64(path, line_no, "TRUEPOS true_theta", fields[3])?;
+                let stamp_ns = parse_stamp(path, line_no, "TRUEPOS ipc_timestamp", fields[7])?;
+                truepos.push(StampedPose2 {
                     stamp_ns,
-                    pose: robot,
+                    pose: Pose2::new(x, y, th),
                 });
             }
             "PARAM" => {
@@ -406,6 +407,11 @@ pub fn read_carmen(path: &Path, options: &CarmenOptions) -> Result<CarmenLog, Io
         }
     }
 
+    let LaserLines {
+        scans,
+        geometry,
+        odom: laser_odom,
+    } = laser;
     let Some(scans) = scans else {
         return Err(IoError::parse(
             path,
@@ -459,7 +465,13 @@ pub fn read_carmen(path: &Path, options: &CarmenOptions) -> Result<CarmenLog, Io
         lidar,
         body_from_lidar,
         body_from_lidar_per_scan: None,
-        ground_truth: None,
+        ground_truth: (!truepos.is_empty()).then(|| {
+            let stamps: Vec<i64> = truepos.iter().map(|p| p.stamp_ns).collect();
+            longest_increasing(&stamps)
+                .iter()
+                .map(|&i| truepos[i])
+                .collect()
+        }),
     };
     Ok(CarmenLog { recording, stats })
 }
@@ -533,41 +545,56 @@ fn parse_ranges(
     Ok(())
 }
 
-fn push_scan(
-    path: &Path,
-    line: usize,
-    scans: &mut Option<ScanSet>,
-    geometry: &mut Option<LidarGeometry>,
-    g: LidarGeometry,
-    stamp_ns: i64,
-    ranges: &[f32],
-) -> Result<(), IoError> {
-    if ranges.is_empty() {
-        return Err(IoError::parse(path, line, "laser line with 0 readings"));
-    }
-    match geometry {
-        Some(prev) if *prev != g => {
-            return Err(IoError::parse(
-                path,
-                line,
-                format!(
-                    "laser geometry changes within the log ({} beams from {:.4} rad step {:.6} rad, earlier {} beams from {:.4} step {:.6})",
-                    g.beam_count,
-                    g.angle_min_rad,
-                    g.angle_increment_rad,
-                    prev.beam_count,
-                    prev.angle_min_rad,
-                    prev.angle_increment_rad
-                ),
-            ));
+/// The scans of the chosen laser and the odometry poses embedded in its lines.
+#[derive(Default)]
+struct LaserLines {
+    scans: Option<ScanSet>,
+    geometry: Option<LidarGeometry>,
+    odom: Vec<StampedPose2>,
+}
+
+impl LaserLines {
+    /// Adds one laser line; its geometry must match the first line's.
+    fn push(
+        &mut self,
+        path: &Path,
+        line: usize,
+        g: LidarGeometry,
+        stamp_ns: i64,
+        odom_pose: Pose2,
+        ranges: &[f32],
+    ) -> Result<(), IoError> {
+        if ranges.is_empty() {
+            return Err(IoError::parse(path, line, "laser line with 0 readings"));
         }
-        Some(_) => {}
-        None => *geometry = Some(g),
+        match &self.geometry {
+            Some(prev) if *prev != g => {
+                return Err(IoError::parse(
+                    path,
+                    line,
+                    format!(
+                        "laser geometry changes within the log ({} beams from {:.4} rad step {:.6} rad, earlier {} beams from {:.4} step {:.6})",
+                        g.beam_count,
+                        g.angle_min_rad,
+                        g.angle_increment_rad,
+                        prev.beam_count,
+                        prev.angle_min_rad,
+                        prev.angle_increment_rad
+                    ),
+                ));
+            }
+            Some(_) => {}
+            None => self.geometry = Some(g),
+        }
+        self.scans
+            .get_or_insert_with(|| ScanSet::new(g.beam_count))
+            .push(stamp_ns, ranges);
+        self.odom.push(StampedPose2 {
+            stamp_ns,
+            pose: odom_pose,
+        });
+        Ok(())
     }
-    scans
-        .get_or_insert_with(|| ScanSet::new(g.beam_count))
-        .push(stamp_ns, ranges);
-    Ok(())
 }
 
 #[cfg(test)]

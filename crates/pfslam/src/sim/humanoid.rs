@@ -7,11 +7,13 @@
 //! (header `timestamp_ns,labels`; per scan one string of N digits, one per beam:
 //! `0` no return, `1` obstacle, `2` floor) — the floor hits are what a z filter must remove.
 
-use super::path::{DRIVE_DT_S, Motion, Path as DrivePath};
-use super::raycast::{HitKind, RayCaster};
+use super::path::{DriveProfile, Motion};
+use super::raycast::{BeamErrors, RayCaster, beam_directions, cast_scan};
 use super::truth::TrueMap;
 use super::world::World;
-use super::{SimError, SimOptions, normal, sample_times, sim_toml};
+use super::{
+    SimError, SimOptions, jumped_stream_vec, jumped_streams, normal, sample_times, write_truth,
+};
 use crate::geometry::{Pose2, Rigid3, StampedPose2};
 use crate::io::IoError;
 use crate::io::humanoid::{
@@ -19,18 +21,14 @@ use crate::io::humanoid::{
     write_humanoid_dataset,
 };
 use crate::sensors::{Recording, ScanSet};
-use rand::{RngExt, SeedableRng};
+use rand::SeedableRng;
 use rand_xoshiro::Xoshiro256PlusPlus;
 use rayon::prelude::*;
 use std::f64::consts::PI;
 use std::path::Path;
 
-/// Beam label: no return.
-pub const BEAM_NONE: u8 = 0;
-/// Beam label: hit an obstacle.
-pub const BEAM_OBSTACLE: u8 = 1;
-/// Beam label: hit the floor.
-pub const BEAM_FLOOR: u8 = 2;
+pub use super::raycast::{BEAM_FLOOR, BEAM_NONE, BEAM_OBSTACLE};
+
 /// Ground-truth beam label file name.
 pub const BEAM_LABELS_CSV: &str = "beam_labels.csv";
 
@@ -95,39 +93,22 @@ fn sway_at(h: &super::HumanoidSimOptions, t_s: f64) -> (f64, f64) {
 /// Simulates the humanoid on `world` with `opts` (seed included).
 pub fn simulate_humanoid(world: &World, opts: &SimOptions) -> Result<HumanoidSimOutput, SimError> {
     opts.validate()?;
-    if world.route.len() < 2 {
-        return Err(SimError::BadRoute(format!(
-            "world {:?} has no route",
-            world.name
-        )));
-    }
     let h = &opts.humanoid;
     let cal = HumanoidCalibration::default();
-    let path = DrivePath::from_route(&world.route, h.corner_radius_m)?;
-    let steps = ((opts.duration_s + 1.0) / DRIVE_DT_S).ceil() as usize + 2;
-    let s = path.drive(
-        h.walk_speed_mps,
-        h.max_accel_mps2,
-        h.max_accel_mps2,
-        h.max_lateral_accel_mps2,
-        DRIVE_DT_S,
-        steps,
-    );
-    let motion = Motion {
-        path,
-        s,
-        standstill_s: 1.0,
-    };
-    let mut base = Xoshiro256PlusPlus::seed_from_u64(opts.seed);
-    let mut stream = || {
-        let r = base.clone();
-        base.jump();
-        r
-    };
-    let mut rng_stamps = stream();
-    let mut rng_odo = stream();
-    let mut rng_imu = stream();
-    let lidar_base = stream();
+    let motion = Motion::plan(
+        world,
+        opts.duration_s,
+        &DriveProfile {
+            cruise_mps: h.walk_speed_mps,
+            accel_mps2: h.max_accel_mps2,
+            decel_mps2: h.max_accel_mps2,
+            lateral_mps2: h.max_lateral_accel_mps2,
+            corner_radius_m: h.corner_radius_m,
+            standstill_s: 1.0,
+        },
+    )?;
+    let [mut rng_stamps, mut rng_odo, mut rng_imu, lidar_base] =
+        jumped_streams(Xoshiro256PlusPlus::seed_from_u64(opts.seed));
     let jitter = h.stamp_jitter_std_ns;
     let odo_times = sample_times(opts, h.odometry_rate_hz, 0.0, jitter, &mut rng_stamps);
     let imu_times = sample_times(opts, h.odometry_rate_hz, 0.002, jitter, &mut rng_stamps);
@@ -215,18 +196,13 @@ pub fn simulate_humanoid(world: &World, opts: &SimOptions) -> Result<HumanoidSim
     let mut ranges = vec![0.0f32; lidar_times.len() * nb];
     let mut labels = vec![BEAM_NONE; lidar_times.len() * nb];
     let n_blocks = lidar_times.len().div_ceil(SCAN_BLOCK);
-    let mut block_rngs = Vec::with_capacity(n_blocks);
-    let mut r = lidar_base;
-    for _ in 0..n_blocks {
-        block_rngs.push(r.clone());
-        r.jump();
-    }
-    let beams_lidar: Vec<nalgebra::Vector3<f64>> = (0..nb)
-        .map(|i| {
-            let a = geom.beam_angle_rad(i);
-            nalgebra::Vector3::new(a.cos(), a.sin(), 0.0)
-        })
-        .collect();
+    let block_rngs = jumped_stream_vec(lidar_base, n_blocks);
+    let beams = beam_directions(&geom);
+    let errors = BeamErrors {
+        range_noise_std_m: h.lidar_range_noise_std_m,
+        dropout_prob: h.lidar_dropout_prob,
+        max_range_prob: 0.0,
+    };
     ranges
         .par_chunks_mut(SCAN_BLOCK * nb)
         .zip(labels.par_chunks_mut(SCAN_BLOCK * nb))
@@ -241,35 +217,16 @@ pub fn simulate_humanoid(world: &World, opts: &SimOptions) -> Result<HumanoidSim
                 let world_from_body =
                     Rigid3::from_rpy(roll, pitch, pose.yaw_rad, [pose.x_m, pose.y_m, 0.0]);
                 let wl = world_from_body.compose(&cal.body_from_lidar(ny, np));
-                let o = [wl.translation[0], wl.translation[1], wl.translation[2]];
-                for ((b, out), lab) in beams_lidar.iter().zip(scan.iter_mut()).zip(lab.iter_mut()) {
-                    let d = wl.rotation * b;
-                    let (range, label) = match caster.cast(o, [d[0], d[1], d[2]], max_range) {
-                        Some(hit) => (
-                            hit.range_m,
-                            if hit.kind == HitKind::Ground {
-                                BEAM_FLOOR
-                            } else {
-                                BEAM_OBSTACLE
-                            },
-                        ),
-                        None => (0.0, BEAM_NONE),
-                    };
-                    let mut range = range;
-                    if range > 0.0 {
-                        if h.lidar_range_noise_std_m > 0.0 {
-                            range = (range + h.lidar_range_noise_std_m * normal(&mut rng))
-                                .clamp(0.001, max_range - 1e-3);
-                        }
-                        if h.lidar_dropout_prob > 0.0 && rng.random::<f64>() < h.lidar_dropout_prob
-                        {
-                            range = 0.0;
-                        }
-                    }
-                    // The label is the truth (what the beam hit), even when the return dropped.
-                    *lab = label;
-                    *out = range as f32;
-                }
+                cast_scan(
+                    &caster,
+                    &wl,
+                    &beams,
+                    max_range,
+                    &errors,
+                    &mut rng,
+                    scan,
+                    Some(lab),
+                );
             }
         });
     let mut lidar = ScanSet::new(nb);
@@ -309,7 +266,13 @@ pub fn simulate_humanoid(world: &World, opts: &SimOptions) -> Result<HumanoidSim
 /// `true_map.{png,pgm,yaml}`, `world.world` and `sim.toml` into `dir`.
 pub fn write_humanoid_sim(dir: &Path, out: &HumanoidSimOutput) -> Result<(), SimError> {
     write_humanoid_dataset(dir, &out.dataset)?;
-    crate::io::tum::write_tum(&dir.join("ground_truth.tum"), &out.ground_truth)?;
+    write_truth(
+        dir,
+        &out.ground_truth,
+        &out.true_map,
+        &out.world_text,
+        &out.options,
+    )?;
     let nb = out.dataset.lidar.beam_count;
     crate::io::write_atomic(&dir.join(BEAM_LABELS_CSV), |w| {
         writeln!(w, "timestamp_ns,labels")?;
@@ -327,9 +290,6 @@ pub fn write_humanoid_sim(dir: &Path, out: &HumanoidSimOutput) -> Result<(), Sim
         }
         Ok(())
     })?;
-    out.true_map.write(dir, "true_map")?;
-    crate::io::write_bytes_atomic(&dir.join("world.world"), out.world_text.as_bytes())?;
-    crate::io::write_bytes_atomic(&dir.join("sim.toml"), sim_toml(&out.options)?.as_bytes())?;
     Ok(())
 }
 

@@ -34,7 +34,7 @@ pub enum SimError {
     #[error(transparent)]
     Io(#[from] crate::io::IoError),
     /// No built-in world has this name.
-    #[error("unknown built-in world {0:?} (known: campus, office)")]
+    #[error("{0:?} is neither a built-in world (campus, office) nor an existing world file")]
     UnknownWorld(String),
     /// The route cannot be driven.
     #[error("bad route: {0}")]
@@ -74,7 +74,10 @@ pub struct SimOptions {
     /// Cell size of the true map (m).
     pub truth_map_resolution_m: f64,
     /// Lower end of the height band whose obstacles the car's true map shows (m); the
-    /// humanoid's band is in [`HumanoidSimOptions`].
+    /// humanoid's band is in [`HumanoidSimOptions`]. The default 1.7 m is just below the
+    /// car's LiDAR (1.76 m): its beams run level sideways and rise forwards, so obstacles
+    /// lower than the LiDAR (parked cars) are never hit, only overflown (the two edge beams
+    /// that dip 3 deg reach the ground ~33 m to the sides).
     pub truth_band_min_m: f64,
     /// Upper end of that band (m).
     pub truth_band_max_m: f64,
@@ -93,7 +96,7 @@ impl Default for SimOptions {
             duration_s: 180.0,
             start_stamp_ns: 1_544_582_648_000_000_000,
             truth_map_resolution_m: 0.1,
-            truth_band_min_m: 1.0,
+            truth_band_min_m: 1.7,
             truth_band_max_m: 4.0,
             car: CarSimOptions::default(),
             humanoid: HumanoidSimOptions::default(),
@@ -441,6 +444,45 @@ impl HumanoidSimOptions {
         }
         Ok(())
     }
+}
+
+/// `N` independent random streams: `base`, then each the previous one jumped by 2^128 steps.
+pub(crate) fn jumped_streams<const N: usize>(
+    base: rand_xoshiro::Xoshiro256PlusPlus,
+) -> [rand_xoshiro::Xoshiro256PlusPlus; N] {
+    let v = jumped_stream_vec(base, N);
+    std::array::from_fn(|i| v[i].clone())
+}
+
+/// `n` independent random streams (one per parallel block), as [`jumped_streams`].
+pub(crate) fn jumped_stream_vec(
+    base: rand_xoshiro::Xoshiro256PlusPlus,
+    n: usize,
+) -> Vec<rand_xoshiro::Xoshiro256PlusPlus> {
+    let mut r = base;
+    (0..n)
+        .map(|_| {
+            let out = r.clone();
+            r.jump();
+            out
+        })
+        .collect()
+}
+
+/// Writes what every simulated recording has: `ground_truth.tum`, `true_map.{png,pgm,yaml}`,
+/// `world.world` and `sim.toml`.
+pub(crate) fn write_truth(
+    dir: &std::path::Path,
+    ground_truth: &[crate::geometry::StampedPose2],
+    true_map: &TrueMap,
+    world_text: &str,
+    options: &SimOptions,
+) -> Result<(), SimError> {
+    crate::io::tum::write_tum(&dir.join("ground_truth.tum"), ground_truth)?;
+    true_map.write(dir, "true_map")?;
+    crate::io::write_bytes_atomic(&dir.join("world.world"), world_text.as_bytes())?;
+    crate::io::write_bytes_atomic(&dir.join("sim.toml"), sim_toml(options)?.as_bytes())?;
+    Ok(())
 }
 
 /// A standard normal sample.

@@ -299,7 +299,46 @@ pub(crate) struct Motion {
     pub(crate) standstill_s: f64,
 }
 
+/// How a vehicle drives its route.
+pub(crate) struct DriveProfile {
+    pub(crate) cruise_mps: f64,
+    pub(crate) accel_mps2: f64,
+    pub(crate) decel_mps2: f64,
+    pub(crate) lateral_mps2: f64,
+    pub(crate) corner_radius_m: f64,
+    pub(crate) standstill_s: f64,
+}
+
 impl Motion {
+    /// Plans the drive along the world's route for `duration_s` (plus a margin).
+    pub(crate) fn plan(
+        world: &super::World,
+        duration_s: f64,
+        p: &DriveProfile,
+    ) -> Result<Motion, SimError> {
+        if world.route.len() < 2 {
+            return Err(SimError::BadRoute(format!(
+                "world {:?} has no route",
+                world.name
+            )));
+        }
+        let path = Path::from_route(&world.route, p.corner_radius_m)?;
+        let steps = ((duration_s + 1.0) / DRIVE_DT_S).ceil() as usize + 2;
+        let s = path.drive(
+            p.cruise_mps,
+            p.accel_mps2,
+            p.decel_mps2,
+            p.lateral_mps2,
+            DRIVE_DT_S,
+            steps,
+        );
+        Ok(Motion {
+            path,
+            s,
+            standstill_s: p.standstill_s,
+        })
+    }
+
     /// Arc length at time `t_s` (linear between samples).
     pub(crate) fn s_at(&self, t_s: f64) -> f64 {
         let t = (t_s - self.standstill_s).max(0.0) / DRIVE_DT_S;

@@ -240,6 +240,8 @@ impl World {
     pub fn from_name_or_file(name_or_path: &str) -> Result<World, SimError> {
         if BUILTIN_WORLDS.contains(&name_or_path) {
             World::builtin(name_or_path)
+        } else if !Path::new(name_or_path).exists() {
+            Err(SimError::UnknownWorld(name_or_path.to_string()))
         } else {
             World::from_file(Path::new(name_or_path))
         }
@@ -544,20 +546,24 @@ fn campus() -> World {
     }
     // Outer row of buildings, except south of the park (open field on both sides there).
     let outer = STREET_HALF_M + 6.0;
-    // (start, end, outward normal) along the outside of the outer streets
+    // (start, end, normal towards the street) along the outside of the outer streets
     let sides: [([f64; 2], [f64; 2], [f64; 2]); 4] = [
         (
             [x0 - 20.0, y0 - outer],
             [CAMPUS_X[2] - 10.0, y0 - outer],
+            [0.0, 1.0],
+        ),
+        (
+            [x0 - 20.0, y1 + outer],
+            [x1 + 20.0, y1 + outer],
             [0.0, -1.0],
         ),
-        ([x0 - 20.0, y1 + outer], [x1 + 20.0, y1 + outer], [0.0, 1.0]),
+        ([x0 - outer, y0 + 15.0], [x0 - outer, y1 - 15.0], [1.0, 0.0]),
         (
-            [x0 - outer, y0 + 15.0],
-            [x0 - outer, y1 - 15.0],
+            [x1 + outer, y0 + 40.0],
+            [x1 + outer, y1 - 15.0],
             [-1.0, 0.0],
         ),
-        ([x1 + outer, y0 + 40.0], [x1 + outer, y1 - 15.0], [1.0, 0.0]),
     ];
     for (a, b, n) in sides {
         facade_row(&mut rng, &mut prisms, a, b, n);
@@ -641,7 +647,8 @@ fn block_buildings(rng: &mut Xoshiro256PlusPlus, out: &mut Vec<Prism>, b: [f64; 
     facade_row(rng, out, [x1, y0 + 28.0], [x1, y1 - 28.0], [1.0, 0.0]);
 }
 
-/// A row of buildings whose facades lie along `a -> b`, facing `normal` (towards the street).
+/// A row of buildings whose facades lie along `a -> b`, facing `normal` (towards the street);
+/// the buildings extend away from the street.
 fn facade_row(
     rng: &mut Xoshiro256PlusPlus,
     out: &mut Vec<Prism>,
@@ -728,10 +735,13 @@ fn street_furniture(
         let mut s = 16.0;
         while s < len - 16.0 {
             if rng.random::<f64>() < 0.55 {
-                let l = uniform(rng, 4.2, 5.2);
-                let h = uniform(rng, 1.45, 2.1);
-                if let Some(p) =
-                    Prism::rect("car", at(s + 0.5 * l, side * 5.9), l, 1.8, yaw, 0.0, h)
+                // cars stay below the LiDAR (1.76 m), vans and trucks reach above it
+                let (kind, l, h) = if rng.random::<f64>() < 0.85 {
+                    ("car", uniform(rng, 4.2, 5.0), uniform(rng, 1.35, 1.6))
+                } else {
+                    ("van", uniform(rng, 5.0, 6.5), uniform(rng, 2.2, 3.0))
+                };
+                if let Some(p) = Prism::rect(kind, at(s + 0.5 * l, side * 5.9), l, 1.9, yaw, 0.0, h)
                 {
                     out.push(p);
                 }
@@ -875,6 +885,40 @@ mod tests {
             }
         }
         assert!(World::builtin("nope").is_err());
+    }
+
+    #[test]
+    fn routes_keep_clear_of_obstacles() {
+        // the driven path (centre of the vehicle) keeps this far from every footprint
+        for (name, radius, clearance) in [("campus", 9.0, 2.5), ("office", 0.6, 0.5)] {
+            let w = World::builtin(name).unwrap();
+            let path = crate::sim::path::Path::from_route(&w.route, radius).unwrap();
+            let mut s = 0.0;
+            while s < path.lap_m() {
+                let p = path.at(s);
+                for pr in &w.prisms {
+                    let n = pr.footprint.len();
+                    let d = (0..n)
+                        .map(|k| {
+                            dist_point_segment(
+                                p.x_m,
+                                p.y_m,
+                                pr.footprint[k],
+                                pr.footprint[(k + 1) % n],
+                            )
+                        })
+                        .fold(f64::INFINITY, f64::min);
+                    assert!(
+                        !pr.contains_xy(p.x_m, p.y_m) && d >= clearance,
+                        "{name}: path at s = {s:.1} ({:.1}, {:.1}) is {d:.2} m from a {}",
+                        p.x_m,
+                        p.y_m,
+                        pr.kind
+                    );
+                }
+                s += 0.5;
+            }
+        }
     }
 
     #[test]
