@@ -460,10 +460,13 @@ fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> 
 
 /// The issue's acceptance figures on a short simulated drive: SLAM ATE 5x lower than dead
 /// reckoning, map precision/recall >= 0.9. The seeds' hit-count correlation does not reach
-/// them on the campus drive (it drifts along streets whose only walls are parallel to the
-/// drive; see the report), so this measurement is not part of the default run.
+/// them: the car's LiDAR samples walls sparsely at fixed body-frame positions, so the best
+/// match aligns each scan with the previous update's beam pattern (zero motion) and the
+/// estimate lags along the street (measured: offsets of -1..-4 cells along-track in most
+/// updates with perfect data; ground returns make it worse). Kept as the measurement to turn
+/// on once the observation model is smooth (issue 7).
 #[test]
-#[ignore = "fails with the seeds' filter: SLAM drifts more than dead reckoning on the campus drive"]
+#[ignore = "fails with the seeds' filter: SLAM lags along-track on the campus drive"]
 fn simulated_car_slam_acceptance() {
     let mut config = pfslam::config::Config::default();
     config.map.scan.z_min_m = Some(0.5);
