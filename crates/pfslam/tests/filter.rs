@@ -479,8 +479,10 @@ fn simulated_car_slam_acceptance() {
     assert!(r.precision >= 0.9 && r.recall >= 0.9);
 }
 
-/// Exploration helper (ignored): `PF_DUR`, `PF_N`, `PF_T`, `PF_NOISE` (0/1/2/3 = off/Table 1),
-/// `PF_K`, `PF_R` (search radius), `PF_YAW` (deg step), `PF_RES`.
+/// Exploration helper (ignored), configured by environment variables: `PF_DUR` (s), `PF_N`,
+/// `PF_T`, `PF_NOISE` (0/1/2/3 = off/Table 1), `PF_K`, `PF_R` (search radius), `PF_YAW` (deg
+/// step), `PF_RES`, `PF_ZMIN`, `PF_MOVE`, `PF_MAPALL`, `PF_PEN`, `PF_DIL`; simulator:
+/// `PF_NOISEFREE`, `PF_BAND`; `PF_GTMAP` also maps with true poses, `PF_DUMP=FILE.tum`.
 #[test]
 #[ignore]
 fn explore_sim() {
@@ -501,6 +503,7 @@ fn explore_sim() {
     config.filter.move_to_best_offset = env("PF_MOVE", 1.0) > 0.5;
     config.filter.map_between_updates = env("PF_MAPALL", 0.0) > 0.5;
     config.filter.offset_penalty_hits_per_cell2 = env("PF_PEN", 0.0);
+    config.filter.dilation_cells = env("PF_DIL", 0.0) as u32;
     let zmin = env("PF_ZMIN", -1e9);
     if zmin > -1e8 {
         config.map.scan.z_min_m = Some(zmin);

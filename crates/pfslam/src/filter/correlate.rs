@@ -30,6 +30,9 @@ pub struct CorrelationSearch {
     /// the plain maximum). A prior towards the predicted pose: near-ties along a street's
     /// walls no longer move the particle by whole cells.
     pub offset_penalty_hits_per_cell2: f64,
+    /// A point counts as a hit when an occupied cell lies within this many cells
+    /// (Chebyshev) of it (0 = the seeds: its own cell only).
+    pub dilation_cells: i32,
 }
 
 /// The best offset found for one particle.
@@ -72,6 +75,15 @@ pub fn correlation<M: OccupancyLookup + ?Sized>(
         .sum()
 }
 
+/// True when an occupied cell lies within `d` cells (Chebyshev) of `c`.
+#[inline]
+fn occupied_near<M: OccupancyLookup + ?Sized>(map: &M, c: Cell, d: i32) -> bool {
+    if d == 0 {
+        return map.occupied(c);
+    }
+    (-d..=d).any(|j| (-d..=d).any(|i| map.occupied(Cell::new(c.i + i, c.j + j))))
+}
+
 /// Searches x/y offsets (one cell per step) and yaw offsets around `world_from_body` for the
 /// pose whose transformed scan hits the most occupied cells. Ties go to the smallest yaw
 /// offset, then the smallest x/y offset (so an uninformative map leaves the pose unchanged),
@@ -84,6 +96,7 @@ pub fn best_match<M: OccupancyLookup + ?Sized>(
     scratch: &mut CorrelationScratch,
 ) -> ScanMatch {
     let frame = map.cell_limits();
+    let d = search.dilation_cells.max(0);
     let r = search.xy_radius_cells.max(0);
     let side = (2 * r + 1) as usize;
     // (penalised score in milli-hits, -|yaw|, -(dx^2 + dy^2)) compared lexicographically,
@@ -113,7 +126,7 @@ pub fn best_match<M: OccupancyLookup + ?Sized>(
             for (iy, dy) in (-r..=r).enumerate() {
                 let row = &mut scratch.scores[iy * side..(iy + 1) * side];
                 for (slot, dx) in row.iter_mut().zip(-r..=r) {
-                    *slot += u32::from(map.occupied(Cell::new(cx + dx, cy + dy)));
+                    *slot += u32::from(occupied_near(map, Cell::new(cx + dx, cy + dy), d));
                 }
             }
         }
@@ -192,6 +205,7 @@ mod tests {
             xy_radius_cells: 4,
             yaw_offsets_rad: vec![-0.02, 0.0, 0.02],
             offset_penalty_hits_per_cell2: 0.0,
+            dilation_cells: 0,
         };
         let truth = Pose2::IDENTITY;
         let full = correlation(&map, &pts, &truth);
@@ -212,6 +226,7 @@ mod tests {
             xy_radius_cells: 4,
             yaw_offsets_rad: vec![-0.02, 0.0, 0.02],
             offset_penalty_hits_per_cell2: 0.0,
+            dilation_cells: 0,
         };
         let p = Pose2::new(0.31, -0.2, 0.1);
         let m = best_match(&map, &pts, &p, &search, &mut CorrelationScratch::default());

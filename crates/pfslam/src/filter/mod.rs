@@ -48,6 +48,9 @@ pub struct FilterOptions {
     /// Hits an x/y search offset must gain per squared cell of offset to be preferred over the
     /// particle's own pose (0 = the seeds' plain maximum).
     pub offset_penalty_hits_per_cell2: f64,
+    /// A scan point counts as a hit when an occupied cell lies within this many cells of it
+    /// (0 = the seeds: its own cell).
+    pub dilation_cells: u32,
     /// Move each particle to its best search offset (true: the particle takes the offset's
     /// pose) or only score it with the best offset's correlation (false: the seeds'
     /// `mapCorrelation` maximum as the weight, the pose stays).
@@ -77,6 +80,7 @@ impl Default for FilterOptions {
             xy_search_radius_cells: 4,
             yaw_offsets_deg: vec![-0.5, 0.0, 0.5],
             offset_penalty_hits_per_cell2: 0.0,
+            dilation_cells: 0,
             move_to_best_offset: true,
             temperature: 10.0,
             resample_threshold: 0.1,
@@ -116,6 +120,9 @@ impl FilterOptions {
         if self.update_every_scans == 0 {
             return bad("update_every_scans", "must be at least 1");
         }
+        if self.dilation_cells > 8 {
+            return bad("dilation_cells", "must be at most 8");
+        }
         if self.xy_search_radius_cells > 64 {
             return bad("xy_search_radius_cells", "must be at most 64");
         }
@@ -146,6 +153,7 @@ impl FilterOptions {
                 .map(|d| d.to_radians())
                 .collect(),
             offset_penalty_hits_per_cell2: self.offset_penalty_hits_per_cell2,
+            dilation_cells: self.dilation_cells as i32,
         }
     }
 }
