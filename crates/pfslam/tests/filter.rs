@@ -415,7 +415,7 @@ struct SimRun {
 }
 
 fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> SimRun {
-    use pfslam::filter::slam::{anchor_odometry_to_ground_truth, run_slam, true_map_as_binary};
+    use pfslam::filter::slam::{anchor_odometry_to_ground_truth, run_slam};
     use pfslam::sim::{SimOptions, World, simulate_car};
     let mut opts = SimOptions {
         duration_s,
@@ -433,7 +433,7 @@ fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> 
     assert!(anchor_odometry_to_ground_truth(&mut rec));
     let result = run_slam(&rec, config, seed, &mut |_| {}).unwrap();
     let gt = &out.ground_truth;
-    let truth = true_map_as_binary(&out.true_map);
+    let truth = out.true_map.to_binary_map();
     if std::env::var("PF_GTMAP").is_ok() {
         let gt_traj = pfslam::geometry::Trajectory::new(gt.clone());
         let mut mo = config.map.clone();

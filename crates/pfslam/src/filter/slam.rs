@@ -458,25 +458,3 @@ pub fn anchor_odometry_to_ground_truth(recording: &mut Recording) -> bool {
     }
     true
 }
-
-/// The simulator's true map as a [`crate::map::BinaryMap`] (occupied / free), for
-/// [`crate::map::compare::compare_maps`].
-pub fn true_map_as_binary(truth: &crate::sim::TrueMap) -> crate::map::BinaryMap {
-    use crate::map::CellState;
-    crate::map::BinaryMap {
-        limits: MapLimits::new(truth.resolution_m, truth.origin_m[0], truth.origin_m[1]),
-        width: truth.width,
-        height: truth.height,
-        cells: truth
-            .occupied
-            .iter()
-            .map(|&o| {
-                if o {
-                    CellState::Occupied
-                } else {
-                    CellState::Free
-                }
-            })
-            .collect(),
-    }
-}
