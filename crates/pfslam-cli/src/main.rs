@@ -31,6 +31,10 @@ pub enum Command {
     Map(cmd::map::Args),
     /// Simulate the car (or the humanoid) in a world: dataset + ground truth.
     Simulate(cmd::simulate::Args),
+    /// Reproduce an experiment table (`seeds`: particles x Table 1 noise on the simulator).
+    Experiment(cmd::experiment::Args),
+    /// Particle-filter SLAM on a dataset: trajectory, maps, summary.
+    Run(cmd::run::Args),
     /// Print the full default configuration as TOML.
     PrintConfig(cmd::print_config::Args),
     /// Accuracy of a trajectory: ATE/RPE against ground truth, or the relations metric.
@@ -45,6 +49,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Demo(a)) => cmd::demo::run(a),
         Some(Command::DeadReckon(a)) => cmd::dead_reckon::run(a),
         Some(Command::PrintConfig(a)) => cmd::print_config::run(a),
+        Some(Command::Run(a)) => cmd::run::run(a),
+        Some(Command::Experiment(a)) => cmd::experiment::run(a),
         Some(Command::Eval(a)) => cmd::eval::run(a),
         Some(Command::Simulate(a)) => cmd::simulate::run(a),
         Some(Command::Map(a)) => cmd::map::run(a),

@@ -59,6 +59,143 @@ impl Config {
     }
 }
 
+mod sources {
+    include!(concat!(env!("OUT_DIR"), "/config_sources.rs"));
+}
+
+/// One documented field of an options struct, as found in the library's source.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FieldDoc {
+    /// The struct declaring the field.
+    pub struct_name: String,
+    /// The field (= TOML key).
+    pub field: String,
+    /// The field's type, last path segment without generics (`MotionOptions`).
+    pub type_name: String,
+    /// Its doc comment, one entry per line.
+    pub doc: Vec<String>,
+}
+
+/// The doc comments of every `pub` field of every `pub struct` in the library's source
+/// (embedded at build time), in source order.
+pub fn field_docs() -> Vec<FieldDoc> {
+    let mut out = Vec::new();
+    for src in sources::SOURCES {
+        let mut pending: Vec<String> = Vec::new();
+        let mut current: Option<String> = None;
+        for line in src.lines() {
+            let t = line.trim();
+            if let Some(d) = t.strip_prefix("///") {
+                pending.push(d.strip_prefix(' ').unwrap_or(d).to_string());
+                continue;
+            }
+            if t.starts_with("#[") {
+                continue;
+            }
+            if let Some(rest) = t.strip_prefix("pub struct ") {
+                let name: String = rest
+                    .chars()
+                    .take_while(|c| c.is_alphanumeric() || *c == '_')
+                    .collect();
+                current = t.ends_with('{').then_some(name);
+            } else if t == "}" {
+                current = None;
+            } else if let (Some(s), Some(rest)) = (&current, t.strip_prefix("pub "))
+                && let Some((field, ty)) = rest.split_once(':')
+            {
+                let ty = ty.trim().trim_end_matches(',');
+                let base = ty.split('<').next().unwrap_or(ty);
+                let type_name = base.rsplit("::").next().unwrap_or(base).trim();
+                out.push(FieldDoc {
+                    struct_name: s.clone(),
+                    field: field.trim().to_string(),
+                    type_name: type_name.to_string(),
+                    doc: std::mem::take(&mut pending),
+                });
+            }
+            pending.clear();
+        }
+    }
+    out
+}
+
+/// `toml` (a serialised [`Config`]) with each key's and section's doc comment as `#` lines
+/// above it. Keys whose doc cannot be found are left bare.
+pub fn annotate_toml(toml: &str) -> String {
+    let docs = field_docs();
+    let find = |s: &str, f: &str| docs.iter().find(|d| d.struct_name == s && d.field == f);
+    // Struct of the table being printed.
+    let mut table: Option<String> = Some("Config".to_string());
+    let mut out = String::with_capacity(toml.len() * 3);
+    let push_doc = |out: &mut String, d: Option<&FieldDoc>| {
+        if let Some(d) = d {
+            for l in &d.doc {
+                if l.is_empty() {
+                    out.push_str("#\n");
+                } else {
+                    out.push_str("# ");
+                    out.push_str(l);
+                    out.push('\n');
+                }
+            }
+        }
+    };
+    // Optional keys left out of the TOML (`None`) are listed as comments at the end of their
+    // table, so every option is visible.
+    let flush_unset = |out: &mut String, table: Option<&str>, printed: &[String]| {
+        let Some(t) = table else { return };
+        for d in docs
+            .iter()
+            .filter(|d| d.struct_name == t && d.type_name == "Option")
+        {
+            if !printed.contains(&d.field) {
+                push_doc(out, Some(d));
+                out.push_str(&format!("# {} = (unset)\n", d.field));
+            }
+        }
+    };
+    let mut printed: Vec<String> = Vec::new();
+    for line in toml.lines() {
+        let t = line.trim();
+        if t.starts_with('[') && !line.starts_with(' ') {
+            flush_unset(&mut out, table.as_deref(), &printed);
+            printed.clear();
+            let path = t.trim_matches(|c| c == '[' || c == ']');
+            let mut s = Some("Config".to_string());
+            let mut last = None;
+            for seg in path.split('.') {
+                last = s.as_deref().and_then(|st| find(st, seg));
+                s = last.map(|d| d.type_name.clone());
+            }
+            if !out.is_empty() && !out.ends_with("\n\n") {
+                out.push('\n');
+            }
+            push_doc(&mut out, last);
+            table = s;
+        } else if let Some((key, _)) = line.split_once(" = ")
+            && !line.starts_with(' ')
+            && key.chars().all(|c| c.is_alphanumeric() || c == '_')
+        {
+            push_doc(&mut out, table.as_deref().and_then(|s| find(s, key)));
+            printed.push(key.to_string());
+        } else if t.is_empty() {
+            // Section spacing is handled at headers.
+            continue;
+        }
+        out.push_str(line);
+        out.push('\n');
+    }
+    flush_unset(&mut out, table.as_deref(), &printed);
+    out
+}
+
+impl Config {
+    /// The configuration as TOML with every key's doc comment (`pfslam print-config`).
+    pub fn to_annotated_toml(&self) -> String {
+        annotate_toml(&self.to_toml())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -68,6 +205,24 @@ mod tests {
         let c = Config::default();
         let back: Config = toml::from_str(&c.to_toml()).unwrap();
         assert_eq!(c, back);
+    }
+
+    #[test]
+    fn every_key_is_documented() {
+        let text = Config::default().to_annotated_toml();
+        let back: Config = toml::from_str(&text).unwrap();
+        assert_eq!(back, Config::default());
+        let lines: Vec<&str> = text.lines().collect();
+        for (k, l) in lines.iter().enumerate() {
+            let keyed =
+                (l.split_once(" = ").is_some() && !l.starts_with([' ', '#'])) || l.starts_with('[');
+            if keyed {
+                assert!(
+                    k > 0 && lines[k - 1].starts_with('#'),
+                    "no comment above `{l}`:\n{text}"
+                );
+            }
+        }
     }
 
     #[test]

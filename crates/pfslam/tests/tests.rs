@@ -3,6 +3,7 @@
 
 mod common;
 mod eval;
+mod filter;
 mod map;
 mod motion;
 mod readers;

@@ -3,6 +3,8 @@
 pub mod dead_reckon;
 pub mod demo;
 pub mod eval;
+pub mod experiment;
 pub mod map;
 pub mod print_config;
+pub mod run;
 pub mod simulate;

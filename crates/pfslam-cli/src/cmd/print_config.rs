@@ -8,14 +8,21 @@ pub struct Args {
     /// Print this file's configuration resolved over the defaults instead.
     #[arg(long)]
     pub config: Option<std::path::PathBuf>,
+    /// Leave out the comments.
+    #[arg(long)]
+    pub bare: bool,
 }
 
-/// Prints the resolved configuration.
+/// Prints the resolved configuration, each key preceded by its documentation.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let config = match &args.config {
         Some(p) => Config::from_toml_file(p)?,
         None => Config::default(),
     };
-    print!("{}", config.to_toml());
+    if args.bare {
+        print!("{}", config.to_toml());
+    } else {
+        print!("{}", config.to_annotated_toml());
+    }
     Ok(())
 }

@@ -1,8 +1,356 @@
-//! Filter (placeholder: see ARCHITECTURE.md).
+//! The particle filter of the seeds: N pose hypotheses predicted with a noisy motion model,
+//! weighted by map correlation (best of a small offset search), resampled when the effective
+//! sample size drops.
+//!
+//! - [`particles`]: the weighted set; [`weights`]: log-space softmax and Neff;
+//!   [`resample`]: stratified, systematic and multinomial resampling;
+//!   [`rng`]: per-chunk random streams, so results do not depend on the thread count;
+//!   [`correlate`]: the map-correlation search;
+//! - [`ParticleFilter`] ties them together; the map is reached only through
+//!   [`ParticleMaps`], so one shared map (the seeds) and per-particle maps fit the same code.
 
+pub mod correlate;
+pub mod odometry;
+pub mod particles;
+pub mod prediction;
+pub mod resample;
+pub mod rng;
+pub mod slam;
+pub mod weights;
+
+use crate::config::Config;
+use crate::geometry::Pose2;
+use crate::motion::odometry_model::OdometryModelOptions;
+use correlate::{CorrelationScratch, CorrelationSearch, OccupancyLookup, ScanMatch};
+use particles::ParticleSet;
+use prediction::PredictionModel;
+use rand_xoshiro::Xoshiro256PlusPlus;
+use rayon::prelude::*;
+use resample::ResampleMethod;
+use rng::{CHUNK_PARTICLES, FilterRng};
 use serde::{Deserialize, Serialize};
 
 /// Options of the filter component (`[filter]` in the configuration).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
-pub struct FilterOptions {}
+pub struct FilterOptions {
+    /// Number of particles (the UCSD seed's best runs use 40, the ESE650 seed 100).
+    pub particles: usize,
+    /// Update (correlate, reweight, map) with every k-th scan; the seeds use 5.
+    pub update_every_scans: usize,
+    /// Also insert the scans between updates into the map, at the output pose (the last
+    /// estimate moved by odometry). The seeds map only at updates (false).
+    pub map_between_updates: bool,
+    /// Half-width of the x/y correlation search in cells (4 = the seeds' 9x9 grid).
+    pub xy_search_radius_cells: u32,
+    /// Yaw offsets tried by the correlation search (deg); should contain 0.
+    pub yaw_offsets_deg: Vec<f64>,
+    /// Hits an x/y search offset must gain per squared cell of offset to be preferred over the
+    /// particle's own pose (0 = the seeds' plain maximum).
+    pub offset_penalty_hits_per_cell2: f64,
+    /// A scan point counts as a hit when an occupied cell lies within this many cells of it
+    /// (0 = the seeds: its own cell).
+    pub dilation_cells: u32,
+    /// Move each particle to its best search offset (true: the particle takes the offset's
+    /// pose) or only score it with the best offset's correlation (false: the seeds'
+    /// `mapCorrelation` maximum as the weight, the pose stays).
+    pub move_to_best_offset: bool,
+    /// Divisor of the correlations in the softmax (1 = UCSD seed, 10 = ESE650 seed).
+    pub temperature: f64,
+    /// Resample when Neff < this fraction of the particle count (ESE650 seed: 0.1).
+    pub resample_threshold: f64,
+    /// Resampling scheme: "stratified" (ESE650 seed), "systematic" or "multinomial".
+    pub resample_method: ResampleMethod,
+    /// Write a map snapshot every this many scans (0 = never; the UCSD seed: 10000).
+    pub snapshot_every_scans: usize,
+    /// Prediction: "velocity" (UCSD seed; noise in `[motion.noise]`) or "odometry" (relative
+    /// motion between odometry poses; noise in `[filter.odometry_model]`).
+    pub motion_model: PredictionModel,
+    /// The odometry model when `motion_model = "odometry"` ("ese650": the ESE650 seed's
+    /// sigmas `[0.005, 0.005, 0.005]`; "thrun": four alphas).
+    pub odometry_model: OdometryModelOptions,
+}
+
+impl Default for FilterOptions {
+    fn default() -> Self {
+        FilterOptions {
+            particles: 40,
+            update_every_scans: 5,
+            map_between_updates: false,
+            xy_search_radius_cells: 4,
+            yaw_offsets_deg: vec![-0.5, 0.0, 0.5],
+            offset_penalty_hits_per_cell2: 0.0,
+            dilation_cells: 0,
+            move_to_best_offset: true,
+            temperature: 10.0,
+            resample_threshold: 0.1,
+            resample_method: ResampleMethod::Stratified,
+            snapshot_every_scans: 10_000,
+            motion_model: PredictionModel::Velocity,
+            odometry_model: OdometryModelOptions::ese650(),
+        }
+    }
+}
+
+/// Errors of the filter.
+#[derive(Debug, thiserror::Error)]
+pub enum FilterError {
+    /// An option is out of range.
+    #[error("invalid filter option {name}: {message}")]
+    InvalidOption {
+        /// The option's key in `[filter]`.
+        name: &'static str,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+impl FilterOptions {
+    /// Checks ranges; returns the first problem.
+    pub fn validate(&self) -> Result<(), FilterError> {
+        let bad = |name, message: &str| {
+            Err(FilterError::InvalidOption {
+                name,
+                message: message.to_string(),
+            })
+        };
+        if self.particles == 0 {
+            return bad("particles", "must be at least 1");
+        }
+        if self.update_every_scans == 0 {
+            return bad("update_every_scans", "must be at least 1");
+        }
+        if self.dilation_cells > 8 {
+            return bad("dilation_cells", "must be at most 8");
+        }
+        if self.xy_search_radius_cells > 64 {
+            return bad("xy_search_radius_cells", "must be at most 64");
+        }
+        if self.yaw_offsets_deg.iter().any(|d| !d.is_finite()) {
+            return bad("yaw_offsets_deg", "must be finite");
+        }
+        if !(self.offset_penalty_hits_per_cell2.is_finite()
+            && self.offset_penalty_hits_per_cell2 >= 0.0)
+        {
+            return bad("offset_penalty_hits_per_cell2", "must be finite and >= 0");
+        }
+        if !(self.temperature.is_finite() && self.temperature > 0.0) {
+            return bad("temperature", "must be positive and finite");
+        }
+        if !(0.0..=1.0).contains(&self.resample_threshold) {
+            return bad("resample_threshold", "must lie in [0, 1]");
+        }
+        Ok(())
+    }
+
+    /// The correlation search these options describe.
+    pub fn search(&self) -> CorrelationSearch {
+        CorrelationSearch {
+            xy_radius_cells: self.xy_search_radius_cells as i32,
+            yaw_offsets_rad: self
+                .yaw_offsets_deg
+                .iter()
+                .map(|d| d.to_radians())
+                .collect(),
+            offset_penalty_hits_per_cell2: self.offset_penalty_hits_per_cell2,
+            dilation_cells: self.dilation_cells as i32,
+        }
+    }
+}
+
+/// The map each particle is weighed against. One shared map (the seeds) returns the same map
+/// for every particle; per-particle maps return each particle's own.
+pub trait ParticleMaps: Sync {
+    /// The map type.
+    type Map: OccupancyLookup + ?Sized;
+    /// The map of particle `i`.
+    fn map_of(&self, i: usize) -> &Self::Map;
+}
+
+/// The noisy motion model `[filter] motion_model` selects: velocity noise from
+/// `[motion.noise]` or the odometry model of `[filter.odometry_model]` (using the recording's
+/// IMU yaw, when it has one, for the ESE650 variant).
+pub fn motion_model(
+    config: &Config,
+    recording: &crate::sensors::Recording,
+) -> Result<Box<dyn slam::MotionModel>, slam::SlamError> {
+    config
+        .motion
+        .validate()
+        .map_err(|e| slam::SlamError::Motion(e.to_string()))?;
+    Ok(match config.filter.motion_model {
+        PredictionModel::Velocity => Box::new(prediction::VelocityMotion {
+            noise: config.motion.noise,
+            step: config.motion.step,
+        }),
+        PredictionModel::Odometry => {
+            let o = &config.filter.odometry_model;
+            let sigmas = [o.alpha1, o.alpha2, o.alpha3, o.alpha4]
+                .into_iter()
+                .chain(o.ese650_sigma);
+            if sigmas.into_iter().any(|v| !(v.is_finite() && v >= 0.0)) {
+                return Err(slam::SlamError::Motion(
+                    "filter.odometry_model: alphas and sigmas must be finite and >= 0".into(),
+                ));
+            }
+            Box::new(prediction::OdometryMotion {
+                options: *o,
+                imu_yaw: recording.imu_yaw.clone(),
+            })
+        }
+    })
+}
+
+/// One map for all particles (the seeds' behaviour).
+#[derive(Debug, Clone, Copy)]
+pub struct SharedMap<'a, M: ?Sized>(pub &'a M);
+
+impl<M: OccupancyLookup + ?Sized> ParticleMaps for SharedMap<'_, M> {
+    type Map = M;
+    fn map_of(&self, _i: usize) -> &M {
+        self.0
+    }
+}
+
+/// What one update did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct UpdateReport {
+    /// Neff after reweighting, before any resampling.
+    pub neff: f64,
+    /// Whether the particles were resampled.
+    pub resampled: bool,
+    /// The heaviest particle after the update.
+    pub best: usize,
+    /// Its correlation score.
+    pub best_score: u32,
+}
+
+/// The particle filter state: particles, random streams and reusable buffers.
+#[derive(Debug, Clone)]
+pub struct ParticleFilter {
+    /// The particles.
+    pub particles: ParticleSet,
+    rng: FilterRng,
+    scores: Vec<f64>,
+    matches: Vec<ScanMatch>,
+    ancestors: Vec<usize>,
+    pose_scratch: Vec<Pose2>,
+}
+
+impl ParticleFilter {
+    /// `n` particles at `start`, weights `1/n`, random streams from `seed`.
+    pub fn new(n: usize, start: Pose2, seed: u64) -> Self {
+        ParticleFilter {
+            particles: ParticleSet::new(n, start),
+            rng: FilterRng::new(seed, n),
+            scores: Vec::with_capacity(n),
+            matches: Vec::with_capacity(n),
+            ancestors: Vec::with_capacity(n),
+            pose_scratch: Vec::with_capacity(n),
+        }
+    }
+
+    /// Moves every particle with `step(pose, rng)` (a noisy motion model), in parallel over
+    /// fixed chunks, each with its own random stream: deterministic for any thread count.
+    pub fn predict<F>(&mut self, step: F)
+    where
+        F: Fn(&mut Pose2, &mut Xoshiro256PlusPlus) + Sync,
+    {
+        self.predict_chunks(|poses, rng| {
+            for p in poses {
+                step(p, rng);
+            }
+        });
+    }
+
+    /// Runs `work(chunk, rng)` on each fixed chunk of [`CHUNK_PARTICLES`] particle poses with
+    /// that chunk's random stream, in parallel; results do not depend on the thread count.
+    pub fn predict_chunks<F>(&mut self, work: F)
+    where
+        F: Fn(&mut [Pose2], &mut Xoshiro256PlusPlus) + Sync,
+    {
+        self.particles
+            .poses
+            .par_chunks_mut(CHUNK_PARTICLES)
+            .zip(self.rng.chunks.par_iter_mut())
+            .for_each(|(poses, rng)| work(poses, rng));
+    }
+
+    /// Correlates every particle's view of `points_body` with its map over `search`, moves it
+    /// to its best offset when `move_to_best`, and multiplies its weight by `exp(score / temperature)` (log space).
+    /// Returns Neff after reweighting and the best particle; does not resample.
+    pub fn reweight<P: ParticleMaps>(
+        &mut self,
+        maps: &P,
+        points_body: &[[f64; 2]],
+        search: &CorrelationSearch,
+        temperature: f64,
+        move_to_best: bool,
+    ) -> UpdateReport {
+        let n = self.particles.len();
+        self.matches.clear();
+        self.matches.resize(
+            n,
+            ScanMatch {
+                pose: Pose2::IDENTITY,
+                score: 0,
+            },
+        );
+        // One particle per work item; scratch buffers are per rayon job and only hold
+        // intermediate values, so results do not depend on scheduling.
+        self.matches
+            .par_iter_mut()
+            .zip(self.particles.poses.par_iter())
+            .enumerate()
+            .for_each_init(CorrelationScratch::default, |scratch, (i, (m, pose))| {
+                *m = correlate::best_match(maps.map_of(i), points_body, pose, search, scratch);
+            });
+        self.scores.clear();
+        self.scores
+            .extend(self.matches.iter().map(|m| f64::from(m.score)));
+        if move_to_best {
+            for (p, m) in self.particles.poses.iter_mut().zip(&self.matches) {
+                *p = m.pose;
+            }
+        }
+        weights::update_log_space(&mut self.particles.weights, &self.scores, temperature);
+        let best = self.particles.best_index();
+        UpdateReport {
+            neff: self.particles.neff(),
+            resampled: false,
+            best,
+            best_score: self.matches.get(best).map_or(0, |m| m.score),
+        }
+    }
+
+    /// Resamples with `method` when Neff < `threshold_fraction * n`; returns the ancestors'
+    /// indices when it did (for per-particle state such as maps to follow).
+    pub fn resample_if_needed(
+        &mut self,
+        threshold_fraction: f64,
+        method: ResampleMethod,
+    ) -> Option<&[usize]> {
+        let n = self.particles.len();
+        if self.particles.neff() >= threshold_fraction * n as f64 {
+            return None;
+        }
+        resample::resample(
+            &self.particles.weights,
+            method,
+            &mut self.rng.master,
+            &mut self.ancestors,
+        );
+        self.particles
+            .apply_resample(&self.ancestors, &mut self.pose_scratch);
+        Some(&self.ancestors)
+    }
+
+    /// The heaviest particle's pose.
+    pub fn best_pose(&self) -> Pose2 {
+        self.particles
+            .poses
+            .get(self.particles.best_index())
+            .copied()
+            .unwrap_or_default()
+    }
+}

@@ -1,0 +1,336 @@
+//! `pfslam run DATASET --out DIR`: the seeds' particle-filter SLAM on a dataset.
+//!
+//! Writes `trajectory.tum` (best particle at every scan), `dead_reckoning.tum`, `map.png`
+//! (map with the SLAM, dead-reckoning and ground-truth paths), `binary_map.png`, `map.pgm` +
+//! `map.yaml`, `summary.json` and map snapshots in `snapshots/`.
+
+use anyhow::Context;
+use pfslam::config::Config;
+use pfslam::eval::{Association, ate::ate, rpe::RpeDelta, rpe::rpe};
+use pfslam::filter::slam::{SlamEvent, SlamResult, anchor_odometry_to_ground_truth, run_slam};
+use pfslam::geometry::{Pose2, StampedPose2, Trajectory};
+use pfslam::io::map_files::{read_map_server, write_map_server};
+use pfslam::io::tum::{read_tum, write_tum};
+use pfslam::io::ucsd::{ReadOptions, TimestampPolicy, read_car_dataset};
+use pfslam::map::{BinaryMap, compare_maps};
+use pfslam::sensors::Recording;
+use pfslam::viz::map_image::{MapImageOptions, TrajectoryOverlay, write_binary_png, write_map_png};
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Arguments of `run`.
+#[derive(Debug, Default, clap::Args)]
+pub struct Args {
+    /// Dataset: a car dataset directory (sensor_data/, param/; a simulator output directory
+    /// also brings `ground_truth.tum` and `true_map.yaml`), or a recording file (ROS bag,
+    /// MCAP, CARMEN log).
+    pub dataset: PathBuf,
+    /// TOML configuration over the defaults (see `pfslam print-config`).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Number of particles (overrides `[filter] particles`).
+    #[arg(long)]
+    pub particles: Option<usize>,
+    /// Seed of the filter's random streams.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Output directory (created if needed).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Sort car CSV rows whose timestamps go backwards instead of rejecting them.
+    #[arg(long)]
+    pub sort_timestamps: bool,
+}
+
+/// A loaded dataset: the recording and, for simulator output, the true map.
+pub struct Dataset {
+    /// The recording (ground truth included when known).
+    pub recording: Recording,
+    /// The true occupancy map, when the dataset has one.
+    pub true_map: Option<BinaryMap>,
+}
+
+/// Loads `path` as a [`Dataset`]: the one place that knows dataset layouts.
+pub fn load_dataset(
+    path: &Path,
+    config: &Config,
+    sort_timestamps: bool,
+) -> anyhow::Result<Dataset> {
+    let name = path
+        .file_stem()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "dataset".into());
+    if path.is_dir() {
+        let opts = ReadOptions {
+            timestamp_policy: if sort_timestamps {
+                TimestampPolicy::SortWithWarning
+            } else {
+                TimestampPolicy::Reject
+            },
+            ..ReadOptions::default()
+        };
+        let ds = read_car_dataset(path, &opts)?;
+        let mut recording = pfslam::motion::car_recording(&ds, &config.motion, &name)?;
+        let gt_path = path.join("ground_truth.tum");
+        if gt_path.is_file() {
+            recording.ground_truth = Some(read_tum(&gt_path)?.poses);
+        }
+        let map_path = path.join("true_map.yaml");
+        let true_map = if map_path.is_file() {
+            Some(read_map_server(&map_path)?)
+        } else {
+            None
+        };
+        return Ok(Dataset {
+            recording,
+            true_map,
+        });
+    }
+    let recording = pfslam::io::recording::read_recording(path, &Default::default())?;
+    Ok(Dataset {
+        recording,
+        true_map: None,
+    })
+}
+
+/// Runs SLAM and writes the outputs.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let mut config = match &args.config {
+        Some(p) => Config::from_toml_file(p)?,
+        None => Config::default(),
+    };
+    if let Some(n) = args.particles {
+        config.filter.particles = n;
+    }
+    config.filter.validate()?;
+    config.motion.validate()?;
+    config.map.validate().map_err(anyhow::Error::msg)?;
+    if args.out.exists() && !args.out.is_dir() {
+        anyhow::bail!(
+            "--out {}: exists and is not a directory",
+            args.out.display()
+        );
+    }
+    let t_load = Instant::now();
+    let Dataset {
+        mut recording,
+        true_map,
+    } = load_dataset(&args.dataset, &config, args.sort_timestamps)
+        .with_context(|| format!("loading {}", args.dataset.display()))?;
+    let load_s = t_load.elapsed().as_secs_f64();
+    // With ground truth, start at the true pose so maps and paths overlay without alignment.
+    let anchored = anchor_odometry_to_ground_truth(&mut recording);
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    let snapshots = args.out.join("snapshots");
+
+    let total = recording.scans.len();
+    let bar = if std::io::stderr().is_terminal() {
+        let b = indicatif::ProgressBar::new(total as u64);
+        b.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{bar:40} {pos}/{len} scans  {per_sec}  ETA {eta}",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        Some(b)
+    } else {
+        None
+    };
+    let mut last_logged = 0usize;
+    let mut snapshot_error: Option<anyhow::Error> = None;
+    let t_slam = Instant::now();
+    let result = run_slam(&recording, &config, args.seed, &mut |ev| match ev {
+        SlamEvent::Progress { done, total } => {
+            if let Some(b) = &bar {
+                b.set_position(done as u64);
+            } else if done * 10 / total.max(1) > last_logged * 10 / total.max(1) || done == total {
+                last_logged = done;
+                let s = t_slam.elapsed().as_secs_f64();
+                tracing::info!(
+                    "{done}/{total} scans ({:.0} scans/s)",
+                    done as f64 / s.max(1e-9)
+                );
+            }
+        }
+        SlamEvent::Snapshot {
+            scans_done,
+            map,
+            trajectory,
+        } => {
+            if snapshot_error.is_some() {
+                return;
+            }
+            let poses: Vec<Pose2> = trajectory.iter().map(|p| p.pose).collect();
+            let res = std::fs::create_dir_all(&snapshots)
+                .map_err(anyhow::Error::from)
+                .and_then(|()| {
+                    write_map_png(
+                        &snapshots.join(format!("map_{scans_done:07}.png")),
+                        map,
+                        &[TrajectoryOverlay {
+                            label: "SLAM",
+                            poses: &poses,
+                        }],
+                        None,
+                        &MapImageOptions::default(),
+                    )
+                    .map_err(anyhow::Error::from)
+                });
+            if let Err(e) = res {
+                snapshot_error = Some(e.context("writing a snapshot"));
+            }
+        }
+    })?;
+    if let Some(b) = &bar {
+        b.finish_and_clear();
+    }
+    if let Some(e) = snapshot_error {
+        return Err(e);
+    }
+    write_outputs(
+        &args,
+        &config,
+        &recording,
+        true_map.as_ref(),
+        &result,
+        load_s,
+        anchored,
+    )
+}
+
+fn metrics(
+    estimate: &[StampedPose2],
+    ground_truth: &[StampedPose2],
+) -> anyhow::Result<serde_json::Value> {
+    let est = Trajectory::new(estimate.to_vec());
+    let gt = Trajectory::new(ground_truth.to_vec());
+    let assoc = Association::Interpolate {
+        max_gap_ns: 1_000_000_000,
+    };
+    let a = ate(&est, &gt, assoc)?;
+    let r = rpe(&est, &gt, assoc, RpeDelta::Metres(10.0)).ok();
+    Ok(serde_json::json!({ "ate": a, "rpe_10m": r }))
+}
+
+#[allow(clippy::too_many_arguments)]
+fn write_outputs(
+    args: &Args,
+    config: &Config,
+    recording: &Recording,
+    true_map: Option<&BinaryMap>,
+    result: &SlamResult,
+    load_s: f64,
+    anchored: bool,
+) -> anyhow::Result<()> {
+    let out = &args.out;
+    let t = Instant::now();
+    write_tum(&out.join("trajectory.tum"), &result.trajectory)?;
+    write_tum(&out.join("dead_reckoning.tum"), &result.dead_reckoning)?;
+    let slam: Vec<Pose2> = result.trajectory.iter().map(|p| p.pose).collect();
+    let dr: Vec<Pose2> = result.dead_reckoning.iter().map(|p| p.pose).collect();
+    let gt: Vec<Pose2> = recording
+        .ground_truth
+        .iter()
+        .flatten()
+        .map(|p| p.pose)
+        .collect();
+    let mut overlays = vec![
+        TrajectoryOverlay {
+            label: "SLAM",
+            poses: &slam,
+        },
+        TrajectoryOverlay {
+            label: "dead reckoning",
+            poses: &dr,
+        },
+    ];
+    if anchored {
+        overlays.push(TrajectoryOverlay {
+            label: "ground truth",
+            poses: &gt,
+        });
+    }
+    write_map_png(
+        &out.join("map.png"),
+        &result.map,
+        &overlays,
+        None,
+        &MapImageOptions::default(),
+    )?;
+    write_binary_png(&out.join("binary_map.png"), &result.map, None)?;
+    let binary = result.map.to_binary_map(None);
+    write_map_server(&binary, &out.join("map.yaml"))?;
+    let write_s = t.elapsed().as_secs_f64();
+
+    let mut summary = serde_json::json!({
+        "dataset": args.dataset.display().to_string(),
+        "recording": recording.name,
+        "seed": args.seed,
+        "config": config,
+        "stats": result.stats,
+        "timings_s": {
+            "load": load_s,
+            "slam": result.stats.timings.total_s,
+            "write_outputs": write_s,
+        },
+    });
+    if let Some(gt) = &recording.ground_truth {
+        summary["slam_vs_ground_truth"] = metrics(&result.trajectory, gt)?;
+        summary["dead_reckoning_vs_ground_truth"] = metrics(&result.dead_reckoning, gt)?;
+    }
+    if let Some(truth) = true_map
+        && anchored
+        && binary.width > 0
+    {
+        let c = compare_maps(&binary, truth, 1)?;
+        summary["map_vs_true_map"] = serde_json::json!({
+            "tolerance_cells": c.tolerance_cells,
+            "precision": c.precision(),
+            "recall": c.recall(),
+            "recall_all": c.recall_all(),
+            "free_agreement": c.free_agreement(),
+        });
+    }
+    let text = serde_json::to_string_pretty(&summary)?;
+    pfslam::io::write_bytes_atomic(&out.join("summary.json"), text.as_bytes())?;
+
+    let s = &result.stats;
+    println!(
+        "{}: {} of {} scans, {} particles, {} updates, {} resamples, Neff mean {:.1} min {:.1}",
+        recording.name,
+        s.scans_processed,
+        s.scans_total,
+        s.particles,
+        s.updates,
+        s.resamples,
+        s.neff_mean,
+        s.neff_min
+    );
+    println!(
+        "time: load {load_s:.2} s, SLAM {:.2} s (predict {:.2}, correlate {:.2}, resample {:.3}, map {:.2}), outputs {write_s:.2} s",
+        s.timings.total_s,
+        s.timings.predict_s,
+        s.timings.correlate_s,
+        s.timings.resample_s,
+        s.timings.map_update_s
+    );
+    if let Some(v) = summary.get("slam_vs_ground_truth") {
+        let d = &summary["dead_reckoning_vs_ground_truth"];
+        println!(
+            "ATE RMSE (SE(2)-aligned): SLAM {:.3} m, dead reckoning {:.3} m",
+            v["ate"]["aligned_m"]["rmse"].as_f64().unwrap_or(f64::NAN),
+            d["ate"]["aligned_m"]["rmse"].as_f64().unwrap_or(f64::NAN)
+        );
+    }
+    if let Some(m) = summary.get("map_vs_true_map") {
+        println!(
+            "map vs true map (1 cell tolerance): precision {:.3}, recall {:.3}",
+            m["precision"].as_f64().unwrap_or(f64::NAN),
+            m["recall"].as_f64().unwrap_or(f64::NAN)
+        );
+    }
+    println!("wrote {}", out.display());
+    Ok(())
+}

@@ -1,0 +1,101 @@
+//! `pfslam run` and `pfslam print-config` end to end.
+
+use super::pfslam;
+
+#[test]
+fn run_on_a_short_simulated_drive() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("sim");
+    let out = pfslam()
+        .args(["simulate", "--duration-s", "6", "--out"])
+        .arg(&data)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let cfg = dir.path().join("run.toml");
+    std::fs::write(&cfg, "[filter]\nsnapshot_every_scans = 200\n").unwrap();
+    let res = dir.path().join("out");
+    let out = pfslam()
+        .arg("run")
+        .arg(&data)
+        .args(["--particles", "5", "--seed", "3", "--config"])
+        .arg(&cfg)
+        .arg("--out")
+        .arg(&res)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("ATE RMSE"), "{stdout}");
+    for f in [
+        "trajectory.tum",
+        "dead_reckoning.tum",
+        "map.png",
+        "binary_map.png",
+        "map.pgm",
+        "map.yaml",
+        "summary.json",
+    ] {
+        assert!(res.join(f).is_file(), "{f} missing");
+    }
+    let snaps = std::fs::read_dir(res.join("snapshots")).unwrap().count();
+    assert!(snaps >= 2, "{snaps} snapshots");
+    let traj = pfslam::io::tum::read_tum(&res.join("trajectory.tum")).unwrap();
+    let scans = std::fs::read_to_string(data.join("sensor_data/lidar.csv"))
+        .unwrap()
+        .lines()
+        .count();
+    assert_eq!(traj.len(), scans, "a pose at every scan");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(res.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["config"]["filter"]["particles"], 5);
+    assert_eq!(summary["seed"], 3);
+    assert!(summary["slam_vs_ground_truth"]["ate"]["aligned_m"]["rmse"].is_number());
+    assert!(summary["map_vs_true_map"]["precision"].is_number());
+    assert!(summary["stats"]["timings"]["correlate_s"].is_number());
+    assert!(summary["stats"]["neff_mean"].as_f64().unwrap() >= 1.0);
+}
+
+#[test]
+fn run_rejects_bad_input_with_exit_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = pfslam()
+        .arg("run")
+        .arg(dir.path().join("missing"))
+        .arg("--out")
+        .arg(dir.path().join("o"))
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let cfg = dir.path().join("bad.toml");
+    std::fs::write(&cfg, "[filter]\nparticles = 0\n").unwrap();
+    let out = pfslam()
+        .arg("run")
+        .arg(dir.path())
+        .arg("--config")
+        .arg(&cfg)
+        .arg("--out")
+        .arg(dir.path().join("o"))
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("particles"));
+}
+
+#[test]
+fn print_config_comments_every_key() {
+    let out = pfslam().arg("print-config").output().unwrap();
+    assert!(out.status.success());
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(text.contains("# Number of particles"), "{text}");
+    let parsed: pfslam::config::Config = toml::from_str(&text).unwrap();
+    assert_eq!(parsed, pfslam::config::Config::default());
+}

@@ -1,0 +1,460 @@
+//! The SLAM loop of the seeds: predict at every odometry step, update every k-th scan
+//! (correlate, reweight, resample on low Neff), map with the best particle, output a pose at
+//! every scan.
+
+use super::correlate::{CorrelationSearch, OccupancyLookup};
+use super::odometry::OdometryCursor;
+use super::{FilterError, ParticleFilter, ParticleMaps};
+use crate::config::Config;
+use crate::geometry::{Pose2, StampedPose2};
+use crate::map::{
+    Cell, InsertScratch, MapError, MapLimits, OccupancyGrid, PlanarScan, ScanProjector, to_world,
+};
+use crate::sensors::Recording;
+use rand_xoshiro::Xoshiro256PlusPlus;
+use serde::Serialize;
+use std::time::Instant;
+
+/// Errors of a SLAM run.
+#[derive(Debug, thiserror::Error)]
+pub enum SlamError {
+    /// Bad filter options.
+    #[error(transparent)]
+    Filter(#[from] FilterError),
+    /// Bad map options or a failed insertion.
+    #[error(transparent)]
+    Map(#[from] MapError),
+    /// Bad motion options.
+    #[error("invalid motion options: {0}")]
+    Motion(String),
+    /// Nothing to do.
+    #[error("recording {name}: {message}")]
+    Input {
+        /// The recording's name.
+        name: String,
+        /// What is missing.
+        message: String,
+    },
+}
+
+/// A noisy motion model: moves a particle by the odometry step `from -> to`.
+pub trait MotionModel: Sync {
+    /// The particle's new pose after the odometry step `from -> to`, with noise drawn from
+    /// `rng`.
+    fn sample(
+        &self,
+        pose: &Pose2,
+        from: &StampedPose2,
+        to: &StampedPose2,
+        rng: &mut Xoshiro256PlusPlus,
+    ) -> Pose2;
+}
+
+impl OccupancyLookup for OccupancyGrid {
+    #[inline]
+    fn cell_limits(&self) -> MapLimits {
+        *self.limits()
+    }
+    #[inline]
+    fn occupied(&self, cell: Cell) -> bool {
+        self.is_occupied(cell)
+    }
+}
+
+/// How maps are kept: the seeds' single map written by the best particle, or (issue 7) one
+/// map per particle. The filter sees maps only through this trait.
+pub trait MapPolicy: ParticleMaps {
+    /// Integrates the body-frame scan at the particles' poses (`best` is the heaviest).
+    fn integrate(
+        &mut self,
+        poses: &[Pose2],
+        best: usize,
+        body_scan: &PlanarScan,
+    ) -> Result<(), MapError>;
+    /// Integrates a scan between updates at `world_from_body` (the output pose: the last
+    /// estimate moved by odometry) into every map.
+    fn integrate_at(
+        &mut self,
+        world_from_body: &Pose2,
+        body_scan: &PlanarScan,
+    ) -> Result<(), MapError>;
+    /// The particles were resampled: particle `k` is now a copy of old particle
+    /// `ancestors[k]`.
+    fn resampled(&mut self, ancestors: &[usize]);
+    /// The map to report for particle `best`.
+    fn map_for_output(&self, best: usize) -> &OccupancyGrid;
+}
+
+/// The seeds' policy: one map, updated with the best particle's pose.
+#[derive(Debug, Clone)]
+pub struct BestParticleMap {
+    /// The map.
+    pub grid: OccupancyGrid,
+    scratch: InsertScratch,
+    world: PlanarScan,
+}
+
+impl BestParticleMap {
+    /// A policy around an (empty) grid.
+    pub fn new(grid: OccupancyGrid) -> Self {
+        BestParticleMap {
+            grid,
+            scratch: InsertScratch::new(),
+            world: PlanarScan::default(),
+        }
+    }
+}
+
+impl ParticleMaps for BestParticleMap {
+    type Map = OccupancyGrid;
+    fn map_of(&self, _i: usize) -> &OccupancyGrid {
+        &self.grid
+    }
+}
+
+impl MapPolicy for BestParticleMap {
+    fn integrate(
+        &mut self,
+        poses: &[Pose2],
+        best: usize,
+        body_scan: &PlanarScan,
+    ) -> Result<(), MapError> {
+        let pose = poses.get(best).copied().unwrap_or_default();
+        to_world(body_scan, &pose, &mut self.world);
+        self.grid.insert_scan(&self.world, &mut self.scratch)?;
+        Ok(())
+    }
+    fn integrate_at(
+        &mut self,
+        world_from_body: &Pose2,
+        body_scan: &PlanarScan,
+    ) -> Result<(), MapError> {
+        self.integrate(std::slice::from_ref(world_from_body), 0, body_scan)
+    }
+    fn resampled(&mut self, _ancestors: &[usize]) {}
+    fn map_for_output(&self, _best: usize) -> &OccupancyGrid {
+        &self.grid
+    }
+}
+
+/// Wall-clock seconds spent per stage.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct StageTimings {
+    /// Ranges -> body-frame points.
+    pub preprocess_s: f64,
+    /// Motion model sampling.
+    pub predict_s: f64,
+    /// Correlation search and reweighting.
+    pub correlate_s: f64,
+    /// Resampling.
+    pub resample_s: f64,
+    /// Map insertion.
+    pub map_update_s: f64,
+    /// The whole loop.
+    pub total_s: f64,
+}
+
+/// Counts and statistics of a run.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct SlamStats {
+    /// Particles.
+    pub particles: usize,
+    /// Seed of the random streams.
+    pub seed: u64,
+    /// Scans in the recording.
+    pub scans_total: usize,
+    /// Scans with a pose in the output (inside the odometry's time span).
+    pub scans_processed: usize,
+    /// Scans skipped because the odometry does not cover them.
+    pub scans_skipped: usize,
+    /// Odometry steps predicted.
+    pub odometry_steps: usize,
+    /// Update steps (correlation + reweight + map).
+    pub updates: usize,
+    /// Resampling events.
+    pub resamples: usize,
+    /// Neff after reweighting: minimum over updates.
+    pub neff_min: f64,
+    /// Neff after reweighting: mean over updates.
+    pub neff_mean: f64,
+    /// Neff after reweighting at the last update.
+    pub neff_last: f64,
+    /// Mean correlation score (occupied cells hit) of the best particle.
+    pub best_score_mean: f64,
+    /// Time per stage.
+    pub timings: StageTimings,
+}
+
+/// What a run produced.
+#[derive(Debug, Clone)]
+pub struct SlamResult {
+    /// The best particle's pose at every processed scan (odometry composed onto the last
+    /// estimate between updates).
+    pub trajectory: Vec<StampedPose2>,
+    /// The odometry pose at every processed scan (dead reckoning, same frame).
+    pub dead_reckoning: Vec<StampedPose2>,
+    /// The final map.
+    pub map: OccupancyGrid,
+    /// Counts, Neff and timings.
+    pub stats: SlamStats,
+}
+
+/// Progress reports of [`run_slam`].
+#[derive(Debug)]
+pub enum SlamEvent<'a> {
+    /// `done` of `total` scans handled.
+    Progress {
+        /// Scans handled.
+        done: usize,
+        /// Scans in the recording.
+        total: usize,
+    },
+    /// A map snapshot after `scan_index` scans (every `filter.snapshot_every_scans`).
+    Snapshot {
+        /// Number of scans handled so far.
+        scans_done: usize,
+        /// The current map.
+        map: &'a OccupancyGrid,
+        /// The trajectory so far.
+        trajectory: &'a [StampedPose2],
+    },
+}
+
+/// Runs the seeds' particle-filter SLAM on `recording` with `config` and random `seed`,
+/// reporting progress and snapshots to `observer`.
+pub fn run_slam(
+    recording: &Recording,
+    config: &Config,
+    seed: u64,
+    observer: &mut dyn FnMut(SlamEvent<'_>),
+) -> Result<SlamResult, SlamError> {
+    let motion = super::motion_model(config, recording)?;
+    let grid = OccupancyGrid::new(&config.map)?;
+    let mut policy = BestParticleMap::new(grid);
+    run_slam_with(
+        recording,
+        config,
+        seed,
+        motion.as_ref(),
+        &mut policy,
+        observer,
+    )
+}
+
+/// [`run_slam`] with an explicit motion model and map policy.
+pub fn run_slam_with<P: MapPolicy>(
+    recording: &Recording,
+    config: &Config,
+    seed: u64,
+    motion: &dyn MotionModel,
+    policy: &mut P,
+    observer: &mut dyn FnMut(SlamEvent<'_>),
+) -> Result<SlamResult, SlamError> {
+    let opts = &config.filter;
+    opts.validate()?;
+    config.map.validate().map_err(MapError::Options)?;
+    let t_start = Instant::now();
+    let scans = &recording.scans;
+    let total = scans.len();
+    let input_err = |message: &str| SlamError::Input {
+        name: recording.name.clone(),
+        message: message.to_string(),
+    };
+    if recording.odometry.is_empty() {
+        return Err(input_err("no odometry"));
+    }
+    if let Some(per_scan) = &recording.body_from_lidar_per_scan
+        && per_scan.len() != total
+    {
+        return Err(input_err("per-scan LiDAR mounts do not match the scans"));
+    }
+    let Some(first) =
+        (0..total).find(|&i| recording.odometry.pose_at(scans.stamps_ns[i]).is_some())
+    else {
+        return Err(input_err("no scan lies within the odometry's time span"));
+    };
+    let mut cursor = OdometryCursor::new(&recording.odometry, scans.stamps_ns[first])
+        .ok_or_else(|| input_err("no odometry at the first scan"))?;
+    let start = cursor.current().pose;
+    let mut projector = ScanProjector::new(
+        &recording.lidar,
+        &recording.body_from_lidar,
+        &config.map.scan,
+    )?;
+    let search: CorrelationSearch = opts.search();
+    let mut pf = ParticleFilter::new(opts.particles, start, seed);
+    let mut stats = SlamStats {
+        particles: opts.particles,
+        seed,
+        scans_total: total,
+        scans_skipped: first,
+        neff_min: f64::INFINITY,
+        ..SlamStats::default()
+    };
+    let mut trajectory = Vec::with_capacity(total - first);
+    let mut dead_reckoning = Vec::with_capacity(total - first);
+    let mut body = PlanarScan::default();
+    let mut hits: Vec<[f64; 2]> = Vec::new();
+    let mut steps: Vec<(StampedPose2, StampedPose2)> = Vec::new();
+    let mut last_estimate = start;
+    let mut last_update_odom = start;
+    let mut neff_sum = 0.0;
+    let mut score_sum = 0.0;
+    let progress_every = (total / 200).max(1);
+    for i in first..total {
+        let stamp_ns = scans.stamps_ns[i];
+        let t = Instant::now();
+        steps.clear();
+        let Some(odom) = cursor.advance_to(stamp_ns, |a, b| steps.push((*a, *b))) else {
+            stats.scans_skipped += 1;
+            continue;
+        };
+        stats.odometry_steps += steps.len();
+        if !steps.is_empty() {
+            pf.predict_steps(&steps, motion);
+        }
+        stats.timings.predict_s += t.elapsed().as_secs_f64();
+        let k = i - first;
+        let estimate = if k.is_multiple_of(opts.update_every_scans) {
+            let t = Instant::now();
+            if recording.body_from_lidar_per_scan.is_some() {
+                projector.set_mount(&recording.lidar, recording.body_from_lidar_at(i));
+            }
+            projector.to_body(scans.ranges(i), &mut body)?;
+            super::correlate::hit_points(&body, &mut hits);
+            stats.timings.preprocess_s += t.elapsed().as_secs_f64();
+            let best = if k == 0 {
+                // The first scan seeds the map at the start pose; nothing to correlate with.
+                0
+            } else {
+                let t = Instant::now();
+                let report = pf.reweight(
+                    &*policy,
+                    &hits,
+                    &search,
+                    opts.temperature,
+                    opts.move_to_best_offset,
+                );
+                stats.timings.correlate_s += t.elapsed().as_secs_f64();
+                stats.updates += 1;
+                neff_sum += report.neff;
+                score_sum += f64::from(report.best_score);
+                stats.neff_min = stats.neff_min.min(report.neff);
+                stats.neff_last = report.neff;
+                report.best
+            };
+            let estimate = pf.particles.poses[best];
+            let t = Instant::now();
+            policy.integrate(&pf.particles.poses, best, &body)?;
+            stats.timings.map_update_s += t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            if k > 0
+                && let Some(ancestors) =
+                    pf.resample_if_needed(opts.resample_threshold, opts.resample_method)
+            {
+                policy.resampled(ancestors);
+                stats.resamples += 1;
+            }
+            stats.timings.resample_s += t.elapsed().as_secs_f64();
+            last_estimate = estimate;
+            last_update_odom = odom.pose;
+            estimate
+        } else {
+            let estimate = last_estimate.compose(&last_update_odom.between(&odom.pose));
+            if opts.map_between_updates {
+                // Insert this scan at the composed pose: the map then reaches up to the
+                // latest scan when the next update correlates against it.
+                let t = Instant::now();
+                if recording.body_from_lidar_per_scan.is_some() {
+                    projector.set_mount(&recording.lidar, recording.body_from_lidar_at(i));
+                }
+                projector.to_body(scans.ranges(i), &mut body)?;
+                stats.timings.preprocess_s += t.elapsed().as_secs_f64();
+                let t = Instant::now();
+                policy.integrate_at(&estimate, &body)?;
+                stats.timings.map_update_s += t.elapsed().as_secs_f64();
+            }
+            estimate
+        };
+        trajectory.push(StampedPose2 {
+            stamp_ns,
+            pose: estimate,
+        });
+        dead_reckoning.push(odom);
+        stats.scans_processed += 1;
+        let done = i + 1;
+        if done.is_multiple_of(progress_every) || done == total {
+            observer(SlamEvent::Progress { done, total });
+        }
+        if opts.snapshot_every_scans > 0
+            && stats
+                .scans_processed
+                .is_multiple_of(opts.snapshot_every_scans)
+        {
+            observer(SlamEvent::Snapshot {
+                scans_done: done,
+                map: policy.map_for_output(pf.particles.best_index()),
+                trajectory: &trajectory,
+            });
+        }
+    }
+    if stats.updates > 0 {
+        stats.neff_mean = neff_sum / stats.updates as f64;
+        stats.best_score_mean = score_sum / stats.updates as f64;
+    } else {
+        stats.neff_min = opts.particles as f64;
+        stats.neff_mean = opts.particles as f64;
+        stats.neff_last = opts.particles as f64;
+    }
+    stats.timings.total_s = t_start.elapsed().as_secs_f64();
+    let map = policy.map_for_output(pf.particles.best_index()).clone();
+    Ok(SlamResult {
+        trajectory,
+        dead_reckoning,
+        map,
+        stats,
+    })
+}
+
+impl ParticleFilter {
+    /// Applies the odometry steps `(from, to)` in order to every particle with `motion`, in
+    /// parallel over fixed chunks (deterministic for any thread count).
+    pub fn predict_steps(
+        &mut self,
+        steps: &[(StampedPose2, StampedPose2)],
+        motion: &dyn MotionModel,
+    ) {
+        self.predict_chunks(|poses, rng| {
+            for (from, to) in steps {
+                for p in poses.iter_mut() {
+                    *p = motion.sample(p, from, to, rng);
+                }
+            }
+        });
+    }
+}
+
+/// Re-expresses the odometry of `recording` in its ground truth's frame, anchored at the first
+/// scan both cover: `odometry' = gt(t0) * odometry(t0)^-1 * odometry`. SLAM then starts at
+/// the true initial pose, so its map and trajectory can be drawn over and compared with the
+/// true ones without alignment (only the start is used, never later ground truth). Returns
+/// false (recording unchanged) without ground truth or overlap.
+pub fn anchor_odometry_to_ground_truth(recording: &mut Recording) -> bool {
+    let Some(gt) = &recording.ground_truth else {
+        return false;
+    };
+    let gt = crate::geometry::Trajectory::new(gt.clone());
+    let anchor = recording.scans.stamps_ns.iter().find_map(|&t| {
+        Some(
+            gt.pose_at(t)?
+                .compose(&recording.odometry.pose_at(t)?.inverse()),
+        )
+    });
+    let Some(world_from_odom) = anchor else {
+        return false;
+    };
+    for p in &mut recording.odometry.poses {
+        p.pose = world_from_odom.compose(&p.pose);
+    }
+    true
+}
