@@ -6,9 +6,7 @@ use anyhow::Context;
 use pfslam::config::Config;
 use pfslam::geometry::StampedPose2;
 use pfslam::io::tum::{format_stamp_s, write_tum};
-use pfslam::io::ucsd::{ReadOptions, TimestampPolicy, read_car_dataset};
 use pfslam::io::{write_atomic, write_bytes_atomic};
-use pfslam::motion::dead_reckon;
 use pfslam::sensors::sync::poses_at_stamps;
 use pfslam::viz::plot::{PALETTE, PathRef, render_trajectories_png};
 use std::io::Write;
@@ -43,21 +41,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             args.out.display()
         );
     }
-    let opts = ReadOptions {
-        timestamp_policy: if args.sort_timestamps {
-            TimestampPolicy::SortWithWarning
-        } else {
-            TimestampPolicy::Reject
-        },
-        ..ReadOptions::default()
-    };
-
-    let ds = read_car_dataset(&args.dataset, &opts)?;
-    let traj = dead_reckon(&ds, &config.motion)?;
-    let (at_scans, clamped) = poses_at_stamps(&traj, &ds.lidar.stamps_ns);
+    // Every format's odometry is its dead reckoning: for the car it is the integration of
+    // wheel ticks and FOG yaw (`motion::car_recording`), for recordings their odometry poses.
+    let ds = super::dataset::load_dataset(&args.dataset, &config, args.sort_timestamps)?;
+    let traj = &ds.recording.odometry;
+    if traj.is_empty() {
+        anyhow::bail!("{}: no odometry to dead-reckon", args.dataset.display());
+    }
+    let (at_scans, clamped) = poses_at_stamps(traj, &ds.recording.scans.stamps_ns);
     if clamped > 0 {
         tracing::warn!(
-            "{clamped} LiDAR scans lie outside the encoder's time span: they get the first/last pose"
+            "{clamped} LiDAR scans lie outside the odometry's time span: they get the first/last pose"
         );
     }
 
@@ -68,7 +62,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .unwrap_or_else(|| "dataset".to_string());
     // Render first: a drawing failure must not leave the other files behind.
     let png = render_trajectories_png(
-        &[("dead reckoning", PathRef::Trajectory(&traj), PALETTE[0])],
+        &[("dead reckoning", PathRef::Trajectory(traj), PALETTE[0])],
         &format!("Dead reckoning: {name}"),
     )
     .context("trajectory.png")?;
@@ -79,12 +73,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let first = traj.poses.first().map(|p| p.stamp_ns).unwrap_or(0);
     let last = traj.poses.last().copied();
     let duration_s = last.map(|p| p.stamp_ns - first).unwrap_or(0) as f64 * 1e-9;
-    println!(
-        "rows: {} encoder, {} FOG, {} LiDAR scans",
-        ds.encoder.len(),
-        ds.fog.len(),
-        ds.lidar.len()
-    );
+    match &ds.car {
+        Some(car) => println!(
+            "rows: {} encoder, {} FOG, {} LiDAR scans",
+            car.encoder.len(),
+            car.fog.len(),
+            car.lidar.len()
+        ),
+        None => println!(
+            "odometry poses: {}, scans: {}",
+            traj.len(),
+            ds.recording.scans.len()
+        ),
+    }
     println!("distance: {:.3} m", traj.path_length_m());
     println!("duration: {duration_s:.3} s");
     if let Some(p) = last {

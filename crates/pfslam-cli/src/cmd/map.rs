@@ -13,7 +13,6 @@ use pfslam::io::map_files::{read_map_server, write_logodds_npy, write_map_server
 use pfslam::io::tum::read_tum;
 use pfslam::io::write_bytes_atomic;
 use pfslam::map::{LogOddsPreset, MapComparison, compare_maps, map_with_poses};
-use pfslam::sensors::Recording;
 use pfslam::viz::map_image::{MapImageOptions, TrajectoryOverlay, render_map, write_binary_png};
 use std::path::{Path, PathBuf};
 
@@ -61,16 +60,6 @@ pub struct Args {
     /// Tolerance of the comparison (cells).
     #[arg(long, default_value_t = 1)]
     pub tolerance_cells: u32,
-}
-
-/// Loads the dataset as a [`Recording`]; the one place that knows dataset formats here.
-pub fn load_recording(dir: &Path, config: &Config) -> anyhow::Result<Recording> {
-    let ds = pfslam::io::ucsd::read_car_dataset(dir, &pfslam::io::ucsd::ReadOptions::default())?;
-    let name = dir
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "dataset".into());
-    Ok(pfslam::motion::car_recording(&ds, &config.motion, &name)?)
 }
 
 fn file_label(p: &Path) -> String {
@@ -131,7 +120,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         None => None,
     };
 
-    let rec = load_recording(&args.dataset, &config)?;
+    let rec = super::dataset::load_dataset(&args.dataset, &config, false)?.recording;
     let t0 = std::time::Instant::now();
     let (grid, last_scan, stats) = map_with_poses(&rec, &poses, &config.map)?;
     let mapping_s = t0.elapsed().as_secs_f64();

@@ -9,14 +9,13 @@ use pfslam::config::Config;
 use pfslam::eval::{Association, ate::ate, rpe::RpeDelta, rpe::rpe};
 use pfslam::filter::slam::{SlamEvent, SlamResult, anchor_odometry_to_ground_truth, run_slam};
 use pfslam::geometry::{Pose2, StampedPose2, Trajectory};
-use pfslam::io::map_files::{read_map_server, write_map_server};
-use pfslam::io::tum::{read_tum, write_tum};
-use pfslam::io::ucsd::{ReadOptions, TimestampPolicy, read_car_dataset};
+use pfslam::io::map_files::write_map_server;
+use pfslam::io::tum::write_tum;
 use pfslam::map::{BinaryMap, compare_maps};
 use pfslam::sensors::Recording;
 use pfslam::viz::map_image::{MapImageOptions, TrajectoryOverlay, write_binary_png, write_map_png};
 use std::io::IsTerminal;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 /// Arguments of `run`.
@@ -43,56 +42,7 @@ pub struct Args {
     pub sort_timestamps: bool,
 }
 
-/// A loaded dataset: the recording and, for simulator output, the true map.
-pub struct Dataset {
-    /// The recording (ground truth included when known).
-    pub recording: Recording,
-    /// The true occupancy map, when the dataset has one.
-    pub true_map: Option<BinaryMap>,
-}
-
-/// Loads `path` as a [`Dataset`]: the one place that knows dataset layouts.
-pub fn load_dataset(
-    path: &Path,
-    config: &Config,
-    sort_timestamps: bool,
-) -> anyhow::Result<Dataset> {
-    let name = path
-        .file_stem()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "dataset".into());
-    if path.is_dir() {
-        let opts = ReadOptions {
-            timestamp_policy: if sort_timestamps {
-                TimestampPolicy::SortWithWarning
-            } else {
-                TimestampPolicy::Reject
-            },
-            ..ReadOptions::default()
-        };
-        let ds = read_car_dataset(path, &opts)?;
-        let mut recording = pfslam::motion::car_recording(&ds, &config.motion, &name)?;
-        let gt_path = path.join("ground_truth.tum");
-        if gt_path.is_file() {
-            recording.ground_truth = Some(read_tum(&gt_path)?.poses);
-        }
-        let map_path = path.join("true_map.yaml");
-        let true_map = if map_path.is_file() {
-            Some(read_map_server(&map_path)?)
-        } else {
-            None
-        };
-        return Ok(Dataset {
-            recording,
-            true_map,
-        });
-    }
-    let recording = pfslam::io::recording::read_recording(path, &Default::default())?;
-    Ok(Dataset {
-        recording,
-        true_map: None,
-    })
-}
+pub use super::dataset::{Dataset, load_dataset};
 
 /// Runs SLAM and writes the outputs.
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -116,6 +66,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let Dataset {
         mut recording,
         true_map,
+        ..
     } = load_dataset(&args.dataset, &config, args.sort_timestamps)
         .with_context(|| format!("loading {}", args.dataset.display()))?;
     let load_s = t_load.elapsed().as_secs_f64();

@@ -1,0 +1,77 @@
+//! Loading a dataset from a path, whatever its format: the one place that knows layouts.
+//!
+//! - a directory with `sensor_data/` + `param/`: the seed car's layout (the simulator writes it
+//!   too, with `ground_truth.tum` and `true_map.yaml` beside, which are picked up);
+//! - a directory with `calibration.txt` + `odometry.csv`: the humanoid layout;
+//! - a file: CARMEN log (`.clf`, `.log`, gzipped or not), ROS 1 bag, ROS 2 MCAP, detected by
+//!   [`pfslam::io::recording::read_recording`].
+
+use pfslam::config::Config;
+use pfslam::io::map_files::read_map_server;
+use pfslam::io::tum::read_tum;
+use pfslam::io::ucsd::{ReadOptions, TimestampPolicy, read_car_dataset};
+use pfslam::map::BinaryMap;
+use pfslam::sensors::{CarDataset, Recording};
+use std::path::Path;
+
+/// A loaded dataset: the recording and, for simulator output, the true map.
+pub struct Dataset {
+    /// The recording (ground truth included when known).
+    pub recording: Recording,
+    /// The true occupancy map, when the dataset has one.
+    pub true_map: Option<BinaryMap>,
+    /// The raw car streams, for a car-layout dataset.
+    pub car: Option<CarDataset>,
+}
+
+/// Loads `path` as a [`Dataset`].
+pub fn load_dataset(path: &Path, config: &Config, sort_timestamps: bool) -> anyhow::Result<Dataset> {
+    let name = path
+        .file_stem()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "dataset".into());
+    if !path.exists() {
+        anyhow::bail!("{}: no such file or directory", path.display());
+    }
+    if path.is_dir() {
+        let humanoid = path.join(pfslam::io::humanoid::CALIBRATION_FILE).is_file()
+            && path.join(pfslam::io::humanoid::ODOMETRY_CSV).is_file();
+        let (mut recording, car) = if humanoid {
+            let ds = pfslam::io::humanoid::read_humanoid_dataset(path)?;
+            (pfslam::io::humanoid::humanoid_recording(&ds, &name), None)
+        } else {
+            let opts = ReadOptions {
+                timestamp_policy: if sort_timestamps {
+                    TimestampPolicy::SortWithWarning
+                } else {
+                    TimestampPolicy::Reject
+                },
+                ..ReadOptions::default()
+            };
+            let ds = read_car_dataset(path, &opts)?;
+            let rec = pfslam::motion::car_recording(&ds, &config.motion, &name)?;
+            (rec, Some(ds))
+        };
+        let gt_path = path.join("ground_truth.tum");
+        if gt_path.is_file() {
+            recording.ground_truth = Some(read_tum(&gt_path)?.poses);
+        }
+        let map_path = path.join("true_map.yaml");
+        let true_map = if map_path.is_file() {
+            Some(read_map_server(&map_path)?)
+        } else {
+            None
+        };
+        return Ok(Dataset {
+            recording,
+            true_map,
+            car,
+        });
+    }
+    let recording = pfslam::io::recording::read_recording(path, &Default::default())?;
+    Ok(Dataset {
+        recording,
+        true_map: None,
+        car: None,
+    })
+}
