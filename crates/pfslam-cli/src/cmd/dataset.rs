@@ -25,7 +25,11 @@ pub struct Dataset {
 }
 
 /// Loads `path` as a [`Dataset`].
-pub fn load_dataset(path: &Path, config: &Config, sort_timestamps: bool) -> anyhow::Result<Dataset> {
+pub fn load_dataset(
+    path: &Path,
+    config: &Config,
+    sort_timestamps: bool,
+) -> anyhow::Result<Dataset> {
     let name = path
         .file_stem()
         .map(|n| n.to_string_lossy().into_owned())

@@ -1,14 +1,158 @@
-//! The built-in demo (placeholder until the simulator lands).
+//! The built-in demo (`cargo run --release` with no arguments): simulate the seed car in the
+//! default campus world, then run every pipeline stage on what was written to disk and report
+//! the accuracy against the simulator's ground truth.
+//!
+//! Each stage is the same code as its subcommand, run on the files the previous stage wrote,
+//! so the demo exercises the readers and writers end to end.
+
+use anyhow::Context;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 /// Arguments of `demo`.
-#[derive(Debug, Default, clap::Args)]
+#[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Output directory.
+    /// Output directory (created if needed; earlier demo outputs in it are replaced).
+    #[arg(long, default_value = "pfslam-out")]
+    pub out: PathBuf,
+    /// Length of the simulated drive (s).
+    #[arg(long, default_value_t = 180.0)]
+    pub duration_s: f64,
+    /// Seed of the simulator and of the filter.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Number of particles (default: the configuration's).
     #[arg(long)]
-    pub out: Option<std::path::PathBuf>,
+    pub particles: Option<usize>,
+}
+
+impl Default for Args {
+    fn default() -> Self {
+        Args {
+            out: PathBuf::from("pfslam-out"),
+            duration_s: 180.0,
+            seed: 1,
+            particles: None,
+        }
+    }
+}
+
+fn stage(n: usize, what: &str) {
+    println!();
+    println!("== {n}/4 {what}");
 }
 
 /// Runs the demo.
-pub fn run(_args: Args) -> anyhow::Result<()> {
-    anyhow::bail!("the demo is not implemented yet")
+pub fn run(args: Args) -> anyhow::Result<()> {
+    if !(args.duration_s.is_finite() && args.duration_s > 0.0) {
+        anyhow::bail!("--duration-s must be positive, got {}", args.duration_s);
+    }
+    if args.particles == Some(0) {
+        anyhow::bail!("--particles must be at least 1");
+    }
+    let t0 = Instant::now();
+    let out = &args.out;
+    let sim_dir = out.join("sim");
+    let dr_dir = out.join("dead_reckoning");
+    let map_dir = out.join("map_ground_truth");
+    let slam_dir = out.join("slam");
+    println!(
+        "pfslam demo: simulating {} s of the seed car in the built-in campus world, then dead \
+         reckoning, mapping with known poses and particle-filter SLAM; outputs in {}",
+        args.duration_s,
+        out.display()
+    );
+
+    stage(1, "simulate");
+    super::simulate::run(super::simulate::Args {
+        vehicle: None,
+        world: None,
+        duration_s: Some(args.duration_s),
+        seed: Some(args.seed),
+        noise_free: false,
+        config: None,
+        out: sim_dir.clone(),
+    })
+    .context("simulate")?;
+
+    stage(2, "dead reckoning (wheel encoders + FOG)");
+    super::dead_reckon::run(super::dead_reckon::Args {
+        dataset: sim_dir.clone(),
+        out: dr_dir.clone(),
+        config: None,
+        sort_timestamps: false,
+    })
+    .context("dead-reckon")?;
+
+    stage(3, "occupancy map with the ground-truth poses");
+    super::map::run(super::map::Args {
+        dataset: sim_dir.clone(),
+        poses: sim_dir.join("ground_truth.tum"),
+        out: map_dir.clone(),
+        config: None,
+        resolution: None,
+        preset: None,
+        z_min: None,
+        z_max: None,
+        overlays: vec![format!(
+            "dead reckoning={}",
+            dr_dir.join("trajectory.tum").display()
+        )],
+        truth: Some(sim_dir.join("true_map.yaml")),
+        tolerance_cells: 1,
+    })
+    .context("map")?;
+
+    stage(4, "particle-filter SLAM");
+    super::run::run(super::run::Args {
+        dataset: sim_dir.clone(),
+        config: None,
+        particles: args.particles,
+        seed: args.seed,
+        out: slam_dir.clone(),
+        sort_timestamps: false,
+    })
+    .context("run")?;
+
+    println!();
+    println!("== summary ({:.1} s)", t0.elapsed().as_secs_f64());
+    print_summary(&slam_dir.join("summary.json"))?;
+    println!("pictures:");
+    for p in [
+        sim_dir.join("true_map.png"),
+        dr_dir.join("trajectory.png"),
+        map_dir.join("map.png"),
+        slam_dir.join("map.png"),
+        slam_dir.join("binary_map.png"),
+    ] {
+        if p.is_file() {
+            println!("  {}", p.display());
+        }
+    }
+    Ok(())
+}
+
+/// Prints the accuracy figures of a `run` summary.
+fn print_summary(path: &Path) -> anyhow::Result<()> {
+    let text = std::fs::read_to_string(path).with_context(|| path.display().to_string())?;
+    let v: serde_json::Value = serde_json::from_str(&text)?;
+    let rmse = |key: &str| v[key]["ate"]["aligned_m"]["rmse"].as_f64();
+    if let (Some(slam), Some(dr)) = (
+        rmse("slam_vs_ground_truth"),
+        rmse("dead_reckoning_vs_ground_truth"),
+    ) {
+        println!(
+            "ATE RMSE vs ground truth (SE(2)-aligned): SLAM {slam:.3} m, dead reckoning {dr:.3} m \
+             (SLAM/DR = {:.2})",
+            slam / dr
+        );
+    }
+    if let Some(m) = v.get("map_vs_true_map") {
+        println!(
+            "SLAM map vs true map (1 cell): precision {:.3}, recall {:.3}",
+            m["precision"].as_f64().unwrap_or(f64::NAN),
+            m["recall"].as_f64().unwrap_or(f64::NAN)
+        );
+    }
+    Ok(())
 }
