@@ -24,6 +24,7 @@ fn unknown_subcommand_exits_2() {
 }
 
 mod cli_data;
+mod cli_demo;
 mod cli_eval;
 mod cli_map;
 mod cli_run;
