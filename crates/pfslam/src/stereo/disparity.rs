@@ -1,0 +1,355 @@
+//! Block matching on census-transformed rectified images: Hamming cost aggregated over a square
+//! window, winner-take-all with a uniqueness test, left-right consistency and parabolic
+//! sub-pixel refinement.
+//!
+//! Costs are exact integers and every row is computed from the same sums whatever the split,
+//! so the result does not depend on the number of threads. Rows are split into a fixed number
+//! of chunks processed in parallel; each chunk slides a column-sum of the costs down its rows.
+
+use super::StereoError;
+use super::image::GrayImage;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// The value of a pixel without a valid disparity.
+pub const INVALID_DISPARITY: f32 = -1.0;
+
+/// Census window half-size (7x7 window, 48 comparison bits).
+const CENSUS_RADIUS: isize = 3;
+
+/// Number of row chunks processed in parallel (fixed so the result never depends on threads).
+const CHUNKS: usize = 16;
+
+/// Options of the block matcher (`[stereo.matcher]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MatcherOptions {
+    /// Number of disparities searched: `0 ..= num_disparities - 1` px.
+    pub num_disparities: usize,
+    /// Half-size of the square aggregation window (px): the window is `2 r + 1` wide.
+    pub window_radius: usize,
+    /// Reject a match whose best cost is not at least this fraction below the best cost at a
+    /// disparity more than 1 px away (0 disables).
+    pub uniqueness_ratio: f32,
+    /// Largest allowed difference (px) between the left and the right disparity of a match.
+    pub lr_max_diff_px: u16,
+}
+
+impl Default for MatcherOptions {
+    fn default() -> Self {
+        MatcherOptions {
+            num_disparities: 128,
+            window_radius: 5,
+            uniqueness_ratio: 0.05,
+            lr_max_diff_px: 1,
+        }
+    }
+}
+
+impl MatcherOptions {
+    /// Checks the options for an image of `width` px.
+    pub fn validate(&self, width: usize) -> Result<(), StereoError> {
+        if self.num_disparities < 2 || self.num_disparities > 1024 {
+            return Err(StereoError::Options(format!(
+                "num_disparities must be in 2..=1024, got {}",
+                self.num_disparities
+            )));
+        }
+        if self.window_radius == 0 || self.window_radius > 15 {
+            return Err(StereoError::Options(format!(
+                "window_radius must be in 1..=15, got {}",
+                self.window_radius
+            )));
+        }
+        if !(self.uniqueness_ratio.is_finite() && (0.0..1.0).contains(&self.uniqueness_ratio)) {
+            return Err(StereoError::Options(format!(
+                "uniqueness_ratio must be in [0, 1), got {}",
+                self.uniqueness_ratio
+            )));
+        }
+        if width < 2 * self.window_radius + 2 {
+            return Err(StereoError::Size(format!(
+                "image width {width} is too small for window radius {}",
+                self.window_radius
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// A disparity image (px), row-major; [`INVALID_DISPARITY`] where no match was accepted.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct DisparityMap {
+    /// Width (px).
+    pub width: usize,
+    /// Height (px).
+    pub height: usize,
+    /// Left-image disparities (px).
+    pub data: Vec<f32>,
+}
+
+impl DisparityMap {
+    /// The disparity at `(x, y)`, `None` when invalid.
+    #[inline]
+    pub fn get(&self, x: usize, y: usize) -> Option<f32> {
+        let d = self.data[y * self.width + x];
+        (d >= 0.0).then_some(d)
+    }
+
+    /// Fraction of valid pixels.
+    pub fn valid_fraction(&self) -> f64 {
+        if self.data.is_empty() {
+            return 0.0;
+        }
+        self.data.iter().filter(|d| **d >= 0.0).count() as f64 / self.data.len() as f64
+    }
+}
+
+#[derive(Debug, Clone, Default)]
+struct ChunkScratch {
+    colsum: Vec<u16>,
+    agg: Vec<u16>,
+    right_best: Vec<u16>,
+}
+
+/// Caller-owned buffers of the matcher; reuse across pairs of the same size.
+#[derive(Debug, Clone, Default)]
+pub struct DisparityWorkspace {
+    census_left: Vec<u64>,
+    census_right: Vec<u64>,
+    chunks: Vec<ChunkScratch>,
+}
+
+impl DisparityWorkspace {
+    /// An empty workspace; buffers grow on first use.
+    pub fn new() -> Self {
+        DisparityWorkspace::default()
+    }
+}
+
+/// 7x7 census transform (bit set where the neighbour is darker than the centre); borders use
+/// clamped coordinates.
+pub fn census_into(img: &GrayImage, out: &mut Vec<u64>) {
+    let (w, h) = (img.width, img.height);
+    out.clear();
+    out.resize(w * h, 0);
+    if w == 0 {
+        return;
+    }
+    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for (x, o) in row.iter_mut().enumerate() {
+            let c = img.data[y * w + x];
+            let mut bits = 0u64;
+            let interior = x as isize >= CENSUS_RADIUS
+                && y as isize >= CENSUS_RADIUS
+                && x + (CENSUS_RADIUS as usize) < w
+                && y + (CENSUS_RADIUS as usize) < h;
+            for dy in -CENSUS_RADIUS..=CENSUS_RADIUS {
+                for dx in -CENSUS_RADIUS..=CENSUS_RADIUS {
+                    if dx == 0 && dy == 0 {
+                        continue;
+                    }
+                    let (xx, yy) = if interior {
+                        ((x as isize + dx) as usize, (y as isize + dy) as usize)
+                    } else {
+                        (
+                            (x as isize + dx).clamp(0, w as isize - 1) as usize,
+                            (y as isize + dy).clamp(0, h as isize - 1) as usize,
+                        )
+                    };
+                    bits = (bits << 1) | u64::from(img.data[yy * w + xx] < c);
+                }
+            }
+            *o = bits;
+        }
+    });
+}
+
+/// Computes the left image's disparity into `out` (reshaped as needed).
+pub fn compute_disparity(
+    left: &GrayImage,
+    right: &GrayImage,
+    opts: &MatcherOptions,
+    ws: &mut DisparityWorkspace,
+    out: &mut DisparityMap,
+) -> Result<(), StereoError> {
+    if left.width != right.width || left.height != right.height {
+        return Err(StereoError::Size(format!(
+            "left {}x{} and right {}x{} differ",
+            left.width, left.height, right.width, right.height
+        )));
+    }
+    let (w, h) = (left.width, left.height);
+    opts.validate(w)?;
+    if h == 0 {
+        return Err(StereoError::Size("empty image".into()));
+    }
+    census_into(left, &mut ws.census_left);
+    census_into(right, &mut ws.census_right);
+    let nd = opts.num_disparities;
+    ws.chunks.resize_with(CHUNKS, ChunkScratch::default);
+    for c in &mut ws.chunks {
+        c.colsum.resize(w * nd, 0);
+        c.agg.resize(w * nd, 0);
+        c.right_best.resize(w, 0);
+    }
+    out.width = w;
+    out.height = h;
+    out.data.clear();
+    out.data.resize(w * h, INVALID_DISPARITY);
+    let rows_per_chunk = h.div_ceil(CHUNKS);
+    let (cl, cr) = (&ws.census_left, &ws.census_right);
+    out.data
+        .par_chunks_mut(rows_per_chunk * w)
+        .zip(ws.chunks.par_iter_mut())
+        .enumerate()
+        .for_each(|(k, (rows, scratch))| {
+            let y0 = k * rows_per_chunk;
+            let y1 = (y0 + rows_per_chunk).min(h);
+            match_rows(cl, cr, w, h, y0, y1, opts, scratch, rows);
+        });
+    Ok(())
+}
+
+#[inline]
+fn add_row(colsum: &mut [u16], cl: &[u64], cr: &[u64], nd: usize, add: bool) {
+    for (x, &l) in cl.iter().enumerate() {
+        let dmax = x.min(nd - 1);
+        let cs = &mut colsum[x * nd..x * nd + dmax + 1];
+        let rs = &cr[x - dmax..=x];
+        // cs[d] pairs with cr[x - d] = rs[dmax - d].
+        if add {
+            for (c, r) in cs.iter_mut().zip(rs.iter().rev()) {
+                *c = c.wrapping_add((l ^ r).count_ones() as u16);
+            }
+        } else {
+            for (c, r) in cs.iter_mut().zip(rs.iter().rev()) {
+                *c = c.wrapping_sub((l ^ r).count_ones() as u16);
+            }
+        }
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn match_rows(
+    cl: &[u64],
+    cr: &[u64],
+    w: usize,
+    h: usize,
+    y0: usize,
+    y1: usize,
+    opts: &MatcherOptions,
+    s: &mut ChunkScratch,
+    out_rows: &mut [f32],
+) {
+    let nd = opts.num_disparities;
+    let r = opts.window_radius;
+    let row_at = |y: isize| -> usize { y.clamp(0, h as isize - 1) as usize };
+    s.colsum.fill(0);
+    for k in -(r as isize)..=(r as isize) {
+        let yy = row_at(y0 as isize + k);
+        add_row(
+            &mut s.colsum,
+            &cl[yy * w..(yy + 1) * w],
+            &cr[yy * w..(yy + 1) * w],
+            nd,
+            true,
+        );
+    }
+    let uniq = 1.0 + opts.uniqueness_ratio;
+    for y in y0..y1 {
+        if y > y0 {
+            let ya = row_at(y as isize + r as isize);
+            let ys = row_at(y as isize - r as isize - 1);
+            add_row(
+                &mut s.colsum,
+                &cl[ya * w..(ya + 1) * w],
+                &cr[ya * w..(ya + 1) * w],
+                nd,
+                true,
+            );
+            add_row(
+                &mut s.colsum,
+                &cl[ys * w..(ys + 1) * w],
+                &cr[ys * w..(ys + 1) * w],
+                nd,
+                false,
+            );
+        }
+        // Horizontal box sums for x in r .. w - r.
+        {
+            let (colsum, agg) = (&s.colsum, &mut s.agg);
+            let first = &mut agg[r * nd..(r + 1) * nd];
+            first.fill(0);
+            for xx in 0..=2 * r {
+                for (a, c) in first.iter_mut().zip(&colsum[xx * nd..(xx + 1) * nd]) {
+                    *a = a.wrapping_add(*c);
+                }
+            }
+            for x in r + 1..w - r {
+                let (prev, cur) = agg[(x - 1) * nd..(x + 1) * nd].split_at_mut(nd);
+                let add = &colsum[(x + r) * nd..(x + r + 1) * nd];
+                let sub = &colsum[(x - r - 1) * nd..(x - r) * nd];
+                for d in 0..nd {
+                    cur[d] = prev[d].wrapping_add(add[d]).wrapping_sub(sub[d]);
+                }
+            }
+        }
+        // Best disparity of each right pixel (for the left-right check).
+        for xr in 0..w {
+            s.right_best[xr] = u16::MAX;
+            if xr < r || xr + r >= w {
+                continue;
+            }
+            let mut best = u16::MAX;
+            let mut best_d = u16::MAX;
+            for d in 0..nd.min(w - r - xr) {
+                let c = s.agg[(xr + d) * nd + d];
+                if c < best {
+                    best = c;
+                    best_d = d as u16;
+                }
+            }
+            s.right_best[xr] = best_d;
+        }
+        let out = &mut out_rows[(y - y0) * w..(y - y0 + 1) * w];
+        for x in r..w - r {
+            let dmax = (nd - 1).min(x - r);
+            let costs = &s.agg[x * nd..x * nd + dmax + 1];
+            let mut best = u16::MAX;
+            let mut d1 = 0usize;
+            for (d, &c) in costs.iter().enumerate() {
+                if c < best {
+                    best = c;
+                    d1 = d;
+                }
+            }
+            if opts.uniqueness_ratio > 0.0 {
+                let second = costs
+                    .iter()
+                    .enumerate()
+                    .filter(|(d, _)| d.abs_diff(d1) > 1)
+                    .map(|(_, &c)| c)
+                    .min()
+                    .unwrap_or(u16::MAX);
+                if (second as f32) < best as f32 * uniq {
+                    continue;
+                }
+            }
+            let rb = s.right_best[x - d1];
+            if rb == u16::MAX || (rb as usize).abs_diff(d1) > opts.lr_max_diff_px as usize {
+                continue;
+            }
+            let mut d = d1 as f32;
+            if d1 > 0 && d1 < dmax {
+                let cm = costs[d1 - 1] as f32;
+                let cp = costs[d1 + 1] as f32;
+                let denom = cm + cp - 2.0 * best as f32;
+                if denom > 0.0 {
+                    d += ((cm - cp) / (2.0 * denom)).clamp(-0.5, 0.5);
+                }
+            }
+            out[x] = d;
+        }
+    }
+}
