@@ -2,3 +2,4 @@
 //! area.
 
 mod common;
+mod stereo;

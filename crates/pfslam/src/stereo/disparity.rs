@@ -313,7 +313,7 @@ fn match_rows(
             s.right_best[xr] = best_d;
         }
         let out = &mut out_rows[(y - y0) * w..(y - y0 + 1) * w];
-        for x in r..w - r {
+        for (x, out_x) in out.iter_mut().enumerate().take(w - r).skip(r) {
             let dmax = (nd - 1).min(x - r);
             let costs = &s.agg[x * nd..x * nd + dmax + 1];
             let mut best = u16::MAX;
@@ -349,7 +349,67 @@ fn match_rows(
                     d += ((cm - cp) / (2.0 * denom)).clamp(-0.5, 0.5);
                 }
             }
-            out[x] = d;
+            *out_x = d;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A random-dot pair: the right image is the left shifted by `shift(y)` px.
+    fn shifted_pair(w: usize, h: usize, shift: impl Fn(usize) -> usize) -> (GrayImage, GrayImage) {
+        let mut state = 0x1234_5678_9abc_def0u64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 56) as u8
+        };
+        let big_w = w + 200;
+        let tex: Vec<u8> = (0..big_w * h).map(|_| next()).collect();
+        let mut l = GrayImage::new(w, h);
+        let mut r = GrayImage::new(w, h);
+        for y in 0..h {
+            let s = shift(y);
+            for x in 0..w {
+                l.data[y * w + x] = tex[y * big_w + x + 100];
+                r.data[y * w + x] = tex[y * big_w + x + 100 + s];
+            }
+        }
+        (l, r)
+    }
+
+    #[test]
+    fn recovers_known_integer_shifts() {
+        let (w, h) = (200, 64);
+        let shift = |y: usize| 5 + y / 8;
+        let (l, r) = shifted_pair(w, h, shift);
+        let opts = MatcherOptions {
+            num_disparities: 32,
+            window_radius: 3,
+            ..MatcherOptions::default()
+        };
+        let mut ws = DisparityWorkspace::new();
+        let mut out = DisparityMap::default();
+        compute_disparity(&l, &r, &opts, &mut ws, &mut out).unwrap();
+        let mut checked = 0;
+        for y in 4..h - 4 {
+            // Rows whose window straddles two shifts are ambiguous.
+            if y % 8 != 4 {
+                continue;
+            }
+            for x in 40..w - 10 {
+                let d = out.get(x, y).expect("valid");
+                assert!(
+                    (d - shift(y) as f32).abs() < 0.5,
+                    "({x},{y}): {d} vs {}",
+                    shift(y)
+                );
+                checked += 1;
+            }
+        }
+        assert!(checked > 1000);
     }
 }

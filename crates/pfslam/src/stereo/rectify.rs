@@ -211,9 +211,9 @@ impl RemapTable {
             .par_chunks_mut(w.max(1))
             .enumerate()
             .for_each(|(v, row)| {
-                for u in 0..w {
+                for (u, o) in row.iter_mut().enumerate() {
                     let i = v * w + u;
-                    row[u] = sample_bilinear::<1>(
+                    *o = sample_bilinear::<1>(
                         &src.data,
                         src.width,
                         src.height,
@@ -266,6 +266,12 @@ impl RectifiedGeometry {
     #[inline]
     pub fn depth_m(&self, disparity_px: f64) -> f64 {
         self.intrinsics.fx_px * self.baseline_m / disparity_px
+    }
+
+    /// Disparity (px) of a point at `depth_m` along the rectified optical axis.
+    #[inline]
+    pub fn disparity_px(&self, depth_m: f64) -> f64 {
+        self.intrinsics.fx_px * self.baseline_m / depth_m
     }
 
     /// The 3-D point in the left rectified camera frame of pixel `(u, v)` with disparity `d`.
