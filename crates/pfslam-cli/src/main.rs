@@ -27,6 +27,8 @@ pub enum Command {
     Demo(cmd::demo::Args),
     /// Dead-reckon a dataset: trajectory.tum/.csv/.png.
     DeadReckon(cmd::dead_reckon::Args),
+    /// Simulate the car (or the humanoid) in a world: dataset + ground truth.
+    Simulate(cmd::simulate::Args),
     /// Print the full default configuration as TOML.
     PrintConfig(cmd::print_config::Args),
 }
@@ -39,6 +41,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Demo(a)) => cmd::demo::run(a),
         Some(Command::DeadReckon(a)) => cmd::dead_reckon::run(a),
         Some(Command::PrintConfig(a)) => cmd::print_config::run(a),
+        Some(Command::Simulate(a)) => cmd::simulate::run(a),
     }
 }
 

@@ -20,3 +20,5 @@ fn unknown_subcommand_exits_2() {
     let out = pfslam().arg("no-such-command").output().unwrap();
     assert_eq!(out.status.code(), Some(2));
 }
+
+mod cli_data;

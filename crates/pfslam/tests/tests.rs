@@ -2,4 +2,6 @@
 //! area.
 
 mod common;
+mod motion;
 mod stereo;
+mod ucsd;

@@ -1,16 +1,119 @@
-//! `pfslam dead-reckon` (placeholder).
+//! `pfslam dead-reckon DATASET --out DIR`: dead reckoning of the car's dataset (encoders +
+//! FOG), written as `trajectory.tum` and `trajectory.csv` (one pose per LiDAR scan) and
+//! `trajectory.png`.
+
+use anyhow::Context;
+use pfslam::config::Config;
+use pfslam::geometry::StampedPose2;
+use pfslam::io::tum::{format_stamp_s, write_tum};
+use pfslam::io::ucsd::{ReadOptions, TimestampPolicy, read_car_dataset};
+use pfslam::io::write_atomic;
+use pfslam::motion::dead_reckon;
+use pfslam::sensors::sync::poses_at_stamps;
+use pfslam::viz::plot::{PALETTE, PathRef, plot_trajectories};
+use std::io::Write;
+use std::path::PathBuf;
 
 /// Arguments of `dead-reckon`.
 #[derive(Debug, Default, clap::Args)]
 pub struct Args {
-    /// Dataset directory.
-    pub dataset: std::path::PathBuf,
-    /// Output directory.
+    /// Dataset directory (sensor_data/, param/ as the course distributed them).
+    pub dataset: PathBuf,
+    /// Output directory (created if needed).
     #[arg(long)]
-    pub out: std::path::PathBuf,
+    pub out: PathBuf,
+    /// TOML configuration; its `[motion]` section (step model, yaw source) applies.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Sort rows whose timestamps go backwards (with a warning) instead of rejecting them.
+    #[arg(long)]
+    pub sort_timestamps: bool,
 }
 
 /// Runs dead reckoning.
-pub fn run(_args: Args) -> anyhow::Result<()> {
-    anyhow::bail!("dead-reckon is not implemented yet")
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let config = match &args.config {
+        Some(p) => Config::from_toml_file(p)?,
+        None => Config::default(),
+    };
+    config.motion.validate()?;
+    if args.out.exists() && !args.out.is_dir() {
+        anyhow::bail!(
+            "--out {}: exists and is not a directory",
+            args.out.display()
+        );
+    }
+    let opts = ReadOptions {
+        timestamp_policy: if args.sort_timestamps {
+            TimestampPolicy::SortWithWarning
+        } else {
+            TimestampPolicy::Reject
+        },
+        ..ReadOptions::default()
+    };
+
+    let ds = read_car_dataset(&args.dataset, &opts)?;
+    let traj = dead_reckon(&ds, &config.motion)?;
+    let (at_scans, clamped) = poses_at_stamps(&traj, &ds.lidar.stamps_ns);
+    if clamped > 0 {
+        tracing::warn!(
+            "{clamped} LiDAR scans lie outside the encoder's time span: they get the first/last pose"
+        );
+    }
+
+    write_tum(&args.out.join("trajectory.tum"), &at_scans)?;
+    write_csv(&args.out.join("trajectory.csv"), &at_scans)?;
+    let name = args
+        .dataset
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "dataset".to_string());
+    plot_trajectories(
+        &args.out.join("trajectory.png"),
+        &[("dead reckoning", PathRef::Trajectory(&traj), PALETTE[0])],
+        &format!("Dead reckoning: {name}"),
+    )
+    .context("trajectory.png")?;
+
+    let first = traj.poses.first().map(|p| p.stamp_ns).unwrap_or(0);
+    let last = traj.poses.last().copied();
+    let duration_s = last.map(|p| p.stamp_ns - first).unwrap_or(0) as f64 * 1e-9;
+    println!(
+        "rows: {} encoder, {} FOG, {} LiDAR scans",
+        ds.encoder.len(),
+        ds.fog.len(),
+        ds.lidar.len()
+    );
+    println!("distance: {:.3} m", traj.path_length_m());
+    println!("duration: {duration_s:.3} s");
+    if let Some(p) = last {
+        println!(
+            "final pose: x {:.3} m, y {:.3} m, yaw {:.2} deg (t = {} s)",
+            p.pose.x_m,
+            p.pose.y_m,
+            p.pose.yaw_rad.to_degrees(),
+            format_stamp_s(p.stamp_ns)
+        );
+    }
+    println!(
+        "wrote {}/trajectory.tum, trajectory.csv, trajectory.png ({} poses at LiDAR stamps)",
+        args.out.display(),
+        at_scans.len()
+    );
+    Ok(())
+}
+
+fn write_csv(path: &std::path::Path, poses: &[StampedPose2]) -> anyhow::Result<()> {
+    write_atomic(path, |w: &mut dyn Write| {
+        writeln!(w, "stamp_ns,x_m,y_m,yaw_rad")?;
+        for p in poses {
+            writeln!(
+                w,
+                "{},{},{},{}",
+                p.stamp_ns, p.pose.x_m, p.pose.y_m, p.pose.yaw_rad
+            )?;
+        }
+        Ok(())
+    })?;
+    Ok(())
 }

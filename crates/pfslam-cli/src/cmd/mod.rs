@@ -3,3 +3,4 @@
 pub mod dead_reckon;
 pub mod demo;
 pub mod print_config;
+pub mod simulate;

@@ -4,8 +4,10 @@
 //! and the problem; every writer writes to a temporary file in the target directory and renames
 //! it into place ([`write_atomic`]), so a failed or interrupted run leaves no half-written file.
 
+pub mod map_files;
 pub mod opencv_yaml;
 pub mod tum;
+pub mod ucsd;
 
 use std::fmt;
 use std::io::Write;

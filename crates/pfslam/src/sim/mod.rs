@@ -1,8 +1,320 @@
-//! Sim (placeholder: see ARCHITECTURE.md).
+//! The simulator: a digital twin of the seed car (and of the humanoid's head LiDAR) driving
+//! through a [`World`], producing datasets in the real formats plus their ground truth.
+//!
+//! - [`World`]: extruded polygons with heights on the ground plane, a ground texture and a
+//!   route; built-in `campus` (car) and `office` (humanoid) worlds or a world file (format in
+//!   [`world`]).
+//! - [`RayCaster`]: 3-D ray casting against the world and the ground plane.
+//! - [`simulate_car`] / [`write_car_sim`]: the seed car with its real calibration
+//!   ([`crate::sensors::CarCalibration::ucsd`]): encoders, FOG, the tilted LiDAR, and the
+//!   configurable errors of [`CarSimOptions`].
+//! - [`TrueMap`]: the world rasterised by the rule documented in [`truth`].
+//!
+//! Same options (including `seed`) -> identical output, whatever the number of threads.
+
+pub mod car;
+pub mod path;
+pub mod raycast;
+pub mod truth;
+pub mod world;
+
+pub use car::{CarSimOutput, simulate_car, write_car_sim};
+pub use raycast::{Hit, HitKind, RayCaster};
+pub use truth::TrueMap;
+pub use world::{Prism, World};
 
 use serde::{Deserialize, Serialize};
 
-/// Options of the sim component (`[sim]` in the configuration).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+/// Errors of the simulator.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    /// Reading a world file or writing output failed.
+    #[error(transparent)]
+    Io(#[from] crate::io::IoError),
+    /// No built-in world has this name.
+    #[error("unknown built-in world {0:?} (known: campus, office)")]
+    UnknownWorld(String),
+    /// The route cannot be driven.
+    #[error("bad route: {0}")]
+    BadRoute(String),
+    /// An option is out of range.
+    #[error("bad simulator option: {0}")]
+    BadOption(String),
+}
+
+/// Which vehicle to simulate.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Vehicle {
+    /// The seed car (UCSD/KAIST): encoders, FOG, tilted SICK LMS511.
+    #[default]
+    Car,
+    /// The humanoid (THOR): odometry poses, IMU, Hokuyo on a moving head.
+    Humanoid,
+}
+
+/// Options of the simulator (`[sim]` in the configuration). `sim.toml` written beside every
+/// simulated dataset holds these exactly, so `--config sim.toml` reproduces the run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
-pub struct SimOptions {}
+pub struct SimOptions {
+    /// Seed of the one random generator (<= 2^63 - 1 so TOML can hold it).
+    pub seed: u64,
+    /// Vehicle.
+    pub vehicle: Vehicle,
+    /// Built-in world name or world-file path; empty = the vehicle's default world
+    /// (`campus` for the car, `office` for the humanoid).
+    pub world: String,
+    /// Length of the recording (s). The real car recording is ~1160 s.
+    pub duration_s: f64,
+    /// Time of the first sample (ns since the epoch).
+    pub start_stamp_ns: i64,
+    /// Cell size of the true map (m).
+    pub truth_map_resolution_m: f64,
+    /// Lower end of the height band whose obstacles the true map shows (m). Default for the
+    /// car; the humanoid's band is in [`HumanoidSimOptions`].
+    pub truth_band_min_m: f64,
+    /// Upper end of that band (m).
+    pub truth_band_max_m: f64,
+    /// The car (`[sim.car]`).
+    pub car: CarSimOptions,
+}
+
+impl Default for SimOptions {
+    fn default() -> Self {
+        SimOptions {
+            seed: 1,
+            vehicle: Vehicle::Car,
+            world: String::new(),
+            duration_s: 180.0,
+            start_stamp_ns: 1_544_582_648_000_000_000,
+            truth_map_resolution_m: 0.1,
+            truth_band_min_m: 1.0,
+            truth_band_max_m: 4.0,
+            car: CarSimOptions::default(),
+        }
+    }
+}
+
+impl SimOptions {
+    /// The defaults with every error switched off (see [`CarSimOptions::noise_free`]).
+    pub fn noise_free() -> Self {
+        SimOptions {
+            car: CarSimOptions::noise_free(),
+            ..SimOptions::default()
+        }
+    }
+
+    /// The world to use: `world` or the vehicle's default.
+    pub fn world_name(&self) -> &str {
+        if !self.world.is_empty() {
+            return &self.world;
+        }
+        match self.vehicle {
+            Vehicle::Car => "campus",
+            Vehicle::Humanoid => "office",
+        }
+    }
+
+    /// Checks ranges (rates positive, probabilities in [0, 1], ...).
+    pub fn validate(&self) -> Result<(), SimError> {
+        let bad = |m: &str| Err(SimError::BadOption(m.to_string()));
+        if self.seed > i64::MAX as u64 {
+            return bad("seed must be <= 9223372036854775807");
+        }
+        if !(self.duration_s > 0.0 && self.duration_s <= 86_400.0) {
+            return bad("duration_s must be in (0, 86400]");
+        }
+        if !(self.truth_map_resolution_m >= 0.01 && self.truth_map_resolution_m <= 10.0) {
+            return bad("truth_map_resolution_m must be in [0.01, 10]");
+        }
+        if !(self.truth_band_max_m >= self.truth_band_min_m) {
+            return bad("truth_band_max_m must be >= truth_band_min_m");
+        }
+        self.car.validate()
+    }
+}
+
+/// The car's motion and its errors (`[sim.car]`). Every error is zero in
+/// [`CarSimOptions::noise_free`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct CarSimOptions {
+    /// Encoder rate (Hz); the real one is ~100 Hz.
+    pub encoder_rate_hz: f64,
+    /// FOG rate (Hz); the real one is ~1 kHz.
+    pub fog_rate_hz: f64,
+    /// LiDAR rate (Hz); the real one is ~100 Hz.
+    pub lidar_rate_hz: f64,
+    /// Seconds standing still before driving off.
+    pub initial_standstill_s: f64,
+    /// Cruise speed (m/s); it varies +-10 % along the route.
+    pub cruise_speed_mps: f64,
+    /// Longitudinal acceleration limit (m/s^2).
+    pub max_accel_mps2: f64,
+    /// Braking limit (m/s^2).
+    pub max_decel_mps2: f64,
+    /// Lateral acceleration limit in corners (m/s^2).
+    pub max_lateral_accel_mps2: f64,
+    /// Corner radius of the rounded route (m).
+    pub corner_radius_m: f64,
+    /// True left wheel diameter = calibrated * (1 + this): tyre pressure, wear.
+    pub left_wheel_diameter_error: f64,
+    /// True right wheel diameter = calibrated * (1 + this).
+    pub right_wheel_diameter_error: f64,
+    /// Wheel slip: each wheel turns `1 + N(0, this^2)` times its ground travel in each encoder
+    /// interval (independently per wheel and interval).
+    pub wheel_slip_std: f64,
+    /// Constant FOG yaw-rate bias (rad/s). ~1e-5 is a few degrees per hour.
+    pub fog_yaw_bias_rad_per_s: f64,
+    /// FOG white noise (angle random walk) on each axis (rad/sqrt(s)): each row's increment
+    /// gets `N(0, (this * sqrt(dt))^2)`.
+    pub fog_noise_rad_per_sqrt_s: f64,
+    /// LiDAR range noise (m, standard deviation).
+    pub lidar_range_noise_std_m: f64,
+    /// Probability that a beam returns nothing (0.0) although it hit something.
+    pub lidar_dropout_prob: f64,
+    /// Probability that a beam reports the maximum range (80 m, i.e. "no return").
+    pub lidar_max_range_prob: f64,
+    /// Timestamp jitter (ns, standard deviation, clipped to +-40 % of the period so rows stay
+    /// ordered): the recorded stamp differs from the true sampling time.
+    pub stamp_jitter_std_ns: f64,
+    /// Probability that a row of any stream is missing (a dropped FOG row loses its
+    /// increments, as on a real logger).
+    pub drop_row_prob: f64,
+}
+
+impl Default for CarSimOptions {
+    fn default() -> Self {
+        CarSimOptions {
+            encoder_rate_hz: 100.0,
+            fog_rate_hz: 1000.0,
+            lidar_rate_hz: 100.0,
+            initial_standstill_s: 2.0,
+            cruise_speed_mps: 9.0,
+            max_accel_mps2: 1.2,
+            max_decel_mps2: 2.0,
+            max_lateral_accel_mps2: 2.0,
+            corner_radius_m: 9.0,
+            left_wheel_diameter_error: 0.004,
+            right_wheel_diameter_error: 0.002,
+            wheel_slip_std: 0.01,
+            fog_yaw_bias_rad_per_s: 2e-5,
+            fog_noise_rad_per_sqrt_s: 1e-4,
+            lidar_range_noise_std_m: 0.02,
+            lidar_dropout_prob: 0.003,
+            lidar_max_range_prob: 0.001,
+            stamp_jitter_std_ns: 100_000.0,
+            drop_row_prob: 1e-4,
+        }
+    }
+}
+
+impl CarSimOptions {
+    /// The default motion with every error off: true wheels = calibrated, no slip, perfect
+    /// FOG, exact ranges, exact stamps, no dropped rows. (Encoder counts are still integers:
+    /// quantisation is part of the format; counts are cumulative, so it never accumulates.)
+    pub fn noise_free() -> Self {
+        CarSimOptions {
+            left_wheel_diameter_error: 0.0,
+            right_wheel_diameter_error: 0.0,
+            wheel_slip_std: 0.0,
+            fog_yaw_bias_rad_per_s: 0.0,
+            fog_noise_rad_per_sqrt_s: 0.0,
+            lidar_range_noise_std_m: 0.0,
+            lidar_dropout_prob: 0.0,
+            lidar_max_range_prob: 0.0,
+            stamp_jitter_std_ns: 0.0,
+            drop_row_prob: 0.0,
+            ..CarSimOptions::default()
+        }
+    }
+
+    fn validate(&self) -> Result<(), SimError> {
+        let positive = [
+            ("encoder_rate_hz", self.encoder_rate_hz),
+            ("fog_rate_hz", self.fog_rate_hz),
+            ("lidar_rate_hz", self.lidar_rate_hz),
+            ("cruise_speed_mps", self.cruise_speed_mps),
+            ("max_accel_mps2", self.max_accel_mps2),
+            ("max_decel_mps2", self.max_decel_mps2),
+            ("max_lateral_accel_mps2", self.max_lateral_accel_mps2),
+            ("corner_radius_m", self.corner_radius_m),
+        ];
+        for (name, v) in positive {
+            if !(v > 0.0 && v.is_finite()) {
+                return Err(SimError::BadOption(format!("car.{name} must be positive")));
+            }
+        }
+        let non_negative = [
+            ("initial_standstill_s", self.initial_standstill_s),
+            ("wheel_slip_std", self.wheel_slip_std),
+            ("fog_noise_rad_per_sqrt_s", self.fog_noise_rad_per_sqrt_s),
+            ("lidar_range_noise_std_m", self.lidar_range_noise_std_m),
+            ("stamp_jitter_std_ns", self.stamp_jitter_std_ns),
+        ];
+        for (name, v) in non_negative {
+            if !(v >= 0.0 && v.is_finite()) {
+                return Err(SimError::BadOption(format!("car.{name} must be >= 0")));
+            }
+        }
+        for (name, v) in [
+            ("lidar_dropout_prob", self.lidar_dropout_prob),
+            ("lidar_max_range_prob", self.lidar_max_range_prob),
+            ("drop_row_prob", self.drop_row_prob),
+        ] {
+            if !(0.0..=1.0).contains(&v) {
+                return Err(SimError::BadOption(format!("car.{name} must be in [0, 1]")));
+            }
+        }
+        for (name, v) in [
+            ("left_wheel_diameter_error", self.left_wheel_diameter_error),
+            (
+                "right_wheel_diameter_error",
+                self.right_wheel_diameter_error,
+            ),
+        ] {
+            if !(v.abs() < 0.5) {
+                return Err(SimError::BadOption(format!(
+                    "car.{name} must be in (-0.5, 0.5)"
+                )));
+            }
+        }
+        if !self.fog_yaw_bias_rad_per_s.is_finite() {
+            return Err(SimError::BadOption(
+                "car.fog_yaw_bias_rad_per_s must be finite".into(),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// `sim.toml`: the options as a `[sim]` section (loadable as a [`crate::config::Config`]).
+pub fn sim_toml(opts: &SimOptions) -> Result<String, SimError> {
+    #[derive(Serialize)]
+    struct Wrapper<'a> {
+        sim: &'a SimOptions,
+    }
+    toml::to_string_pretty(&Wrapper { sim: opts })
+        .map_err(|e| SimError::BadOption(format!("cannot serialise the options: {e}")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sim_toml_roundtrips_as_config() {
+        let mut o = SimOptions::noise_free();
+        o.seed = 77;
+        o.world = "office".into();
+        let text = sim_toml(&o).unwrap();
+        let c: crate::config::Config = toml::from_str(&text).unwrap();
+        assert_eq!(c.sim, o);
+        assert!(toml::from_str::<crate::config::Config>("[sim]\nbogus = 1\n").is_err());
+        let mut bad = SimOptions::default();
+        bad.car.lidar_dropout_prob = 2.0;
+        assert!(bad.validate().is_err());
+        assert!(SimOptions::default().validate().is_ok());
+    }
+}

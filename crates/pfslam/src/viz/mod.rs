@@ -3,6 +3,8 @@
 //! Text is drawn with the DejaVu Sans font committed under `assets/`, registered once with
 //! plotters' `ab_glyph` backend by [`ensure_font`], so pictures look the same everywhere.
 
+pub mod map_image;
+
 /// The committed DejaVu Sans font.
 pub static FONT_TTF: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
 
@@ -23,3 +25,5 @@ pub fn ensure_font() {
         );
     });
 }
+
+pub mod plot;

@@ -8,6 +8,8 @@
 //!   geometry and mount, optional ground truth. Every source (car, humanoid, CARMEN, ROS bags,
 //!   MCAP) is turned into a `Recording`.
 
+pub mod sync;
+
 use crate::geometry::{Rigid3, StampedPose2, Trajectory};
 use serde::{Deserialize, Serialize};
 

@@ -1,0 +1,192 @@
+//! `pfslam dead-reckon`: outputs, printed summary, exit code 2 on bad input with nothing
+//! written.
+
+use super::pfslam;
+use pfslam::io::ucsd::write_car_dataset;
+use pfslam::sensors::{CarCalibration, CarDataset, EncoderSample, FogSample, ScanSet};
+use std::path::Path;
+
+/// A 20 s drive on a circle: 100 Hz encoder, 1 kHz FOG consistent with the wheels, 10 Hz
+/// LiDAR.
+fn circle_dataset() -> CarDataset {
+    let cal = CarCalibration::ucsd();
+    let p = cal.encoder;
+    let k = std::f64::consts::PI / f64::from(p.resolution_ticks);
+    let (dl, dr) = (40i64, 44i64);
+    let dyaw = (k * p.right_wheel_diameter_m * dr as f64 - k * p.left_wheel_diameter_m * dl as f64)
+        / p.wheel_base_m;
+    let t0 = 1_000_000_000_000i64;
+    let encoder: Vec<EncoderSample> = (0..2000)
+        .map(|i| EncoderSample {
+            stamp_ns: t0 + i * 10_000_000,
+            left_count: i * dl,
+            right_count: i * dr,
+        })
+        .collect();
+    let fog: Vec<FogSample> = (-5..20_005)
+        .map(|i| FogSample {
+            stamp_ns: t0 + i * 1_000_000,
+            delta_roll_rad: 0.0,
+            delta_pitch_rad: 0.0,
+            delta_yaw_rad: dyaw / 10.0,
+        })
+        .collect();
+    let mut lidar = ScanSet::new(cal.lidar.beam_count);
+    let row = vec![12.5f32; cal.lidar.beam_count];
+    for i in 0..200 {
+        lidar.push(t0 + i * 100_000_000 + 3, &row);
+    }
+    CarDataset {
+        calibration: cal,
+        encoder,
+        fog,
+        lidar,
+        stereo_stamps_ns: Vec::new(),
+    }
+}
+
+fn files_in(dir: &Path) -> Vec<String> {
+    match std::fs::read_dir(dir) {
+        Ok(rd) => rd
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect(),
+        Err(_) => Vec::new(),
+    }
+}
+
+#[test]
+fn dead_reckon_writes_outputs() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    write_car_dataset(&data, &circle_dataset()).unwrap();
+    let out = dir.path().join("out");
+    let o = pfslam()
+        .arg("dead-reckon")
+        .arg(&data)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(
+        stdout.contains("distance:") && stdout.contains("final pose"),
+        "{stdout}"
+    );
+    let tum = pfslam::io::tum::read_tum(&out.join("trajectory.tum")).unwrap();
+    assert_eq!(tum.len(), 200, "one pose per LiDAR scan");
+    let csv = std::fs::read_to_string(out.join("trajectory.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 201);
+    let png = std::fs::read(out.join("trajectory.png")).unwrap();
+    assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+    let width = u32::from_be_bytes([png[16], png[17], png[18], png[19]]);
+    assert!(width > 500, "{width}");
+    // The circle's radius: every pose lies on it (dead reckoning is exact here).
+    let p = CarCalibration::ucsd().encoder;
+    let k = std::f64::consts::PI / 4096.0;
+    let (sl, sr) = (
+        k * p.left_wheel_diameter_m * 40.0,
+        k * p.right_wheel_diameter_m * 44.0,
+    );
+    let r = 0.5 * (sl + sr) / ((sr - sl) / p.wheel_base_m);
+    for sp in &tum.poses {
+        let d = sp.pose.x_m.hypot(sp.pose.y_m - r);
+        assert!((d - r).abs() < 1e-6 * r, "{d} vs {r}");
+    }
+}
+
+fn run_bad(spoil: impl FnOnce(&Path), extra: &[&str]) -> (Option<i32>, String, Vec<String>) {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    write_car_dataset(&data, &circle_dataset()).unwrap();
+    spoil(&data);
+    let out = dir.path().join("out");
+    let o = pfslam()
+        .arg("dead-reckon")
+        .arg(&data)
+        .arg("--out")
+        .arg(&out)
+        .args(extra)
+        .output()
+        .unwrap();
+    (
+        o.status.code(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+        files_in(&out),
+    )
+}
+
+#[test]
+fn bad_row_exits_2_and_writes_nothing() {
+    let (code, err, files) = run_bad(
+        |d| {
+            let p = d.join("sensor_data/encoder.csv");
+            let t = std::fs::read_to_string(&p).unwrap();
+            let mut lines: Vec<String> = t.lines().map(String::from).collect();
+            lines[41] = "1000000410000000,1640,abc".into();
+            std::fs::write(&p, lines.join("\n")).unwrap();
+        },
+        &[],
+    );
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("encoder.csv:42") && err.contains("right_count"),
+        "{err}"
+    );
+    assert!(files.is_empty(), "{files:?}");
+}
+
+#[test]
+fn missing_dataset_exits_2() {
+    let (code, err, files) = run_bad(
+        |d| std::fs::remove_file(d.join("param/lidar_param.txt")).unwrap(),
+        &[],
+    );
+    assert_eq!(code, Some(2));
+    assert!(
+        err.contains("lidar_param.txt") && err.contains("missing"),
+        "{err}"
+    );
+    assert!(files.is_empty());
+}
+
+#[test]
+fn backwards_timestamps_rejected_or_sorted() {
+    let swap = |d: &Path| {
+        let p = d.join("sensor_data/lidar.csv");
+        let t = std::fs::read_to_string(&p).unwrap();
+        let mut lines: Vec<&str> = t.lines().collect();
+        lines.swap(10, 11);
+        std::fs::write(&p, lines.join("\n")).unwrap();
+    };
+    let (code, err, _) = run_bad(swap, &[]);
+    assert_eq!(code, Some(2));
+    assert!(
+        err.contains("lidar.csv:12") && err.contains("backwards"),
+        "{err}"
+    );
+    let (code, err, files) = run_bad(swap, &["--sort-timestamps"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(err.contains("sorted"), "{err}");
+    assert_eq!(files.len(), 3);
+}
+
+#[test]
+fn bad_config_exits_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("c.toml");
+    std::fs::write(&cfg, "[motion]\nstep = \"rk4\"\n").unwrap();
+    let o = pfslam()
+        .args(["dead-reckon", "nowhere", "--out"])
+        .arg(dir.path().join("o"))
+        .arg("--config")
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("c.toml"));
+}

@@ -1,0 +1,640 @@
+//! The seed car's dataset layout (UCSD ECE276A / KAIST Complex Urban):
+//!
+//! ```text
+//! DIR/sensor_data/encoder.csv   timestamp_ns,left_count,right_count   (cumulative ticks)
+//! DIR/sensor_data/fog.csv       timestamp_ns,delta_roll,delta_pitch,delta_yaw   (rad)
+//! DIR/sensor_data/lidar.csv     timestamp_ns,r_0,...,r_285   (m; 0.0 = no return)
+//! DIR/param/...                 calibration (see [`calib`])
+//! DIR/stereo_images/stereo_left/<stamp_ns>.png, stereo_right/<stamp_ns>.png   (optional)
+//! ```
+//!
+//! The CSV readers stream: a buffered reader and one reused line buffer, fields split by hand
+//! and parsed with `fast-float2`, ranges stored as `f32` in a flat [`ScanSet`]. The text is
+//! never held in memory. A header line whose first field mentions "time" is skipped. Every
+//! malformed row is an [`IoError::Parse`] naming file and line.
+
+pub mod calib;
+
+pub use calib::{read_car_calibration, write_car_calibration};
+
+use super::{IoError, write_atomic};
+use crate::sensors::{CarDataset, EncoderParams, EncoderSample, FogSample, ScanSet};
+use serde::{Deserialize, Serialize};
+use std::io::BufRead;
+use std::path::{Path, PathBuf};
+
+/// What to do with timestamps that do not increase strictly.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TimestampPolicy {
+    /// A timestamp that is not later than the previous row's is an error naming the line.
+    #[default]
+    Reject,
+    /// Rows are stably sorted by time with a warning; rows with a repeated stamp are merged
+    /// (FOG: increments summed) or dropped (encoder, LiDAR: the first row is kept).
+    SortWithWarning,
+}
+
+/// Options of [`read_car_dataset`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ReadOptions {
+    /// Non-increasing timestamps: reject (default) or sort with a warning.
+    pub timestamp_policy: TimestampPolicy,
+    /// Encoder rows implying a wheel faster than this (m/s) are a count jump (error).
+    pub max_wheel_speed_mps: f64,
+}
+
+impl Default for ReadOptions {
+    fn default() -> Self {
+        ReadOptions {
+            timestamp_policy: TimestampPolicy::Reject,
+            // A car; far above anything it drives, far below a corrupted count.
+            max_wheel_speed_mps: 60.0,
+        }
+    }
+}
+
+/// `sensor_data/encoder.csv` relative to a dataset directory.
+pub const ENCODER_CSV: &str = "sensor_data/encoder.csv";
+/// `sensor_data/fog.csv`.
+pub const FOG_CSV: &str = "sensor_data/fog.csv";
+/// `sensor_data/lidar.csv`.
+pub const LIDAR_CSV: &str = "sensor_data/lidar.csv";
+/// `param/`.
+pub const PARAM_DIR: &str = "param";
+/// `stereo_images/stereo_left/`.
+pub const STEREO_LEFT_DIR: &str = "stereo_images/stereo_left";
+
+/// A streaming line reader with one reused buffer; lines are returned without `\n`/`\r\n`.
+struct Lines {
+    path: PathBuf,
+    reader: std::io::BufReader<std::fs::File>,
+    buf: Vec<u8>,
+    line_no: usize,
+}
+
+impl Lines {
+    fn open(path: &Path, what: &str) -> Result<Lines, IoError> {
+        let file = match std::fs::File::open(path) {
+            Ok(f) => f,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                return Err(IoError::Missing {
+                    path: path.to_path_buf(),
+                    what: what.to_string(),
+                });
+            }
+            Err(e) => return Err(IoError::io(path, e)),
+        };
+        Ok(Lines {
+            path: path.to_path_buf(),
+            reader: std::io::BufReader::with_capacity(1 << 20, file),
+            buf: Vec::with_capacity(4096),
+            line_no: 0,
+        })
+    }
+
+    /// The next non-blank line, or `None` at the end.
+    fn next_line(&mut self) -> Result<Option<(usize, &[u8])>, IoError> {
+        loop {
+            self.buf.clear();
+            let n = self
+                .reader
+                .read_until(b'\n', &mut self.buf)
+                .map_err(|e| IoError::io(&self.path, e))?;
+            if n == 0 {
+                return Ok(None);
+            }
+            self.line_no += 1;
+            let mut end = self.buf.len();
+            while end > 0 && matches!(self.buf[end - 1], b'\n' | b'\r' | b' ' | b'\t') {
+                end -= 1;
+            }
+            if end > 0 {
+                return Ok(Some((self.line_no, &self.buf[..end])));
+            }
+        }
+    }
+}
+
+#[inline]
+fn trim_field(f: &[u8]) -> &[u8] {
+    let mut a = 0;
+    let mut b = f.len();
+    while a < b && (f[a] == b' ' || f[a] == b'\t') {
+        a += 1;
+    }
+    while b > a && (f[b - 1] == b' ' || f[b - 1] == b'\t') {
+        b -= 1;
+    }
+    &f[a..b]
+}
+
+fn field_error(path: &Path, line: usize, name: &str, problem: &str, text: &[u8]) -> IoError {
+    IoError::parse(
+        path,
+        line,
+        format!("{name}: {problem}: {:?}", String::from_utf8_lossy(text)),
+    )
+}
+
+/// Parses a decimal integer (optional sign); rejects anything else and overflow.
+#[inline]
+fn parse_int(path: &Path, line: usize, name: &str, f: &[u8]) -> Result<i64, IoError> {
+    let t = trim_field(f);
+    let (neg, digits) = match t.first() {
+        Some(b'-') => (true, &t[1..]),
+        Some(b'+') => (false, &t[1..]),
+        _ => (false, t),
+    };
+    if digits.is_empty() {
+        return Err(field_error(path, line, name, "not an integer", t));
+    }
+    let mut v: i64 = 0;
+    for &b in digits {
+        if !b.is_ascii_digit() {
+            return Err(field_error(path, line, name, "not an integer", t));
+        }
+        v = v
+            .checked_mul(10)
+            .and_then(|v| v.checked_add(i64::from(b - b'0')))
+            .ok_or_else(|| field_error(path, line, name, "integer overflow", t))?;
+    }
+    Ok(if neg { -v } else { v })
+}
+
+#[inline]
+fn parse_f64(path: &Path, line: usize, name: &str, f: &[u8]) -> Result<f64, IoError> {
+    let t = trim_field(f);
+    match fast_float2::parse::<f64, _>(t) {
+        Ok(v) if v.is_finite() => Ok(v),
+        Ok(_) => Err(field_error(path, line, name, "not finite", t)),
+        Err(_) => Err(field_error(path, line, name, "not a number", t)),
+    }
+}
+
+#[inline]
+fn parse_f32(path: &Path, line: usize, name: &str, f: &[u8]) -> Result<f32, IoError> {
+    let t = trim_field(f);
+    match fast_float2::parse::<f32, _>(t) {
+        Ok(v) if v.is_finite() => Ok(v),
+        Ok(_) => Err(field_error(path, line, name, "not finite", t)),
+        Err(_) => Err(field_error(path, line, name, "not a number", t)),
+    }
+}
+
+/// True for a header line (`timestamp,...`) on the first line of a file.
+fn is_header(line: &[u8]) -> bool {
+    let first = line.split(|&b| b == b',').next().unwrap_or(&[]);
+    let first = trim_field(first);
+    first.first().is_some_and(|b| b.is_ascii_alphabetic())
+        && String::from_utf8_lossy(first)
+            .to_ascii_lowercase()
+            .contains("time")
+}
+
+/// Splits `line` into exactly `N` comma-separated fields.
+#[inline]
+fn split_fixed<'a, const N: usize>(
+    path: &Path,
+    line_no: usize,
+    line: &'a [u8],
+    layout: &str,
+) -> Result<[&'a [u8]; N], IoError> {
+    let mut out: [&[u8]; N] = [&[]; N];
+    let mut n = 0;
+    for f in line.split(|&b| b == b',') {
+        if n < N {
+            out[n] = f;
+        }
+        n += 1;
+    }
+    if n != N {
+        return Err(IoError::parse(
+            path,
+            line_no,
+            format!("expected {N} columns ({layout}), found {n}"),
+        ));
+    }
+    Ok(out)
+}
+
+/// Tracks time order while reading; with `Reject`, a non-increasing stamp is an error.
+struct OrderCheck {
+    policy: TimestampPolicy,
+    last: Option<i64>,
+    sorted: bool,
+}
+
+impl OrderCheck {
+    fn new(policy: TimestampPolicy) -> Self {
+        OrderCheck {
+            policy,
+            last: None,
+            sorted: true,
+        }
+    }
+
+    fn check(&mut self, path: &Path, line: usize, stamp_ns: i64) -> Result<(), IoError> {
+        if let Some(prev) = self.last
+            && stamp_ns <= prev
+        {
+            if self.policy == TimestampPolicy::Reject {
+                let what = if stamp_ns == prev {
+                    "repeats"
+                } else {
+                    "goes backwards from"
+                };
+                return Err(IoError::parse(
+                    path,
+                    line,
+                    format!(
+                        "timestamp {stamp_ns} {what} the previous row's {prev} \
+                         (timestamp policy: reject; use sort_with_warning to sort instead)"
+                    ),
+                ));
+            }
+            self.sorted = false;
+        }
+        self.last = Some(stamp_ns);
+        Ok(())
+    }
+}
+
+/// A stable permutation sorting `stamps`.
+fn sort_permutation(stamps: &[i64]) -> Vec<usize> {
+    let mut idx: Vec<usize> = (0..stamps.len()).collect();
+    idx.sort_by_key(|&i| stamps[i]);
+    idx
+}
+
+/// Reads `encoder.csv`. Counts are checked against `params` and `opts`: a change larger
+/// than 2^30 ticks is reported as a counter wrap, one implying a wheel speed above
+/// `opts.max_wheel_speed_mps` as a count jump.
+pub fn read_encoder_csv(
+    path: &Path,
+    params: &EncoderParams,
+    opts: &ReadOptions,
+) -> Result<Vec<EncoderSample>, IoError> {
+    let mut lines = Lines::open(path, "encoder rows (timestamp_ns,left_count,right_count)")?;
+    let mut rows: Vec<EncoderSample> = Vec::new();
+    let mut line_nos: Vec<usize> = Vec::new();
+    let mut order = OrderCheck::new(opts.timestamp_policy);
+    while let Some((ln, line)) = lines.next_line()? {
+        if ln == 1 && is_header(line) {
+            continue;
+        }
+        let [t, l, r] = split_fixed::<3>(path, ln, line, "timestamp_ns,left_count,right_count")?;
+        let stamp_ns = parse_int(path, ln, "timestamp_ns", t)?;
+        let left_count = parse_int(path, ln, "left_count", l)?;
+        let right_count = parse_int(path, ln, "right_count", r)?;
+        order.check(path, ln, stamp_ns)?;
+        rows.push(EncoderSample {
+            stamp_ns,
+            left_count,
+            right_count,
+        });
+        line_nos.push(ln);
+    }
+    if rows.is_empty() {
+        return Err(IoError::parse(path, 0, "empty file: no encoder rows"));
+    }
+    if !order.sorted {
+        let perm = sort_permutation(&rows.iter().map(|r| r.stamp_ns).collect::<Vec<_>>());
+        let (mut r2, mut l2) = (
+            Vec::with_capacity(rows.len()),
+            Vec::with_capacity(rows.len()),
+        );
+        let mut dropped = 0usize;
+        for i in perm {
+            if r2
+                .last()
+                .is_some_and(|p: &EncoderSample| p.stamp_ns == rows[i].stamp_ns)
+            {
+                dropped += 1;
+                continue;
+            }
+            r2.push(rows[i]);
+            l2.push(line_nos[i]);
+        }
+        tracing::warn!(
+            "{}: rows out of time order: sorted by timestamp ({dropped} rows with a repeated stamp dropped)",
+            path.display()
+        );
+        rows = r2;
+        line_nos = l2;
+    }
+    check_encoder_counts(path, &rows, &line_nos, params, opts)?;
+    Ok(rows)
+}
+
+fn check_encoder_counts(
+    path: &Path,
+    rows: &[EncoderSample],
+    line_nos: &[usize],
+    params: &EncoderParams,
+    opts: &ReadOptions,
+) -> Result<(), IoError> {
+    const WRAP_TICKS: i64 = 1 << 30;
+    let res = f64::from(params.resolution_ticks);
+    for k in 1..rows.len() {
+        let (a, b) = (&rows[k - 1], &rows[k]);
+        let dt_s = (b.stamp_ns - a.stamp_ns) as f64 * 1e-9;
+        for (name, d_ticks, diameter) in [
+            (
+                "left_count",
+                b.left_count - a.left_count,
+                params.left_wheel_diameter_m,
+            ),
+            (
+                "right_count",
+                b.right_count - a.right_count,
+                params.right_wheel_diameter_m,
+            ),
+        ] {
+            if d_ticks.abs() >= WRAP_TICKS {
+                return Err(IoError::parse(
+                    path,
+                    line_nos[k],
+                    format!(
+                        "{name}: counter wrap or reset (count changed by {d_ticks} ticks since line {})",
+                        line_nos[k - 1]
+                    ),
+                ));
+            }
+            let speed = std::f64::consts::PI * diameter * d_ticks.abs() as f64 / res / dt_s;
+            if speed > opts.max_wheel_speed_mps {
+                return Err(IoError::parse(
+                    path,
+                    line_nos[k],
+                    format!(
+                        "{name}: count jump of {d_ticks} ticks in {:.6} s since line {} \
+                         ({speed:.1} m/s > max_wheel_speed_mps {})",
+                        dt_s,
+                        line_nos[k - 1],
+                        opts.max_wheel_speed_mps
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Reads `fog.csv`.
+pub fn read_fog_csv(path: &Path, opts: &ReadOptions) -> Result<Vec<FogSample>, IoError> {
+    let mut lines = Lines::open(
+        path,
+        "FOG rows (timestamp_ns,delta_roll,delta_pitch,delta_yaw)",
+    )?;
+    let mut rows: Vec<FogSample> = Vec::new();
+    let mut order = OrderCheck::new(opts.timestamp_policy);
+    while let Some((ln, line)) = lines.next_line()? {
+        if ln == 1 && is_header(line) {
+            continue;
+        }
+        let [t, r, p, y] = split_fixed::<4>(
+            path,
+            ln,
+            line,
+            "timestamp_ns,delta_roll,delta_pitch,delta_yaw",
+        )?;
+        let stamp_ns = parse_int(path, ln, "timestamp_ns", t)?;
+        let s = FogSample {
+            stamp_ns,
+            delta_roll_rad: parse_f64(path, ln, "delta_roll", r)?,
+            delta_pitch_rad: parse_f64(path, ln, "delta_pitch", p)?,
+            delta_yaw_rad: parse_f64(path, ln, "delta_yaw", y)?,
+        };
+        order.check(path, ln, stamp_ns)?;
+        rows.push(s);
+    }
+    if rows.is_empty() {
+        return Err(IoError::parse(path, 0, "empty file: no FOG rows"));
+    }
+    if !order.sorted {
+        let perm = sort_permutation(&rows.iter().map(|r| r.stamp_ns).collect::<Vec<_>>());
+        let mut sorted: Vec<FogSample> = Vec::with_capacity(rows.len());
+        let mut merged = 0usize;
+        for i in perm {
+            let s = rows[i];
+            match sorted.last_mut() {
+                // Increments with one stamp cover the same interval: they add up.
+                Some(last) if last.stamp_ns == s.stamp_ns => {
+                    last.delta_roll_rad += s.delta_roll_rad;
+                    last.delta_pitch_rad += s.delta_pitch_rad;
+                    last.delta_yaw_rad += s.delta_yaw_rad;
+                    merged += 1;
+                }
+                _ => sorted.push(s),
+            }
+        }
+        tracing::warn!(
+            "{}: rows out of time order: sorted by timestamp ({merged} rows with a repeated stamp merged)",
+            path.display()
+        );
+        rows = sorted;
+    }
+    Ok(rows)
+}
+
+/// Reads `lidar.csv` with `beam_count` ranges per row.
+pub fn read_lidar_csv(
+    path: &Path,
+    beam_count: usize,
+    opts: &ReadOptions,
+) -> Result<ScanSet, IoError> {
+    let mut lines = Lines::open(path, "LiDAR rows (timestamp_ns,r_0,...)")?;
+    let mut scans = ScanSet::new(beam_count);
+    let mut row: Vec<f32> = Vec::with_capacity(beam_count);
+    let mut order = OrderCheck::new(opts.timestamp_policy);
+    while let Some((ln, line)) = lines.next_line()? {
+        if ln == 1 && is_header(line) {
+            continue;
+        }
+        row.clear();
+        let mut fields = line.split(|&b| b == b',');
+        let t = fields.next().unwrap_or(&[]);
+        let stamp_ns = parse_int(path, ln, "timestamp_ns", t)?;
+        let mut n = 0usize;
+        for f in fields {
+            if n < beam_count {
+                let v = match fast_float2::parse::<f32, _>(trim_field(f)) {
+                    Ok(v) if v.is_finite() && v >= 0.0 => v,
+                    Ok(v) if v.is_finite() => {
+                        return Err(field_error(
+                            path,
+                            ln,
+                            &format!("range {n} (column {})", n + 2),
+                            "negative",
+                            trim_field(f),
+                        ));
+                    }
+                    _ => {
+                        // Slow path only for the error message.
+                        parse_f32(path, ln, &format!("range {n} (column {})", n + 2), f)?;
+                        return Err(field_error(path, ln, "range", "invalid", f));
+                    }
+                };
+                row.push(v);
+            }
+            n += 1;
+        }
+        if n != beam_count {
+            return Err(IoError::parse(
+                path,
+                ln,
+                format!(
+                    "expected {} columns (timestamp_ns + {beam_count} ranges), found {}",
+                    beam_count + 1,
+                    n + 1
+                ),
+            ));
+        }
+        order.check(path, ln, stamp_ns)?;
+        scans.push(stamp_ns, &row);
+    }
+    if scans.is_empty() {
+        return Err(IoError::parse(path, 0, "empty file: no LiDAR rows"));
+    }
+    if !order.sorted {
+        let perm = sort_permutation(&scans.stamps_ns);
+        let mut sorted = ScanSet::new(beam_count);
+        let mut dropped = 0usize;
+        for i in perm {
+            if sorted.stamps_ns.last() == Some(&scans.stamps_ns[i]) {
+                dropped += 1;
+                continue;
+            }
+            sorted.push(scans.stamps_ns[i], scans.ranges(i));
+        }
+        tracing::warn!(
+            "{}: rows out of time order: sorted by timestamp ({dropped} rows with a repeated stamp dropped)",
+            path.display()
+        );
+        scans = sorted;
+    }
+    Ok(scans)
+}
+
+/// Stamps of the stereo pairs: `stereo_images/stereo_left/<stamp_ns>.png`, sorted. No folder
+/// means no stereo.
+pub fn read_stereo_stamps(dir: &Path) -> Result<Vec<i64>, IoError> {
+    let left = dir.join(STEREO_LEFT_DIR);
+    if !left.is_dir() {
+        return Ok(Vec::new());
+    }
+    let mut stamps = Vec::new();
+    for entry in std::fs::read_dir(&left).map_err(|e| IoError::io(&left, e))? {
+        let entry = entry.map_err(|e| IoError::io(&left, e))?;
+        let p = entry.path();
+        if p.extension().and_then(|e| e.to_str()) != Some("png") {
+            continue;
+        }
+        let stem = p.file_stem().and_then(|s| s.to_str()).unwrap_or("");
+        let stamp: i64 = stem.parse().map_err(|_| {
+            IoError::parse(
+                &p,
+                0,
+                "stereo image name is not a timestamp in ns (<stamp_ns>.png)",
+            )
+        })?;
+        stamps.push(stamp);
+    }
+    stamps.sort_unstable();
+    Ok(stamps)
+}
+
+/// Reads a whole dataset directory: calibration, the three CSVs, stereo stamps.
+pub fn read_car_dataset(dir: &Path, opts: &ReadOptions) -> Result<CarDataset, IoError> {
+    if !dir.is_dir() {
+        return Err(IoError::Missing {
+            path: dir.to_path_buf(),
+            what: "dataset directory (sensor_data/, param/)".to_string(),
+        });
+    }
+    let calibration = read_car_calibration(&dir.join(PARAM_DIR))?;
+    let encoder = read_encoder_csv(&dir.join(ENCODER_CSV), &calibration.encoder, opts)?;
+    let fog = read_fog_csv(&dir.join(FOG_CSV), opts)?;
+    let lidar = read_lidar_csv(&dir.join(LIDAR_CSV), calibration.lidar.beam_count, opts)?;
+    let stereo_stamps_ns = read_stereo_stamps(dir)?;
+    Ok(CarDataset {
+        calibration,
+        encoder,
+        fog,
+        lidar,
+        stereo_stamps_ns,
+    })
+}
+
+/// Writes `encoder.csv` (no header, as the course's files).
+pub fn write_encoder_csv(path: &Path, rows: &[EncoderSample]) -> Result<(), IoError> {
+    write_atomic(path, |w| {
+        for r in rows {
+            writeln!(w, "{},{},{}", r.stamp_ns, r.left_count, r.right_count)?;
+        }
+        Ok(())
+    })
+}
+
+/// Writes `fog.csv`; floats in shortest round-trip form, so reading gives the same bits.
+pub fn write_fog_csv(path: &Path, rows: &[FogSample]) -> Result<(), IoError> {
+    write_atomic(path, |w| {
+        for r in rows {
+            writeln!(
+                w,
+                "{},{},{},{}",
+                r.stamp_ns, r.delta_roll_rad, r.delta_pitch_rad, r.delta_yaw_rad
+            )?;
+        }
+        Ok(())
+    })
+}
+
+/// Writes `lidar.csv`; `f32` ranges in shortest round-trip form.
+pub fn write_lidar_csv(path: &Path, scans: &ScanSet) -> Result<(), IoError> {
+    write_atomic(path, |w| {
+        for i in 0..scans.len() {
+            write!(w, "{}", scans.stamps_ns[i])?;
+            for r in scans.ranges(i) {
+                write!(w, ",{r}")?;
+            }
+            writeln!(w)?;
+        }
+        Ok(())
+    })
+}
+
+/// Writes a dataset in the course's layout: the three CSVs and every calibration file
+/// (camera YAML when `calibration.stereo` is `Some`). Stereo images are not written.
+pub fn write_car_dataset(dir: &Path, ds: &CarDataset) -> Result<(), IoError> {
+    write_car_calibration(&dir.join(PARAM_DIR), &ds.calibration)?;
+    write_encoder_csv(&dir.join(ENCODER_CSV), &ds.encoder)?;
+    write_fog_csv(&dir.join(FOG_CSV), &ds.fog)?;
+    write_lidar_csv(&dir.join(LIDAR_CSV), &ds.lidar)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parse_int_cases() {
+        let p = Path::new("x");
+        assert_eq!(
+            parse_int(p, 1, "t", b" 1544582648735140000 ").unwrap(),
+            1544582648735140000
+        );
+        assert_eq!(parse_int(p, 1, "t", b"-12").unwrap(), -12);
+        assert!(parse_int(p, 1, "t", b"1.5").is_err());
+        assert!(parse_int(p, 1, "t", b"").is_err());
+        assert!(parse_int(p, 1, "t", b"99999999999999999999").is_err());
+    }
+
+    #[test]
+    fn header_detection() {
+        assert!(is_header(b"timestamp,left,right"));
+        assert!(!is_header(b"abc,1,2"));
+        assert!(!is_header(b"1,2,3"));
+    }
+}

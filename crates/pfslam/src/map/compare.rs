@@ -1,0 +1,287 @@
+//! Comparing an estimated map with a true map.
+//!
+//! Definitions (cells are compared through world coordinates, so resolutions and origins may
+//! differ; `tol` is the tolerance in cells of the map being searched):
+//! - **precision**: estimated occupied cells with a true occupied cell within `tol` cells
+//!   (Chebyshev) of their centre, over all estimated occupied cells;
+//! - **recall**: *visible* true occupied cells with an estimated occupied cell within `tol`
+//!   cells, over all visible true occupied cells. A true occupied cell is visible when a cell
+//!   of its 8-neighbourhood in the true map is estimated free (the sensor saw the space in
+//!   front of it); walls never approached cannot be expected in the map. `recall_all` gives
+//!   the same ratio over every true occupied cell inside the estimate's extent;
+//! - **free agreement**: estimated free cells whose centre is free in the true map, over all
+//!   estimated free cells ("free space is where the true map is free").
+
+use super::MapError;
+use super::binary::BinaryMap;
+use super::logodds::CellState;
+use rayon::prelude::*;
+
+/// The figures of one comparison.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MapComparison {
+    /// Tolerance used (cells).
+    pub tolerance_cells: u32,
+    /// Estimated occupied cells.
+    pub estimated_occupied: usize,
+    /// Of those, with a true occupied cell within tolerance.
+    pub estimated_occupied_matched: usize,
+    /// Visible true occupied cells.
+    pub true_occupied_visible: usize,
+    /// Of those, with an estimated occupied cell within tolerance.
+    pub true_occupied_visible_matched: usize,
+    /// True occupied cells inside the estimate's extent.
+    pub true_occupied_in_extent: usize,
+    /// Of those, with an estimated occupied cell within tolerance.
+    pub true_occupied_in_extent_matched: usize,
+    /// Estimated free cells.
+    pub estimated_free: usize,
+    /// Of those, free in the true map.
+    pub estimated_free_truly_free: usize,
+    /// Of those, occupied in the true map (strictly, no tolerance).
+    pub estimated_free_truly_occupied: usize,
+}
+
+fn ratio(a: usize, b: usize) -> f64 {
+    if b == 0 { 1.0 } else { a as f64 / b as f64 }
+}
+
+impl MapComparison {
+    /// Occupied-cell precision (1 when nothing is estimated occupied).
+    pub fn precision(&self) -> f64 {
+        ratio(self.estimated_occupied_matched, self.estimated_occupied)
+    }
+
+    /// Occupied-cell recall over visible true walls.
+    pub fn recall(&self) -> f64 {
+        ratio(
+            self.true_occupied_visible_matched,
+            self.true_occupied_visible,
+        )
+    }
+
+    /// Occupied-cell recall over every true wall inside the estimate's extent.
+    pub fn recall_all(&self) -> f64 {
+        ratio(
+            self.true_occupied_in_extent_matched,
+            self.true_occupied_in_extent,
+        )
+    }
+
+    /// Fraction of estimated free cells that are free in the true map.
+    pub fn free_agreement(&self) -> f64 {
+        ratio(self.estimated_free_truly_free, self.estimated_free)
+    }
+}
+
+impl std::fmt::Display for MapComparison {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "precision {:.4} ({}/{}), recall {:.4} ({}/{} visible), recall_all {:.4}, free agreement {:.4} ({}/{}, {} on true walls), tolerance {} cell(s)",
+            self.precision(),
+            self.estimated_occupied_matched,
+            self.estimated_occupied,
+            self.recall(),
+            self.true_occupied_visible_matched,
+            self.true_occupied_visible,
+            self.recall_all(),
+            self.free_agreement(),
+            self.estimated_free_truly_free,
+            self.estimated_free,
+            self.estimated_free_truly_occupied,
+            self.tolerance_cells
+        )
+    }
+}
+
+/// True when `map` has an occupied cell within `tol` cells of the cell containing `(x, y)`.
+fn occupied_near(map: &BinaryMap, x_m: f64, y_m: f64, tol: i64) -> bool {
+    let c = map.limits.cell_of(x_m, y_m);
+    let (ci, cj) = (c.i as i64, c.j as i64);
+    for j in cj - tol..=cj + tol {
+        for i in ci - tol..=ci + tol {
+            if map.get(i, j) == CellState::Occupied {
+                return true;
+            }
+        }
+    }
+    false
+}
+
+/// Compares `estimate` with `truth` (see the module docs for the definitions).
+pub fn compare_maps(
+    estimate: &BinaryMap,
+    truth: &BinaryMap,
+    tolerance_cells: u32,
+) -> Result<MapComparison, MapError> {
+    if estimate.width == 0 || estimate.height == 0 {
+        return Err(MapError::Compare("the estimated map is empty".into()));
+    }
+    if truth.width == 0 || truth.height == 0 {
+        return Err(MapError::Compare("the true map is empty".into()));
+    }
+    let tol = tolerance_cells as i64;
+    // Estimate side, rows in parallel; integer sums are order-independent.
+    let est = (0..estimate.height)
+        .into_par_iter()
+        .map(|j| {
+            let mut n = [0usize; 5];
+            for i in 0..estimate.width {
+                let s = estimate.cells[j * estimate.width + i];
+                let (x, y) = estimate
+                    .limits
+                    .cell_centre(super::Cell::new(i as i32, j as i32));
+                match s {
+                    CellState::Occupied => {
+                        n[0] += 1;
+                        if occupied_near(truth, x, y, tol) {
+                            n[1] += 1;
+                        }
+                    }
+                    CellState::Free => {
+                        n[2] += 1;
+                        match truth.state_at(x, y) {
+                            CellState::Free => n[3] += 1,
+                            CellState::Occupied => n[4] += 1,
+                            CellState::Unknown => {}
+                        }
+                    }
+                    CellState::Unknown => {}
+                }
+            }
+            n
+        })
+        .reduce(|| [0; 5], |a, b| std::array::from_fn(|k| a[k] + b[k]));
+    // Extent of the estimate in world coordinates.
+    let er = estimate.limits.resolution_m();
+    let (ex0, ey0) = (estimate.limits.origin_x_m(), estimate.limits.origin_y_m());
+    let (ex1, ey1) = (
+        ex0 + estimate.width as f64 * er,
+        ey0 + estimate.height as f64 * er,
+    );
+    let tru = (0..truth.height)
+        .into_par_iter()
+        .map(|j| {
+            let mut n = [0usize; 4];
+            for i in 0..truth.width {
+                if truth.cells[j * truth.width + i] != CellState::Occupied {
+                    continue;
+                }
+                let (x, y) = truth
+                    .limits
+                    .cell_centre(super::Cell::new(i as i32, j as i32));
+                if !(x >= ex0 && x < ex1 && y >= ey0 && y < ey1) {
+                    continue;
+                }
+                let matched = occupied_near(estimate, x, y, tol);
+                n[0] += 1;
+                n[1] += matched as usize;
+                let (ii, jj) = (i as i64, j as i64);
+                let visible = (jj - 1..=jj + 1).any(|nj| {
+                    (ii - 1..=ii + 1).any(|ni| {
+                        if truth.get(ni, nj) == CellState::Occupied {
+                            return false;
+                        }
+                        let (nx, ny) = truth
+                            .limits
+                            .cell_centre(super::Cell::new(ni as i32, nj as i32));
+                        estimate.state_at(nx, ny) == CellState::Free
+                    })
+                });
+                if visible {
+                    n[2] += 1;
+                    n[3] += matched as usize;
+                }
+            }
+            n
+        })
+        .reduce(|| [0; 4], |a, b| std::array::from_fn(|k| a[k] + b[k]));
+    Ok(MapComparison {
+        tolerance_cells,
+        estimated_occupied: est[0],
+        estimated_occupied_matched: est[1],
+        estimated_free: est[2],
+        estimated_free_truly_free: est[3],
+        estimated_free_truly_occupied: est[4],
+        true_occupied_in_extent: tru[0],
+        true_occupied_in_extent_matched: tru[1],
+        true_occupied_visible: tru[2],
+        true_occupied_visible_matched: tru[3],
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::map::MapLimits;
+
+    fn square_room(res: f64) -> BinaryMap {
+        // 10 x 10 m room, walls one cell thick, free inside, at (0, 0)-(10, 10).
+        let n = (10.0 / res).round() as i64;
+        let mut m = BinaryMap::filled(
+            MapLimits::new(res, 0.0, 0.0),
+            n as usize,
+            n as usize,
+            CellState::Free,
+        );
+        for k in 0..n {
+            for (i, j) in [(k, 0), (k, n - 1), (0, k), (n - 1, k)] {
+                m.set(i, j, CellState::Occupied);
+            }
+        }
+        m
+    }
+
+    #[test]
+    fn identical_maps_are_perfect() {
+        let t = square_room(0.1);
+        let c = compare_maps(&t, &t, 1).unwrap();
+        assert_eq!(c.precision(), 1.0);
+        assert_eq!(c.recall(), 1.0);
+        assert_eq!(c.recall_all(), 1.0);
+        assert_eq!(c.free_agreement(), 1.0);
+        assert_eq!(c.estimated_occupied, 396);
+        assert_eq!(c.true_occupied_visible, 396);
+    }
+
+    #[test]
+    fn shifted_walls_need_tolerance_and_missing_walls_cut_recall() {
+        let t = square_room(0.1);
+        let mut e = t.clone();
+        e.limits = MapLimits::new(0.1, 0.1, 0.0); // one cell to the right
+        let strict = compare_maps(&e, &t, 0).unwrap();
+        assert!(strict.precision() < 0.6, "{strict}");
+        let tol = compare_maps(&e, &t, 1).unwrap();
+        assert_eq!(tol.precision(), 1.0, "{tol}");
+        // the estimate without its top wall: that wall is unmatched but still visible
+        let mut e = t.clone();
+        for i in 0..100 {
+            e.set(i, 99, CellState::Unknown);
+        }
+        let c = compare_maps(&e, &t, 1).unwrap();
+        assert_eq!(c.precision(), 1.0);
+        assert!(c.recall() < 0.8 && c.recall() > 0.7, "{c}");
+        // an estimate that sees nothing near a wall does not count it as visible
+        let mut e = t.clone();
+        for j in 50..100 {
+            for i in 0..100 {
+                e.set(i, j, CellState::Unknown);
+            }
+        }
+        let c = compare_maps(&e, &t, 1).unwrap();
+        assert_eq!(c.recall(), 1.0, "{c}");
+        assert!(c.recall_all() < 0.8, "{c}");
+    }
+
+    #[test]
+    fn free_on_walls_is_counted() {
+        let t = square_room(0.1);
+        let e = BinaryMap::filled(t.limits, 100, 100, CellState::Free);
+        let c = compare_maps(&e, &t, 1).unwrap();
+        assert_eq!(c.estimated_free_truly_occupied, 396);
+        assert!((c.free_agreement() - (1.0 - 396.0 / 10000.0)).abs() < 1e-12);
+        let empty = BinaryMap::filled(t.limits, 0, 0, CellState::Free);
+        assert!(compare_maps(&empty, &t, 1).is_err());
+    }
+}

@@ -1,0 +1,508 @@
+//! The tiled log-odds occupancy grid and scan insertion.
+//!
+//! Storage: square tiles of `TILE_SIZE x TILE_SIZE` cells (`i16` fixed-point log-odds, see
+//! [`super::logodds`]), allocated on first write, held as `Arc<Tile>`. A dense directory of
+//! tile pointers covers the bounding box of the allocated tiles (8 bytes per 64 x 64 cells,
+//! ~1/1000 of a dense grid), so memory follows the visited area and lookups are two index
+//! computations, no hashing. Cloning a grid copies the directory and bumps reference counts;
+//! writes go through `Arc::make_mut`, so clones (one map per particle) share unchanged tiles
+//! and copy a tile only when they first change it.
+//!
+//! Cells never written read as log-odds 0 (p = 0.5, unknown).
+
+use super::limits::{Cell, CellRect, MapLimits};
+use super::logodds::{CellState, FixedLogOdds, LogOddsParams, from_fixed, probability_fixed};
+use super::ray::bresenham;
+use super::scan::PlanarScan;
+use super::{MapError, MapOptions};
+use std::sync::Arc;
+
+/// log2 of the tile side.
+pub const TILE_SHIFT: u32 = 6;
+/// Tile side (cells).
+pub const TILE_SIZE: usize = 1 << TILE_SHIFT;
+const TILE_MASK: i32 = (TILE_SIZE as i32) - 1;
+const TILE_CELLS: usize = TILE_SIZE * TILE_SIZE;
+
+/// Cell indices beyond this magnitude are refused (1,677 km at 0.1 m), which bounds the tile
+/// directory whatever a pose says.
+pub const MAX_CELL_INDEX: i32 = 1 << 24;
+
+/// The longest ray [`OccupancyGrid::insert_scan`] accepts, in cells (Chebyshev): bounds the
+/// scratch mask to 16,385^2 bytes (268 MB); 75 m at 0.05 m is 1,500 cells.
+pub const MAX_RAY_CELLS: i32 = 8192;
+
+/// One tile: `TILE_SIZE^2` cells, row-major (`local_j * TILE_SIZE + local_i`).
+#[derive(Clone)]
+pub struct Tile {
+    cells: [i16; TILE_CELLS],
+}
+
+impl Tile {
+    fn unknown() -> Self {
+        Tile {
+            cells: [0; TILE_CELLS],
+        }
+    }
+
+    /// The cells, row-major.
+    pub fn cells(&self) -> &[i16] {
+        &self.cells
+    }
+}
+
+impl std::fmt::Debug for Tile {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let nonzero = self.cells.iter().filter(|&&v| v != 0).count();
+        write!(f, "Tile({nonzero} observed cells)")
+    }
+}
+
+#[inline(always)]
+fn tile_of(cell: Cell) -> (i32, i32) {
+    (cell.i >> TILE_SHIFT, cell.j >> TILE_SHIFT)
+}
+
+#[inline(always)]
+fn local_index(cell: Cell) -> usize {
+    (((cell.j & TILE_MASK) as usize) << TILE_SHIFT) | (cell.i & TILE_MASK) as usize
+}
+
+/// Dense directory of optional tiles over a rectangle of tile coordinates.
+#[derive(Clone, Debug, Default)]
+struct TileDir {
+    ti0: i32,
+    tj0: i32,
+    w: i32,
+    h: i32,
+    tiles: Vec<Option<Arc<Tile>>>,
+}
+
+impl TileDir {
+    #[inline(always)]
+    fn slot(&self, ti: i32, tj: i32) -> Option<usize> {
+        let di = ti.wrapping_sub(self.ti0);
+        let dj = tj.wrapping_sub(self.tj0);
+        if (di as u32) < (self.w as u32) && (dj as u32) < (self.h as u32) {
+            Some(dj as usize * self.w as usize + di as usize)
+        } else {
+            None
+        }
+    }
+
+    #[inline(always)]
+    fn get(&self, ti: i32, tj: i32) -> Option<&Tile> {
+        self.slot(ti, tj).and_then(|s| self.tiles[s].as_deref())
+    }
+
+    /// Grows the directory to include tile `(ti, tj)`, with slack so that growth is amortised.
+    fn grow_to(&mut self, ti: i32, tj: i32) {
+        let (mut i0, mut j0, mut i1, mut j1) = if self.w == 0 {
+            (ti, tj, ti, tj)
+        } else {
+            (
+                self.ti0.min(ti),
+                self.tj0.min(tj),
+                (self.ti0 + self.w - 1).max(ti),
+                (self.tj0 + self.h - 1).max(tj),
+            )
+        };
+        // Slack: extend the side that grew by half the current span (at least 4 tiles).
+        let slack_i = ((i1 - i0 + 1) / 2).max(4);
+        let slack_j = ((j1 - j0 + 1) / 2).max(4);
+        if self.w != 0 {
+            if ti < self.ti0 {
+                i0 -= slack_i;
+            }
+            if ti >= self.ti0 + self.w {
+                i1 += slack_i;
+            }
+            if tj < self.tj0 {
+                j0 -= slack_j;
+            }
+            if tj >= self.tj0 + self.h {
+                j1 += slack_j;
+            }
+        } else {
+            i0 -= 2;
+            j0 -= 2;
+            i1 += 2;
+            j1 += 2;
+        }
+        let (w, h) = (i1 - i0 + 1, j1 - j0 + 1);
+        let mut tiles: Vec<Option<Arc<Tile>>> = vec![None; w as usize * h as usize];
+        for dj in 0..self.h {
+            for di in 0..self.w {
+                let old = (dj * self.w + di) as usize;
+                let new = ((self.tj0 + dj - j0) * w + (self.ti0 + di - i0)) as usize;
+                tiles[new] = self.tiles[old].take();
+            }
+        }
+        *self = TileDir {
+            ti0: i0,
+            tj0: j0,
+            w,
+            h,
+            tiles,
+        };
+    }
+
+    #[inline]
+    fn get_mut(&mut self, ti: i32, tj: i32) -> &mut Tile {
+        let s = match self.slot(ti, tj) {
+            Some(s) => s,
+            None => {
+                self.grow_to(ti, tj);
+                // In range after growing.
+                self.slot(ti, tj).unwrap_or(0)
+            }
+        };
+        Arc::make_mut(self.tiles[s].get_or_insert_with(|| Arc::new(Tile::unknown())))
+    }
+}
+
+/// What one scan does to a cell. Rule: each cell gets at most one update per scan; a cell
+/// that is the end cell of any return is occupied, whatever other rays crossed it (occupied
+/// wins over free).
+const MARK_NONE: u8 = 0;
+const MARK_FREE: u8 = 1;
+const MARK_OCCUPIED: u8 = 2;
+
+/// Caller-owned scratch for [`OccupancyGrid::insert_scan`]: a zeroed square mask centred on
+/// the sensor's cell and the list of cells touched by the current scan. Reuse one per thread
+/// (or per particle); it never needs clearing (insertion leaves the mask zeroed).
+#[derive(Debug, Default, Clone)]
+pub struct InsertScratch {
+    mask: Vec<u8>,
+    half: i32,
+    touched: Vec<(Cell, u32)>,
+}
+
+impl InsertScratch {
+    /// Empty scratch; it grows to the longest ray seen.
+    pub fn new() -> Self {
+        InsertScratch::default()
+    }
+
+    fn ensure_half(&mut self, half: i32) {
+        if half > self.half {
+            let side = 2 * half as usize + 1;
+            self.mask = vec![MARK_NONE; side * side];
+            self.half = half;
+        }
+    }
+}
+
+/// Counts of what one insertion did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct InsertStats {
+    /// Rays traced.
+    pub rays: usize,
+    /// Cells given the occupied update.
+    pub occupied_cells: usize,
+    /// Cells given the free update.
+    pub free_cells: usize,
+}
+
+/// The log-odds occupancy grid: unbounded, tiled, cheap to clone (see the module docs).
+#[derive(Clone, Debug)]
+pub struct OccupancyGrid {
+    limits: MapLimits,
+    params: LogOddsParams,
+    fixed: FixedLogOdds,
+    dir: TileDir,
+}
+
+impl OccupancyGrid {
+    /// An empty grid (every cell unknown) from validated options.
+    pub fn new(opts: &MapOptions) -> Result<Self, MapError> {
+        opts.validate().map_err(MapError::Options)?;
+        Ok(OccupancyGrid::with_params(opts.limits(), opts.log_odds))
+    }
+
+    /// An empty grid with explicit limits and parameters. The parameters should have passed
+    /// [`LogOddsParams::validate`]; unchecked values still give a well-defined (clamped) grid.
+    pub fn with_params(limits: MapLimits, params: LogOddsParams) -> Self {
+        OccupancyGrid {
+            limits,
+            params,
+            fixed: params.to_fixed(),
+            dir: TileDir::default(),
+        }
+    }
+
+    /// World <-> cell conversion.
+    #[inline]
+    pub fn limits(&self) -> &MapLimits {
+        &self.limits
+    }
+
+    /// The log-odds model.
+    #[inline]
+    pub fn params(&self) -> &LogOddsParams {
+        &self.params
+    }
+
+    /// The log-odds model in fixed point.
+    #[inline]
+    pub fn fixed(&self) -> &FixedLogOdds {
+        &self.fixed
+    }
+
+    /// Fixed-point log-odds of a cell (0 when never written). The hot-path accessor.
+    #[inline(always)]
+    pub fn logodds_fixed(&self, cell: Cell) -> i16 {
+        let (ti, tj) = tile_of(cell);
+        match self.dir.get(ti, tj) {
+            Some(t) => t.cells[local_index(cell)],
+            None => 0,
+        }
+    }
+
+    /// Log-odds of a cell.
+    #[inline]
+    pub fn logodds(&self, cell: Cell) -> f64 {
+        from_fixed(self.logodds_fixed(cell))
+    }
+
+    /// Occupancy probability of a cell (sigmoid of its log-odds).
+    #[inline]
+    pub fn probability(&self, cell: Cell) -> f32 {
+        probability_fixed(self.logodds_fixed(cell))
+    }
+
+    /// Occupied / free / unknown by the thresholds.
+    #[inline(always)]
+    pub fn state(&self, cell: Cell) -> CellState {
+        self.fixed.classify(self.logodds_fixed(cell))
+    }
+
+    /// True when the cell is occupied by the threshold (one integer compare).
+    #[inline(always)]
+    pub fn is_occupied(&self, cell: Cell) -> bool {
+        self.logodds_fixed(cell) >= self.fixed.occupied
+    }
+
+    /// The cell containing a world point.
+    #[inline(always)]
+    pub fn cell_of(&self, x_m: f64, y_m: f64) -> Cell {
+        self.limits.cell_of(x_m, y_m)
+    }
+
+    fn check_cell(cell: Cell) -> Result<(), MapError> {
+        if cell.i.unsigned_abs() > MAX_CELL_INDEX as u32
+            || cell.j.unsigned_abs() > MAX_CELL_INDEX as u32
+        {
+            return Err(MapError::OutOfRange { cell });
+        }
+        Ok(())
+    }
+
+    /// Adds a fixed-point `delta` to a cell's log-odds, clamped to the bounds.
+    #[inline]
+    pub fn add_fixed(&mut self, cell: Cell, delta: i16) -> Result<(), MapError> {
+        Self::check_cell(cell)?;
+        let f = self.fixed;
+        let (ti, tj) = tile_of(cell);
+        let v = &mut self.dir.get_mut(ti, tj).cells[local_index(cell)];
+        *v = f.apply(*v, delta);
+        Ok(())
+    }
+
+    /// Applies the hit (occupied) update to a cell.
+    pub fn update_occupied(&mut self, cell: Cell) -> Result<(), MapError> {
+        self.add_fixed(cell, self.fixed.hit)
+    }
+
+    /// Applies the miss (free) update to a cell.
+    pub fn update_free(&mut self, cell: Cell) -> Result<(), MapError> {
+        self.add_fixed(cell, self.fixed.miss)
+    }
+
+    /// Sets a cell's fixed-point log-odds (clamped to the bounds); readers and tests.
+    pub fn set_fixed(&mut self, cell: Cell, value: i16) -> Result<(), MapError> {
+        Self::check_cell(cell)?;
+        let f = self.fixed;
+        let (ti, tj) = tile_of(cell);
+        self.dir.get_mut(ti, tj).cells[local_index(cell)] = value.clamp(f.min, f.max);
+        Ok(())
+    }
+
+    /// Inserts one scan given in the world frame: for every ray, Bresenham from the sensor's
+    /// cell to the end cell; the cells before the end get the free update, the end cell the
+    /// occupied update for a return (the free update for a "no return" clearing ray).
+    ///
+    /// Per-scan rule: each cell gets at most one update, occupied winning over free, so a cell
+    /// crossed by many rays near the sensor is not over-counted and a wall cell grazed by a
+    /// neighbouring ray stays occupied. The result is independent of ray order.
+    ///
+    /// Errors (grid unchanged) when the scan reaches beyond [`MAX_CELL_INDEX`].
+    pub fn insert_scan(
+        &mut self,
+        world_scan: &PlanarScan,
+        scratch: &mut InsertScratch,
+    ) -> Result<InsertStats, MapError> {
+        let origin = self.cell_of(world_scan.sensor_x_m, world_scan.sensor_y_m);
+        Self::check_cell(origin)?;
+        // Mask half-size: the farthest end cell (Chebyshev), so every ray fits.
+        let mut half = 0i32;
+        for p in &world_scan.points {
+            let c = self.cell_of(p.x_m, p.y_m);
+            Self::check_cell(c)?;
+            half = half.max((c.i - origin.i).abs()).max((c.j - origin.j).abs());
+        }
+        if half > MAX_RAY_CELLS {
+            return Err(MapError::RayTooLong {
+                cells: half,
+                max: MAX_RAY_CELLS,
+            });
+        }
+        scratch.ensure_half(half);
+        let side = 2 * scratch.half + 1;
+        let (oi, oj, sh) = (origin.i, origin.j, scratch.half);
+        let InsertScratch { mask, touched, .. } = scratch;
+        touched.clear();
+        let index = |c: Cell| ((c.j - oj + sh) * side + (c.i - oi + sh)) as u32;
+        for p in &world_scan.points {
+            let end = self.cell_of(p.x_m, p.y_m);
+            bresenham(origin, end, |c| {
+                if c == end {
+                    return;
+                }
+                let k = index(c);
+                let m = &mut mask[k as usize];
+                if *m == MARK_NONE {
+                    *m = MARK_FREE;
+                    touched.push((c, k));
+                }
+            });
+            let k = index(end);
+            let m = &mut mask[k as usize];
+            let want = if p.hit { MARK_OCCUPIED } else { MARK_FREE };
+            if *m == MARK_NONE {
+                touched.push((end, k));
+            }
+            *m = (*m).max(want);
+        }
+        // Apply in touch order (ray order: consecutive cells share tiles), clearing the mask.
+        let f = self.fixed;
+        let mut stats = InsertStats {
+            rays: world_scan.points.len(),
+            ..InsertStats::default()
+        };
+        // Runs of consecutive cells in one tile get one directory lookup.
+        let mut start = 0;
+        while start < touched.len() {
+            let t = tile_of(touched[start].0);
+            let mut end = start + 1;
+            while end < touched.len() && tile_of(touched[end].0) == t {
+                end += 1;
+            }
+            let tile = self.dir.get_mut(t.0, t.1);
+            for &(c, k) in &touched[start..end] {
+                let m = std::mem::replace(&mut mask[k as usize], MARK_NONE);
+                let delta = if m == MARK_OCCUPIED {
+                    stats.occupied_cells += 1;
+                    f.hit
+                } else {
+                    stats.free_cells += 1;
+                    f.miss
+                };
+                let v = &mut tile.cells[local_index(c)];
+                *v = f.apply(*v, delta);
+            }
+            start = end;
+        }
+        Ok(stats)
+    }
+
+    /// The rectangle of allocated tiles, in cells (`None` for an empty grid).
+    pub fn allocated_bounds(&self) -> Option<CellRect> {
+        let d = &self.dir;
+        let mut r: Option<CellRect> = None;
+        for tj in 0..d.h {
+            for ti in 0..d.w {
+                if d.tiles[(tj * d.w + ti) as usize].is_some() {
+                    let (ci, cj) = ((d.ti0 + ti) << TILE_SHIFT, (d.tj0 + tj) << TILE_SHIFT);
+                    let t = CellRect {
+                        min_i: ci,
+                        min_j: cj,
+                        max_i: ci + TILE_MASK,
+                        max_j: cj + TILE_MASK,
+                    };
+                    r = Some(r.map_or(t, |r| r.union(&t)));
+                }
+            }
+        }
+        r
+    }
+
+    /// The tightest rectangle of cells with non-zero log-odds (`None` when none).
+    pub fn observed_bounds(&self) -> Option<CellRect> {
+        let d = &self.dir;
+        let mut r: Option<CellRect> = None;
+        for tj in 0..d.h {
+            for ti in 0..d.w {
+                let Some(tile) = &d.tiles[(tj * d.w + ti) as usize] else {
+                    continue;
+                };
+                let (ci, cj) = ((d.ti0 + ti) << TILE_SHIFT, (d.tj0 + tj) << TILE_SHIFT);
+                for (k, &v) in tile.cells.iter().enumerate() {
+                    if v != 0 {
+                        let c = Cell::new(
+                            ci + (k & (TILE_SIZE - 1)) as i32,
+                            cj + (k >> TILE_SHIFT) as i32,
+                        );
+                        let t = CellRect::around(c);
+                        r = Some(r.map_or(t, |r| r.union(&t)));
+                    }
+                }
+            }
+        }
+        r
+    }
+
+    /// Number of allocated tiles.
+    pub fn tile_count(&self) -> usize {
+        self.dir.tiles.iter().filter(|t| t.is_some()).count()
+    }
+
+    /// Bytes held by tiles and directory (shared tiles counted in full).
+    pub fn memory_bytes(&self) -> usize {
+        self.tile_count() * std::mem::size_of::<Tile>()
+            + self.dir.tiles.len() * std::mem::size_of::<Option<Arc<Tile>>>()
+    }
+
+    /// Number of tiles this grid shares with another grid (same allocation); for tests of
+    /// copy-on-write and memory reports.
+    pub fn shared_tiles_with(&self, other: &OccupancyGrid) -> usize {
+        let d = &self.dir;
+        let mut n = 0;
+        for tj in 0..d.h {
+            for ti in 0..d.w {
+                if let Some(a) = &d.tiles[(tj * d.w + ti) as usize]
+                    && let Some(s) = other.dir.slot(d.ti0 + ti, d.tj0 + tj)
+                    && let Some(b) = &other.dir.tiles[s]
+                    && Arc::ptr_eq(a, b)
+                {
+                    n += 1;
+                }
+            }
+        }
+        n
+    }
+
+    /// Copies the fixed-point log-odds of `rect` into `out` (row-major, row 0 = `rect.min_j`,
+    /// i.e. the lowest y), resizing it.
+    pub fn copy_rect_fixed(&self, rect: &CellRect, out: &mut Vec<i16>) {
+        let (w, h) = (rect.width(), rect.height());
+        out.clear();
+        out.resize(w * h, 0);
+        for (r, row) in out.chunks_mut(w.max(1)).enumerate().take(h) {
+            let j = rect.min_j + r as i32;
+            for (k, v) in row.iter_mut().enumerate() {
+                *v = self.logodds_fixed(Cell::new(rect.min_i + k as i32, j));
+            }
+        }
+    }
+}

@@ -1,0 +1,312 @@
+//! Scan preprocessing: ranges -> 2-D end points in the body frame (once per scan), then in
+//! the world frame (once per pose hypothesis).
+//!
+//! Steps for beam `k` with range `r`:
+//! 1. "no return": `r` not finite, `r <= 0`, or `r >= LidarGeometry::range_max_m`; readings
+//!    above `ScanOptions::range_max_m` count as "no return" too (too far to trust). Policy
+//!    [`NoReturnPolicy`]: skip the beam, or clear free space along it up to
+//!    `no_return_clear_m` (the end cell gets the free update, not the occupied one).
+//! 2. `r < range_min_m`: skipped (returns from the vehicle itself).
+//! 3. Polar -> cartesian in the LiDAR frame (`LidarGeometry::beam_angle_rad`), then the 3-D
+//!    `body_from_lidar`; z is dropped after the optional z window (in the body frame, which for
+//!    a planar pose is the world frame's z: ground removal as in the ESE650 seed).
+//! 4. [`to_world`]: the 2-D `world_from_body` pose.
+
+use super::MapError;
+use crate::geometry::{Pose2, Rigid3};
+use crate::sensors::LidarGeometry;
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+/// What to do with a beam that has no return (or a too-far one).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum NoReturnPolicy {
+    /// Ignore the beam.
+    #[default]
+    Skip,
+    /// Mark the cells along the beam free up to `no_return_clear_m`.
+    ClearFree,
+}
+
+/// Scan preprocessing options (`[map.scan]`, a field of [`super::MapOptions`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ScanOptions {
+    /// Shorter readings are dropped (m; seed 2).
+    pub range_min_m: f32,
+    /// Longer readings are treated as "no return" (m; seed 75).
+    pub range_max_m: f32,
+    /// Policy for "no return" beams.
+    pub no_return: NoReturnPolicy,
+    /// With `no_return = "clear_free"`: free space is cleared up to this distance (m).
+    pub no_return_clear_m: f32,
+    /// Points below this height are dropped (m, world/body frame; `None` = no bound).
+    pub z_min_m: Option<f64>,
+    /// Points above this height are dropped (m, world/body frame; `None` = no bound).
+    pub z_max_m: Option<f64>,
+}
+
+impl Default for ScanOptions {
+    fn default() -> Self {
+        ScanOptions {
+            range_min_m: 2.0,
+            range_max_m: 75.0,
+            no_return: NoReturnPolicy::Skip,
+            no_return_clear_m: 20.0,
+            z_min_m: None,
+            z_max_m: None,
+        }
+    }
+}
+
+impl ScanOptions {
+    /// Checks ranges and the z window; the message names the bad key.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.range_min_m.is_finite() && self.range_min_m >= 0.0) {
+            return Err("map.scan.range_min_m must be >= 0".into());
+        }
+        if !(self.range_max_m.is_finite() && self.range_max_m > self.range_min_m) {
+            return Err("map.scan.range_max_m must be finite and > range_min_m".into());
+        }
+        if !(self.no_return_clear_m.is_finite() && self.no_return_clear_m >= 0.0) {
+            return Err("map.scan.no_return_clear_m must be finite and >= 0".into());
+        }
+        for (k, v) in [("z_min_m", self.z_min_m), ("z_max_m", self.z_max_m)] {
+            if v.is_some_and(|z| !z.is_finite()) {
+                return Err(format!("map.scan.{k} must be finite"));
+            }
+        }
+        if let (Some(a), Some(b)) = (self.z_min_m, self.z_max_m)
+            && a >= b
+        {
+            return Err("map.scan: z_min_m must be < z_max_m".into());
+        }
+        Ok(())
+    }
+
+    /// The longest ray this preprocessing can produce (m).
+    pub fn max_ray_m(&self) -> f32 {
+        match self.no_return {
+            NoReturnPolicy::Skip => self.range_max_m,
+            NoReturnPolicy::ClearFree => self.range_max_m.max(self.no_return_clear_m),
+        }
+    }
+}
+
+/// One end point of a ray in a 2-D frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScanPoint {
+    /// x (m).
+    pub x_m: f64,
+    /// y (m).
+    pub y_m: f64,
+    /// True for a return (the end cell is occupied); false for a free-space end point of a
+    /// "no return" beam.
+    pub hit: bool,
+}
+
+/// A scan as 2-D rays from one sensor position, in one frame (body or world: the variable
+/// name says which).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PlanarScan {
+    /// Sensor x (m).
+    pub sensor_x_m: f64,
+    /// Sensor y (m).
+    pub sensor_y_m: f64,
+    /// Ray end points, in beam order.
+    pub points: Vec<ScanPoint>,
+}
+
+impl PlanarScan {
+    /// Number of returns (points with `hit`).
+    pub fn hit_count(&self) -> usize {
+        self.points.iter().filter(|p| p.hit).count()
+    }
+}
+
+/// Precomputed per-beam directions for one beam geometry and mount: turns ranges into a
+/// body-frame [`PlanarScan`] without trigonometry.
+#[derive(Debug, Clone)]
+pub struct ScanProjector {
+    opts: ScanOptions,
+    sensor_range_max_m: f32,
+    /// LiDAR origin in the body frame.
+    origin_body: Vector3<f64>,
+    /// Unit beam directions in the body frame.
+    dirs_body: Vec<Vector3<f64>>,
+}
+
+impl ScanProjector {
+    /// A projector for `geometry` mounted at `body_from_lidar`.
+    pub fn new(
+        geometry: &LidarGeometry,
+        body_from_lidar: &Rigid3,
+        opts: &ScanOptions,
+    ) -> Result<Self, MapError> {
+        opts.validate().map_err(MapError::Options)?;
+        let dirs_body = (0..geometry.beam_count)
+            .map(|k| {
+                let (s, c) = geometry.beam_angle_rad(k).sin_cos();
+                body_from_lidar.rotation * Vector3::new(c, s, 0.0)
+            })
+            .collect();
+        Ok(ScanProjector {
+            opts: *opts,
+            sensor_range_max_m: geometry.range_max_m,
+            origin_body: body_from_lidar.translation,
+            dirs_body,
+        })
+    }
+
+    /// Replaces the mount (a LiDAR that moves on the body), keeping geometry and options.
+    pub fn set_mount(&mut self, geometry: &LidarGeometry, body_from_lidar: &Rigid3) {
+        self.origin_body = body_from_lidar.translation;
+        for (k, d) in self.dirs_body.iter_mut().enumerate() {
+            let (s, c) = geometry.beam_angle_rad(k).sin_cos();
+            *d = body_from_lidar.rotation * Vector3::new(c, s, 0.0);
+        }
+    }
+
+    /// Number of beams expected per scan.
+    pub fn beam_count(&self) -> usize {
+        self.dirs_body.len()
+    }
+
+    /// The options in use.
+    pub fn options(&self) -> &ScanOptions {
+        &self.opts
+    }
+
+    /// Preprocesses one scan into `out` (body frame, cleared first).
+    pub fn to_body(&self, ranges_m: &[f32], out: &mut PlanarScan) -> Result<(), MapError> {
+        if ranges_m.len() != self.dirs_body.len() {
+            return Err(MapError::BeamCount {
+                expected: self.dirs_body.len(),
+                got: ranges_m.len(),
+            });
+        }
+        let o = &self.opts;
+        out.sensor_x_m = self.origin_body.x;
+        out.sensor_y_m = self.origin_body.y;
+        out.points.clear();
+        for (&r, d) in ranges_m.iter().zip(&self.dirs_body) {
+            let no_return =
+                !r.is_finite() || r <= 0.0 || r >= self.sensor_range_max_m || r > o.range_max_m;
+            let (dist_m, hit) = if no_return {
+                match o.no_return {
+                    NoReturnPolicy::Skip => continue,
+                    NoReturnPolicy::ClearFree => (o.no_return_clear_m as f64, false),
+                }
+            } else if r < o.range_min_m {
+                continue;
+            } else {
+                (r as f64, true)
+            };
+            let p = self.origin_body + d * dist_m;
+            if o.z_min_m.is_some_and(|z| p.z < z) || o.z_max_m.is_some_and(|z| p.z > z) {
+                continue;
+            }
+            out.points.push(ScanPoint {
+                x_m: p.x,
+                y_m: p.y,
+                hit,
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Transforms a body-frame scan into the world frame with `world_from_body` (into `out`,
+/// cleared first). This is the per-particle step.
+#[inline]
+pub fn to_world(body: &PlanarScan, world_from_body: &Pose2, out: &mut PlanarScan) {
+    let (s, c) = world_from_body.yaw_rad.sin_cos();
+    let (tx, ty) = (world_from_body.x_m, world_from_body.y_m);
+    out.sensor_x_m = tx + c * body.sensor_x_m - s * body.sensor_y_m;
+    out.sensor_y_m = ty + s * body.sensor_x_m + c * body.sensor_y_m;
+    out.points.clear();
+    out.points.extend(body.points.iter().map(|p| ScanPoint {
+        x_m: tx + c * p.x_m - s * p.y_m,
+        y_m: ty + s * p.x_m + c * p.y_m,
+        hit: p.hit,
+    }));
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn geom4() -> LidarGeometry {
+        LidarGeometry {
+            angle_min_rad: 0.0,
+            angle_increment_rad: std::f64::consts::FRAC_PI_2,
+            beam_count: 4,
+            range_max_m: 80.0,
+        }
+    }
+
+    #[test]
+    fn window_and_no_return() {
+        let p = ScanProjector::new(&geom4(), &Rigid3::IDENTITY, &ScanOptions::default()).unwrap();
+        let mut out = PlanarScan::default();
+        p.to_body(&[10.0, 0.0, 1.0, 80.0], &mut out).unwrap();
+        assert_eq!(out.points.len(), 1);
+        assert!((out.points[0].x_m - 10.0).abs() < 1e-9 && out.points[0].hit);
+
+        let opts = ScanOptions {
+            no_return: NoReturnPolicy::ClearFree,
+            no_return_clear_m: 5.0,
+            ..ScanOptions::default()
+        };
+        let p = ScanProjector::new(&geom4(), &Rigid3::IDENTITY, &opts).unwrap();
+        p.to_body(&[10.0, 0.0, 1.0, 79.0], &mut out).unwrap();
+        // beam 1 (+y, no return) cleared to 5 m; beam 2 too close; beam 3 beyond 75 m
+        assert_eq!(out.points.len(), 3);
+        assert!((out.points[1].y_m - 5.0).abs() < 1e-9 && !out.points[1].hit);
+        assert!((out.points[2].y_m + 5.0).abs() < 1e-9 && !out.points[2].hit);
+        assert!(p.to_body(&[1.0], &mut out).is_err());
+    }
+
+    #[test]
+    fn mount_pose_and_z_window() {
+        // LiDAR 1 m forward, 2 m up, pitched down 30 deg: a 4 m beam ends 2 m below it.
+        let mount = Rigid3::from_rpy(0.0, 30f64.to_radians(), 0.0, [1.0, 0.0, 2.0]);
+        let opts = ScanOptions {
+            z_min_m: Some(0.2),
+            ..ScanOptions::default()
+        };
+        let p = ScanProjector::new(&geom4(), &mount, &opts).unwrap();
+        let mut body = PlanarScan::default();
+        p.to_body(&[4.0, 3.0, 0.0, 0.0], &mut body).unwrap();
+        // beam 0 hits the ground (z = 0) and is removed; beam 1 (+y) is level
+        assert_eq!(body.points.len(), 1);
+        assert!((body.points[0].x_m - 1.0).abs() < 1e-9);
+        assert!((body.points[0].y_m - 3.0).abs() < 1e-9);
+        let mut world = PlanarScan::default();
+        to_world(
+            &body,
+            &Pose2::new(10.0, 0.0, std::f64::consts::FRAC_PI_2),
+            &mut world,
+        );
+        assert!((world.sensor_x_m - 10.0).abs() < 1e-9 && (world.sensor_y_m - 1.0).abs() < 1e-9);
+        assert!((world.points[0].x_m - 7.0).abs() < 1e-9);
+        assert!((world.points[0].y_m - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn ucsd_mount_points_forward() {
+        // The car's LiDAR: beam at 90 deg (the middle of its 190 deg fan) looks ahead.
+        let cal = crate::sensors::CarCalibration::ucsd();
+        let p =
+            ScanProjector::new(&cal.lidar, &cal.body_from_lidar, &ScanOptions::default()).unwrap();
+        let mut ranges = vec![0.0f32; 286];
+        let mid = ((90.0 + 5.0) / 0.666f64).round() as usize;
+        ranges[mid] = 10.0;
+        let mut out = PlanarScan::default();
+        p.to_body(&ranges, &mut out).unwrap();
+        assert_eq!(out.points.len(), 1);
+        assert!(out.points[0].x_m > 8.0, "{:?}", out.points[0]);
+        assert!(out.points[0].y_m.abs() < 0.5);
+    }
+}
