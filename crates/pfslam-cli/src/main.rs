@@ -29,6 +29,8 @@ pub enum Command {
     DeadReckon(cmd::dead_reckon::Args),
     /// Simulate the car (or the humanoid) in a world: dataset + ground truth.
     Simulate(cmd::simulate::Args),
+    /// Colour the ground from the car's stereo pairs along a trajectory: texture.png/.npy.
+    Texture(cmd::texture::Args),
     /// Print the full default configuration as TOML.
     PrintConfig(cmd::print_config::Args),
 }
@@ -42,6 +44,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::DeadReckon(a)) => cmd::dead_reckon::run(a),
         Some(Command::PrintConfig(a)) => cmd::print_config::run(a),
         Some(Command::Simulate(a)) => cmd::simulate::run(a),
+        Some(Command::Texture(a)) => cmd::texture::run(a),
     }
 }
 

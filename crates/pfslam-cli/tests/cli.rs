@@ -22,3 +22,4 @@ fn unknown_subcommand_exits_2() {
 }
 
 mod cli_data;
+mod cli_texture;

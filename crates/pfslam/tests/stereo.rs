@@ -6,6 +6,7 @@
 use crate::common;
 use nalgebra::Vector3;
 use pfslam::geometry::{Pose2, Rigid3};
+use pfslam::map::{Cell, MapLimits};
 use pfslam::sensors::StereoCalibration;
 use pfslam::stereo::image::{self, BayerPattern, Demosaic, RgbImage};
 use pfslam::stereo::render::{ground_disparity, render_ground_pair};
@@ -407,20 +408,20 @@ fn rendered_ground_disparity_and_texture() {
     assert!(gross < 0.05, "gross {gross}");
 
     // Texture map against the true texture, per 10 cm cell, 6-15 m ahead, 3.5 m either side.
-    let mut map = TextureMap::new(0.1);
+    let mut map = TextureMap::new(MapLimits::new(0.1, 0.0, 0.0));
     let added = pipeline.accumulate(&world_from_body, &mut map);
     assert!(added > 10_000, "{added}");
     let (mut cells, mut observed, mut err_sum) = (0usize, 0usize, 0.0f64);
     let mut worst = 0.0f64;
     for ix in -200..400 {
         for iy in -300..300 {
-            let (cx, cy) = map.cell_centre(ix, iy);
+            let (cx, cy) = map.limits().cell_centre(Cell::new(ix, iy));
             let (bx, by) = layout_from_world.transform_point(cx, cy);
             if !(6.0..15.0).contains(&bx) || by.abs() > 3.5 {
                 continue;
             }
             cells += 1;
-            let Some(c) = map.cells.get(&(ix, iy)) else {
+            let Some(c) = map.get(Cell::new(ix, iy)) else {
                 continue;
             };
             observed += 1;
@@ -503,7 +504,7 @@ fn rgbd_frame_colours_the_ground() {
         }
     }
     let options = StereoOptions::default();
-    let mut map = TextureMap::new(0.1);
+    let mut map = TextureMap::new(MapLimits::new(0.1, 0.0, 0.0));
     let mut points = Vec::new();
     let added = accumulate_rgbd(
         &depth,
@@ -519,9 +520,8 @@ fn rgbd_frame_colours_the_ground() {
     // Every point lies on the ground and every cell has the colour of its side.
     assert!(points.iter().all(|p| p.p_m.z.abs() < 1e-6));
     let mut wrong = 0;
-    for (&(ix, iy), c) in &map.cells {
-        let (x, _) = map.cell_centre(ix, iy);
-        let _ = iy;
+    for (&cell, c) in &map.cells {
+        let (x, _) = map.limits().cell_centre(cell);
         if (x - 3.0).abs() < 0.1 {
             continue;
         }

@@ -4,3 +4,4 @@ pub mod dead_reckon;
 pub mod demo;
 pub mod print_config;
 pub mod simulate;
+pub mod texture;

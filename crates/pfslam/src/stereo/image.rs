@@ -153,6 +153,24 @@ pub fn encode_rgb_png(img: &RgbImage) -> Result<Vec<u8>, StereoError> {
     Ok(bytes)
 }
 
+/// Encodes a grey (or raw Bayer) image as an 8-bit single-channel PNG.
+pub fn encode_gray_png(img: &GrayImage) -> Result<Vec<u8>, StereoError> {
+    let mut bytes = Vec::new();
+    let enc = image::codecs::png::PngEncoder::new(&mut bytes);
+    image::ImageEncoder::write_image(
+        enc,
+        &img.data,
+        img.width as u32,
+        img.height as u32,
+        image::ExtendedColorType::L8,
+    )
+    .map_err(|e| StereoError::Image {
+        path: "<png>".into(),
+        message: e.to_string(),
+    })?;
+    Ok(bytes)
+}
+
 /// The colour filter layout, named by the top-left 2x2 block read row by row.
 ///
 /// The car's cameras are "Bayer BG": their frames start with a blue pixel, B G / G R, i.e.

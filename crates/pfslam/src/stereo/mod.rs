@@ -21,7 +21,7 @@ pub use disparity::{DisparityMap, DisparityWorkspace, INVALID_DISPARITY, Matcher
 pub use ground::{ColouredPoint, PlaneFit, RgbdCamera, fit_plane_ransac};
 pub use image::{BayerPattern, Demosaic, GrayImage, RgbImage};
 pub use rectify::{PinholeIntrinsics, RectifiedGeometry, StereoRectifier};
-pub use texture::{CellColour, CellWindow, TextureMap};
+pub use texture::{CellColour, TextureMap};
 
 use crate::geometry::{Pose2, Rigid3};
 use crate::sensors::StereoCalibration;
@@ -61,7 +61,8 @@ pub struct StereoOptions {
     pub demosaic: Demosaic,
     /// Block matcher.
     pub matcher: MatcherOptions,
-    /// Texture grid cell size (m); 0 takes the occupancy map's resolution.
+    /// Texture grid cell size (m); 0 takes the occupancy map's resolution (the grid's origin
+    /// is always the map's).
     pub cell_size_m: f64,
     /// Points below this world z (m) are not ground.
     pub ground_z_min_m: f64,
@@ -118,6 +119,18 @@ impl StereoOptions {
             return Err(StereoError::Options("pixel_stride must be >= 1".into()));
         }
         Ok(())
+    }
+}
+
+impl StereoOptions {
+    /// The texture grid: the map's origin, and `cell_size_m` or else the map's resolution.
+    pub fn texture_limits(&self, map: &crate::map::MapOptions) -> crate::map::MapLimits {
+        let res = if self.cell_size_m > 0.0 {
+            self.cell_size_m
+        } else {
+            map.resolution_m
+        };
+        crate::map::MapLimits::new(res, map.origin_x_m, map.origin_y_m)
     }
 }
 
