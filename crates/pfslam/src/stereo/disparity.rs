@@ -107,6 +107,8 @@ impl DisparityMap {
 
 #[derive(Debug, Clone, Default)]
 struct ChunkScratch {
+    /// Costs of the `2 r + 1` rows in the window, a ring indexed by row modulo its length.
+    ring: Vec<u8>,
     colsum: Vec<u16>,
     agg: Vec<u16>,
     right_best: Vec<u16>,
@@ -188,7 +190,10 @@ pub fn compute_disparity(
     census_into(right, &mut ws.census_right);
     let nd = opts.num_disparities;
     ws.chunks.resize_with(CHUNKS, ChunkScratch::default);
+    let ring_len = (2 * opts.window_radius + 1) * w * nd;
     for c in &mut ws.chunks {
+        c.ring.clear();
+        c.ring.resize(ring_len, 0);
         c.colsum.resize(w * nd, 0);
         c.agg.resize(w * nd, 0);
         c.right_best.resize(w, 0);
@@ -211,21 +216,20 @@ pub fn compute_disparity(
     Ok(())
 }
 
+/// Replaces the costs stored in `slot` by those of the row `(cl, cr)` and updates the column
+/// sums by the difference. Entries with `d > x` stay zero in every slot.
 #[inline]
-fn add_row(colsum: &mut [u16], cl: &[u64], cr: &[u64], nd: usize, add: bool) {
+fn replace_row(colsum: &mut [u16], slot: &mut [u8], cl: &[u64], cr: &[u64], nd: usize) {
     for (x, &l) in cl.iter().enumerate() {
         let dmax = x.min(nd - 1);
         let cs = &mut colsum[x * nd..x * nd + dmax + 1];
+        let sl = &mut slot[x * nd..x * nd + dmax + 1];
         let rs = &cr[x - dmax..=x];
-        // cs[d] pairs with cr[x - d] = rs[dmax - d].
-        if add {
-            for (c, r) in cs.iter_mut().zip(rs.iter().rev()) {
-                *c = c.wrapping_add((l ^ r).count_ones() as u16);
-            }
-        } else {
-            for (c, r) in cs.iter_mut().zip(rs.iter().rev()) {
-                *c = c.wrapping_sub((l ^ r).count_ones() as u16);
-            }
+        // Element d pairs with cr[x - d] = rs[dmax - d].
+        for ((c, s), r) in cs.iter_mut().zip(sl.iter_mut()).zip(rs.iter().rev()) {
+            let new = (l ^ r).count_ones() as u8;
+            *c = c.wrapping_add(new as u16).wrapping_sub(*s as u16);
+            *s = new;
         }
     }
 }
@@ -245,35 +249,32 @@ fn match_rows(
     let nd = opts.num_disparities;
     let r = opts.window_radius;
     let row_at = |y: isize| -> usize { y.clamp(0, h as isize - 1) as usize };
+    let slot_len = w * nd;
+    let ring_rows = 2 * r + 1;
     s.colsum.fill(0);
-    for k in -(r as isize)..=(r as isize) {
-        let yy = row_at(y0 as isize + k);
-        add_row(
+    s.ring.fill(0);
+    for k in 0..ring_rows {
+        let yy = row_at(y0 as isize - r as isize + k as isize);
+        replace_row(
             &mut s.colsum,
+            &mut s.ring[k * slot_len..(k + 1) * slot_len],
             &cl[yy * w..(yy + 1) * w],
             &cr[yy * w..(yy + 1) * w],
             nd,
-            true,
         );
     }
     let uniq = 1.0 + opts.uniqueness_ratio;
     for y in y0..y1 {
         if y > y0 {
+            // The oldest row (y - r - 1) sits in slot (y - y0 - 1) mod (2 r + 1).
+            let k = (y - y0 - 1) % ring_rows;
             let ya = row_at(y as isize + r as isize);
-            let ys = row_at(y as isize - r as isize - 1);
-            add_row(
+            replace_row(
                 &mut s.colsum,
+                &mut s.ring[k * slot_len..(k + 1) * slot_len],
                 &cl[ya * w..(ya + 1) * w],
                 &cr[ya * w..(ya + 1) * w],
                 nd,
-                true,
-            );
-            add_row(
-                &mut s.colsum,
-                &cl[ys * w..(ys + 1) * w],
-                &cr[ys * w..(ys + 1) * w],
-                nd,
-                false,
             );
         }
         // Horizontal box sums for x in r .. w - r.
@@ -411,5 +412,44 @@ mod tests {
             }
         }
         assert!(checked > 1000);
+    }
+
+    #[test]
+    fn result_does_not_depend_on_threads() {
+        let (l, r) = shifted_pair(300, 90, |y| 3 + y / 10);
+        let opts = MatcherOptions {
+            num_disparities: 24,
+            ..MatcherOptions::default()
+        };
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                let mut ws = DisparityWorkspace::new();
+                let mut out = DisparityMap::default();
+                compute_disparity(&l, &r, &opts, &mut ws, &mut out).unwrap();
+                out
+            })
+        };
+        let one = run(1);
+        assert!(one.valid_fraction() > 0.5);
+        assert_eq!(one, run(3));
+    }
+
+    #[test]
+    fn rejects_bad_options_and_sizes() {
+        let (l, r) = shifted_pair(64, 16, |_| 2);
+        let mut ws = DisparityWorkspace::new();
+        let mut out = DisparityMap::default();
+        let bad = MatcherOptions {
+            window_radius: 0,
+            ..MatcherOptions::default()
+        };
+        assert!(compute_disparity(&l, &r, &bad, &mut ws, &mut out).is_err());
+        let small = GrayImage::new(32, 16);
+        let opts = MatcherOptions::default();
+        assert!(compute_disparity(&l, &small, &opts, &mut ws, &mut out).is_err());
     }
 }
