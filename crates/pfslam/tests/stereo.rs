@@ -537,3 +537,88 @@ fn rgbd_frame_colours_the_ground() {
     assert_eq!(wrong, 0);
     assert!(map.cells.len() > 200, "{}", map.cells.len());
 }
+
+#[test]
+fn rectification_tables_invert_the_projection() {
+    use pfslam::stereo::rectify::DistortedCamera;
+    let calib = StereoCalibration::ucsd();
+    let rect = pfslam::stereo::StereoRectifier::new(&calib).unwrap();
+    let k = rect.geometry.intrinsics;
+    // The baseline implied by P_right agrees with stereo_param.txt.
+    let p = &calib.right.projection;
+    assert!((-p[3] / p[0] - calib.baseline_m).abs() < 1e-4);
+    for (info, table) in [(&calib.left, &rect.left), (&calib.right, &rect.right)] {
+        let cam = DistortedCamera::from_info(info).unwrap();
+        let r = nalgebra::Matrix3::from_row_slice(&info.rectification);
+        let mut worst = 0.0f64;
+        for v in (40..520).step_by(37) {
+            for u in (60..1220).step_by(53) {
+                let i = v * k.width + u;
+                let (su, sv) = (table.map_x[i] as f64, table.map_y[i] as f64);
+                assert!(su.is_finite() && sv.is_finite(), "({u},{v}) outside");
+                // Raw pixel -> undistorted ray -> rectified frame -> P: back to (u, v).
+                let ray = r * cam.unproject(su, sv);
+                let (pu, pv) = k.project(&ray).unwrap();
+                worst = worst.max((pu - u as f64).abs().max((pv - v as f64).abs()));
+            }
+        }
+        // f32 tables: a few thousandths of a pixel.
+        assert!(worst < 5e-3, "round trip error {worst} px");
+    }
+}
+
+#[test]
+fn plane_fit_rejects_outliers() {
+    // z = 0.02 x - 0.01 y + 0.5 with 1 cm noise, plus 30 % outliers.
+    let mut pts = Vec::new();
+    for i in 0..2000 {
+        let x = hash01(i, 0, 21) * 10.0;
+        let y = hash01(i, 1, 21) * 6.0 - 3.0;
+        let z = if i % 10 < 3 {
+            hash01(i, 2, 21) * 3.0 - 1.0
+        } else {
+            0.02 * x - 0.01 * y + 0.5 + (hash01(i, 3, 21) - 0.5) * 0.02
+        };
+        pts.push(Vector3::new(x, y, z));
+    }
+    let fit = fit_plane_ransac(&pts, 0.03, 300, 3).unwrap();
+    assert!((fit.z_at(0.0, 0.0) - 0.5).abs() < 0.01, "{fit:?}");
+    assert!((fit.z_at(10.0, 0.0) - 0.7).abs() < 0.01, "{fit:?}");
+    assert!(fit.inliers >= 1400 && fit.inliers < 1500, "{}", fit.inliers);
+    assert!(fit.rms_m < 0.01);
+    assert!((fit.tilt_rad() - (0.02f64.hypot(0.01)).atan()).abs() < 0.003);
+}
+
+#[test]
+fn texture_map_running_mean_and_raster_orientation() {
+    use pfslam::stereo::ColouredPoint;
+    let mut map = TextureMap::new(MapLimits::new(0.5, -1.0, -1.0));
+    let pt = |x: f64, y: f64, z: f64, rgb: [u8; 3]| ColouredPoint {
+        p_m: Vector3::new(x, y, z),
+        rgb,
+    };
+    let kept = map.add_ground_points(
+        &[
+            pt(0.1, 0.1, 0.0, [10, 20, 30]),
+            pt(0.2, 0.3, 0.05, [30, 40, 50]),
+            pt(0.2, 0.3, 2.0, [255, 255, 255]), // above the ground window
+            pt(-0.9, 1.4, 0.0, [200, 0, 0]),
+        ],
+        -0.3,
+        0.3,
+    );
+    assert_eq!(kept, 3);
+    let c = map.get(map.limits().cell_of(0.1, 0.1)).unwrap();
+    assert_eq!((c.count, c.rgb8()), (2, [20, 30, 40]));
+    let rect = map.bounds().unwrap();
+    // Cells (2, 2) and (0, 4): 3 columns, 3 rows.
+    assert_eq!((rect.width(), rect.height()), (3, 3));
+    let (rgb, count) = map.rasterize(&rect);
+    // Row 0 is the top (largest y): the red cell at x -0.9, y 1.4 is at column 0 of row 0.
+    assert_eq!(&rgb[0..3], &[200.0, 0.0, 0.0]);
+    assert_eq!(count[0], 1.0);
+    // The grey cell (x 0.1, y 0.1) is column 2 of the bottom row; empty cells are NaN.
+    assert_eq!(count[2 * 3 + 2], 2.0);
+    assert_eq!(&rgb[3 * 8..3 * 8 + 3], &[20.0, 30.0, 40.0]);
+    assert!(rgb[3].is_nan());
+}

@@ -135,40 +135,41 @@ pub fn load_rgb_png(path: &Path) -> Result<RgbImage, StereoError> {
     })
 }
 
-/// Encodes an RGB image as PNG bytes.
-pub fn encode_rgb_png(img: &RgbImage) -> Result<Vec<u8>, StereoError> {
+fn encode_png(
+    data: &[u8],
+    width: usize,
+    height: usize,
+    colour: image::ExtendedColorType,
+) -> Result<Vec<u8>, StereoError> {
     let mut bytes = Vec::new();
     let enc = image::codecs::png::PngEncoder::new(&mut bytes);
-    image::ImageEncoder::write_image(
-        enc,
+    image::ImageEncoder::write_image(enc, data, width as u32, height as u32, colour).map_err(
+        |e| StereoError::Image {
+            path: "<png>".into(),
+            message: e.to_string(),
+        },
+    )?;
+    Ok(bytes)
+}
+
+/// Encodes an RGB image as PNG bytes.
+pub fn encode_rgb_png(img: &RgbImage) -> Result<Vec<u8>, StereoError> {
+    encode_png(
         &img.data,
-        img.width as u32,
-        img.height as u32,
+        img.width,
+        img.height,
         image::ExtendedColorType::Rgb8,
     )
-    .map_err(|e| StereoError::Image {
-        path: "<png>".into(),
-        message: e.to_string(),
-    })?;
-    Ok(bytes)
 }
 
 /// Encodes a grey (or raw Bayer) image as an 8-bit single-channel PNG.
 pub fn encode_gray_png(img: &GrayImage) -> Result<Vec<u8>, StereoError> {
-    let mut bytes = Vec::new();
-    let enc = image::codecs::png::PngEncoder::new(&mut bytes);
-    image::ImageEncoder::write_image(
-        enc,
+    encode_png(
         &img.data,
-        img.width as u32,
-        img.height as u32,
+        img.width,
+        img.height,
         image::ExtendedColorType::L8,
     )
-    .map_err(|e| StereoError::Image {
-        path: "<png>".into(),
-        message: e.to_string(),
-    })?;
-    Ok(bytes)
 }
 
 /// The colour filter layout, named by the top-left 2x2 block read row by row.
