@@ -9,36 +9,13 @@ use pfslam::geometry::{Pose2, Rigid3};
 use pfslam::map::{Cell, MapLimits};
 use pfslam::sensors::StereoCalibration;
 use pfslam::stereo::image::{self, BayerPattern, Demosaic, RgbImage};
-use pfslam::stereo::render::{ground_disparity, render_ground_pair};
+use pfslam::stereo::render::{
+    WorldScene, ground_disparity, hash01, render_ground_pair, value_noise,
+};
 use pfslam::stereo::{
     PinholeIntrinsics, RgbdCamera, StereoOptions, StereoPipeline, TextureMap, accumulate_rgbd,
     fit_plane_ransac,
 };
-
-/// Deterministic lattice hash in [0, 1).
-fn hash01(ix: i64, iy: i64, seed: u64) -> f64 {
-    let mut h = (ix as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-        ^ (iy as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
-        ^ seed.wrapping_mul(0x1656_67B1_9E37_79F9);
-    h ^= h >> 33;
-    h = h.wrapping_mul(0xFF51_AFD7_ED55_8CCD);
-    h ^= h >> 33;
-    (h >> 11) as f64 / (1u64 << 53) as f64
-}
-
-/// Bilinear value noise of lattice step `step_m`, in [0, 1).
-fn value_noise(x: f64, y: f64, step_m: f64, seed: u64) -> f64 {
-    let (gx, gy) = (x / step_m, y / step_m);
-    let (ix, iy) = (gx.floor() as i64, gy.floor() as i64);
-    let (fx, fy) = (gx - ix as f64, gy - iy as f64);
-    let a = hash01(ix, iy, seed);
-    let b = hash01(ix + 1, iy, seed);
-    let c = hash01(ix, iy + 1, seed);
-    let d = hash01(ix + 1, iy + 1, seed);
-    let top = a + fx * (b - a);
-    let bottom = c + fx * (d - c);
-    top + fy * (bottom - top)
-}
 
 /// The synthetic ground: asphalt-like noise, three coloured areas and dashed lane markings,
 /// laid out in the frame of `layout_from_world` (the test's body pose) so they are in view.
@@ -621,4 +598,108 @@ fn texture_map_running_mean_and_raster_orientation() {
     assert_eq!(count[2 * 3 + 2], 2.0);
     assert_eq!(&rgb[3 * 8..3 * 8 + 3], &[20.0, 30.0, 40.0]);
     assert!(rgb[3].is_nan());
+}
+
+#[test]
+fn simulator_world_pair_disparity_and_texture() {
+    use pfslam::sim::world::World;
+    let world = World::builtin("campus").unwrap();
+    let scene = WorldScene::new(&world, 200.0);
+    let calib = StereoCalibration::ucsd();
+    // On the route, heading for the next waypoint.
+    let (a, b) = (world.route[0], world.route[1]);
+    let world_from_body = Pose2::new(a[0], a[1], (b[1] - a[1]).atan2(b[0] - a[0]));
+    let (left, right) = scene
+        .render_pair(&calib, &world_from_body, 2, BayerPattern::UCSD)
+        .unwrap();
+    let options = StereoOptions::default();
+    let mut pipeline = StereoPipeline::new(&calib, &options).unwrap();
+    pipeline.process_raw_pair(&left, &right).unwrap();
+    let truth = scene.true_disparity(pipeline.geometry(), &world_from_body);
+    let disparity = pipeline.disparity();
+    let max_d = (options.matcher.num_disparities - 1) as f32;
+    let (mut errors, mut candidates) = (Vec::new(), 0usize);
+    for (i, &t) in truth.iter().enumerate() {
+        let (u, v) = (i % disparity.width, i / disparity.width);
+        if !(t >= 20.0 && t <= max_d - 1.0)
+            || u < 20
+            || u + 20 > disparity.width
+            || v + 12 > disparity.height
+        {
+            continue;
+        }
+        candidates += 1;
+        if disparity.data[i] >= 0.0 {
+            errors.push((disparity.data[i] - t).abs() as f64);
+        }
+    }
+    errors.sort_by(f64::total_cmp);
+    let valid = errors.len() as f64 / candidates as f64;
+    let (median, p90) = (percentile(&errors, 0.5), percentile(&errors, 0.9));
+    let gross = errors.iter().filter(|e| **e > 2.0).count() as f64 / errors.len() as f64;
+    eprintln!(
+        "campus world pair: {candidates} pixels (ground and facades), valid {:.1} %, |error| median \
+         {median:.3} px, p90 {p90:.3} px, > 2 px {:.2} %",
+        100.0 * valid,
+        100.0 * gross
+    );
+    assert!(valid > 0.6, "valid {valid}");
+    assert!(median < 0.3, "median {median}");
+    assert!(p90 < 0.8, "p90 {p90}");
+    assert!(gross < 0.05, "gross {gross}");
+
+    // Texture map (10 cm) against the world's true ground colours, 6-15 m ahead, 3.5 m either
+    // side, over the cells the left camera actually sees.
+    let limits = MapLimits::new(0.1, 0.0, 0.0);
+    let mut map = TextureMap::new(limits);
+    pipeline.accumulate(&world_from_body, &mut map);
+    let camera = Rigid3::from_pose2(&world_from_body)
+        .compose(&calib.body_from_camera)
+        .translation;
+    let body_from_world = world_from_body.inverse();
+    let (mut cells, mut observed, mut err_sum) = (0usize, 0usize, 0.0f64);
+    let here = limits.cell_of(world_from_body.x_m, world_from_body.y_m);
+    for di in -200..200 {
+        for dj in -200..200 {
+            let cell = Cell::new(here.i + di, here.j + dj);
+            let (cx, cy) = limits.cell_centre(cell);
+            let (bx, by) = body_from_world.transform_point(cx, cy);
+            if !(6.0..15.0).contains(&bx) || by.abs() > 3.5 {
+                continue;
+            }
+            let target = Vector3::new(cx, cy, 0.0);
+            let dist = (target - camera).norm();
+            let seen = scene
+                .range(&camera, &((target - camera) / dist))
+                .is_some_and(|r| (r - dist).abs() < 0.05);
+            if !seen {
+                continue;
+            }
+            cells += 1;
+            let Some(c) = map.get(cell) else { continue };
+            observed += 1;
+            let mut t = [0.0; 3];
+            for j in 0..6 {
+                for i in 0..6 {
+                    let (x0, y0) = limits.cell_corner(cell);
+                    let s = scene
+                        .ground_rgb(x0 + (i as f64 + 0.5) / 60.0, y0 + (j as f64 + 0.5) / 60.0);
+                    for k in 0..3 {
+                        t[k] += s[k] / 36.0;
+                    }
+                }
+            }
+            err_sum += (0..3).map(|k| (c.mean[k] - t[k]).abs()).sum::<f64>() / 3.0;
+        }
+    }
+    let coverage = observed as f64 / cells as f64;
+    let mean_error = err_sum / observed as f64;
+    eprintln!(
+        "campus texture map: {cells} visible ground cells in the region, coverage {:.1} %, mean \
+         |colour error| {mean_error:.2} (0-255 scale)",
+        100.0 * coverage
+    );
+    assert!(cells > 3000, "{cells}");
+    assert!(coverage > 0.9, "coverage {coverage}");
+    assert!(mean_error < 10.0, "mean colour error {mean_error}");
 }
