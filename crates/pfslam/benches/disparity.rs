@@ -55,6 +55,17 @@ fn bench(c: &mut Criterion) {
             .expect("match")
         })
     });
+    let sgm = pfslam::stereo::MatcherOptions {
+        window_radius: 2,
+        aggregation: pfslam::stereo::disparity::Aggregation::Sgm,
+        ..options.matcher.clone()
+    };
+    group.bench_function("census_sgm5_128", |b| {
+        b.iter(|| {
+            compute_disparity(black_box(&left), black_box(&right), &sgm, &mut ws, &mut out)
+                .expect("match")
+        })
+    });
     group.bench_function("raw_pair_demosaic_rectify_match", |b| {
         b.iter(|| {
             pipeline

@@ -8,13 +8,14 @@ use nalgebra::Vector3;
 use pfslam::geometry::{Pose2, Rigid3};
 use pfslam::map::{Cell, MapLimits};
 use pfslam::sensors::StereoCalibration;
+use pfslam::stereo::disparity::Aggregation;
 use pfslam::stereo::image::{self, BayerPattern, Demosaic, RgbImage};
 use pfslam::stereo::render::{
     WorldScene, ground_disparity, hash01, render_ground_pair, value_noise,
 };
 use pfslam::stereo::{
-    PinholeIntrinsics, RgbdCamera, StereoOptions, StereoPipeline, TextureMap, accumulate_rgbd,
-    fit_plane_ransac,
+    MatcherOptions, PinholeIntrinsics, RgbdCamera, StereoOptions, StereoPipeline, TextureMap,
+    accumulate_rgbd, fit_plane_ransac,
 };
 
 /// The synthetic ground: asphalt-like noise, three coloured areas and dashed lane markings,
@@ -316,119 +317,133 @@ fn rendered_ground_disparity_and_texture() {
         BayerPattern::UCSD,
     )
     .unwrap();
-    let options = StereoOptions::default();
-    let mut pipeline = StereoPipeline::new(&calib, &options).unwrap();
-    pipeline.process_raw_pair(&left, &right).unwrap();
+    // Block matching (the default) and semi-global matching, measured on the same pair.
+    let sgm = StereoOptions {
+        matcher: MatcherOptions {
+            window_radius: 2,
+            aggregation: Aggregation::Sgm,
+            ..MatcherOptions::default()
+        },
+        ..StereoOptions::default()
+    };
+    for options in [StereoOptions::default(), sgm] {
+        let name = format!(
+            "{:?} r={}",
+            options.matcher.aggregation, options.matcher.window_radius
+        );
+        let mut pipeline = StereoPipeline::new(&calib, &options).unwrap();
+        pipeline.process_raw_pair(&left, &right).unwrap();
 
-    // Disparity against the exact one, where the ground is within the search range.
-    let truth = ground_disparity(pipeline.geometry(), &world_from_body);
-    let disparity = pipeline.disparity();
-    if let Some(dir) = std::env::var_os("PFSLAM_STEREO_DEBUG") {
-        let dir = std::path::PathBuf::from(dir);
-        let l = pipeline.rectified_left();
-        let r = pipeline.rectified_right();
-        std::fs::write(dir.join("syn_left.png"), image::encode_rgb_png(l).unwrap()).unwrap();
-        std::fs::write(dir.join("syn_right.png"), image::encode_rgb_png(r).unwrap()).unwrap();
-        let mut vis = RgbImage::new(l.width, l.height);
-        for i in 0..truth.len() {
-            let d = disparity.data[i];
-            vis.data[3 * i] = if d >= 0.0 {
-                (2.0 * d).min(255.0) as u8
-            } else {
-                0
-            };
-            vis.data[3 * i + 1] = if truth[i].is_finite() {
-                (2.0 * truth[i]).min(255.0) as u8
-            } else {
-                0
-            };
+        // Disparity against the exact one, where the ground is within the search range.
+        let truth = ground_disparity(pipeline.geometry(), &world_from_body);
+        let disparity = pipeline.disparity();
+        if let Some(dir) = std::env::var_os("PFSLAM_STEREO_DEBUG") {
+            let dir = std::path::PathBuf::from(dir);
+            let l = pipeline.rectified_left();
+            let r = pipeline.rectified_right();
+            std::fs::write(dir.join("syn_left.png"), image::encode_rgb_png(l).unwrap()).unwrap();
+            std::fs::write(dir.join("syn_right.png"), image::encode_rgb_png(r).unwrap()).unwrap();
+            let mut vis = RgbImage::new(l.width, l.height);
+            for i in 0..truth.len() {
+                let d = disparity.data[i];
+                vis.data[3 * i] = if d >= 0.0 {
+                    (2.0 * d).min(255.0) as u8
+                } else {
+                    0
+                };
+                vis.data[3 * i + 1] = if truth[i].is_finite() {
+                    (2.0 * truth[i]).min(255.0) as u8
+                } else {
+                    0
+                };
+            }
+            std::fs::write(
+                dir.join("syn_disp.png"),
+                image::encode_rgb_png(&vis).unwrap(),
+            )
+            .unwrap();
         }
-        std::fs::write(
-            dir.join("syn_disp.png"),
-            image::encode_rgb_png(&vis).unwrap(),
-        )
-        .unwrap();
-    }
-    let max_d = (options.matcher.num_disparities - 1) as f32;
-    let mut errors = Vec::new();
-    let mut candidates = 0usize;
-    for (i, &t) in truth.iter().enumerate() {
-        // Depth up to ~18 m, away from the image border.
-        let (u, v) = (i % disparity.width, i / disparity.width);
-        if !(t >= 20.0 && t <= max_d - 1.0)
-            || u < 20
-            || u + 20 > disparity.width
-            || v + 12 > disparity.height
-        {
-            continue;
-        }
-        candidates += 1;
-        let d = disparity.data[i];
-        if d >= 0.0 {
-            errors.push((d - t).abs() as f64);
-        }
-    }
-    errors.sort_by(f64::total_cmp);
-    let valid = errors.len() as f64 / candidates as f64;
-    let median = percentile(&errors, 0.5);
-    let p90 = percentile(&errors, 0.9);
-    let gross = errors.iter().filter(|e| **e > 2.0).count() as f64 / errors.len() as f64;
-    eprintln!(
-        "rendered ground: {candidates} pixels, valid {:.1} %, |error| median {median:.3} px, \
-         p90 {p90:.3} px, > 2 px {:.2} %",
-        100.0 * valid,
-        100.0 * gross
-    );
-    assert!(valid > 0.6, "valid {valid}");
-    assert!(median < 0.3, "median {median}");
-    assert!(p90 < 0.8, "p90 {p90}");
-    assert!(gross < 0.05, "gross {gross}");
-
-    // Texture map against the true texture, per 10 cm cell, 6-15 m ahead, 3.5 m either side.
-    let mut map = TextureMap::new(MapLimits::new(0.1, 0.0, 0.0));
-    let added = pipeline.accumulate(&world_from_body, &mut map);
-    assert!(added > 10_000, "{added}");
-    let (mut cells, mut observed, mut err_sum) = (0usize, 0usize, 0.0f64);
-    let mut worst = 0.0f64;
-    for ix in -200..400 {
-        for iy in -300..300 {
-            let (cx, cy) = map.limits().cell_centre(Cell::new(ix, iy));
-            let (bx, by) = layout_from_world.transform_point(cx, cy);
-            if !(6.0..15.0).contains(&bx) || by.abs() > 3.5 {
+        let max_d = (options.matcher.num_disparities - 1) as f32;
+        let mut errors = Vec::new();
+        let mut candidates = 0usize;
+        for (i, &t) in truth.iter().enumerate() {
+            // Depth up to ~18 m, away from the image border.
+            let (u, v) = (i % disparity.width, i / disparity.width);
+            if !(t >= 20.0 && t <= max_d - 1.0)
+                || u < 20
+                || u + 20 > disparity.width
+                || v + 12 > disparity.height
+            {
                 continue;
             }
-            cells += 1;
-            let Some(c) = map.get(Cell::new(ix, iy)) else {
-                continue;
-            };
-            observed += 1;
-            // The cell's true mean colour (6x6 samples).
-            let mut t = [0.0; 3];
-            for j in 0..6 {
-                for i in 0..6 {
-                    let s = tex(
-                        (ix as f64 + (i as f64 + 0.5) / 6.0) * 0.1,
-                        (iy as f64 + (j as f64 + 0.5) / 6.0) * 0.1,
-                    );
-                    for k in 0..3 {
-                        t[k] += s[k] / 36.0;
+            candidates += 1;
+            let d = disparity.data[i];
+            if d >= 0.0 {
+                errors.push((d - t).abs() as f64);
+            }
+        }
+        errors.sort_by(f64::total_cmp);
+        let valid = errors.len() as f64 / candidates as f64;
+        let median = percentile(&errors, 0.5);
+        let p90 = percentile(&errors, 0.9);
+        let gross = errors.iter().filter(|e| **e > 2.0).count() as f64 / errors.len() as f64;
+        eprintln!(
+            "rendered ground ({name}): {candidates} pixels, valid {:.1} %, |error| median {median:.3} px, \
+             p90 {p90:.3} px, > 2 px {:.2} %",
+            100.0 * valid,
+            100.0 * gross
+        );
+        assert!(valid > 0.6, "valid {valid}");
+        assert!(median < 0.3, "median {median}");
+        assert!(p90 < 0.8, "p90 {p90}");
+        assert!(gross < 0.05, "gross {gross}");
+
+        // Texture map against the true texture, per 10 cm cell, 6-15 m ahead, 3.5 m either side.
+        let mut map = TextureMap::new(MapLimits::new(0.1, 0.0, 0.0));
+        let added = pipeline.accumulate(&world_from_body, &mut map);
+        assert!(added > 10_000, "{added}");
+        let (mut cells, mut observed, mut err_sum) = (0usize, 0usize, 0.0f64);
+        let mut worst = 0.0f64;
+        for ix in -200..400 {
+            for iy in -300..300 {
+                let (cx, cy) = map.limits().cell_centre(Cell::new(ix, iy));
+                let (bx, by) = layout_from_world.transform_point(cx, cy);
+                if !(6.0..15.0).contains(&bx) || by.abs() > 3.5 {
+                    continue;
+                }
+                cells += 1;
+                let Some(c) = map.get(Cell::new(ix, iy)) else {
+                    continue;
+                };
+                observed += 1;
+                // The cell's true mean colour (6x6 samples).
+                let mut t = [0.0; 3];
+                for j in 0..6 {
+                    for i in 0..6 {
+                        let s = tex(
+                            (ix as f64 + (i as f64 + 0.5) / 6.0) * 0.1,
+                            (iy as f64 + (j as f64 + 0.5) / 6.0) * 0.1,
+                        );
+                        for k in 0..3 {
+                            t[k] += s[k] / 36.0;
+                        }
                     }
                 }
+                let e = (0..3).map(|k| (c.mean[k] - t[k]).abs()).sum::<f64>() / 3.0;
+                worst = worst.max(e);
+                err_sum += e;
             }
-            let e = (0..3).map(|k| (c.mean[k] - t[k]).abs()).sum::<f64>() / 3.0;
-            worst = worst.max(e);
-            err_sum += e;
         }
+        let coverage = observed as f64 / cells as f64;
+        let mean_error = err_sum / observed as f64;
+        eprintln!(
+            "texture map ({name}): {cells} cells in the region, coverage {:.1} %, mean |colour error| {mean_error:.2} \
+             (0-255 scale), worst cell {worst:.1}",
+            100.0 * coverage
+        );
+        assert!(coverage > 0.9, "coverage {coverage}");
+        assert!(mean_error < 10.0, "mean colour error {mean_error}");
     }
-    let coverage = observed as f64 / cells as f64;
-    let mean_error = err_sum / observed as f64;
-    eprintln!(
-        "texture map: {cells} cells in the region, coverage {:.1} %, mean |colour error| {mean_error:.2} \
-         (0-255 scale), worst cell {worst:.1}",
-        100.0 * coverage
-    );
-    assert!(coverage > 0.9, "coverage {coverage}");
-    assert!(mean_error < 10.0, "mean colour error {mean_error}");
 }
 
 #[test]

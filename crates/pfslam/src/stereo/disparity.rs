@@ -33,6 +33,25 @@ pub struct MatcherOptions {
     pub uniqueness_ratio: f32,
     /// Largest allowed difference (px) between the left and the right disparity of a match.
     pub lr_max_diff_px: u16,
+    /// Cost aggregation: the window alone, or semi-global matching over the window's costs.
+    pub aggregation: Aggregation,
+    /// SGM penalty for a 1 px disparity change between neighbours, in cost units of the
+    /// window (the defaults were tuned with `window_radius = 2`).
+    pub sgm_p1: u16,
+    /// SGM penalty for a larger disparity change.
+    pub sgm_p2: u16,
+}
+
+/// How matching costs are aggregated.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Aggregation {
+    /// Sum over the square window (block matching); rows in parallel.
+    Block,
+    /// Semi-global matching (Hirschmüller 2008) on the window's costs along the five paths
+    /// that come from above or the sides (left, right, top, top-left, top-right), in one
+    /// top-to-bottom pass; sequential over rows.
+    Sgm,
 }
 
 impl Default for MatcherOptions {
@@ -42,6 +61,9 @@ impl Default for MatcherOptions {
             window_radius: 5,
             uniqueness_ratio: 0.05,
             lr_max_diff_px: 1,
+            aggregation: Aggregation::Block,
+            sgm_p1: 30,
+            sgm_p2: 400,
         }
     }
 }
@@ -65,6 +87,16 @@ impl MatcherOptions {
             return Err(StereoError::Options(format!(
                 "uniqueness_ratio must be in [0, 1), got {}",
                 self.uniqueness_ratio
+            )));
+        }
+        let max_cost = 48 * (2 * self.window_radius + 1).pow(2);
+        if self.aggregation == Aggregation::Sgm
+            && (self.sgm_p1 == 0
+                || self.sgm_p2 < self.sgm_p1
+                || 5 * (max_cost + self.sgm_p2 as usize) > u16::MAX as usize)
+        {
+            return Err(StereoError::Options(format!(
+                "SGM needs 0 < sgm_p1 <= sgm_p2 and 5 (window cost {max_cost} + sgm_p2) < 65536"
             )));
         }
         if width < 2 * self.window_radius + 2 {
@@ -112,6 +144,19 @@ struct ChunkScratch {
     colsum: Vec<u16>,
     agg: Vec<u16>,
     right_best: Vec<u16>,
+    sgm: SgmScratch,
+}
+
+/// Path costs of SGM: the previous and current rows of the three downward paths, the
+/// horizontal paths of the current row, and the sum.
+#[derive(Debug, Clone, Default)]
+struct SgmScratch {
+    prev: [Vec<u16>; 3],
+    prev_min: [Vec<u16>; 3],
+    cur: [Vec<u16>; 3],
+    cur_min: [Vec<u16>; 3],
+    horiz: Vec<u16>,
+    sum: Vec<u16>,
 }
 
 /// Caller-owned buffers of the matcher; reuse across pairs of the same size.
@@ -202,7 +247,28 @@ pub fn compute_disparity(
     out.height = h;
     out.data.clear();
     out.data.resize(w * h, INVALID_DISPARITY);
-    let rows_per_chunk = h.div_ceil(CHUNKS);
+    // SGM's downward paths make rows depend on the rows above: one sequential chunk.
+    let rows_per_chunk = match opts.aggregation {
+        Aggregation::Block => h.div_ceil(CHUNKS),
+        Aggregation::Sgm => h,
+    };
+    if opts.aggregation == Aggregation::Sgm {
+        let g = &mut ws.chunks[0].sgm;
+        for k in 0..3 {
+            for v in [&mut g.prev[k], &mut g.cur[k]] {
+                v.clear();
+                v.resize(w * nd, 0);
+            }
+            for v in [&mut g.prev_min[k], &mut g.cur_min[k]] {
+                v.clear();
+                v.resize(w, 0);
+            }
+        }
+        g.horiz.clear();
+        g.horiz.resize(w * nd, 0);
+        g.sum.clear();
+        g.sum.resize(w * nd, 0);
+    }
     let (cl, cr) = (&ws.census_left, &ws.census_right);
     out.data
         .par_chunks_mut(rows_per_chunk * w)
@@ -263,7 +329,6 @@ fn match_rows(
             nd,
         );
     }
-    let uniq = 1.0 + opts.uniqueness_ratio;
     for y in y0..y1 {
         if y > y0 {
             // The oldest row (y - r - 1) sits in slot (y - y0 - 1) mod (2 r + 1).
@@ -296,62 +361,188 @@ fn match_rows(
                 }
             }
         }
-        // Best disparity of each right pixel (for the left-right check).
-        for xr in 0..w {
-            s.right_best[xr] = u16::MAX;
-            if xr < r || xr + r >= w {
-                continue;
-            }
-            let mut best = u16::MAX;
-            let mut best_d = u16::MAX;
-            for d in 0..nd.min(w - r - xr) {
-                let c = s.agg[(xr + d) * nd + d];
-                if c < best {
-                    best = c;
-                    best_d = d as u16;
-                }
-            }
-            s.right_best[xr] = best_d;
-        }
         let out = &mut out_rows[(y - y0) * w..(y - y0 + 1) * w];
-        for (x, out_x) in out.iter_mut().enumerate().take(w - r).skip(r) {
+        match opts.aggregation {
+            Aggregation::Block => select_row(&s.agg, &mut s.right_best, w, opts, out),
+            Aggregation::Sgm => {
+                sgm_row(&s.agg, &mut s.sgm, w, y == y0, opts);
+                select_row(&s.sgm.sum, &mut s.right_best, w, opts, out);
+            }
+        }
+    }
+}
+
+/// Cost of a disparity the window cannot evaluate (the largest census cost of the window).
+#[inline]
+fn invalid_cost(r: usize) -> u16 {
+    (48 * (2 * r + 1) * (2 * r + 1)) as u16
+}
+
+/// One SGM step along a path: `out[d] = c[d] + min(prev[d], prev[d +- 1] + p1, prev_min +
+/// p2) - prev_min`; returns `min(out)`.
+#[inline]
+fn path_step(c: &[u16], prev: &[u16], prev_min: u16, p1: u16, p2: u16, out: &mut [u16]) -> u16 {
+    let nd = c.len();
+    let jump = prev_min + p2;
+    let mut m_out = u16::MAX;
+    for d in 0..nd {
+        let mut m = prev[d].min(jump);
+        if d > 0 {
+            m = m.min(prev[d - 1] + p1);
+        }
+        if d + 1 < nd {
+            m = m.min(prev[d + 1] + p1);
+        }
+        let v = c[d] + m - prev_min;
+        out[d] = v;
+        m_out = m_out.min(v);
+    }
+    m_out
+}
+
+/// Adds the five path costs of one row into `g.sum` from the window costs `agg` (valid for
+/// `r <= x < w - r`, `d <= x - r`; the rest counts as [`invalid_cost`]).
+fn sgm_row(agg: &[u16], g: &mut SgmScratch, w: usize, first_row: bool, opts: &MatcherOptions) {
+    let nd = opts.num_disparities;
+    let r = opts.window_radius;
+    let (p1, p2) = (opts.sgm_p1, opts.sgm_p2);
+    let bad = invalid_cost(r);
+    let mut c = vec![bad; nd];
+    let cost_at = |x: usize, c: &mut [u16]| {
+        c.fill(bad);
+        if x >= r && x + r < w {
             let dmax = (nd - 1).min(x - r);
-            let costs = &s.agg[x * nd..x * nd + dmax + 1];
-            let mut best = u16::MAX;
-            let mut d1 = 0usize;
-            for (d, &c) in costs.iter().enumerate() {
-                if c < best {
-                    best = c;
-                    d1 = d;
+            c[..=dmax].copy_from_slice(&agg[x * nd..x * nd + dmax + 1]);
+        }
+    };
+    // Downward paths: 0 from above, 1 from above-left, 2 from above-right.
+    for x in 0..w {
+        cost_at(x, &mut c);
+        for k in 0..3 {
+            let px = match k {
+                0 => Some(x),
+                1 => x.checked_sub(1),
+                _ => (x + 1 < w).then_some(x + 1),
+            };
+            let out = &mut g.cur[k][x * nd..(x + 1) * nd];
+            g.cur_min[k][x] = match px {
+                Some(px) if !first_row => path_step(
+                    &c,
+                    &g.prev[k][px * nd..(px + 1) * nd],
+                    g.prev_min[k][px],
+                    p1,
+                    p2,
+                    out,
+                ),
+                _ => {
+                    out.copy_from_slice(&c);
+                    c.iter().copied().min().unwrap_or(0)
                 }
+            };
+        }
+        let sum = &mut g.sum[x * nd..(x + 1) * nd];
+        let (a, b, c2) = (
+            &g.cur[0][x * nd..(x + 1) * nd],
+            &g.cur[1][x * nd..(x + 1) * nd],
+            &g.cur[2][x * nd..(x + 1) * nd],
+        );
+        for (((s, a), b), c) in sum.iter_mut().zip(a).zip(b).zip(c2) {
+            *s = a + b + c;
+        }
+    }
+    for k in 0..3 {
+        std::mem::swap(&mut g.prev[k], &mut g.cur[k]);
+        std::mem::swap(&mut g.prev_min[k], &mut g.cur_min[k]);
+    }
+    // Horizontal paths, left to right then right to left.
+    let mut prev = vec![0u16; nd];
+    for pass in 0..2 {
+        let mut prev_min = 0u16;
+        for step in 0..w {
+            let x = if pass == 0 { step } else { w - 1 - step };
+            cost_at(x, &mut c);
+            let out = &mut g.horiz[x * nd..(x + 1) * nd];
+            prev_min = if step == 0 {
+                out.copy_from_slice(&c);
+                c.iter().copied().min().unwrap_or(0)
+            } else {
+                path_step(&c, &prev, prev_min, p1, p2, out)
+            };
+            prev.copy_from_slice(out);
+            let sum = &mut g.sum[x * nd..(x + 1) * nd];
+            for (s, h) in sum.iter_mut().zip(out.iter()) {
+                *s += *h;
             }
-            if opts.uniqueness_ratio > 0.0 {
-                let second = costs
-                    .iter()
-                    .enumerate()
-                    .filter(|(d, _)| d.abs_diff(d1) > 1)
-                    .map(|(_, &c)| c)
-                    .min()
-                    .unwrap_or(u16::MAX);
-                if (second as f32) < best as f32 * uniq {
-                    continue;
-                }
+        }
+    }
+}
+
+/// Winner-take-all with uniqueness, left-right check and sub-pixel refinement on one row of
+/// costs (`costs[x * nd + d]`, valid for `r <= x < w - r`, `d <= x - r`).
+fn select_row(
+    costs_row: &[u16],
+    right_best: &mut [u16],
+    w: usize,
+    opts: &MatcherOptions,
+    out: &mut [f32],
+) {
+    let nd = opts.num_disparities;
+    let r = opts.window_radius;
+    let uniq = 1.0 + opts.uniqueness_ratio;
+    // Best disparity of each right pixel (for the left-right check).
+    for xr in 0..w {
+        right_best[xr] = u16::MAX;
+        if xr < r || xr + r >= w {
+            continue;
+        }
+        let mut best = u16::MAX;
+        let mut best_d = u16::MAX;
+        for d in 0..nd.min(w - r - xr) {
+            let c = costs_row[(xr + d) * nd + d];
+            if c < best {
+                best = c;
+                best_d = d as u16;
             }
-            let rb = s.right_best[x - d1];
-            if rb == u16::MAX || (rb as usize).abs_diff(d1) > opts.lr_max_diff_px as usize {
+        }
+        right_best[xr] = best_d;
+    }
+    for (x, out_x) in out.iter_mut().enumerate().take(w - r).skip(r) {
+        let dmax = (nd - 1).min(x - r);
+        let costs = &costs_row[x * nd..x * nd + dmax + 1];
+        let mut best = u16::MAX;
+        let mut d1 = 0usize;
+        for (d, &c) in costs.iter().enumerate() {
+            if c < best {
+                best = c;
+                d1 = d;
+            }
+        }
+        if opts.uniqueness_ratio > 0.0 {
+            let second = costs
+                .iter()
+                .enumerate()
+                .filter(|(d, _)| d.abs_diff(d1) > 1)
+                .map(|(_, &c)| c)
+                .min()
+                .unwrap_or(u16::MAX);
+            if (second as f32) < best as f32 * uniq {
                 continue;
             }
-            let mut d = d1 as f32;
-            if d1 > 0 && d1 < dmax {
-                let cm = costs[d1 - 1] as f32;
-                let cp = costs[d1 + 1] as f32;
-                let denom = cm + cp - 2.0 * best as f32;
-                if denom > 0.0 {
-                    d += ((cm - cp) / (2.0 * denom)).clamp(-0.5, 0.5);
-                }
-            }
-            *out_x = d;
         }
+        let rb = right_best[x - d1];
+        if rb == u16::MAX || (rb as usize).abs_diff(d1) > opts.lr_max_diff_px as usize {
+            continue;
+        }
+        let mut d = d1 as f32;
+        if d1 > 0 && d1 < dmax {
+            let cm = costs[d1 - 1] as f32;
+            let cp = costs[d1 + 1] as f32;
+            let denom = cm + cp - 2.0 * best as f32;
+            if denom > 0.0 {
+                d += ((cm - cp) / (2.0 * denom)).clamp(-0.5, 0.5);
+            }
+        }
+        *out_x = d;
     }
 }
 
@@ -451,5 +642,61 @@ mod tests {
         let small = GrayImage::new(32, 16);
         let opts = MatcherOptions::default();
         assert!(compute_disparity(&l, &small, &opts, &mut ws, &mut out).is_err());
+    }
+
+    #[test]
+    fn sgm_recovers_a_slanted_surface_and_is_deterministic() {
+        // Disparity 6 + x / 40: a surface slanted in depth, smooth for SGM's penalties.
+        let (w, h) = (240, 48);
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 56) as u8
+        };
+        let big_w = w + 64;
+        let tex: Vec<u8> = (0..big_w * h).map(|_| next()).collect();
+        let truth = |x: usize| 6 + x / 40;
+        let mut l = GrayImage::new(w, h);
+        let mut r = GrayImage::new(w, h);
+        for y in 0..h {
+            for x in 0..w {
+                l.data[y * w + x] = tex[y * big_w + x + 32];
+            }
+        }
+        // Right pixel xr shows the left pixel x with x - truth(x) = xr.
+        for y in 0..h {
+            for x in 0..w {
+                let xr = x - truth(x).min(x);
+                r.data[y * w + xr] = l.data[y * w + x];
+            }
+        }
+        let opts = MatcherOptions {
+            num_disparities: 16,
+            window_radius: 2,
+            aggregation: Aggregation::Sgm,
+            ..MatcherOptions::default()
+        };
+        let mut ws = DisparityWorkspace::new();
+        let mut out = DisparityMap::default();
+        compute_disparity(&l, &r, &opts, &mut ws, &mut out).unwrap();
+        let (mut good, mut valid) = (0, 0);
+        for y in 4..h - 4 {
+            for x in 30..w - 10 {
+                if let Some(d) = out.get(x, y) {
+                    valid += 1;
+                    if (d - truth(x) as f32).abs() <= 1.0 {
+                        good += 1;
+                    }
+                }
+            }
+        }
+        let total = (h - 8) * (w - 40);
+        assert!(valid as f64 > 0.8 * total as f64, "{valid} of {total}");
+        assert!(good as f64 > 0.97 * valid as f64, "{good} of {valid}");
+        let mut again = DisparityMap::default();
+        compute_disparity(&l, &r, &opts, &mut DisparityWorkspace::new(), &mut again).unwrap();
+        assert_eq!(out, again);
     }
 }
