@@ -131,3 +131,67 @@ fn texture_without_poses_file_exits_2() {
         .unwrap();
     assert_eq!(out.status.code(), Some(2));
 }
+
+#[test]
+fn texture_over_the_lidar_map_of_a_simulated_drive() {
+    use pfslam::io::tum::write_tum;
+    use pfslam::io::ucsd::write_car_dataset;
+    use pfslam::sim::SimOptions;
+    use pfslam::sim::car::simulate_car;
+    use pfslam::sim::world::World;
+    use pfslam::stereo::render::WorldScene;
+    // A 6 s drive on the campus: the car's files (with LiDAR), two rendered stereo pairs.
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let opts = SimOptions {
+        duration_s: 6.0,
+        ..SimOptions::noise_free()
+    };
+    let world = World::builtin("campus").unwrap();
+    let sim = simulate_car(&world, &opts).unwrap();
+    write_car_dataset(dir, &sim.dataset).unwrap();
+    write_tum(&dir.join("poses.tum"), &sim.ground_truth).unwrap();
+    let scene = WorldScene::new(&world, 200.0);
+    let calib = StereoCalibration::ucsd();
+    for dir_name in ["stereo_images/stereo_left", "stereo_images/stereo_right"] {
+        std::fs::create_dir_all(dir.join(dir_name)).unwrap();
+    }
+    let n = sim.ground_truth.len();
+    for p in [&sim.ground_truth[n / 3], &sim.ground_truth[2 * n / 3]] {
+        let (l, r) = scene
+            .render_pair(&calib, &p.pose, 1, BayerPattern::UCSD)
+            .unwrap();
+        let name = format!("{}.png", p.stamp_ns);
+        std::fs::write(
+            dir.join("stereo_images/stereo_left").join(&name),
+            encode_gray_png(&l).unwrap(),
+        )
+        .unwrap();
+        std::fs::write(
+            dir.join("stereo_images/stereo_right").join(&name),
+            encode_gray_png(&r).unwrap(),
+        )
+        .unwrap();
+    }
+    let out_dir = dir.join("out");
+    let out = pfslam()
+        .arg("texture")
+        .arg(dir)
+        .arg("--poses")
+        .arg(dir.join("poses.tum"))
+        .arg("--out")
+        .arg(&out_dir)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out_dir.join("texture.json")).unwrap()).unwrap();
+    assert_eq!(meta["background"], "occupancy map", "{meta}");
+    assert_eq!(meta["pairs_used"], 2);
+    assert!(meta["cells_coloured"].as_u64().unwrap() > 5000, "{meta}");
+    assert!(out_dir.join("texture.png").is_file());
+}
