@@ -718,3 +718,78 @@ fn simulator_world_pair_disparity_and_texture() {
     assert!(coverage > 0.9, "coverage {coverage}");
     assert!(mean_error < 10.0, "mean colour error {mean_error}");
 }
+
+#[test]
+fn simulator_rgbd_frame_texture() {
+    use pfslam::sim::world::World;
+    let world = World::builtin("office").unwrap();
+    let scene = WorldScene::new(&world, 30.0);
+    // A Kinect-like camera (VGA / 2) 1.2 m up, 30 deg down, on the route.
+    let k = PinholeIntrinsics {
+        width: 320,
+        height: 240,
+        fx_px: 290.0,
+        fy_px: 290.0,
+        cx_px: 160.0,
+        cy_px: 120.0,
+    };
+    let pitch = 30f64.to_radians();
+    let fwd = Vector3::new(pitch.cos(), 0.0, -pitch.sin());
+    let right = Vector3::new(0.0, -1.0, 0.0);
+    let body_from_camera = Rigid3 {
+        rotation: nalgebra::Matrix3::from_columns(&[right, fwd.cross(&right), fwd]),
+        translation: Vector3::new(0.0, 0.0, 1.2),
+    };
+    let (a, b) = (world.route[0], world.route[1]);
+    let world_from_body = Pose2::new(a[0], a[1], (b[1] - a[1]).atan2(b[0] - a[0]));
+    let world_from_camera = Rigid3::from_pose2(&world_from_body).compose(&body_from_camera);
+    let (depth, colour) = scene.render_rgbd(&k, &world_from_camera);
+    let camera = RgbdCamera {
+        depth: k,
+        colour: k,
+        colour_from_depth: Rigid3::IDENTITY,
+    };
+    let limits = MapLimits::new(0.05, 0.0, 0.0);
+    let mut map = TextureMap::new(limits);
+    let mut points = Vec::new();
+    let added = accumulate_rgbd(
+        &depth,
+        &colour,
+        &camera,
+        &body_from_camera,
+        &world_from_body,
+        &StereoOptions::default(),
+        &mut points,
+        &mut map,
+    );
+    // Every coloured cell against the true ground colour (mean over the cell).
+    let mut err_sum = 0.0;
+    let mut n = 0usize;
+    for (&cell, c) in &map.cells {
+        if c.count < 4 {
+            continue;
+        }
+        let (x0, y0) = limits.cell_corner(cell);
+        let mut t = [0.0; 3];
+        for j in 0..6 {
+            for i in 0..6 {
+                let s =
+                    scene.ground_rgb(x0 + (i as f64 + 0.5) / 120.0, y0 + (j as f64 + 0.5) / 120.0);
+                for q in 0..3 {
+                    t[q] += s[q] / 36.0;
+                }
+            }
+        }
+        err_sum += (0..3).map(|q| (c.mean[q] - t[q]).abs()).sum::<f64>() / 3.0;
+        n += 1;
+    }
+    let mean_error = err_sum / n as f64;
+    eprintln!(
+        "office RGB-D frame: {added} ground points, {} cells (5 cm), {n} with >= 4 samples, mean \
+         |colour error| {mean_error:.2}",
+        map.cells.len()
+    );
+    assert!(added > 20_000, "{added}");
+    assert!(n > 1000, "{n}");
+    assert!(mean_error < 5.0, "{mean_error}");
+}

@@ -3,8 +3,8 @@
 //! (textured ground and obstacles, by ray casting): the simulator's stereo camera.
 
 use super::StereoError;
-use super::image::{BayerPattern, GrayImage};
-use super::rectify::{DistortedCamera, RectifiedGeometry, StereoRectifier};
+use super::image::{BayerPattern, GrayImage, RgbImage};
+use super::rectify::{DistortedCamera, PinholeIntrinsics, RectifiedGeometry, StereoRectifier};
 use crate::geometry::{Pose2, Rigid3};
 use crate::sensors::StereoCalibration;
 use crate::sim::raycast::{HitKind, RayCaster};
@@ -293,5 +293,40 @@ impl<'a> WorldScene<'a> {
     ) -> Vec<f32> {
         let range = |o: &Vector3<f64>, d: &Vector3<f64>| self.range(o, d);
         true_disparity(geometry, world_from_body, &range)
+    }
+}
+
+impl WorldScene<'_> {
+    /// Renders a registered RGB-D frame (the humanoid's Kinect) of the pinhole camera
+    /// `world_from_camera` (x right, y down, z forward): depth along the optical axis (m, 0
+    /// where nothing is hit) and colour, one ray per pixel.
+    pub fn render_rgbd(
+        &self,
+        intrinsics: &PinholeIntrinsics,
+        world_from_camera: &Rigid3,
+    ) -> (Vec<f32>, RgbImage) {
+        let (w, h) = (intrinsics.width, intrinsics.height);
+        let mut depth = vec![0f32; w * h];
+        let mut colour = RgbImage::new(w, h);
+        let o = world_from_camera.translation;
+        depth
+            .par_chunks_mut(w.max(1))
+            .zip(colour.data.par_chunks_mut(3 * w.max(1)))
+            .enumerate()
+            .for_each(|(v, (drow, crow))| {
+                for u in 0..w {
+                    let ray = intrinsics.ray(u as f64, v as f64);
+                    let norm = ray.norm();
+                    let dir = world_from_camera.rotation * (ray / norm);
+                    let rgb = self.shade(&o, &dir);
+                    if let Some(r) = self.range(&o, &dir) {
+                        drow[u] = (r / norm) as f32;
+                    }
+                    for (c, x) in crow[3 * u..3 * u + 3].iter_mut().zip(rgb) {
+                        *c = x.round().clamp(0.0, 255.0) as u8;
+                    }
+                }
+            });
+        (depth, colour)
     }
 }
