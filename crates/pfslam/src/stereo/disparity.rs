@@ -144,6 +144,7 @@ struct ChunkScratch {
     colsum: Vec<u16>,
     agg: Vec<u16>,
     right_best: Vec<u16>,
+    right_cost: Vec<u16>,
     sgm: SgmScratch,
 }
 
@@ -242,6 +243,7 @@ pub fn compute_disparity(
         c.colsum.resize(w * nd, 0);
         c.agg.resize(w * nd, 0);
         c.right_best.resize(w, 0);
+        c.right_cost.resize(w, 0);
     }
     out.width = w;
     out.height = h;
@@ -363,10 +365,19 @@ fn match_rows(
         }
         let out = &mut out_rows[(y - y0) * w..(y - y0 + 1) * w];
         match opts.aggregation {
-            Aggregation::Block => select_row(&s.agg, &mut s.right_best, w, opts, out),
+            Aggregation::Block => {
+                select_row(&s.agg, &mut s.right_best, &mut s.right_cost, w, opts, out)
+            }
             Aggregation::Sgm => {
                 sgm_row(&s.agg, &mut s.sgm, w, y == y0, opts);
-                select_row(&s.sgm.sum, &mut s.right_best, w, opts, out);
+                select_row(
+                    &s.sgm.sum,
+                    &mut s.right_best,
+                    &mut s.right_cost,
+                    w,
+                    opts,
+                    out,
+                );
             }
         }
     }
@@ -482,6 +493,7 @@ fn sgm_row(agg: &[u16], g: &mut SgmScratch, w: usize, first_row: bool, opts: &Ma
 fn select_row(
     costs_row: &[u16],
     right_best: &mut [u16],
+    right_cost: &mut [u16],
     w: usize,
     opts: &MatcherOptions,
     out: &mut [f32],
@@ -489,42 +501,38 @@ fn select_row(
     let nd = opts.num_disparities;
     let r = opts.window_radius;
     let uniq = 1.0 + opts.uniqueness_ratio;
-    // Best disparity of each right pixel (for the left-right check).
-    for xr in 0..w {
-        right_best[xr] = u16::MAX;
-        if xr < r || xr + r >= w {
-            continue;
-        }
-        let mut best = u16::MAX;
-        let mut best_d = u16::MAX;
-        for d in 0..nd.min(w - r - xr) {
-            let c = costs_row[(xr + d) * nd + d];
-            if c < best {
-                best = c;
-                best_d = d as u16;
+    // Best disparity of each right pixel (for the left-right check): cost (x, d) belongs to
+    // right pixel x - d. Visiting x in increasing order visits each right pixel's disparities
+    // in increasing order, so the strict `<` keeps the smallest of equal costs.
+    right_best.fill(u16::MAX);
+    right_cost.fill(u16::MAX);
+    for x in r..w - r {
+        let dmax = (nd - 1).min(x - r);
+        let costs = &costs_row[x * nd..x * nd + dmax + 1];
+        let rc = &mut right_cost[x - dmax..=x];
+        let rb = &mut right_best[x - dmax..=x];
+        for (d, ((c, bc), bd)) in costs
+            .iter()
+            .zip(rc.iter_mut().rev())
+            .zip(rb.iter_mut().rev())
+            .enumerate()
+        {
+            if *c < *bc {
+                *bc = *c;
+                *bd = d as u16;
             }
         }
-        right_best[xr] = best_d;
     }
     for (x, out_x) in out.iter_mut().enumerate().take(w - r).skip(r) {
         let dmax = (nd - 1).min(x - r);
         let costs = &costs_row[x * nd..x * nd + dmax + 1];
-        let mut best = u16::MAX;
-        let mut d1 = 0usize;
-        for (d, &c) in costs.iter().enumerate() {
-            if c < best {
-                best = c;
-                d1 = d;
-            }
-        }
+        // Two passes (minimum, then its first position) vectorise better than one.
+        let best = costs.iter().copied().min().unwrap_or(u16::MAX);
+        let d1 = costs.iter().position(|&c| c == best).unwrap_or(0);
         if opts.uniqueness_ratio > 0.0 {
-            let second = costs
-                .iter()
-                .enumerate()
-                .filter(|(d, _)| d.abs_diff(d1) > 1)
-                .map(|(_, &c)| c)
-                .min()
-                .unwrap_or(u16::MAX);
+            let below = costs[..d1.saturating_sub(1)].iter().copied().min();
+            let above = costs.get(d1 + 2..).and_then(|c| c.iter().copied().min());
+            let second = below.into_iter().chain(above).min().unwrap_or(u16::MAX);
             if (second as f32) < best as f32 * uniq {
                 continue;
             }
