@@ -511,16 +511,13 @@ fn select_row(
         let costs = &costs_row[x * nd..x * nd + dmax + 1];
         let rc = &mut right_cost[x - dmax..=x];
         let rb = &mut right_best[x - dmax..=x];
-        for (d, ((c, bc), bd)) in costs
-            .iter()
-            .zip(rc.iter_mut().rev())
-            .zip(rb.iter_mut().rev())
-            .enumerate()
-        {
-            if *c < *bc {
-                *bc = *c;
-                *bd = d as u16;
-            }
+        // Element k is right pixel x - dmax + k, i.e. disparity dmax - k; branch-free selects.
+        for (k, (bc, bd)) in rc.iter_mut().zip(rb.iter_mut()).enumerate() {
+            let d = dmax - k;
+            let c = costs[d];
+            let better = c < *bc;
+            *bc = if better { c } else { *bc };
+            *bd = if better { d as u16 } else { *bd };
         }
     }
     for (x, out_x) in out.iter_mut().enumerate().take(w - r).skip(r) {
