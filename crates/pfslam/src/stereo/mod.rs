@@ -57,7 +57,10 @@ pub enum StereoError {
 pub struct StereoOptions {
     /// Colour filter layout of the raw frames (the car: `bggr`).
     pub bayer_pattern: BayerPattern,
-    /// Demosaicing algorithm.
+    /// Demosaicing algorithm. Bilinear by default: Malvar-He-Cutler gains 3.8 dB PSNR on a
+    /// natural test image, but on the real pair it gives 17 % fewer matched road pixels (its
+    /// sharpening also sharpens noise, which the census transform sees) and no better cell
+    /// colours on the rendered ground (5.68 vs 5.62 mean error).
     pub demosaic: Demosaic,
     /// Block matcher.
     pub matcher: MatcherOptions,
@@ -79,7 +82,7 @@ impl Default for StereoOptions {
     fn default() -> Self {
         StereoOptions {
             bayer_pattern: BayerPattern::UCSD,
-            demosaic: Demosaic::MalvarHeCutler,
+            demosaic: Demosaic::Bilinear,
             matcher: MatcherOptions::default(),
             cell_size_m: 0.0,
             ground_z_min_m: -0.3,
