@@ -27,12 +27,16 @@ pub enum Command {
     Demo(cmd::demo::Args),
     /// Dead-reckon a dataset: trajectory.tum/.csv/.png.
     DeadReckon(cmd::dead_reckon::Args),
+    /// Occupancy mapping with known poses: map.png, map.pgm/.yaml, logodds.npy.
+    Map(cmd::map::Args),
     /// Simulate the car (or the humanoid) in a world: dataset + ground truth.
     Simulate(cmd::simulate::Args),
     /// Colour the ground from the car's stereo pairs along a trajectory: texture.png/.npy.
     Texture(cmd::texture::Args),
     /// Print the full default configuration as TOML.
     PrintConfig(cmd::print_config::Args),
+    /// Accuracy of a trajectory: ATE/RPE against ground truth, or the relations metric.
+    Eval(cmd::eval::Args),
 }
 
 /// Runs the CLI on already-parsed arguments.
@@ -43,7 +47,9 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Demo(a)) => cmd::demo::run(a),
         Some(Command::DeadReckon(a)) => cmd::dead_reckon::run(a),
         Some(Command::PrintConfig(a)) => cmd::print_config::run(a),
+        Some(Command::Eval(a)) => cmd::eval::run(a),
         Some(Command::Simulate(a)) => cmd::simulate::run(a),
+        Some(Command::Map(a)) => cmd::map::run(a),
         Some(Command::Texture(a)) => cmd::texture::run(a),
     }
 }

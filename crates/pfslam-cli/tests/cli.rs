@@ -1,5 +1,7 @@
 //! End-to-end tests of the `pfslam` binary.
 
+mod cli_simulate;
+
 use std::process::Command;
 
 fn pfslam() -> Command {
@@ -22,4 +24,6 @@ fn unknown_subcommand_exits_2() {
 }
 
 mod cli_data;
+mod cli_eval;
+mod cli_map;
 mod cli_texture;

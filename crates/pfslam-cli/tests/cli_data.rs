@@ -54,19 +54,30 @@ fn files_in(dir: &Path) -> Vec<String> {
     }
 }
 
-#[test]
-fn dead_reckon_writes_outputs() {
+/// Writes the circle dataset, lets `spoil` alter it, runs `dead-reckon` on it.
+fn run_dead_reckon(
+    spoil: impl FnOnce(&Path),
+    extra: &[&str],
+) -> (std::process::Output, tempfile::TempDir, std::path::PathBuf) {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
     write_car_dataset(&data, &circle_dataset()).unwrap();
+    spoil(&data);
     let out = dir.path().join("out");
     let o = pfslam()
         .arg("dead-reckon")
         .arg(&data)
         .arg("--out")
         .arg(&out)
+        .args(extra)
         .output()
         .unwrap();
+    (o, dir, out)
+}
+
+#[test]
+fn dead_reckon_writes_outputs() {
+    let (o, _dir, out) = run_dead_reckon(|_| {}, &[]);
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(
         o.status.success(),
@@ -100,19 +111,7 @@ fn dead_reckon_writes_outputs() {
 }
 
 fn run_bad(spoil: impl FnOnce(&Path), extra: &[&str]) -> (Option<i32>, String, Vec<String>) {
-    let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    write_car_dataset(&data, &circle_dataset()).unwrap();
-    spoil(&data);
-    let out = dir.path().join("out");
-    let o = pfslam()
-        .arg("dead-reckon")
-        .arg(&data)
-        .arg("--out")
-        .arg(&out)
-        .args(extra)
-        .output()
-        .unwrap();
+    let (o, _dir, out) = run_dead_reckon(spoil, extra);
     (
         o.status.code(),
         String::from_utf8_lossy(&o.stderr).into_owned(),

@@ -121,6 +121,16 @@ fn wheel_m(ticks: i64, diameter: f64) -> f64 {
     PI * diameter * ticks as f64 / 4096.0
 }
 
+/// Distance and yaw change of one encoder interval with `(dl, dr)` ticks on the real car.
+fn step_motion(dl: i64, dr: i64) -> (f64, f64) {
+    let p = CarCalibration::ucsd().encoder;
+    let (sl, sr) = (
+        wheel_m(dl, p.left_wheel_diameter_m),
+        wheel_m(dr, p.right_wheel_diameter_m),
+    );
+    (0.5 * (sl + sr), (sr - sl) / p.wheel_base_m)
+}
+
 #[test]
 fn straight_line_equal_ticks() {
     let ds = build(&[Segment {
@@ -149,13 +159,7 @@ fn straight_line_equal_ticks() {
 #[test]
 fn circle_of_known_radius() {
     let (dl, dr) = (50i64, 58i64);
-    let p = CarCalibration::ucsd().encoder;
-    let (sl, sr) = (
-        wheel_m(dl, p.left_wheel_diameter_m),
-        wheel_m(dr, p.right_wheel_diameter_m),
-    );
-    let d = 0.5 * (sl + sr);
-    let dyaw = (sr - sl) / p.wheel_base_m;
+    let (d, dyaw) = step_motion(dl, dr);
     let radius = d / dyaw;
     // One and a half turns.
     let steps = (3.0 * PI / dyaw).round() as i64;
@@ -179,20 +183,9 @@ fn circle_of_known_radius() {
 #[test]
 fn figure_eight() {
     let (dl, dr) = (50i64, 58i64);
-    let p = CarCalibration::ucsd().encoder;
-    let (sl, sr) = (
-        wheel_m(dl, p.left_wheel_diameter_m),
-        wheel_m(dr, p.right_wheel_diameter_m),
-    );
-    let d1 = 0.5 * (sl + sr);
-    let w1 = (sr - sl) / p.wheel_base_m;
+    let (d1, w1) = step_motion(dl, dr);
     // Mirror: swap the tick counts (the diameters differ, so the radius differs slightly).
-    let (sl2, sr2) = (
-        wheel_m(dr, p.left_wheel_diameter_m),
-        wheel_m(dl, p.right_wheel_diameter_m),
-    );
-    let d2 = 0.5 * (sl2 + sr2);
-    let w2 = (sr2 - sl2) / p.wheel_base_m;
+    let (d2, w2) = step_motion(dr, dl);
     let n1 = (2.0 * PI / w1).round() as usize;
     let n2 = (2.0 * PI / w2.abs()).round() as usize;
     let ds = build(&[
@@ -264,9 +257,7 @@ fn fog_rows_dropped_and_straddling() {
     let dropped: f64 = ds.fog[mid..mid + 30].iter().map(|f| f.delta_yaw_rad).sum();
     ds.fog[mid + 30].delta_yaw_rad += dropped;
     ds.fog.drain(mid..mid + 30);
-    let p = CarCalibration::ucsd().encoder;
-    let dyaw = (wheel_m(47, p.right_wheel_diameter_m) - wheel_m(40, p.left_wheel_diameter_m))
-        / p.wheel_base_m;
+    let (_, dyaw) = step_motion(40, 47);
     let traj = dead_reckon(&ds, &opts(StepModel::ExactArc)).unwrap();
     for (k, sp) in traj.poses.iter().enumerate() {
         assert!(
@@ -274,4 +265,55 @@ fn fog_rows_dropped_and_straddling() {
             "step {k}"
         );
     }
+}
+
+/// Encoder intervals outside the FOG's time span take their yaw from the wheels; the result
+/// is unchanged here because the FOG was built consistent with the wheels.
+#[test]
+fn fog_missing_at_the_start_falls_back_to_wheels() {
+    let full = build(&[Segment {
+        steps: 400,
+        dl: 40,
+        dr: 47,
+    }]);
+    let mut late = full.clone();
+    let cut = late.encoder[200].stamp_ns;
+    late.fog.retain(|f| f.stamp_ns > cut);
+    let a = dead_reckon(&full, &opts(StepModel::ExactArc)).unwrap();
+    let b = dead_reckon(&late, &opts(StepModel::ExactArc)).unwrap();
+    for (p, q) in a.poses.iter().zip(&b.poses) {
+        assert!((p.pose.x_m - q.pose.x_m).abs() < 1e-9);
+        assert!(wrap_angle(p.pose.yaw_rad - q.pose.yaw_rad).abs() < 1e-9);
+    }
+    // No FOG at all with the FOG as yaw source is an error, not a silent fallback.
+    let mut none = full.clone();
+    none.fog.clear();
+    assert!(dead_reckon(&none, &opts(StepModel::ExactArc)).is_err());
+}
+
+#[test]
+fn car_recording_has_odometry_scans_and_mount() {
+    let mut ds = build(&[Segment {
+        steps: 100,
+        dl: 40,
+        dr: 47,
+    }]);
+    for i in 0..10 {
+        ds.lidar.push(T0 + i * 100_000_000 + 7, &[5.0f32; 286]);
+    }
+    let rec = pfslam::motion::car_recording(&ds, &opts(StepModel::ExactArc), "circle").unwrap();
+    assert_eq!(rec.name, "circle");
+    assert_eq!(rec.odometry.len(), ds.encoder.len());
+    assert_eq!(rec.scans, ds.lidar);
+    assert_eq!(rec.body_from_lidar, ds.calibration.body_from_lidar);
+    assert_eq!(rec.lidar, ds.calibration.lidar);
+    let imu = rec.imu_yaw.unwrap();
+    assert_eq!(imu.len(), ds.encoder.len());
+    // FOG yaw relative to the first encoder stamp equals the odometry's yaw (unwrapped).
+    let (_, dyaw) = step_motion(40, 47);
+    assert!((imu[100].1 - 100.0 * dyaw).abs() < 1e-9);
+    // Poses at scan stamps by interpolation.
+    let (poses, clamped) =
+        pfslam::sensors::sync::poses_at_stamps(&rec.odometry, &rec.scans.stamps_ns);
+    assert_eq!((poses.len(), clamped), (10, 0));
 }

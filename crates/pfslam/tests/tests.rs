@@ -2,6 +2,10 @@
 //! area.
 
 mod common;
+mod eval;
+mod map;
 mod motion;
+mod readers;
+mod sim;
 mod stereo;
 mod ucsd;

@@ -350,3 +350,45 @@ fn bad_camera_yaml() {
         "{e}"
     );
 }
+
+mod roundtrip_props {
+    use pfslam::io::ucsd::{
+        ReadOptions, read_fog_csv, read_lidar_csv, write_fog_csv, write_lidar_csv,
+    };
+    use pfslam::sensors::{FogSample, ScanSet};
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(24))]
+
+        /// Any finite values survive write -> read bit for bit.
+        #[test]
+        fn csv_roundtrip_any_values(
+            ranges in proptest::collection::vec(0.0f32..=f32::MAX, 3 * 7),
+            deltas in proptest::collection::vec(proptest::num::f64::NORMAL | proptest::num::f64::SUBNORMAL | proptest::num::f64::ZERO, 3 * 5),
+            t0 in -1_000_000_000_000i64..1_000_000_000_000_000_000,
+        ) {
+            let dir = tempfile::tempdir().unwrap();
+            let mut scans = ScanSet::new(7);
+            for (i, r) in ranges.chunks(7).enumerate() {
+                scans.push(t0 + i as i64, r);
+            }
+            let fog: Vec<FogSample> = deltas
+                .chunks(3)
+                .enumerate()
+                .map(|(i, d)| FogSample {
+                    stamp_ns: t0 + 10 * i as i64,
+                    delta_roll_rad: d[0],
+                    delta_pitch_rad: d[1],
+                    delta_yaw_rad: d[2],
+                })
+                .collect();
+            let (lp, fp) = (dir.path().join("l.csv"), dir.path().join("f.csv"));
+            write_lidar_csv(&lp, &scans).unwrap();
+            write_fog_csv(&fp, &fog).unwrap();
+            let o = ReadOptions::default();
+            prop_assert_eq!(read_lidar_csv(&lp, 7, &o).unwrap(), scans);
+            prop_assert_eq!(read_fog_csv(&fp, &o).unwrap(), fog);
+        }
+    }
+}

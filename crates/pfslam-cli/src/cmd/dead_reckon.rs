@@ -7,10 +7,10 @@ use pfslam::config::Config;
 use pfslam::geometry::StampedPose2;
 use pfslam::io::tum::{format_stamp_s, write_tum};
 use pfslam::io::ucsd::{ReadOptions, TimestampPolicy, read_car_dataset};
-use pfslam::io::write_atomic;
+use pfslam::io::{write_atomic, write_bytes_atomic};
 use pfslam::motion::dead_reckon;
 use pfslam::sensors::sync::poses_at_stamps;
-use pfslam::viz::plot::{PALETTE, PathRef, plot_trajectories};
+use pfslam::viz::plot::{PALETTE, PathRef, render_trajectories_png};
 use std::io::Write;
 use std::path::PathBuf;
 
@@ -61,19 +61,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
 
-    write_tum(&args.out.join("trajectory.tum"), &at_scans)?;
-    write_csv(&args.out.join("trajectory.csv"), &at_scans)?;
     let name = args
         .dataset
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_else(|| "dataset".to_string());
-    plot_trajectories(
-        &args.out.join("trajectory.png"),
+    // Render first: a drawing failure must not leave the other files behind.
+    let png = render_trajectories_png(
         &[("dead reckoning", PathRef::Trajectory(&traj), PALETTE[0])],
         &format!("Dead reckoning: {name}"),
     )
     .context("trajectory.png")?;
+    write_tum(&args.out.join("trajectory.tum"), &at_scans)?;
+    write_csv(&args.out.join("trajectory.csv"), &at_scans)?;
+    write_bytes_atomic(&args.out.join("trajectory.png"), &png)?;
 
     let first = traj.poses.first().map(|p| p.stamp_ns).unwrap_or(0);
     let last = traj.poses.last().copied();

@@ -2,6 +2,8 @@
 
 pub mod dead_reckon;
 pub mod demo;
+pub mod eval;
+pub mod map;
 pub mod print_config;
 pub mod simulate;
 pub mod texture;

@@ -41,6 +41,7 @@ pub fn options(args: &Args) -> anyhow::Result<SimOptions> {
     };
     if args.noise_free {
         opts.car = pfslam::sim::CarSimOptions::noise_free();
+        opts.humanoid = pfslam::sim::HumanoidSimOptions::noise_free();
     }
     if let Some(v) = &args.vehicle {
         opts.vehicle = if v == "humanoid" {
@@ -89,7 +90,26 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 args.out.display()
             );
         }
-        Vehicle::Humanoid => anyhow::bail!("humanoid: TODO"),
+        Vehicle::Humanoid => {
+            let out = pfslam::sim::simulate_humanoid(&world, &opts)?;
+            let t_sim = t0.elapsed().as_secs_f64();
+            pfslam::sim::write_humanoid_sim(&args.out, &out)
+                .with_context(|| format!("writing {}", args.out.display()))?;
+            let t_all = t0.elapsed().as_secs_f64();
+            println!(
+                "simulated the humanoid in world {:?} for {:.1} s ({:.0} m walked): {} odometry rows, {} scans ({} beams marked as floor hits)",
+                world.name,
+                opts.duration_s,
+                out.distance_m,
+                out.dataset.odometry.len(),
+                out.dataset.lidar.len(),
+                out.ground_beam_count()
+            );
+            println!(
+                "simulation {t_sim:.2} s, simulation + writing {t_all:.2} s; wrote {}",
+                args.out.display()
+            );
+        }
     }
     Ok(())
 }

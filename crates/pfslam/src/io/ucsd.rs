@@ -173,16 +173,6 @@ fn parse_f64(path: &Path, line: usize, name: &str, f: &[u8]) -> Result<f64, IoEr
     }
 }
 
-#[inline]
-fn parse_f32(path: &Path, line: usize, name: &str, f: &[u8]) -> Result<f32, IoError> {
-    let t = trim_field(f);
-    match fast_float2::parse::<f32, _>(t) {
-        Ok(v) if v.is_finite() => Ok(v),
-        Ok(_) => Err(field_error(path, line, name, "not finite", t)),
-        Err(_) => Err(field_error(path, line, name, "not a number", t)),
-    }
-}
-
 /// True for a header line (`timestamp,...`) on the first line of a file.
 fn is_header(line: &[u8]) -> bool {
     let first = line.split(|&b| b == b',').next().unwrap_or(&[]);
@@ -438,6 +428,90 @@ pub fn read_fog_csv(path: &Path, opts: &ReadOptions) -> Result<Vec<FogSample>, I
     Ok(rows)
 }
 
+/// Column count of a row (for error messages only).
+fn count_columns(line: &[u8]) -> usize {
+    line.iter().filter(|&&b| b == b',').count() + 1
+}
+
+/// Parses one `lidar.csv` row into `row` (cleared first); returns the stamp. The hot path
+/// parses each range in place with `parse_partial` (no separate split pass); the slow path
+/// only builds error messages.
+#[inline]
+fn parse_lidar_row(
+    path: &Path,
+    ln: usize,
+    line: &[u8],
+    beam_count: usize,
+    row: &mut Vec<f32>,
+) -> Result<i64, IoError> {
+    row.clear();
+    let columns_error = || {
+        IoError::parse(
+            path,
+            ln,
+            format!(
+                "expected {} columns (timestamp_ns + {beam_count} ranges), found {}",
+                beam_count + 1,
+                count_columns(line)
+            ),
+        )
+    };
+    let comma = line.iter().position(|&b| b == b',').unwrap_or(line.len());
+    let stamp_ns = parse_int(path, ln, "timestamp_ns", &line[..comma])?;
+    if comma == line.len() {
+        return Err(columns_error());
+    }
+    let mut pos = comma + 1;
+    let len = line.len();
+    loop {
+        let n = row.len();
+        let start = pos;
+        while pos < len && (line[pos] == b' ' || line[pos] == b'\t') {
+            pos += 1;
+        }
+        let parsed = fast_float2::parse_partial::<f32, _>(&line[pos..]);
+        let field_text = || {
+            let end = line[start..]
+                .iter()
+                .position(|&b| b == b',')
+                .map_or(len, |e| start + e);
+            trim_field(&line[start..end])
+        };
+        let name = || format!("range {n} (column {})", n + 2);
+        let v = match parsed {
+            Ok((v, used)) => {
+                pos += used;
+                while pos < len && (line[pos] == b' ' || line[pos] == b'\t') {
+                    pos += 1;
+                }
+                if pos < len && line[pos] != b',' {
+                    return Err(field_error(path, ln, &name(), "not a number", field_text()));
+                }
+                if !v.is_finite() {
+                    return Err(field_error(path, ln, &name(), "not finite", field_text()));
+                }
+                if v < 0.0 {
+                    return Err(field_error(path, ln, &name(), "negative", field_text()));
+                }
+                v
+            }
+            Err(_) => return Err(field_error(path, ln, &name(), "not a number", field_text())),
+        };
+        if n == beam_count {
+            return Err(columns_error());
+        }
+        row.push(v);
+        if pos >= len {
+            break;
+        }
+        pos += 1; // the comma
+    }
+    if row.len() != beam_count {
+        return Err(columns_error());
+    }
+    Ok(stamp_ns)
+}
+
 /// Reads `lidar.csv` with `beam_count` ranges per row.
 pub fn read_lidar_csv(
     path: &Path,
@@ -452,45 +526,7 @@ pub fn read_lidar_csv(
         if ln == 1 && is_header(line) {
             continue;
         }
-        row.clear();
-        let mut fields = line.split(|&b| b == b',');
-        let t = fields.next().unwrap_or(&[]);
-        let stamp_ns = parse_int(path, ln, "timestamp_ns", t)?;
-        let mut n = 0usize;
-        for f in fields {
-            if n < beam_count {
-                let v = match fast_float2::parse::<f32, _>(trim_field(f)) {
-                    Ok(v) if v.is_finite() && v >= 0.0 => v,
-                    Ok(v) if v.is_finite() => {
-                        return Err(field_error(
-                            path,
-                            ln,
-                            &format!("range {n} (column {})", n + 2),
-                            "negative",
-                            trim_field(f),
-                        ));
-                    }
-                    _ => {
-                        // Slow path only for the error message.
-                        parse_f32(path, ln, &format!("range {n} (column {})", n + 2), f)?;
-                        return Err(field_error(path, ln, "range", "invalid", f));
-                    }
-                };
-                row.push(v);
-            }
-            n += 1;
-        }
-        if n != beam_count {
-            return Err(IoError::parse(
-                path,
-                ln,
-                format!(
-                    "expected {} columns (timestamp_ns + {beam_count} ranges), found {}",
-                    beam_count + 1,
-                    n + 1
-                ),
-            ));
-        }
+        let stamp_ns = parse_lidar_row(path, ln, line, beam_count, &mut row)?;
         order.check(path, ln, stamp_ns)?;
         scans.push(stamp_ns, &row);
     }

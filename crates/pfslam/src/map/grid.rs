@@ -168,14 +168,20 @@ const MARK_NONE: u8 = 0;
 const MARK_FREE: u8 = 1;
 const MARK_OCCUPIED: u8 = 2;
 
-/// Caller-owned scratch for [`OccupancyGrid::insert_scan`]: a zeroed square mask centred on
-/// the sensor's cell and the list of cells touched by the current scan. Reuse one per thread
-/// (or per particle); it never needs clearing (insertion leaves the mask zeroed).
+/// Caller-owned scratch for [`OccupancyGrid::insert_scan`]: a zeroed mask around the
+/// sensor's cell and the list of cells touched by the current scan. The mask is made of
+/// blocks aligned with the grid's tiles (one block = one tile, 4 KiB), so a ray stays in cache
+/// and a run of touched cells maps to one tile. Reuse one per thread (or per particle); it
+/// never needs clearing (insertion leaves the mask zeroed).
 #[derive(Debug, Default, Clone)]
 pub struct InsertScratch {
     mask: Vec<u8>,
+    /// Largest Chebyshev ray length the mask holds (cells).
     half: i32,
-    touched: Vec<(Cell, u32)>,
+    /// Blocks per side.
+    blocks: i32,
+    /// Touched cells: `block << 12 | local index`.
+    touched: Vec<u32>,
 }
 
 impl InsertScratch {
@@ -185,10 +191,12 @@ impl InsertScratch {
     }
 
     fn ensure_half(&mut self, half: i32) {
-        if half > self.half {
-            let side = 2 * half as usize + 1;
-            self.mask = vec![MARK_NONE; side * side];
+        if half > self.half || self.mask.is_empty() {
+            // 2 * half + 1 cells starting anywhere in a tile span at most this many tiles.
+            let blocks = (2 * half + 1 + TILE_MASK) / TILE_SIZE as i32 + 1;
+            self.mask = vec![MARK_NONE; (blocks * blocks) as usize * TILE_CELLS];
             self.half = half;
+            self.blocks = blocks;
         }
     }
 }
@@ -358,11 +366,15 @@ impl OccupancyGrid {
             });
         }
         scratch.ensure_half(half);
-        let side = 2 * scratch.half + 1;
-        let (oi, oj, sh) = (origin.i, origin.j, scratch.half);
+        let (sh, nb) = (scratch.half, scratch.blocks);
+        // Tile coordinates of mask block (0, 0).
+        let (t0i, t0j) = ((origin.i - sh) >> TILE_SHIFT, (origin.j - sh) >> TILE_SHIFT);
         let InsertScratch { mask, touched, .. } = scratch;
         touched.clear();
-        let index = |c: Cell| ((c.j - oj + sh) * side + (c.i - oi + sh)) as u32;
+        let index = |c: Cell| {
+            let (ti, tj) = tile_of(c);
+            ((((tj - t0j) * nb + (ti - t0i)) as u32) << (2 * TILE_SHIFT)) | local_index(c) as u32
+        };
         for p in &world_scan.points {
             let end = self.cell_of(p.x_m, p.y_m);
             bresenham(origin, end, |c| {
@@ -373,14 +385,14 @@ impl OccupancyGrid {
                 let m = &mut mask[k as usize];
                 if *m == MARK_NONE {
                     *m = MARK_FREE;
-                    touched.push((c, k));
+                    touched.push(k);
                 }
             });
             let k = index(end);
             let m = &mut mask[k as usize];
             let want = if p.hit { MARK_OCCUPIED } else { MARK_FREE };
             if *m == MARK_NONE {
-                touched.push((end, k));
+                touched.push(k);
             }
             *m = (*m).max(want);
         }
@@ -390,16 +402,17 @@ impl OccupancyGrid {
             rays: world_scan.points.len(),
             ..InsertStats::default()
         };
-        // Runs of consecutive cells in one tile get one directory lookup.
+        // Runs of consecutive cells in one block (= one tile) get one directory lookup.
         let mut start = 0;
         while start < touched.len() {
-            let t = tile_of(touched[start].0);
+            let block = touched[start] >> (2 * TILE_SHIFT);
             let mut end = start + 1;
-            while end < touched.len() && tile_of(touched[end].0) == t {
+            while end < touched.len() && touched[end] >> (2 * TILE_SHIFT) == block {
                 end += 1;
             }
-            let tile = self.dir.get_mut(t.0, t.1);
-            for &(c, k) in &touched[start..end] {
+            let (bi, bj) = (block as i32 % nb, block as i32 / nb);
+            let tile = self.dir.get_mut(t0i + bi, t0j + bj);
+            for &k in &touched[start..end] {
                 let m = std::mem::replace(&mut mask[k as usize], MARK_NONE);
                 let delta = if m == MARK_OCCUPIED {
                     stats.occupied_cells += 1;
@@ -408,7 +421,7 @@ impl OccupancyGrid {
                     stats.free_cells += 1;
                     f.miss
                 };
-                let v = &mut tile.cells[local_index(c)];
+                let v = &mut tile.cells[(k as usize) & (TILE_CELLS - 1)];
                 *v = f.apply(*v, delta);
             }
             start = end;

@@ -8,6 +8,7 @@
 //! per wheel with its own diameter; the car's distance is the mean of the two wheels.
 
 pub mod dead_reckoning;
+pub mod odometry_model;
 
 pub use dead_reckoning::{OdometryStep, car_recording, dead_reckon, odometry_steps};
 
@@ -23,7 +24,9 @@ use serde::{Deserialize, Serialize};
 #[serde(rename_all = "snake_case")]
 pub enum StepModel {
     /// The seed's equation (2): move `distance` along the *old* heading, then turn. Error per
-    /// step ~ `distance * dyaw / 2` sideways.
+    /// step ~ `distance * dyaw / 2` sideways: on a 10.4 m radius circle at 100 Hz (1.5
+    /// turns) the position error is 2.6e-4 of the path length (exact arc: 4e-16), see the
+    /// `motion` integration tests.
     Euler,
     /// Exact for constant speed and yaw rate over the step: a circular arc (chord of length
     /// `distance * sinc(dyaw / 2)` along the mid heading).

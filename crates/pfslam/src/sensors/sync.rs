@@ -8,7 +8,8 @@
 //!   evaluations: a row straddling an encoder stamp is split in proportion to time, a dropped
 //!   row makes the next row's interval (and increment) longer, jitter needs no special case.
 //!   (The seed summed "every 11 rows", which drifts as soon as the rates are not an exact
-//!   ratio.) The first row's interval starts one median FOG period before its stamp.
+//!   ratio.) The first row's interval begins at an unknown time before the recording, so its
+//!   increment is not used: the covered span starts at the first row's stamp.
 //! - [`poses_at_stamps`]: poses at arbitrary stamps (LiDAR scans) by interpolation.
 
 use super::CarDataset;
@@ -75,8 +76,7 @@ pub fn merge_events(ds: &CarDataset) -> Vec<TimedEvent> {
 /// The FOG's cumulative yaw as a piecewise-linear function of time (see the module docs).
 #[derive(Debug, Clone, PartialEq)]
 pub struct CumulativeYaw {
-    /// Knot times (ns), strictly increasing; the first is the start of the first row's
-    /// interval.
+    /// Knot times (ns), strictly increasing: the FOG rows' stamps.
     stamps_ns: Vec<i64>,
     /// Cumulative yaw at the knots (rad), 0 at the first knot.
     yaw_rad: Vec<f64>,
@@ -106,12 +106,12 @@ impl CumulativeYaw {
             .map(|w| w[1].stamp_ns - w[0].stamp_ns)
             .max()
             .unwrap_or(0);
-        let mut stamps_ns = Vec::with_capacity(fog.len() + 1);
-        let mut yaw_rad = Vec::with_capacity(fog.len() + 1);
-        stamps_ns.push(first.stamp_ns - median_period_ns);
+        let mut stamps_ns = Vec::with_capacity(fog.len());
+        let mut yaw_rad = Vec::with_capacity(fog.len());
+        stamps_ns.push(first.stamp_ns);
         yaw_rad.push(0.0);
         let mut sum = 0.0;
-        for s in fog {
+        for s in &fog[1..] {
             sum += s.delta_yaw_rad;
             stamps_ns.push(s.stamp_ns);
             yaw_rad.push(sum);
@@ -124,7 +124,7 @@ impl CumulativeYaw {
         })
     }
 
-    /// Start of the time span covered by FOG rows (ns).
+    /// Start of the time span covered by FOG rows: the first row's stamp (ns).
     pub fn start_ns(&self) -> i64 {
         self.stamps_ns[0]
     }
@@ -219,12 +219,13 @@ mod tests {
 
     #[test]
     fn straddling_row_is_split_by_time() {
-        // Rows every 10 ns; the row at 30 covers (20, 30] with 0.3 rad.
+        // Rows every 10 ns; the row at 30 covers (20, 30] with 0.3 rad. The first row's
+        // increment (its interval starts before the span) is not used.
         let y =
-            CumulativeYaw::from_fog(&fog(&[(10, 0.1), (20, 0.1), (30, 0.3), (40, 0.1)])).unwrap();
-        assert_eq!(y.start_ns(), 0);
-        // (0, 25]: 0.1 + 0.1 + half of 0.3
-        assert!((y.increment(0, 25) - 0.35).abs() < 1e-15);
+            CumulativeYaw::from_fog(&fog(&[(10, 0.7), (20, 0.1), (30, 0.3), (40, 0.1)])).unwrap();
+        assert_eq!(y.start_ns(), 10);
+        // (10, 25]: 0.1 + half of 0.3
+        assert!((y.increment(10, 25) - 0.25).abs() < 1e-15);
         // (25, 40]: other half + 0.1
         assert!((y.increment(25, 40) - 0.25).abs() < 1e-15);
     }
@@ -236,7 +237,7 @@ mod tests {
         assert!((y.increment(20, 30) - 0.1).abs() < 1e-15);
         assert!((y.increment(30, 50) - 0.2).abs() < 1e-15);
         assert_eq!(y.max_gap_ns(), 30);
-        assert!(y.covers(0, 50) && !y.covers(0, 51));
+        assert!(y.covers(10, 50) && !y.covers(10, 51) && !y.covers(9, 50));
     }
 
     #[test]

@@ -11,21 +11,20 @@
 //! the true times plus jitter; the ground truth pairs each recorded LiDAR stamp with the true
 //! pose of that scan.
 
-use super::path::Path as DrivePath;
-use super::raycast::RayCaster;
+use super::path::{DriveProfile, Motion};
+use super::raycast::{BeamErrors, RayCaster, beam_directions, cast_scan};
 use super::truth::TrueMap;
 use super::world::World;
-use super::{SimError, SimOptions, sim_toml};
-use crate::geometry::{Pose2, StampedPose2};
+use super::{
+    SimError, SimOptions, jumped_stream_vec, jumped_streams, normal, sample_times, write_truth,
+};
+use crate::geometry::{Rigid3, StampedPose2};
 use crate::sensors::{CarCalibration, CarDataset, EncoderSample, FogSample, ScanSet};
 use rand::{RngExt, SeedableRng};
-use rand_distr::StandardNormal;
 use rand_xoshiro::Xoshiro256PlusPlus;
 use rayon::prelude::*;
 use std::path::Path;
 
-/// Time step of the motion integration (s).
-const DRIVE_DT_S: f64 = 1e-3;
 /// Scans per parallel block (each block has its own jumped random stream).
 const SCAN_BLOCK: usize = 256;
 
@@ -46,98 +45,50 @@ pub struct CarSimOutput {
     pub distance_m: f64,
 }
 
-/// The true motion: arc length sampled every [`DRIVE_DT_S`].
-struct Motion {
-    path: DrivePath,
-    s: Vec<f64>,
-    standstill_s: f64,
-}
-
-impl Motion {
-    fn s_at(&self, t_s: f64) -> f64 {
-        let t = (t_s - self.standstill_s).max(0.0) / DRIVE_DT_S;
-        let k = (t.floor() as usize).min(self.s.len() - 2);
-        let f = (t - k as f64).min(1.0);
-        self.s[k] + f * (self.s[k + 1] - self.s[k])
+impl CarSimOutput {
+    /// The car's common [`crate::sensors::Recording`] (odometry = dead reckoning of the
+    /// simulated encoders and FOG, scans, mount; see [`crate::motion::car_recording`]) with
+    /// the ground truth attached.
+    pub fn recording(
+        &self,
+        motion: &crate::motion::MotionOptions,
+    ) -> Result<crate::sensors::Recording, crate::motion::MotionError> {
+        let mut r = crate::motion::car_recording(&self.dataset, motion, "car-sim")?;
+        r.ground_truth = Some(self.ground_truth.clone());
+        Ok(r)
     }
-
-    fn pose_at(&self, t_s: f64) -> (Pose2, f64) {
-        let p = self.path.at(self.s_at(t_s));
-        (Pose2::new(p.x_m, p.y_m, p.yaw_rad), p.yaw_rad)
-    }
-}
-
-fn normal(rng: &mut Xoshiro256PlusPlus) -> f64 {
-    rng.sample(StandardNormal)
-}
-
-/// Nominal sample times `phase + k / rate` over the duration, with recorded stamps (ns) =
-/// start + time + clipped jitter.
-fn sample_times(
-    opts: &SimOptions,
-    rate_hz: f64,
-    phase_s: f64,
-    rng: &mut Xoshiro256PlusPlus,
-) -> Vec<(f64, i64)> {
-    let n = ((opts.duration_s - phase_s) * rate_hz).floor().max(0.0) as usize + 1;
-    let period_ns = 1e9 / rate_hz;
-    let clip = 0.4 * period_ns;
-    (0..n)
-        .map(|k| {
-            let t = phase_s + k as f64 / rate_hz;
-            let jitter = if opts.car.stamp_jitter_std_ns > 0.0 {
-                (normal(rng) * opts.car.stamp_jitter_std_ns).clamp(-clip, clip)
-            } else {
-                0.0
-            };
-            (t, opts.start_stamp_ns + (t * 1e9 + jitter).round() as i64)
-        })
-        .collect()
 }
 
 /// Simulates the car on `world` with `opts` (seed included).
 pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, SimError> {
     opts.validate()?;
-    if world.route.len() < 2 {
-        return Err(SimError::BadRoute(format!(
-            "world {:?} has no route",
-            world.name
-        )));
-    }
     let c = &opts.car;
     let calib = CarCalibration::ucsd();
-    let path = DrivePath::from_route(&world.route, c.corner_radius_m)?;
-    let steps = ((opts.duration_s + 1.0) / DRIVE_DT_S).ceil() as usize + 2;
-    let s = path.drive(
-        c.cruise_speed_mps,
-        c.max_accel_mps2,
-        c.max_decel_mps2,
-        c.max_lateral_accel_mps2,
-        DRIVE_DT_S,
-        steps,
-    );
-    let motion = Motion {
-        path,
-        s,
-        standstill_s: c.initial_standstill_s,
-    };
+    let motion = Motion::plan(
+        world,
+        opts.duration_s,
+        &DriveProfile {
+            cruise_mps: c.cruise_speed_mps,
+            accel_mps2: c.max_accel_mps2,
+            decel_mps2: c.max_decel_mps2,
+            lateral_mps2: c.max_lateral_accel_mps2,
+            corner_radius_m: c.corner_radius_m,
+            standstill_s: c.initial_standstill_s,
+        },
+    )?;
 
     // Independent streams: stamps, encoder, fog, row drops, lidar blocks.
-    let mut base = Xoshiro256PlusPlus::seed_from_u64(opts.seed);
-    let mut stream = || {
-        let r = base.clone();
-        base.jump();
-        r
-    };
-    let mut rng_stamps = stream();
-    let mut rng_enc = stream();
-    let mut rng_fog = stream();
-    let mut rng_drop = stream();
-    let lidar_base = stream();
-
-    let enc_times = sample_times(opts, c.encoder_rate_hz, 0.0, &mut rng_stamps);
-    let fog_times = sample_times(opts, c.fog_rate_hz, 0.000_37, &mut rng_stamps);
-    let lidar_times = sample_times(opts, c.lidar_rate_hz, 0.003_1, &mut rng_stamps);
+    let [
+        mut rng_stamps,
+        mut rng_enc,
+        mut rng_fog,
+        mut rng_drop,
+        lidar_base,
+    ] = jumped_streams(Xoshiro256PlusPlus::seed_from_u64(opts.seed));
+    let jitter = c.stamp_jitter_std_ns;
+    let enc_times = sample_times(opts, c.encoder_rate_hz, 0.0, jitter, &mut rng_stamps);
+    let fog_times = sample_times(opts, c.fog_rate_hz, 0.000_37, jitter, &mut rng_stamps);
+    let lidar_times = sample_times(opts, c.lidar_rate_hz, 0.003_1, jitter, &mut rng_stamps);
 
     // Encoders: cumulative TRUE wheel rotation (m of tyre circumference), with slip.
     let e = &calib.encoder;
@@ -198,29 +149,20 @@ pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, Si
         prev_yaw = yaw;
     }
 
-    // LiDAR: beam directions in the body frame, cast from each scan's true pose.
+    // LiDAR: each scan cast from its true pose with the real mount.
     let geom = calib.lidar;
-    let bl = &calib.body_from_lidar;
-    let dirs_body: Vec<[f64; 3]> = (0..geom.beam_count)
-        .map(|i| {
-            let a = geom.beam_angle_rad(i);
-            let v = bl.rotation * nalgebra::Vector3::new(a.cos(), a.sin(), 0.0);
-            let v = v / v.norm();
-            [v[0], v[1], v[2]]
-        })
-        .collect();
-    let origin_body = [bl.translation[0], bl.translation[1], bl.translation[2]];
+    let beams = beam_directions(&geom);
+    let errors = BeamErrors {
+        range_noise_std_m: c.lidar_range_noise_std_m,
+        dropout_prob: c.lidar_dropout_prob,
+        max_range_prob: c.lidar_max_range_prob,
+    };
     let caster = RayCaster::new(world, 4.0, 100.0);
     let nb = geom.beam_count;
     let max_range = f64::from(geom.range_max_m);
     let mut ranges = vec![0.0f32; lidar_times.len() * nb];
     let n_blocks = lidar_times.len().div_ceil(SCAN_BLOCK);
-    let mut block_rngs = Vec::with_capacity(n_blocks);
-    let mut r = lidar_base;
-    for _ in 0..n_blocks {
-        block_rngs.push(r.clone());
-        r.jump();
-    }
+    let block_rngs = jumped_stream_vec(lidar_base, n_blocks);
     ranges
         .par_chunks_mut(SCAN_BLOCK * nb)
         .zip(block_rngs.into_par_iter())
@@ -229,15 +171,9 @@ pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, Si
             for (k, scan) in chunk.chunks_mut(nb).enumerate() {
                 let t = lidar_times[bi * SCAN_BLOCK + k].0;
                 let (pose, _) = motion.pose_at(t);
+                let wl = Rigid3::from_pose2(&pose).compose(&calib.body_from_lidar);
                 cast_scan(
-                    &caster,
-                    &pose,
-                    origin_body,
-                    &dirs_body,
-                    max_range,
-                    c,
-                    &mut rng,
-                    scan,
+                    &caster, &wl, &beams, max_range, &errors, &mut rng, scan, None,
                 );
             }
         });
@@ -294,53 +230,16 @@ pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, Si
     })
 }
 
-/// Casts one scan into `out` (m, 0.0 = no return) with the configured errors.
-#[allow(clippy::too_many_arguments)]
-fn cast_scan(
-    caster: &RayCaster,
-    pose: &Pose2,
-    origin_body: [f64; 3],
-    dirs_body: &[[f64; 3]],
-    max_range_m: f64,
-    c: &super::CarSimOptions,
-    rng: &mut Xoshiro256PlusPlus,
-    out: &mut [f32],
-) {
-    let (sy, cy) = pose.yaw_rad.sin_cos();
-    let o = [
-        pose.x_m + cy * origin_body[0] - sy * origin_body[1],
-        pose.y_m + sy * origin_body[0] + cy * origin_body[1],
-        origin_body[2],
-    ];
-    for (d_b, r) in dirs_body.iter().zip(out.iter_mut()) {
-        let d = [cy * d_b[0] - sy * d_b[1], sy * d_b[0] + cy * d_b[1], d_b[2]];
-        let mut range = match caster.cast(o, d, max_range_m) {
-            Some(h) => h.range_m,
-            None => 0.0,
-        };
-        if range > 0.0 {
-            if c.lidar_range_noise_std_m > 0.0 {
-                range = (range + c.lidar_range_noise_std_m * normal(rng))
-                    .clamp(0.001, max_range_m - 1e-3);
-            }
-            if c.lidar_dropout_prob > 0.0 && rng.random::<f64>() < c.lidar_dropout_prob {
-                range = 0.0;
-            }
-        }
-        if c.lidar_max_range_prob > 0.0 && rng.random::<f64>() < c.lidar_max_range_prob {
-            range = max_range_m;
-        }
-        *r = range as f32;
-    }
-}
-
 /// Writes a simulated car recording into `dir`: the dataset in the car's layout, plus
 /// `ground_truth.tum`, `true_map.{png,pgm,yaml}`, `world.world` and `sim.toml`.
 pub fn write_car_sim(dir: &Path, out: &CarSimOutput) -> Result<(), SimError> {
     std::fs::create_dir_all(dir).map_err(|e| crate::io::IoError::io(dir, e))?;
-    crate::io::tum::write_tum(&dir.join("ground_truth.tum"), &out.ground_truth)?;
-    out.true_map.write(dir, "true_map")?;
-    crate::io::write_bytes_atomic(&dir.join("world.world"), out.world_text.as_bytes())?;
-    crate::io::write_bytes_atomic(&dir.join("sim.toml"), sim_toml(&out.options)?.as_bytes())?;
-    Ok(())
+    crate::io::ucsd::write_car_dataset(dir, &out.dataset)?;
+    write_truth(
+        dir,
+        &out.ground_truth,
+        &out.true_map,
+        &out.world_text,
+        &out.options,
+    )
 }

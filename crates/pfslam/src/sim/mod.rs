@@ -13,12 +13,14 @@
 //! Same options (including `seed`) -> identical output, whatever the number of threads.
 
 pub mod car;
+pub mod humanoid;
 pub mod path;
 pub mod raycast;
 pub mod truth;
 pub mod world;
 
 pub use car::{CarSimOutput, simulate_car, write_car_sim};
+pub use humanoid::{HumanoidSimOutput, simulate_humanoid, write_humanoid_sim};
 pub use raycast::{Hit, HitKind, RayCaster};
 pub use truth::TrueMap;
 pub use world::{Prism, World};
@@ -32,7 +34,7 @@ pub enum SimError {
     #[error(transparent)]
     Io(#[from] crate::io::IoError),
     /// No built-in world has this name.
-    #[error("unknown built-in world {0:?} (known: campus, office)")]
+    #[error("{0:?} is neither a built-in world (campus, office) nor an existing world file")]
     UnknownWorld(String),
     /// The route cannot be driven.
     #[error("bad route: {0}")]
@@ -71,13 +73,18 @@ pub struct SimOptions {
     pub start_stamp_ns: i64,
     /// Cell size of the true map (m).
     pub truth_map_resolution_m: f64,
-    /// Lower end of the height band whose obstacles the true map shows (m). Default for the
-    /// car; the humanoid's band is in [`HumanoidSimOptions`].
+    /// Lower end of the height band whose obstacles the car's true map shows (m); the
+    /// humanoid's band is in [`HumanoidSimOptions`]. The default 1.7 m is just below the
+    /// car's LiDAR (1.76 m): its beams run level sideways and rise forwards, so obstacles
+    /// lower than the LiDAR (parked cars) are never hit, only overflown (the two edge beams
+    /// that dip 3 deg reach the ground ~33 m to the sides).
     pub truth_band_min_m: f64,
     /// Upper end of that band (m).
     pub truth_band_max_m: f64,
     /// The car (`[sim.car]`).
     pub car: CarSimOptions,
+    /// The humanoid (`[sim.humanoid]`).
+    pub humanoid: HumanoidSimOptions,
 }
 
 impl Default for SimOptions {
@@ -89,9 +96,10 @@ impl Default for SimOptions {
             duration_s: 180.0,
             start_stamp_ns: 1_544_582_648_000_000_000,
             truth_map_resolution_m: 0.1,
-            truth_band_min_m: 1.0,
+            truth_band_min_m: 1.7,
             truth_band_max_m: 4.0,
             car: CarSimOptions::default(),
+            humanoid: HumanoidSimOptions::default(),
         }
     }
 }
@@ -101,6 +109,7 @@ impl SimOptions {
     pub fn noise_free() -> Self {
         SimOptions {
             car: CarSimOptions::noise_free(),
+            humanoid: HumanoidSimOptions::noise_free(),
             ..SimOptions::default()
         }
     }
@@ -128,10 +137,11 @@ impl SimOptions {
         if !(self.truth_map_resolution_m >= 0.01 && self.truth_map_resolution_m <= 10.0) {
             return bad("truth_map_resolution_m must be in [0.01, 10]");
         }
-        if !(self.truth_band_max_m >= self.truth_band_min_m) {
+        if self.truth_band_max_m.is_nan() || self.truth_band_max_m < self.truth_band_min_m {
             return bad("truth_band_max_m must be >= truth_band_min_m");
         }
-        self.car.validate()
+        self.car.validate()?;
+        self.humanoid.validate()
     }
 }
 
@@ -274,7 +284,7 @@ impl CarSimOptions {
                 self.right_wheel_diameter_error,
             ),
         ] {
-            if !(v.abs() < 0.5) {
+            if v.is_nan() || v.abs() >= 0.5 {
                 return Err(SimError::BadOption(format!(
                     "car.{name} must be in (-0.5, 0.5)"
                 )));
@@ -287,6 +297,222 @@ impl CarSimOptions {
         }
         Ok(())
     }
+}
+
+/// The humanoid's walk, head motion and errors (`[sim.humanoid]`). Every error is zero in
+/// [`HumanoidSimOptions::noise_free`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct HumanoidSimOptions {
+    /// Odometry, IMU and joint rate (Hz).
+    pub odometry_rate_hz: f64,
+    /// LiDAR rate (Hz); the UTM-30LX scans at 40 Hz.
+    pub lidar_rate_hz: f64,
+    /// Walking speed (m/s).
+    pub walk_speed_mps: f64,
+    /// Acceleration limit (m/s^2).
+    pub max_accel_mps2: f64,
+    /// Lateral acceleration limit in turns (m/s^2).
+    pub max_lateral_accel_mps2: f64,
+    /// Corner radius of the rounded route (m).
+    pub corner_radius_m: f64,
+    /// Neck yaw amplitude (rad): the head looks left and right sinusoidally.
+    pub neck_yaw_amplitude_rad: f64,
+    /// Neck yaw period (s).
+    pub neck_yaw_period_s: f64,
+    /// Head pitch varies sinusoidally between this (rad, positive = down) ...
+    pub head_pitch_min_rad: f64,
+    /// ... and this (rad): far enough down that some beams hit the floor.
+    pub head_pitch_max_rad: f64,
+    /// Head pitch period (s).
+    pub head_pitch_period_s: f64,
+    /// Gait sway amplitude in roll and pitch of the body (rad).
+    pub sway_amplitude_rad: f64,
+    /// Step frequency (Hz) of the sway.
+    pub step_frequency_hz: f64,
+    /// Odometry distance scale error (odometry = true * (1 + this)).
+    pub odometry_scale_error: f64,
+    /// Odometry heading drift (rad/s).
+    pub odometry_yaw_drift_rad_per_s: f64,
+    /// Odometry white noise per row: on each increment's x and y (m) and yaw (rad).
+    pub odometry_noise_std: f64,
+    /// IMU yaw drift (rad/s).
+    pub imu_yaw_drift_rad_per_s: f64,
+    /// IMU white noise on roll, pitch, yaw (rad).
+    pub imu_noise_std_rad: f64,
+    /// Joint encoder noise (rad).
+    pub joint_noise_std_rad: f64,
+    /// LiDAR range noise (m).
+    pub lidar_range_noise_std_m: f64,
+    /// Probability that a beam returns nothing (0.0).
+    pub lidar_dropout_prob: f64,
+    /// Timestamp jitter (ns, standard deviation, clipped to +-40 % of the period).
+    pub stamp_jitter_std_ns: f64,
+    /// Lower end of the height band of the humanoid's true map (m).
+    pub truth_band_min_m: f64,
+    /// Upper end of that band (m).
+    pub truth_band_max_m: f64,
+}
+
+impl Default for HumanoidSimOptions {
+    fn default() -> Self {
+        HumanoidSimOptions {
+            odometry_rate_hz: 100.0,
+            lidar_rate_hz: 40.0,
+            walk_speed_mps: 0.45,
+            max_accel_mps2: 0.3,
+            max_lateral_accel_mps2: 0.25,
+            corner_radius_m: 0.6,
+            neck_yaw_amplitude_rad: 0.5,
+            neck_yaw_period_s: 9.0,
+            head_pitch_min_rad: 0.0,
+            head_pitch_max_rad: 0.5,
+            head_pitch_period_s: 7.0,
+            sway_amplitude_rad: 0.02,
+            step_frequency_hz: 0.9,
+            odometry_scale_error: 0.03,
+            odometry_yaw_drift_rad_per_s: 0.003,
+            odometry_noise_std: 0.001,
+            imu_yaw_drift_rad_per_s: 0.0003,
+            imu_noise_std_rad: 0.002,
+            joint_noise_std_rad: 0.001,
+            lidar_range_noise_std_m: 0.01,
+            lidar_dropout_prob: 0.002,
+            stamp_jitter_std_ns: 200_000.0,
+            truth_band_min_m: 0.2,
+            truth_band_max_m: 2.0,
+        }
+    }
+}
+
+impl HumanoidSimOptions {
+    /// The default walk and head motion with every error off (the gait sway stays: it is
+    /// motion, measured exactly by the IMU).
+    pub fn noise_free() -> Self {
+        HumanoidSimOptions {
+            odometry_scale_error: 0.0,
+            odometry_yaw_drift_rad_per_s: 0.0,
+            odometry_noise_std: 0.0,
+            imu_yaw_drift_rad_per_s: 0.0,
+            imu_noise_std_rad: 0.0,
+            joint_noise_std_rad: 0.0,
+            lidar_range_noise_std_m: 0.0,
+            lidar_dropout_prob: 0.0,
+            stamp_jitter_std_ns: 0.0,
+            ..HumanoidSimOptions::default()
+        }
+    }
+
+    fn validate(&self) -> Result<(), SimError> {
+        for (name, v) in [
+            ("odometry_rate_hz", self.odometry_rate_hz),
+            ("lidar_rate_hz", self.lidar_rate_hz),
+            ("walk_speed_mps", self.walk_speed_mps),
+            ("max_accel_mps2", self.max_accel_mps2),
+            ("max_lateral_accel_mps2", self.max_lateral_accel_mps2),
+            ("corner_radius_m", self.corner_radius_m),
+            ("neck_yaw_period_s", self.neck_yaw_period_s),
+            ("head_pitch_period_s", self.head_pitch_period_s),
+            ("step_frequency_hz", self.step_frequency_hz),
+        ] {
+            if !(v > 0.0 && v.is_finite()) {
+                return Err(SimError::BadOption(format!(
+                    "humanoid.{name} must be positive"
+                )));
+            }
+        }
+        for (name, v) in [
+            ("odometry_noise_std", self.odometry_noise_std),
+            ("imu_noise_std_rad", self.imu_noise_std_rad),
+            ("joint_noise_std_rad", self.joint_noise_std_rad),
+            ("lidar_range_noise_std_m", self.lidar_range_noise_std_m),
+            ("stamp_jitter_std_ns", self.stamp_jitter_std_ns),
+        ] {
+            if !(v >= 0.0 && v.is_finite()) {
+                return Err(SimError::BadOption(format!("humanoid.{name} must be >= 0")));
+            }
+        }
+        if !(0.0..=1.0).contains(&self.lidar_dropout_prob) {
+            return Err(SimError::BadOption(
+                "humanoid.lidar_dropout_prob must be in [0, 1]".into(),
+            ));
+        }
+        if self.truth_band_max_m.is_nan() || self.truth_band_max_m < self.truth_band_min_m {
+            return Err(SimError::BadOption(
+                "humanoid.truth_band_max_m must be >= truth_band_min_m".into(),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// `N` independent random streams: `base`, then each the previous one jumped by 2^128 steps.
+pub(crate) fn jumped_streams<const N: usize>(
+    base: rand_xoshiro::Xoshiro256PlusPlus,
+) -> [rand_xoshiro::Xoshiro256PlusPlus; N] {
+    let v = jumped_stream_vec(base, N);
+    std::array::from_fn(|i| v[i].clone())
+}
+
+/// `n` independent random streams (one per parallel block), as [`jumped_streams`].
+pub(crate) fn jumped_stream_vec(
+    base: rand_xoshiro::Xoshiro256PlusPlus,
+    n: usize,
+) -> Vec<rand_xoshiro::Xoshiro256PlusPlus> {
+    let mut r = base;
+    (0..n)
+        .map(|_| {
+            let out = r.clone();
+            r.jump();
+            out
+        })
+        .collect()
+}
+
+/// Writes what every simulated recording has: `ground_truth.tum`, `true_map.{png,pgm,yaml}`,
+/// `world.world` and `sim.toml`.
+pub(crate) fn write_truth(
+    dir: &std::path::Path,
+    ground_truth: &[crate::geometry::StampedPose2],
+    true_map: &TrueMap,
+    world_text: &str,
+    options: &SimOptions,
+) -> Result<(), SimError> {
+    crate::io::tum::write_tum(&dir.join("ground_truth.tum"), ground_truth)?;
+    true_map.write(dir, "true_map")?;
+    crate::io::write_bytes_atomic(&dir.join("world.world"), world_text.as_bytes())?;
+    crate::io::write_bytes_atomic(&dir.join("sim.toml"), sim_toml(options)?.as_bytes())?;
+    Ok(())
+}
+
+/// A standard normal sample.
+pub(crate) fn normal(rng: &mut rand_xoshiro::Xoshiro256PlusPlus) -> f64 {
+    use rand::RngExt;
+    rng.sample(rand_distr::StandardNormal)
+}
+
+/// Nominal sample times `phase + k / rate` over the duration, each with its recorded stamp
+/// (ns) = start + time + jitter (normal, clipped to +-40 % of the period so rows stay ordered).
+pub(crate) fn sample_times(
+    opts: &SimOptions,
+    rate_hz: f64,
+    phase_s: f64,
+    jitter_std_ns: f64,
+    rng: &mut rand_xoshiro::Xoshiro256PlusPlus,
+) -> Vec<(f64, i64)> {
+    let n = ((opts.duration_s - phase_s) * rate_hz).floor().max(0.0) as usize + 1;
+    let clip = 0.4 * 1e9 / rate_hz;
+    (0..n)
+        .map(|k| {
+            let t = phase_s + k as f64 / rate_hz;
+            let jitter = if jitter_std_ns > 0.0 {
+                (normal(rng) * jitter_std_ns).clamp(-clip, clip)
+            } else {
+                0.0
+            };
+            (t, opts.start_stamp_ns + (t * 1e9 + jitter).round() as i64)
+        })
+        .collect()
 }
 
 /// `sim.toml`: the options as a `[sim]` section (loadable as a [`crate::config::Config`]).

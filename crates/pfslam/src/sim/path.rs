@@ -289,6 +289,74 @@ impl Path {
     }
 }
 
+/// Time step of the motion integration (s).
+pub(crate) const DRIVE_DT_S: f64 = 1e-3;
+
+/// The true motion along a path: arc length sampled every [`DRIVE_DT_S`] after a standstill.
+pub(crate) struct Motion {
+    pub(crate) path: Path,
+    pub(crate) s: Vec<f64>,
+    pub(crate) standstill_s: f64,
+}
+
+/// How a vehicle drives its route.
+pub(crate) struct DriveProfile {
+    pub(crate) cruise_mps: f64,
+    pub(crate) accel_mps2: f64,
+    pub(crate) decel_mps2: f64,
+    pub(crate) lateral_mps2: f64,
+    pub(crate) corner_radius_m: f64,
+    pub(crate) standstill_s: f64,
+}
+
+impl Motion {
+    /// Plans the drive along the world's route for `duration_s` (plus a margin).
+    pub(crate) fn plan(
+        world: &super::World,
+        duration_s: f64,
+        p: &DriveProfile,
+    ) -> Result<Motion, SimError> {
+        if world.route.len() < 2 {
+            return Err(SimError::BadRoute(format!(
+                "world {:?} has no route",
+                world.name
+            )));
+        }
+        let path = Path::from_route(&world.route, p.corner_radius_m)?;
+        let steps = ((duration_s + 1.0) / DRIVE_DT_S).ceil() as usize + 2;
+        let s = path.drive(
+            p.cruise_mps,
+            p.accel_mps2,
+            p.decel_mps2,
+            p.lateral_mps2,
+            DRIVE_DT_S,
+            steps,
+        );
+        Ok(Motion {
+            path,
+            s,
+            standstill_s: p.standstill_s,
+        })
+    }
+
+    /// Arc length at time `t_s` (linear between samples).
+    pub(crate) fn s_at(&self, t_s: f64) -> f64 {
+        let t = (t_s - self.standstill_s).max(0.0) / DRIVE_DT_S;
+        let k = (t.floor() as usize).min(self.s.len().saturating_sub(2));
+        let f = (t - k as f64).min(1.0);
+        self.s[k] + f * (self.s[k + 1] - self.s[k])
+    }
+
+    /// Pose (yaw wrapped) and unwrapped yaw at time `t_s`.
+    pub(crate) fn pose_at(&self, t_s: f64) -> (crate::geometry::Pose2, f64) {
+        let p = self.path.at(self.s_at(t_s));
+        (
+            crate::geometry::Pose2::new(p.x_m, p.y_m, p.yaw_rad),
+            p.yaw_rad,
+        )
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -325,7 +393,7 @@ mod tests {
         for w in s.windows(3) {
             let v0 = (w[1] - w[0]) / 0.01;
             let v1 = (w[2] - w[1]) / 0.01;
-            assert!(v1 >= 0.0 && v1 <= 11.0 + 1e-9);
+            assert!((0.0..=11.0 + 1e-9).contains(&v1));
             assert!((v1 - v0).abs() <= 2.0 * 0.01 + 1e-9);
         }
         assert!(s[10_000] > 500.0);

@@ -177,11 +177,11 @@ impl RayCaster {
             let (s0, s1) = (self.cell_start[c] as usize, self.cell_start[c + 1] as usize);
             for &si in &self.cell_items[s0..s1] {
                 let s = &self.segments[si as usize];
-                if let Some(t) = self.intersect(s, o, d) {
-                    if t < best_t {
-                        best_t = t;
-                        best_kind = Some(HitKind::Obstacle(s.prism));
-                    }
+                if let Some(t) = self.intersect(s, o, d)
+                    && t < best_t
+                {
+                    best_t = t;
+                    best_kind = Some(HitKind::Obstacle(s.prism));
                 }
             }
             let t_next = t_max_x.min(t_max_y);
@@ -257,6 +257,82 @@ impl RayCaster {
     }
 }
 
+/// Beam label: no return.
+pub const BEAM_NONE: u8 = 0;
+/// Beam label: hit an obstacle.
+pub const BEAM_OBSTACLE: u8 = 1;
+/// Beam label: hit the ground (floor).
+pub const BEAM_FLOOR: u8 = 2;
+
+/// Errors applied to every beam of a simulated scan.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct BeamErrors {
+    /// Range noise (m, standard deviation).
+    pub(crate) range_noise_std_m: f64,
+    /// Probability that a return is lost (0.0).
+    pub(crate) dropout_prob: f64,
+    /// Probability that a beam reads the maximum range ("no return").
+    pub(crate) max_range_prob: f64,
+}
+
+/// Casts one scan: unit beam directions `beams` in the sensor frame, from
+/// `world_from_sensor`. Writes ranges (f32 m, 0.0 = no return, with the errors) and, when
+/// given, what each beam truly hit ([`BEAM_NONE`], [`BEAM_OBSTACLE`], [`BEAM_FLOOR`]; the label
+/// is the truth even when the return was dropped).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn cast_scan(
+    caster: &RayCaster,
+    world_from_sensor: &crate::geometry::Rigid3,
+    beams: &[nalgebra::Vector3<f64>],
+    max_range_m: f64,
+    err: &BeamErrors,
+    rng: &mut rand_xoshiro::Xoshiro256PlusPlus,
+    ranges: &mut [f32],
+    mut labels: Option<&mut [u8]>,
+) {
+    use rand::RngExt;
+    let t = &world_from_sensor.translation;
+    let o = [t[0], t[1], t[2]];
+    for (k, (b, out)) in beams.iter().zip(ranges.iter_mut()).enumerate() {
+        let d = world_from_sensor.rotation * b;
+        let hit = caster.cast(o, [d[0], d[1], d[2]], max_range_m);
+        if let Some(l) = labels.as_deref_mut() {
+            l[k] = match hit {
+                None => BEAM_NONE,
+                Some(Hit {
+                    kind: HitKind::Ground,
+                    ..
+                }) => BEAM_FLOOR,
+                Some(_) => BEAM_OBSTACLE,
+            };
+        }
+        let mut range = hit.map_or(0.0, |h| h.range_m);
+        if range > 0.0 {
+            if err.range_noise_std_m > 0.0 {
+                range = (range + err.range_noise_std_m * super::normal(rng))
+                    .clamp(0.001, max_range_m - 1e-3);
+            }
+            if err.dropout_prob > 0.0 && rng.random::<f64>() < err.dropout_prob {
+                range = 0.0;
+            }
+        }
+        if err.max_range_prob > 0.0 && rng.random::<f64>() < err.max_range_prob {
+            range = max_range_m;
+        }
+        *out = range as f32;
+    }
+}
+
+/// Unit beam directions of a planar scanner in its own frame.
+pub(crate) fn beam_directions(geom: &crate::sensors::LidarGeometry) -> Vec<nalgebra::Vector3<f64>> {
+    (0..geom.beam_count)
+        .map(|i| {
+            let a = geom.beam_angle_rad(i);
+            nalgebra::Vector3::new(a.cos(), a.sin(), 0.0)
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -285,8 +361,8 @@ mod tests {
         // reaches z = 2 at x = 10.5 (inside): t = sqrt(2)
         assert!((h.range_m - 2f64.sqrt()).abs() < 1e-9, "{h:?}");
         // over it and beyond: ground at x = 20 from z = 3 with slope 3/20... misses the top
-        let dir = [20.0, 0.0, -2.5];
-        let n = (dir[0] * dir[0] + dir[2] * dir[2] as f64).sqrt();
+        let dir: [f64; 3] = [20.0, 0.0, -2.5];
+        let n = (dir[0] * dir[0] + dir[2] * dir[2]).sqrt();
         let h = rc
             .cast([0.0, 0.0, 2.5], [dir[0] / n, 0.0, dir[2] / n], 80.0)
             .unwrap();
@@ -300,6 +376,58 @@ mod tests {
         assert!((h.range_m - n).abs() < 1e-9);
         // upward over the wall: nothing
         assert!(rc.cast([0.0, 0.0, 1.0], [0.6, 0.0, 0.8], 80.0).is_none());
+    }
+
+    /// Every segment and the ground, no grid: the reference for the grid walk.
+    fn brute_force(rc: &RayCaster, o: [f64; 3], d: [f64; 3], max_range_m: f64) -> Option<f64> {
+        let mut best = max_range_m;
+        let mut found = false;
+        if d[2] < 0.0 && o[2] > 0.0 && -o[2] / d[2] < best {
+            best = -o[2] / d[2];
+            found = true;
+        }
+        for s in &rc.segments {
+            if let Some(t) = rc.intersect(s, o, d)
+                && t < best
+            {
+                best = t;
+                found = true;
+            }
+        }
+        found.then_some(best)
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn grid_walk_matches_brute_force(
+            boxes in proptest::collection::vec(
+                (-40.0f64..40.0, -40.0f64..40.0, 0.2f64..8.0, 0.2f64..8.0, 0.0f64..3.0,
+                 0.0f64..2.0, 0.5f64..20.0),
+                1..30,
+            ),
+            rays in proptest::collection::vec(
+                (-30.0f64..30.0, -30.0f64..30.0, 0.1f64..5.0, 0.0f64..6.3, -1.2f64..1.2),
+                1..40,
+            ),
+            cell in 0.5f64..6.0,
+        ) {
+            let prisms = boxes
+                .iter()
+                .filter_map(|&(x, y, l, w, yaw, z0, h)| Prism::rect("b", [x, y], l, w, yaw, z0, z0 + h))
+                .collect();
+            let w = World { name: "p".into(), prisms, ground: Default::default(), route: vec![] };
+            let rc = RayCaster::new(&w, cell, 100.0);
+            for &(x, y, z, az, el) in &rays {
+                let d = [el.cos() * az.cos(), el.cos() * az.sin(), el.sin()];
+                let got = rc.cast([x, y, z], d, 80.0).map(|h| h.range_m);
+                let want = brute_force(&rc, [x, y, z], d, 80.0);
+                match (got, want) {
+                    (Some(a), Some(b)) => proptest::prop_assert!((a - b).abs() < 1e-9, "{a} vs {b}"),
+                    (None, None) => {}
+                    _ => proptest::prop_assert!(false, "{got:?} vs {want:?}"),
+                }
+            }
+        }
     }
 
     #[test]

@@ -5,12 +5,16 @@
 //! footprint of an obstacle whose vertical extent `[z_min, z_max]` intersects the LiDAR's
 //! scanning band `[band_min, band_max]` (options `truth_band_min_m`, `truth_band_max_m`):
 //! those are the obstacles a horizontal-ish scanner at that height range can hit and a 2-D
-//! SLAM map can show. Everything else (ground, obstacles entirely below or above the band) is
+//! SLAM map can show. Defaults: car 1.7-4 m (the LiDAR is at 1.76 m and its beams run level
+//! sideways and rise forwards, so lower obstacles such as parked cars are overflown, not
+//! hit); humanoid 0.2-2 m (walls, furniture; the floor is never in the map). Everything else (ground, obstacles entirely below or above the band) is
 //! free. Footprints are filled: the SLAM map only ever sees their outlines, so compare
 //! boundaries (or "occupied cells near a true occupied cell"), not interiors.
 
 use super::world::{World, point_in_polygon};
-use crate::io::{IoError, write_atomic, write_bytes_atomic};
+use crate::io::map_files::write_map_server;
+use crate::io::{IoError, write_bytes_atomic};
+use crate::map::{BinaryMap, CellState, MapLimits};
 use std::path::Path;
 
 /// An occupancy raster of the world (true = occupied).
@@ -119,7 +123,8 @@ impl TrueMap {
         px
     }
 
-    /// Writes `<stem>.png`, `<stem>.pgm` and `<stem>.yaml` into `dir`.
+    /// Writes `<stem>.png`, and `<stem>.pgm` + `<stem>.yaml` (map_server pair, via
+    /// [`crate::io::map_files::write_map_server`]) into `dir`.
     pub fn write(&self, dir: &Path, stem: &str) -> Result<(), IoError> {
         let px = self.image_rows();
         let png_path = dir.join(format!("{stem}.png"));
@@ -136,23 +141,29 @@ impl TrueMap {
             .map_err(|e| IoError::io(&png_path, std::io::Error::other(e.to_string())))?;
         }
         write_bytes_atomic(&png_path, &png)?;
-        let pgm_name = format!("{stem}.pgm");
-        write_atomic(&dir.join(&pgm_name), |w| {
-            write!(w, "P5\n{} {}\n255\n", self.width, self.height)?;
-            w.write_all(&px)
-        })?;
-        write_atomic(&dir.join(format!("{stem}.yaml")), |w| {
-            writeln!(w, "image: {pgm_name}")?;
-            writeln!(w, "resolution: {}", self.resolution_m)?;
-            writeln!(
-                w,
-                "origin: [{}, {}, 0.0]",
-                self.origin_m[0], self.origin_m[1]
-            )?;
-            writeln!(w, "negate: 0")?;
-            writeln!(w, "occupied_thresh: 0.65")?;
-            writeln!(w, "free_thresh: 0.196")
-        })
+        write_map_server(&self.to_binary_map(), &dir.join(format!("{stem}.yaml")))?;
+        Ok(())
+    }
+
+    /// The map as the map component's raster (occupied / free; nothing unknown), e.g. for
+    /// [`crate::map::compare_maps`].
+    pub fn to_binary_map(&self) -> BinaryMap {
+        BinaryMap {
+            limits: MapLimits::new(self.resolution_m, self.origin_m[0], self.origin_m[1]),
+            width: self.width,
+            height: self.height,
+            cells: self
+                .occupied
+                .iter()
+                .map(|&o| {
+                    if o {
+                        CellState::Occupied
+                    } else {
+                        CellState::Free
+                    }
+                })
+                .collect(),
+        }
     }
 }
 
@@ -184,9 +195,10 @@ mod tests {
         assert!((400..=450).contains(&n), "{n}");
         let dir = tempfile::tempdir().unwrap();
         m.write(dir.path(), "true_map").unwrap();
-        let pgm = std::fs::read(dir.path().join("true_map.pgm")).unwrap();
-        assert!(pgm.starts_with(format!("P5\n{} {}\n255\n", m.width, m.height).as_bytes()));
-        let yaml = std::fs::read_to_string(dir.path().join("true_map.yaml")).unwrap();
-        assert!(yaml.contains("resolution: 0.1"));
+        let back =
+            crate::io::map_files::read_map_server(&dir.path().join("true_map.yaml")).unwrap();
+        assert_eq!(back.width, m.width);
+        assert_eq!(back.cells, m.to_binary_map().cells);
+        assert_eq!(back.state_at(5.0, 5.0), CellState::Occupied);
     }
 }

@@ -59,9 +59,10 @@ impl Prism {
         z_max_m: f64,
     ) -> Option<Self> {
         if footprint.len() < 3
-            || !(z_max_m > z_min_m)
-            || z_min_m < 0.0
+            || !z_min_m.is_finite()
             || !z_max_m.is_finite()
+            || z_max_m <= z_min_m
+            || z_min_m < 0.0
             || footprint
                 .iter()
                 .any(|p| !p[0].is_finite() || !p[1].is_finite())
@@ -239,6 +240,8 @@ impl World {
     pub fn from_name_or_file(name_or_path: &str) -> Result<World, SimError> {
         if BUILTIN_WORLDS.contains(&name_or_path) {
             World::builtin(name_or_path)
+        } else if !Path::new(name_or_path).exists() {
+            Err(SimError::UnknownWorld(name_or_path.to_string()))
         } else {
             World::from_file(Path::new(name_or_path))
         }
@@ -294,7 +297,7 @@ impl World {
             };
             let points = |from: usize, min: usize| -> Result<Vec<[f64; 2]>, SimError> {
                 let rest = toks.len().saturating_sub(from);
-                if rest % 2 != 0 {
+                if !rest.is_multiple_of(2) {
                     return Err(err(format!("{}: odd number of coordinates", toks[0])));
                 }
                 if rest / 2 < min {
@@ -426,6 +429,29 @@ impl World {
         s
     }
 
+    /// Shifts everything (obstacles, ground, route) by `(dx_m, dy_m)`.
+    pub fn translate(&mut self, dx_m: f64, dy_m: f64) {
+        let shift = |p: &mut [f64; 2]| {
+            p[0] += dx_m;
+            p[1] += dy_m;
+        };
+        self.prisms
+            .iter_mut()
+            .flat_map(|p| p.footprint.iter_mut())
+            .for_each(shift);
+        self.ground
+            .regions
+            .iter_mut()
+            .flat_map(|r| r.polygon.iter_mut())
+            .for_each(shift);
+        self.ground
+            .markings
+            .iter_mut()
+            .flat_map(|m| m.points.iter_mut())
+            .for_each(shift);
+        self.route.iter_mut().for_each(shift);
+    }
+
     /// Axis-aligned bounds of obstacles and route: `[x_min, y_min, x_max, y_max]`.
     pub fn bounds(&self) -> [f64; 4] {
         let mut b = [
@@ -520,20 +546,25 @@ fn campus() -> World {
     }
     // Outer row of buildings, except south of the park (open field on both sides there).
     let outer = STREET_HALF_M + 6.0;
-    let mut sides: Vec<([f64; 2], [f64; 2], [f64; 2])> = Vec::new();
-    // (start, end, outward normal) along the outside of the outer streets
-    sides.push((
-        [x0 - 20.0, y0 - outer],
-        [CAMPUS_X[2] - 10.0, y0 - outer],
-        [0.0, -1.0],
-    ));
-    sides.push(([x0 - 20.0, y1 + outer], [x1 + 20.0, y1 + outer], [0.0, 1.0]));
-    sides.push((
-        [x0 - outer, y0 + 15.0],
-        [x0 - outer, y1 - 15.0],
-        [-1.0, 0.0],
-    ));
-    sides.push(([x1 + outer, y0 + 40.0], [x1 + outer, y1 - 15.0], [1.0, 0.0]));
+    // (start, end, normal towards the street) along the outside of the outer streets
+    let sides: [([f64; 2], [f64; 2], [f64; 2]); 4] = [
+        (
+            [x0 - 20.0, y0 - outer],
+            [CAMPUS_X[2] - 10.0, y0 - outer],
+            [0.0, 1.0],
+        ),
+        (
+            [x0 - 20.0, y1 + outer],
+            [x1 + 20.0, y1 + outer],
+            [0.0, -1.0],
+        ),
+        ([x0 - outer, y0 + 15.0], [x0 - outer, y1 - 15.0], [1.0, 0.0]),
+        (
+            [x1 + outer, y0 + 40.0],
+            [x1 + outer, y1 - 15.0],
+            [-1.0, 0.0],
+        ),
+    ];
     for (a, b, n) in sides {
         facade_row(&mut rng, &mut prisms, a, b, n);
     }
@@ -566,10 +597,12 @@ fn campus() -> World {
         }
     }
     let p = |i: usize, j: usize| [CAMPUS_X[i], CAMPUS_Y[j]];
-    // Loop 1 around block (0,0), then the long perimeter past the park, then around block
-    // (1,1) and (0,1): the same streets are driven several times in both loops.
+    // Start on the first street (so the car starts on a straight, at the origin, heading +x);
+    // loop 1 around block (0,0), then the long perimeter past the park, then around block
+    // (1,1) and (0,1): the same streets are driven several times in both directions of travel.
+    let start = [CAMPUS_X[0] + 20.0, CAMPUS_Y[0]];
     let route = vec![
-        p(0, 0),
+        start,
         p(1, 0),
         p(1, 1),
         p(0, 1),
@@ -581,8 +614,9 @@ fn campus() -> World {
         p(1, 1),
         p(1, 2),
         p(0, 2),
+        p(0, 0),
     ];
-    World {
+    let mut w = World {
         name: "campus".to_string(),
         prisms,
         ground: GroundTexture {
@@ -590,30 +624,14 @@ fn campus() -> World {
             regions,
             markings,
         },
-        route: dedup_collinear(route),
-    }
+        route,
+    };
+    w.translate(-start[0], -start[1]);
+    w
 }
 
 fn rect_poly(x0: f64, y0: f64, x1: f64, y1: f64) -> Vec<[f64; 2]> {
     vec![[x0, y0], [x1, y0], [x1, y1], [x0, y1]]
-}
-
-/// Removes waypoints that lie on the straight line through their neighbours (they would give
-/// zero-angle corners) — the route stays the same.
-fn dedup_collinear(route: Vec<[f64; 2]>) -> Vec<[f64; 2]> {
-    let n = route.len();
-    let mut out = Vec::with_capacity(n);
-    for i in 0..n {
-        let a = route[(i + n - 1) % n];
-        let b = route[i];
-        let c = route[(i + 1) % n];
-        let cross = (b[0] - a[0]) * (c[1] - b[1]) - (b[1] - a[1]) * (c[0] - b[0]);
-        let dot = (b[0] - a[0]) * (c[0] - b[0]) + (b[1] - a[1]) * (c[1] - b[1]);
-        if cross.abs() > 1e-9 || dot < 0.0 {
-            out.push(b);
-        }
-    }
-    out
 }
 
 fn uniform(rng: &mut Xoshiro256PlusPlus, lo: f64, hi: f64) -> f64 {
@@ -629,7 +647,8 @@ fn block_buildings(rng: &mut Xoshiro256PlusPlus, out: &mut Vec<Prism>, b: [f64; 
     facade_row(rng, out, [x1, y0 + 28.0], [x1, y1 - 28.0], [1.0, 0.0]);
 }
 
-/// A row of buildings whose facades lie along `a -> b`, facing `normal` (towards the street).
+/// A row of buildings whose facades lie along `a -> b`, facing `normal` (towards the street);
+/// the buildings extend away from the street.
 fn facade_row(
     rng: &mut Xoshiro256PlusPlus,
     out: &mut Vec<Prism>,
@@ -689,7 +708,7 @@ fn street_furniture(
         return;
     }
     // trees on every other street
-    if street % 2 == 0 {
+    if street.is_multiple_of(2) {
         let mut s = 20.0;
         while s < len - 15.0 {
             for side in [-1.0, 1.0] {
@@ -716,10 +735,13 @@ fn street_furniture(
         let mut s = 16.0;
         while s < len - 16.0 {
             if rng.random::<f64>() < 0.55 {
-                let l = uniform(rng, 4.2, 5.2);
-                let h = uniform(rng, 1.45, 2.1);
-                if let Some(p) =
-                    Prism::rect("car", at(s + 0.5 * l, side * 5.9), l, 1.8, yaw, 0.0, h)
+                // cars stay below the LiDAR (1.76 m), vans and trucks reach above it
+                let (kind, l, h) = if rng.random::<f64>() < 0.85 {
+                    ("car", uniform(rng, 4.2, 5.0), uniform(rng, 1.35, 1.6))
+                } else {
+                    ("van", uniform(rng, 5.0, 6.5), uniform(rng, 2.2, 3.0))
+                };
+                if let Some(p) = Prism::rect(kind, at(s + 0.5 * l, side * 5.9), l, 1.9, yaw, 0.0, h)
                 {
                     out.push(p);
                 }
@@ -782,12 +804,12 @@ fn office() -> World {
         }
         // a table in the middle of each room, floating top on four legs
         for yt in [5.0, h - 5.0] {
-            if let Some(p) = Prism::rect("table", [rx0 + 2.2, yt], 1.4, 0.9, 0.0, 0.7, 0.75) {
+            if let Some(p) = Prism::rect("table", [rx0 + 4.0, yt], 1.4, 0.9, 0.0, 0.7, 0.75) {
                 prisms.push(p);
             }
             for (lx, ly) in [(-0.6, -0.35), (0.6, -0.35), (0.6, 0.35), (-0.6, 0.35)] {
                 if let Some(p) =
-                    Prism::rect("leg", [rx0 + 2.2 + lx, yt + ly], 0.06, 0.06, 0.0, 0.0, 0.7)
+                    Prism::rect("leg", [rx0 + 4.0 + lx, yt + ly], 0.06, 0.06, 0.0, 0.0, 0.7)
                 {
                     prisms.push(p);
                 }
@@ -800,9 +822,12 @@ fn office() -> World {
             prisms.push(p);
         }
     }
-    // route: along the corridor, into room 1 (south), back, along, into room 3 (north)
+    // Route: start in the corridor heading +x, tour a south room, a north room at the east
+    // end, walk back west and tour the first north room; rooms are entered and left through
+    // their doors, around their tables.
+    let start = [6.0, 12.0];
     let route = vec![
-        [2.0, 12.0],
+        start,
         [20.0, 12.0],
         [20.0, 7.0],
         [17.5, 7.0],
@@ -820,11 +845,15 @@ fn office() -> World {
         [36.0, 16.5],
         [36.0, 12.0],
         [4.0, 12.0],
-        [4.0, 17.0],
-        [2.0, 17.0],
-        [2.0, 12.0],
+        [4.0, 16.5],
+        [1.5, 16.5],
+        [1.5, 20.5],
+        [6.5, 20.5],
+        [6.5, 16.5],
+        [4.0, 16.5],
+        [4.0, 12.0],
     ];
-    World {
+    let mut w = World {
         name: "office".to_string(),
         prisms,
         ground: GroundTexture {
@@ -835,8 +864,10 @@ fn office() -> World {
             }],
             markings: Vec::new(),
         },
-        route: dedup_collinear(route),
-    }
+        route,
+    };
+    w.translate(-start[0], -start[1]);
+    w
 }
 
 #[cfg(test)]
@@ -854,6 +885,40 @@ mod tests {
             }
         }
         assert!(World::builtin("nope").is_err());
+    }
+
+    #[test]
+    fn routes_keep_clear_of_obstacles() {
+        // the driven path (centre of the vehicle) keeps this far from every footprint
+        for (name, radius, clearance) in [("campus", 9.0, 2.5), ("office", 0.6, 0.5)] {
+            let w = World::builtin(name).unwrap();
+            let path = crate::sim::path::Path::from_route(&w.route, radius).unwrap();
+            let mut s = 0.0;
+            while s < path.lap_m() {
+                let p = path.at(s);
+                for pr in &w.prisms {
+                    let n = pr.footprint.len();
+                    let d = (0..n)
+                        .map(|k| {
+                            dist_point_segment(
+                                p.x_m,
+                                p.y_m,
+                                pr.footprint[k],
+                                pr.footprint[(k + 1) % n],
+                            )
+                        })
+                        .fold(f64::INFINITY, f64::min);
+                    assert!(
+                        !pr.contains_xy(p.x_m, p.y_m) && d >= clearance,
+                        "{name}: path at s = {s:.1} ({:.1}, {:.1}) is {d:.2} m from a {}",
+                        p.x_m,
+                        p.y_m,
+                        pr.kind
+                    );
+                }
+                s += 0.5;
+            }
+        }
     }
 
     #[test]
@@ -887,8 +952,10 @@ mod tests {
     #[test]
     fn ground_texture_layers() {
         let w = World::builtin("campus").unwrap();
-        assert_eq!(w.ground.rgb_at(0.0, 50.0), [230, 230, 230]); // lane line
-        assert_eq!(w.ground.rgb_at(3.0, 50.0), [60, 60, 64]); // asphalt
-        assert_eq!(w.ground.rgb_at(350.0, 60.0), [70, 120, 50]); // park
+        // the campus is shifted by -20 m in x so the car starts at the origin
+        assert_eq!(w.route[0], [0.0, 0.0]);
+        assert_eq!(w.ground.rgb_at(-20.0, 50.0), [230, 230, 230]); // lane line
+        assert_eq!(w.ground.rgb_at(-17.0, 50.0), [60, 60, 64]); // asphalt
+        assert_eq!(w.ground.rgb_at(330.0, 60.0), [70, 120, 50]); // park
     }
 }

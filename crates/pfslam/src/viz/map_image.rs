@@ -61,7 +61,7 @@ pub struct TrajectoryOverlay<'a> {
 pub struct MapImageOptions {
     /// Longest image side (px) before reduction.
     pub max_side_px: usize,
-    /// Shortest longest-side (px) before enlargement.
+    /// Smaller maps are enlarged by an integer factor until their longest side reaches this (px).
     pub min_side_px: usize,
     /// Cells of margin around what is drawn.
     pub margin_cells: i32,
@@ -161,7 +161,7 @@ impl Layout {
         let side = rect.width().max(rect.height());
         let down = side.div_ceil(opts.max_side_px.max(1)).max(1);
         let up = if down == 1 && side < opts.min_side_px {
-            (opts.min_side_px / side.max(1)).max(1)
+            opts.min_side_px.div_ceil(side.max(1)).max(1)
         } else {
             1
         };
@@ -470,9 +470,9 @@ mod tests {
             ..MapImageOptions::default()
         };
         let pic = render_map(&g, &overlays, Some(&s), &opts).unwrap();
-        // 101 cells + 2 x 10 margin = 121 cells, enlarged x4 to 484 px
-        assert_eq!(pic.px_per_cell, 4.0);
-        assert_eq!((pic.width, pic.height), (484, 484));
+        // 101 cells + 2 x 10 margin = 121 cells, enlarged x5 to 605 px
+        assert_eq!(pic.px_per_cell, 5.0);
+        assert_eq!((pic.width, pic.height), (605, 605));
         let at = |x: u32, y: u32| {
             let k = (y * pic.width + x) as usize * 3;
             [pic.rgb[k], pic.rgb[k + 1], pic.rgb[k + 2]]
@@ -480,8 +480,8 @@ mod tests {
         let px = |x_m: f64, y_m: f64| {
             let c = g.cell_of(x_m, y_m);
             (
-                ((c.i - pic.rect.min_i) as f64 * 4.0 + 2.0) as u32,
-                ((pic.rect.max_j - c.j) as f64 * 4.0 + 2.0) as u32,
+                ((c.i - pic.rect.min_i) as f64 * 5.0 + 2.0) as u32,
+                ((pic.rect.max_j - c.j) as f64 * 5.0 + 2.0) as u32,
             )
         };
         let (x, y) = px(0.0, 3.0); // inside the circle: free
@@ -495,8 +495,8 @@ mod tests {
         assert!(c == [0, 90, 255] || c == [0, 170, 0], "{c:?}");
         // the last scan's points are green (drawn centred on their exact position)
         let (ci, cj) = g.limits().cell_coords(-5.0, 0.0);
-        let x = ((ci - pic.rect.min_i as f64) * 4.0).round() as u32;
-        let y = ((pic.rect.max_j as f64 + 1.0 - cj) * 4.0).round() as u32;
+        let x = ((ci - pic.rect.min_i as f64) * 5.0).round() as u32;
+        let y = ((pic.rect.max_j as f64 + 1.0 - cj) * 5.0).round() as u32;
         assert_eq!(at(x, y), [0, 170, 0]);
         // legend box in the top-left corner is light, with some dark text pixels
         let dark = (0..200)

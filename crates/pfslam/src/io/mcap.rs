@@ -1,0 +1,155 @@
+//! ROS 2 recordings in MCAP (`.mcap`, CDR-encoded `sensor_msgs/msg/LaserScan`,
+//! `nav_msgs/msg/Odometry`, `tf2_msgs/msg/TFMessage` on `/tf_static`) into a [`Recording`]
+//! (see [`super::ros_msgs`] for the options and conventions), and a small writer of such
+//! files (used by the tests to make MCAP files from real bags, since no real MCAP is at hand).
+//!
+//! The file is memory-mapped and its messages are visited in file order, chunk by chunk (each
+//! chunk decompressed on its own) by the `mcap` crate. Errors name the message index.
+
+use super::IoError;
+use super::ros_msgs::{
+    Decoder, OdomMsg, RecordingBuilder, RosError, RosOptions, RosStats, ScanMsg, decode_odometry,
+    decode_scan, decode_tf, encode,
+};
+use crate::sensors::Recording;
+use std::collections::BTreeMap;
+use std::path::Path;
+
+/// Reads an MCAP file into a [`Recording`].
+pub fn read_mcap(path: &Path, options: &RosOptions) -> Result<Recording, RosError> {
+    read_mcap_with_stats(path, options).map(|(r, _)| r)
+}
+
+/// Reads a MCAP file into a [`Recording`], with what was read and dropped.
+pub fn read_mcap_with_stats(
+    path: &Path,
+    options: &RosOptions,
+) -> Result<(Recording, RosStats), RosError> {
+    let file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
+    // SAFETY: the file is opened read-only; as with any memory map, another process
+    // truncating it while we read is outside what we can guard against.
+    let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|e| IoError::io(path, e))?;
+    let stream = ::mcap::MessageStream::new(&map)
+        .map_err(|e| RosError::format(path, "byte 0", e.to_string()))?;
+    let mut builder = RecordingBuilder::new();
+    for (k, msg) in stream.enumerate() {
+        let pos = || format!("message {k}");
+        let msg = msg.map_err(|e| RosError::format(path, pos(), e.to_string()))?;
+        let topic = msg.channel.topic.as_str();
+        let kind = if topic == options.scan_topic {
+            "sensor_msgs/msg/LaserScan"
+        } else if topic == options.odom_topic {
+            "nav_msgs/msg/Odometry"
+        } else if topic == options.tf_static_topic {
+            "tf2_msgs/msg/TFMessage"
+        } else {
+            continue;
+        };
+        if msg.channel.message_encoding != "cdr" {
+            return Err(RosError::format(
+                path,
+                pos(),
+                format!(
+                    "topic {topic}: message encoding {:?}, only \"cdr\" is supported",
+                    msg.channel.message_encoding
+                ),
+            ));
+        }
+        if let Some(schema) = &msg.channel.schema
+            && schema.name != kind
+        {
+            return Err(RosError::format(
+                path,
+                pos(),
+                format!("topic {topic} carries {}, expected {kind}", schema.name),
+            ));
+        }
+        let err = |e: String| RosError::format(path, pos(), format!("{kind} on {topic}: {e}"));
+        let mut d = Decoder::cdr(&msg.data).map_err(err)?;
+        if topic == options.scan_topic {
+            let scan = decode_scan(&mut d).map_err(err)?;
+            builder.add_scan(scan).map_err(err)?;
+        } else if topic == options.odom_topic {
+            builder.add_odometry(decode_odometry(&mut d).map_err(err)?);
+        } else {
+            builder.add_tf_static(decode_tf(&mut d).map_err(err)?);
+        }
+    }
+    builder
+        .finish(super::carmen::recording_name(path), options)
+        .map_err(|e| RosError::format(path, "whole file", e))
+}
+
+/// Writes the scans and odometry of `recording` as an MCAP file of CDR messages on the topics
+/// of `options` (frames `laser`, `base_link`, `odom`; beam angles from `recording.lidar`;
+/// no `/tf_static`), atomically. For tests and examples: the output of pfslam is TUM, maps and JSON.
+pub fn write_mcap(
+    path: &Path,
+    recording: &Recording,
+    options: &RosOptions,
+) -> Result<(), RosError> {
+    let mcap_err = |e: ::mcap::McapError| RosError::format(path, "writing", e.to_string());
+    // built in memory (the writer seeks), then written atomically
+    let mut w = ::mcap::Writer::new(std::io::Cursor::new(Vec::new())).map_err(mcap_err)?;
+    let meta = BTreeMap::new();
+    let scan_schema = w
+        .add_schema("sensor_msgs/msg/LaserScan", "ros2msg", b"")
+        .map_err(mcap_err)?;
+    let odom_schema = w
+        .add_schema("nav_msgs/msg/Odometry", "ros2msg", b"")
+        .map_err(mcap_err)?;
+    let scan_ch = w
+        .add_channel(scan_schema, &options.scan_topic, "cdr", &meta)
+        .map_err(mcap_err)?;
+    let odom_ch = w
+        .add_channel(odom_schema, &options.odom_topic, "cdr", &meta)
+        .map_err(mcap_err)?;
+    // merge both streams by time, as a recorder would
+    let g = &recording.lidar;
+    let scans = &recording.scans;
+    let odom = &recording.odometry.poses;
+    let (mut i, mut j, mut seq) = (0usize, 0usize, 0u32);
+    while i < scans.len() || j < odom.len() {
+        let take_scan =
+            j >= odom.len() || (i < scans.len() && scans.stamps_ns[i] <= odom[j].stamp_ns);
+        let (channel_id, stamp_ns, data) = if take_scan {
+            let n = scans.beam_count;
+            let msg = ScanMsg {
+                stamp_ns: scans.stamps_ns[i],
+                frame_id: "laser".into(),
+                angle_min: g.angle_min_rad as f32,
+                angle_max: g.beam_angle_rad(n.saturating_sub(1)) as f32,
+                angle_increment: g.angle_increment_rad as f32,
+                range_min: 0.0,
+                range_max: g.range_max_m,
+                ranges: scans.ranges(i).to_vec(),
+            };
+            i += 1;
+            (scan_ch, msg.stamp_ns, encode::scan_cdr(&msg))
+        } else {
+            let msg = OdomMsg {
+                stamp_ns: odom[j].stamp_ns,
+                frame_id: "odom".into(),
+                child_frame_id: "base_link".into(),
+                pose: odom[j].pose,
+            };
+            j += 1;
+            (odom_ch, msg.stamp_ns, encode::odometry_cdr(&msg))
+        };
+        let t = u64::try_from(stamp_ns).unwrap_or(0);
+        w.write_to_known_channel(
+            &::mcap::records::MessageHeader {
+                channel_id,
+                sequence: seq,
+                log_time: t,
+                publish_time: t,
+            },
+            &data,
+        )
+        .map_err(mcap_err)?;
+        seq += 1;
+    }
+    w.finish().map_err(mcap_err)?;
+    super::write_bytes_atomic(path, w.into_inner().get_ref())?;
+    Ok(())
+}

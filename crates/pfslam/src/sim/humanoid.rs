@@ -1,0 +1,319 @@
+//! The humanoid (THOR-like): walks the world's route with a gait sway, turns and pitches its
+//! head (so some beams hit the floor), and records drifting odometry poses, IMU attitude,
+//! joint angles and a Hokuyo UTM-30LX on the head, in the layout of
+//! [`crate::io::humanoid`].
+//!
+//! Ground truth: `ground_truth.tum` (true pose at every LiDAR stamp) and `beam_labels.csv`
+//! (header `timestamp_ns,labels`; per scan one string of N digits, one per beam:
+//! `0` no return, `1` obstacle, `2` floor) — the floor hits are what a z filter must remove.
+
+use super::path::{DriveProfile, Motion};
+use super::raycast::{BeamErrors, RayCaster, beam_directions, cast_scan};
+use super::truth::TrueMap;
+use super::world::World;
+use super::{
+    SimError, SimOptions, jumped_stream_vec, jumped_streams, normal, sample_times, write_truth,
+};
+use crate::geometry::{Pose2, Rigid3, StampedPose2};
+use crate::io::IoError;
+use crate::io::humanoid::{
+    HumanoidCalibration, HumanoidDataset, ImuSample, JointSample, humanoid_recording,
+    write_humanoid_dataset,
+};
+use crate::sensors::{Recording, ScanSet};
+use rand::SeedableRng;
+use rand_xoshiro::Xoshiro256PlusPlus;
+use rayon::prelude::*;
+use std::f64::consts::PI;
+use std::path::Path;
+
+pub use super::raycast::{BEAM_FLOOR, BEAM_NONE, BEAM_OBSTACLE};
+
+/// Ground-truth beam label file name.
+pub const BEAM_LABELS_CSV: &str = "beam_labels.csv";
+
+const SCAN_BLOCK: usize = 64;
+
+/// A simulated humanoid recording with its ground truth.
+#[derive(Debug, Clone)]
+pub struct HumanoidSimOutput {
+    /// The dataset.
+    pub dataset: HumanoidDataset,
+    /// True pose at every LiDAR stamp.
+    pub ground_truth: Vec<StampedPose2>,
+    /// Per scan, per beam: [`BEAM_NONE`], [`BEAM_OBSTACLE`] or [`BEAM_FLOOR`] (flat, like
+    /// the ranges).
+    pub beam_labels: Vec<u8>,
+    /// The true map.
+    pub true_map: TrueMap,
+    /// The options used.
+    pub options: SimOptions,
+    /// The world in world-file form.
+    pub world_text: String,
+    /// Distance walked (m).
+    pub distance_m: f64,
+}
+
+impl HumanoidSimOutput {
+    /// Number of beams that hit the floor.
+    pub fn ground_beam_count(&self) -> usize {
+        self.beam_labels
+            .iter()
+            .filter(|&&l| l == BEAM_FLOOR)
+            .count()
+    }
+
+    /// The common recording (see [`humanoid_recording`]) with the ground truth attached.
+    pub fn recording(&self) -> Recording {
+        let mut r = humanoid_recording(&self.dataset, "humanoid-sim");
+        r.ground_truth = Some(self.ground_truth.clone());
+        r
+    }
+}
+
+/// Neck yaw and head pitch (rad) at time `t_s`.
+fn joints_at(h: &super::HumanoidSimOptions, t_s: f64) -> (f64, f64) {
+    let yaw = h.neck_yaw_amplitude_rad * (2.0 * PI * t_s / h.neck_yaw_period_s).sin();
+    let f = 0.5 - 0.5 * (2.0 * PI * t_s / h.head_pitch_period_s).cos();
+    (
+        yaw,
+        h.head_pitch_min_rad + f * (h.head_pitch_max_rad - h.head_pitch_min_rad),
+    )
+}
+
+/// Body roll and pitch from the gait (rad) at time `t_s`.
+fn sway_at(h: &super::HumanoidSimOptions, t_s: f64) -> (f64, f64) {
+    let w = 2.0 * PI * h.step_frequency_hz * t_s;
+    (
+        h.sway_amplitude_rad * w.sin(),
+        0.5 * h.sway_amplitude_rad * (2.0 * w + 0.7).sin(),
+    )
+}
+
+/// Simulates the humanoid on `world` with `opts` (seed included).
+pub fn simulate_humanoid(world: &World, opts: &SimOptions) -> Result<HumanoidSimOutput, SimError> {
+    opts.validate()?;
+    let h = &opts.humanoid;
+    let cal = HumanoidCalibration::default();
+    let motion = Motion::plan(
+        world,
+        opts.duration_s,
+        &DriveProfile {
+            cruise_mps: h.walk_speed_mps,
+            accel_mps2: h.max_accel_mps2,
+            decel_mps2: h.max_accel_mps2,
+            lateral_mps2: h.max_lateral_accel_mps2,
+            corner_radius_m: h.corner_radius_m,
+            standstill_s: 1.0,
+        },
+    )?;
+    let [mut rng_stamps, mut rng_odo, mut rng_imu, lidar_base] =
+        jumped_streams(Xoshiro256PlusPlus::seed_from_u64(opts.seed));
+    let jitter = h.stamp_jitter_std_ns;
+    let odo_times = sample_times(opts, h.odometry_rate_hz, 0.0, jitter, &mut rng_stamps);
+    let imu_times = sample_times(opts, h.odometry_rate_hz, 0.002, jitter, &mut rng_stamps);
+    let joint_times = sample_times(opts, h.odometry_rate_hz, 0.004, jitter, &mut rng_stamps);
+    let lidar_times = sample_times(opts, h.lidar_rate_hz, 0.011, jitter, &mut rng_stamps);
+
+    // Odometry: true increments with scale error, heading drift and noise, integrated.
+    let mut odometry = Vec::with_capacity(odo_times.len());
+    let dt = 1.0 / h.odometry_rate_hz;
+    let mut prev_true = motion.pose_at(odo_times.first().map_or(0.0, |o| o.0)).0;
+    let mut odo = prev_true;
+    for &(t, stamp_ns) in &odo_times {
+        let p = motion.pose_at(t).0;
+        let d = prev_true.between(&p);
+        prev_true = p;
+        let (nx, ny, nth) = if h.odometry_noise_std > 0.0 {
+            let sd = h.odometry_noise_std;
+            (
+                sd * normal(&mut rng_odo),
+                sd * normal(&mut rng_odo),
+                sd * normal(&mut rng_odo),
+            )
+        } else {
+            (0.0, 0.0, 0.0)
+        };
+        let k = 1.0 + h.odometry_scale_error;
+        let noisy = Pose2::new(
+            d.x_m * k + nx,
+            d.y_m * k + ny,
+            d.yaw_rad + h.odometry_yaw_drift_rad_per_s * dt + nth,
+        );
+        odo = odo.compose(&noisy);
+        odometry.push(StampedPose2 {
+            stamp_ns,
+            pose: odo,
+        });
+    }
+    let t0 = imu_times.first().map_or(0.0, |o| o.0);
+    let imu: Vec<ImuSample> = imu_times
+        .iter()
+        .map(|&(t, stamp_ns)| {
+            let (roll, pitch) = sway_at(h, t);
+            let yaw = motion.pose_at(t).1 + h.imu_yaw_drift_rad_per_s * (t - t0);
+            let sd = h.imu_noise_std_rad;
+            let mut n = || {
+                if sd > 0.0 {
+                    sd * normal(&mut rng_imu)
+                } else {
+                    0.0
+                }
+            };
+            ImuSample {
+                stamp_ns,
+                roll_rad: roll + n(),
+                pitch_rad: pitch + n(),
+                yaw_rad: crate::geometry::wrap_angle(yaw + n()),
+            }
+        })
+        .collect();
+    let joints: Vec<JointSample> = joint_times
+        .iter()
+        .map(|&(t, stamp_ns)| {
+            let (yaw, pitch) = joints_at(h, t);
+            let sd = h.joint_noise_std_rad;
+            let mut n = || {
+                if sd > 0.0 {
+                    sd * normal(&mut rng_imu)
+                } else {
+                    0.0
+                }
+            };
+            JointSample {
+                stamp_ns,
+                neck_yaw_rad: yaw + n(),
+                head_pitch_rad: pitch + n(),
+            }
+        })
+        .collect();
+
+    // LiDAR with labels.
+    let geom = cal.lidar;
+    let nb = geom.beam_count;
+    let max_range = f64::from(geom.range_max_m);
+    let caster = RayCaster::new(world, 1.0, 40.0);
+    let mut ranges = vec![0.0f32; lidar_times.len() * nb];
+    let mut labels = vec![BEAM_NONE; lidar_times.len() * nb];
+    let n_blocks = lidar_times.len().div_ceil(SCAN_BLOCK);
+    let block_rngs = jumped_stream_vec(lidar_base, n_blocks);
+    let beams = beam_directions(&geom);
+    let errors = BeamErrors {
+        range_noise_std_m: h.lidar_range_noise_std_m,
+        dropout_prob: h.lidar_dropout_prob,
+        max_range_prob: 0.0,
+    };
+    ranges
+        .par_chunks_mut(SCAN_BLOCK * nb)
+        .zip(labels.par_chunks_mut(SCAN_BLOCK * nb))
+        .zip(block_rngs.into_par_iter())
+        .enumerate()
+        .for_each(|(bi, ((rchunk, lchunk), mut rng))| {
+            for (k, (scan, lab)) in rchunk.chunks_mut(nb).zip(lchunk.chunks_mut(nb)).enumerate() {
+                let t = lidar_times[bi * SCAN_BLOCK + k].0;
+                let pose = motion.pose_at(t).0;
+                let (roll, pitch) = sway_at(h, t);
+                let (ny, np) = joints_at(h, t);
+                let world_from_body =
+                    Rigid3::from_rpy(roll, pitch, pose.yaw_rad, [pose.x_m, pose.y_m, 0.0]);
+                let wl = world_from_body.compose(&cal.body_from_lidar(ny, np));
+                cast_scan(
+                    &caster,
+                    &wl,
+                    &beams,
+                    max_range,
+                    &errors,
+                    &mut rng,
+                    scan,
+                    Some(lab),
+                );
+            }
+        });
+    let mut lidar = ScanSet::new(nb);
+    lidar.stamps_ns = lidar_times.iter().map(|x| x.1).collect();
+    lidar.ranges_m = ranges;
+    let ground_truth = lidar_times
+        .iter()
+        .map(|&(t, stamp_ns)| StampedPose2 {
+            stamp_ns,
+            pose: motion.pose_at(t).0,
+        })
+        .collect();
+    let true_map = TrueMap::rasterize(
+        world,
+        opts.truth_map_resolution_m,
+        [h.truth_band_min_m, h.truth_band_max_m],
+        5.0,
+    );
+    Ok(HumanoidSimOutput {
+        dataset: HumanoidDataset {
+            calibration: cal,
+            odometry,
+            imu,
+            joints,
+            lidar,
+        },
+        ground_truth,
+        beam_labels: labels,
+        true_map,
+        options: opts.clone(),
+        world_text: world.to_text(),
+        distance_m: motion.s_at(opts.duration_s),
+    })
+}
+
+/// Writes the humanoid dataset plus `ground_truth.tum`, `beam_labels.csv`,
+/// `true_map.{png,pgm,yaml}`, `world.world` and `sim.toml` into `dir`.
+pub fn write_humanoid_sim(dir: &Path, out: &HumanoidSimOutput) -> Result<(), SimError> {
+    write_humanoid_dataset(dir, &out.dataset)?;
+    write_truth(
+        dir,
+        &out.ground_truth,
+        &out.true_map,
+        &out.world_text,
+        &out.options,
+    )?;
+    let nb = out.dataset.lidar.beam_count;
+    crate::io::write_atomic(&dir.join(BEAM_LABELS_CSV), |w| {
+        writeln!(w, "timestamp_ns,labels")?;
+        let mut line = Vec::with_capacity(nb + 1);
+        for (i, stamp) in out.dataset.lidar.stamps_ns.iter().enumerate() {
+            line.clear();
+            line.extend(
+                out.beam_labels[i * nb..(i + 1) * nb]
+                    .iter()
+                    .map(|&l| b'0' + l),
+            );
+            line.push(b'\n');
+            write!(w, "{stamp},")?;
+            w.write_all(&line)?;
+        }
+        Ok(())
+    })?;
+    Ok(())
+}
+
+/// Reads `beam_labels.csv`: the stamps and the flat labels (`beam_count` per scan).
+pub fn read_beam_labels(path: &Path, beam_count: usize) -> Result<(Vec<i64>, Vec<u8>), SimError> {
+    let text = std::fs::read_to_string(path).map_err(|e| IoError::io(path, e))?;
+    let mut lines = text.lines().enumerate();
+    if lines.next().map(|(_, l)| l.trim()) != Some("timestamp_ns,labels") {
+        return Err(IoError::parse(path, 1, "expected the header \"timestamp_ns,labels\"").into());
+    }
+    let (mut stamps, mut labels) = (Vec::new(), Vec::new());
+    for (idx, line) in lines {
+        let ln = idx + 1;
+        let (t, l) = line
+            .trim()
+            .split_once(',')
+            .ok_or_else(|| IoError::parse(path, ln, "expected timestamp_ns,labels"))?;
+        stamps.push(crate::io::parse_i64(path, ln, "timestamp_ns", t)?);
+        if l.len() != beam_count || !l.bytes().all(|b| (b'0'..=b'2').contains(&b)) {
+            return Err(
+                IoError::parse(path, ln, format!("expected {beam_count} labels in 0..=2")).into(),
+            );
+        }
+        labels.extend(l.bytes().map(|b| b - b'0'));
+    }
+    Ok((stamps, labels))
+}

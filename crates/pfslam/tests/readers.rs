@@ -1,0 +1,493 @@
+//! Readers of real recordings: CARMEN logs, ROS 1 bags, MCAP; malformed input.
+
+use crate::common::data_dir;
+use pfslam::eval::relations::{pose_for_stamp, read_relations};
+use pfslam::io::carmen::{CarmenOptions, read_carmen};
+use std::path::Path;
+
+fn write(dir: &Path, name: &str, text: &str) -> std::path::PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+#[test]
+fn carmen_mit_csail_counts_and_relation_stamps() {
+    let Some(root) = data_dir("carmen_mit_csail_counts_and_relation_stamps") else {
+        return;
+    };
+    let dir = root.join("freiburg/mit-csail");
+    let log = read_carmen(&dir.join("mit-csail.clf"), &CarmenOptions::default()).unwrap();
+    let rec = &log.recording;
+    assert_eq!(rec.name, "mit-csail");
+    assert_eq!(rec.scans.len(), 1988);
+    assert_eq!(rec.scans.beam_count, 361);
+    assert_eq!(rec.lidar.beam_count, 361);
+    assert!((rec.lidar.angle_increment_rad - 0.5f64.to_radians()).abs() < 1e-15);
+    assert!(log.stats.odometry_from_laser);
+    assert_eq!(log.stats.odom_lines, 0);
+    assert_eq!(log.stats.laser_out_of_order, 0);
+    // odometry from the laser lines: one pose per scan, same stamps
+    assert_eq!(rec.odometry.len(), 1988);
+    assert_eq!(rec.odometry.poses[0].stamp_ns, rec.scans.stamps_ns[0]);
+    assert_eq!(rec.scans.stamps_ns[0], 1_134_864_629_895_182_000);
+    // every relation stamp is a scan stamp (ipc_timestamp), within half a unit of the last
+    // printed decimal
+    assert_eq!(
+        relation_stamps_found(rec, &dir.join("mit-csail.relations")),
+        1172
+    );
+}
+
+#[test]
+fn carmen_intel_corrected_gz_backwards_stamps() {
+    let Some(root) = data_dir("carmen_intel_corrected_gz_backwards_stamps") else {
+        return;
+    };
+    let log = read_carmen(
+        &root.join("carmen/intel-corrected.log.gz"),
+        &CarmenOptions::default(),
+    )
+    .unwrap();
+    let s = &log.stats;
+    let rec = &log.recording;
+    eprintln!("intel-corrected: {s:?}");
+    assert_eq!(rec.name, "intel-corrected");
+    assert_eq!(s.laser_out_of_order, 4);
+    assert_eq!(s.odom_lines, 14_541);
+    assert_eq!(s.laser_lines, 910);
+    assert_eq!(rec.scans.beam_count, 180);
+    assert!(!s.odometry_from_laser);
+    // the corrected keyframe poses written as ODOM lines with stamp 0 (841 "0", 22 like 1e-42)
+    assert_eq!(s.odom_zero_stamp, 863);
+    assert!(s.odom_out_of_order > 0);
+    assert_eq!(
+        rec.odometry.len() + s.odom_zero_stamp + s.odom_out_of_order,
+        s.odom_lines
+    );
+    assert!(rec.scans.len() <= 910 && rec.scans.len() >= 906);
+    for w in rec.odometry.poses.windows(2) {
+        assert!(w[0].stamp_ns < w[1].stamp_ns);
+    }
+    for w in rec.scans.stamps_ns.windows(2) {
+        assert!(w[0] < w[1]);
+    }
+    // the odometry is a plausible drive: metres, not kilometres
+    let len = rec.odometry.path_length_m();
+    assert!(len > 100.0 && len < 1000.0, "{len}");
+}
+
+#[test]
+fn carmen_malformed_inputs_name_file_and_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases = [
+        (
+            "trunc.clf",
+            "# c\nFLASER 3 1.0 2.0 3.0 0 0 0 0 0 0 1.5 h 1.5\nFLASER 3 1.0 2.0\n",
+            ":3:",
+        ),
+        (
+            "nan.clf",
+            "FLASER 3 1.0 abc 3.0 0 0 0 0 0 0 1.5 h 1.5\n",
+            ":1:",
+        ),
+        ("stamp.clf", "ODOM 0 0 0 0 0 0 x1.5 h 1.5\n", ":1:"),
+        ("count.clf", "FLASER -3 1.0\n", ":1:"),
+        (
+            "odomshort.clf",
+            "FLASER 1 1.0 0 0 0 0 0 0 1.5 h 1.5\nODOM 1 2\n",
+            ":2:",
+        ),
+        (
+            "beams.clf",
+            "FLASER 1 1.0 0 0 0 0 0 0 1.5 h 1.5\nFLASER 2 1.0 1.0 0 0 0 0 0 0 1.6 h 1.6\n",
+            ":2:",
+        ),
+        ("empty.clf", "# nothing\n", ":0:"),
+        ("zero.clf", "FLASER 0 0 0 0 0 0 0 1.5 h 1.5\n", ":1:"),
+    ];
+    for (name, text, pos) in cases {
+        let p = write(dir.path(), name, text);
+        let e = read_carmen(&p, &CarmenOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(name) && e.contains(pos), "{name}: {e}");
+    }
+    // truncated gzip stream
+    let gz = {
+        use std::io::Write;
+        let mut enc = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+        for i in 0..2000 {
+            writeln!(enc, "FLASER 2 1.0 2.0 0 0 0 0 0 0 {}.5 h 0", i + 1).unwrap();
+        }
+        enc.finish().unwrap()
+    };
+    let p = dir.path().join("cut.log.gz");
+    std::fs::write(&p, &gz[..gz.len() / 2]).unwrap();
+    let e = read_carmen(&p, &CarmenOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("cut.log.gz:"), "{e}");
+    std::fs::write(&p, &gz).unwrap();
+    let ok = read_carmen(&p, &CarmenOptions::default()).unwrap();
+    assert_eq!(ok.recording.scans.len(), 2000);
+}
+
+fn relation_stamps_found(rec: &pfslam::sensors::Recording, relations: &Path) -> usize {
+    let scans = pfslam::geometry::Trajectory::new(
+        rec.scans
+            .stamps_ns
+            .iter()
+            .map(|&s| pfslam::geometry::StampedPose2 {
+                stamp_ns: s,
+                pose: pfslam::geometry::Pose2::IDENTITY,
+            })
+            .collect(),
+    );
+    let rel = read_relations(relations).unwrap();
+    for r in &rel {
+        for (t, tol) in [(r.t1_ns, r.t1_tolerance_ns), (r.t2_ns, r.t2_tolerance_ns)] {
+            assert!(
+                pose_for_stamp(&scans, t, tol).is_some(),
+                "{}: relation stamp {t} ns has no scan within {tol} ns",
+                relations.display()
+            );
+        }
+    }
+    rel.len()
+}
+
+#[test]
+fn ros1_bags_counts_geometry_and_relation_stamps() {
+    use pfslam::io::ros_msgs::{BeamGeometry, RosOptions};
+    use pfslam::io::ros1::{read_ros1_bag, read_ros1_bag_with_stats};
+    let Some(root) = data_dir("ros1_bags_counts_geometry_and_relation_stamps") else {
+        return;
+    };
+    // name, scans, beams, odometry messages, relations (README table)
+    for (name, scans, beams, odom, relations) in [
+        ("intel", 13_631, 180, 26_915, 2_984),
+        ("aces", 7_374, 180, 7_375, 1_279),
+        ("mit-csail", 1_988, 361, 1_988, 1_172),
+    ] {
+        let dir = root.join("freiburg").join(name);
+        let (rec, stats) =
+            read_ros1_bag_with_stats(&dir.join(format!("{name}.bag")), &RosOptions::default())
+                .unwrap();
+        eprintln!("{name}: {stats:?}");
+        assert_eq!(stats.scan_messages, scans, "{name} scan messages");
+        assert_eq!(stats.odometry_messages, odom, "{name} odometry messages");
+        assert_eq!(
+            rec.odometry.len() + stats.odometry_out_of_order,
+            stats.odometry_messages
+        );
+        assert!(stats.mount_from_tf);
+        let backwards = if name == "intel" { 631 } else { 0 };
+        assert_eq!(stats.scans_out_of_order, backwards, "{name}");
+        assert_eq!(rec.name, name);
+        assert_eq!(rec.scans.len(), scans, "{name} scans");
+        assert_eq!(rec.scans.beam_count, beams, "{name} beams");
+        // default geometry: the CARMEN convention
+        let step = if beams == 180 { 1.0f64 } else { 0.5 };
+        assert!((rec.lidar.angle_increment_rad - step.to_radians()).abs() < 1e-12);
+        assert!((rec.lidar.angle_min_rad + std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+        assert!(
+            rec.odometry.len() > 1000,
+            "{name} odometry {}",
+            rec.odometry.len()
+        );
+        eprintln!(
+            "{name}: {} scans, {} odometry poses, body_from_lidar t = {:?}",
+            rec.scans.len(),
+            rec.odometry.len(),
+            rec.body_from_lidar.translation
+        );
+        assert_eq!(
+            relation_stamps_found(&rec, &dir.join(format!("{name}.relations"))),
+            relations
+        );
+        if name == "intel" {
+            let raw = RosOptions {
+                beam_geometry: BeamGeometry::AsRecorded,
+                ..RosOptions::default()
+            };
+            let rec = read_ros1_bag(&dir.join("intel.bag"), &raw).unwrap();
+            assert!((rec.lidar.angle_increment_rad - (180.0f64 / 179.0).to_radians()).abs() < 1e-6);
+        }
+    }
+}
+
+#[test]
+fn mcap_from_bag_slice_roundtrip() {
+    use pfslam::geometry::Trajectory;
+    use pfslam::io::mcap::{read_mcap, write_mcap};
+    use pfslam::io::ros_msgs::{BeamGeometry, RosOptions};
+    use pfslam::io::ros1::read_ros1_bag;
+    use pfslam::sensors::ScanSet;
+    let Some(root) = data_dir("mcap_from_bag_slice_roundtrip") else {
+        return;
+    };
+    let rec = read_ros1_bag(&root.join("freiburg/aces/aces.bag"), &RosOptions::default()).unwrap();
+    // a slice: scans 100..400 and the odometry over the same time span
+    let mut scans = ScanSet::new(rec.scans.beam_count);
+    for i in 100..400 {
+        scans.push(rec.scans.stamps_ns[i], rec.scans.ranges(i));
+    }
+    let (t0, t1) = (scans.stamps_ns[0], *scans.stamps_ns.last().unwrap());
+    let odometry = Trajectory::new(
+        rec.odometry
+            .poses
+            .iter()
+            .filter(|p| p.stamp_ns >= t0 && p.stamp_ns <= t1)
+            .copied()
+            .collect(),
+    );
+    let slice = pfslam::sensors::Recording {
+        scans,
+        odometry,
+        ..rec.clone()
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("aces-slice.mcap");
+    let opts = RosOptions::default();
+    write_mcap(&path, &slice, &opts).unwrap();
+    let back = read_mcap(
+        &path,
+        &RosOptions {
+            beam_geometry: BeamGeometry::AsRecorded,
+            ..RosOptions::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(back.name, "aces-slice");
+    assert_eq!(back.scans.stamps_ns, slice.scans.stamps_ns);
+    assert_eq!(back.scans.ranges_m, slice.scans.ranges_m);
+    assert_eq!(back.odometry.len(), slice.odometry.len());
+    for (a, b) in back.odometry.poses.iter().zip(&slice.odometry.poses) {
+        assert_eq!(a.stamp_ns, b.stamp_ns);
+        assert_eq!((a.pose.x_m, a.pose.y_m), (b.pose.x_m, b.pose.y_m));
+        assert!(pfslam::geometry::wrap_angle(a.pose.yaw_rad - b.pose.yaw_rad).abs() < 1e-12);
+    }
+    assert!((back.lidar.angle_min_rad - slice.lidar.angle_min_rad).abs() < 1e-6);
+    assert!((back.lidar.angle_increment_rad - slice.lidar.angle_increment_rad).abs() < 1e-7);
+    assert_eq!(back.lidar.range_max_m, slice.lidar.range_max_m);
+
+    // truncated MCAP: an error naming the file and a message index or byte, no panic
+    let bytes = std::fs::read(&path).unwrap();
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let e = read_mcap(&cut, &RosOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("cut.mcap") && (e.contains("message") || e.contains("byte")),
+        "{e}"
+    );
+    // wrong topic names: a clear error
+    let e = read_mcap(
+        &path,
+        &RosOptions {
+            scan_topic: "/base_scan".into(),
+            ..RosOptions::default()
+        },
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("no LaserScan message on /base_scan"), "{e}");
+}
+
+#[test]
+fn ros1_malformed_bags_name_positions() {
+    use pfslam::io::ros_msgs::RosOptions;
+    use pfslam::io::ros1::read_ros1_bag;
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(dir.path(), "text.bag", "hello\n");
+    let e = read_ros1_bag(&p, &RosOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("text.bag: byte 0"), "{e}");
+    let p = write(dir.path(), "short.bag", "#ROSBAG V2.0\n\x10\0");
+    let e = read_ros1_bag(&p, &RosOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("short.bag: byte 13"), "{e}");
+    let Some(root) = data_dir("ros1_malformed_bags_name_positions") else {
+        return;
+    };
+    let bytes = std::fs::read(root.join("freiburg/mit-csail/mit-csail.bag")).unwrap();
+    // truncated: the index lies past the end
+    let cut = dir.path().join("cut.bag");
+    std::fs::write(&cut, &bytes[..bytes.len() / 3]).unwrap();
+    let e = read_ros1_bag(&cut, &RosOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("cut.bag: byte") && e.contains("truncated"),
+        "{e}"
+    );
+    // corrupted chunk data: an error naming the chunk
+    let mut bad = bytes.clone();
+    let mid = bad.len() / 2;
+    for b in &mut bad[mid..mid + 64] {
+        *b ^= 0x5a;
+    }
+    let badp = dir.path().join("corrupt.bag");
+    std::fs::write(&badp, &bad).unwrap();
+    let e = read_ros1_bag(&badp, &RosOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("corrupt.bag: chunk"), "{e}");
+}
+
+#[test]
+fn carmen_robotlaser_rlaser_param() {
+    use pfslam::io::carmen::CarmenLaser;
+    let dir = tempfile::tempdir().unwrap();
+    // ROBOTLASER1: 3 readings from -0.5 rad in 0.5 rad steps, 1 remission, laser 0.3 m ahead
+    let rl = |stamp: &str, x: f64| {
+        format!(
+            "ROBOTLASER1 0 -0.5 1.0 0.5 30 0.01 0 3 1.0 2.0 3.0 1 0.5 {} 0 0 {x} 0 0 0 0 0 0 0 {stamp} host 0\n",
+            x + 0.3
+        )
+    };
+    let text = format!(
+        "# header\nPARAM robot_frontlaser_offset 0.1 host 0\n{}{}ODOM 0 0 0 0 0 0 1.0 h 1\nODOM 0.5 0 0 0 0 0 3.0 h 3\n",
+        rl("1.5", 0.0),
+        rl("2.5", 1.0)
+    );
+    let p = write(dir.path(), "robot.log", &text);
+    let log = read_carmen(&p, &CarmenOptions::default()).unwrap();
+    let rec = &log.recording;
+    assert_eq!(rec.scans.len(), 2);
+    assert_eq!(rec.scans.ranges(1), &[1.0, 2.0, 3.0]);
+    assert_eq!(rec.lidar.beam_count, 3);
+    assert_eq!(rec.lidar.angle_min_rad, -0.5);
+    assert_eq!(rec.lidar.angle_increment_rad, 0.5);
+    assert!(rec.ground_truth.is_none());
+    // the mount from the laser and robot poses of ROBOTLASER1 wins over PARAM
+    assert!((rec.body_from_lidar.translation.x - 0.3).abs() < 1e-12);
+    // ODOM lines present: they are the odometry
+    assert!(!log.stats.odometry_from_laser);
+    assert_eq!(rec.odometry.len(), 2);
+    assert_eq!(rec.odometry.poses[1].pose.x_m, 0.5);
+
+    // FLASER + RLASER with PARAM offsets
+    let text = "PARAM robot_frontlaser_offset 0.25 h 0\nPARAM robot_rearlaser_offset -0.2 h 0\n\
+FLASER 2 1.0 2.0 0 0 0 5 6 0.1 1.0 h 1\n\
+RLASER 2 3.0 4.0 0 0 0 5 6 0.1 1.1 h 1\n\
+FLASER 2 1.5 2.5 0 0 0 7 6 0.2 2.0 h 2\n\
+TRUEPOS 1 2 0.5 7 6 0.2 2.0 h 2\n";
+    let p = write(dir.path(), "two.clf", text);
+    let front = read_carmen(&p, &CarmenOptions::default()).unwrap();
+    assert_eq!(front.recording.scans.len(), 2);
+    assert!((front.recording.body_from_lidar.translation.x - 0.25).abs() < 1e-12);
+    // odometry from the FLASER lines' odom_x odom_y odom_theta
+    assert!(front.stats.odometry_from_laser);
+    let gt = front.recording.ground_truth.as_ref().unwrap();
+    assert_eq!(gt.len(), 1);
+    assert_eq!((gt[0].stamp_ns, gt[0].pose.y_m), (2_000_000_000, 2.0));
+    assert_eq!(front.recording.odometry.poses[1].pose.x_m, 7.0);
+    // 2 beams over 180 deg
+    assert!((front.recording.lidar.angle_increment_rad - std::f64::consts::PI).abs() < 1e-12);
+    let rear = read_carmen(
+        &p,
+        &CarmenOptions {
+            laser: CarmenLaser::Rear,
+            ..CarmenOptions::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(rear.recording.scans.len(), 1);
+    assert_eq!(rear.recording.scans.ranges(0), &[3.0, 4.0]);
+    let r = rear.recording.body_from_lidar;
+    assert!((r.translation.x + 0.2).abs() < 1e-12);
+    assert!(
+        (r.rotation[(0, 0)] + 1.0).abs() < 1e-12,
+        "rear laser faces backwards"
+    );
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(128))]
+    // any jumble of CARMEN-like tokens is read or refused with a position, never a panic
+    #[test]
+    fn carmen_never_panics(tokens in proptest::collection::vec(0usize..14, 0..120)) {
+        const T: [&str; 14] = [
+            "FLASER", "ODOM", "ROBOTLASER1", "RLASER", "PARAM", "robot_frontlaser_offset",
+            "3", "1.5", "-2", "x", "nan", "1e400", "\n", "0",
+        ];
+        let text: Vec<&str> = tokens.iter().map(|&i| T[i]).collect();
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(dir.path(), "fuzz.clf", &text.join(" "));
+        if let Err(e) = read_carmen(&p, &CarmenOptions::default()) {
+            let e = e.to_string();
+            proptest::prop_assert!(e.contains("fuzz.clf:"), "{}", e);
+        }
+    }
+}
+
+fn synthetic_recording() -> pfslam::sensors::Recording {
+    use pfslam::geometry::{Pose2, StampedPose2, Trajectory};
+    let mut scans = pfslam::sensors::ScanSet::new(5);
+    let mut odom = Vec::new();
+    for i in 0..20i64 {
+        scans.push(
+            1_000_000_000 + i * 100_000_000,
+            &[1.0, 2.0, 3.0, i as f32, 81.9],
+        );
+        odom.push(StampedPose2 {
+            stamp_ns: 1_000_000_000 + i * 50_000_000,
+            pose: Pose2::new(i as f64 * 0.1, 0.0, i as f64 * 0.01),
+        });
+    }
+    pfslam::sensors::Recording {
+        name: "synthetic".into(),
+        odometry: Trajectory::new(odom),
+        scans,
+        lidar: pfslam::sensors::LidarGeometry {
+            angle_min_rad: -1.0,
+            angle_increment_rad: 0.5,
+            beam_count: 5,
+            range_max_m: 30.0,
+        },
+        ..Default::default()
+    }
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+    // a corrupted MCAP file is read or refused, never a panic
+    #[test]
+    fn mcap_corruption_never_panics(at in 0.0f64..1.0, xor in 1u8..=255, len in 1usize..16) {
+        use pfslam::io::mcap::{read_mcap, write_mcap};
+        use pfslam::io::ros_msgs::RosOptions;
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("s.mcap");
+        write_mcap(&p, &synthetic_recording(), &RosOptions::default()).unwrap();
+        let mut bytes = std::fs::read(&p).unwrap();
+        let start = ((bytes.len() - 1) as f64 * at) as usize;
+        let end = (start + len).min(bytes.len());
+        for b in &mut bytes[start..end] {
+            *b ^= xor;
+        }
+        std::fs::write(&p, &bytes).unwrap();
+        if let Err(e) = read_mcap(&p, &RosOptions::default()) {
+            proptest::prop_assert!(e.to_string().contains("s.mcap"), "{}", e);
+        }
+    }
+}
+
+#[test]
+fn mcap_synthetic_roundtrip_without_data() {
+    use pfslam::io::mcap::write_mcap;
+    use pfslam::io::ros_msgs::RosOptions;
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("s.mcap");
+    let rec = synthetic_recording();
+    write_mcap(&p, &rec, &RosOptions::default()).unwrap();
+    let back = pfslam::io::recording::read_recording(&p, &Default::default()).unwrap();
+    assert_eq!(back.scans, rec.scans);
+    assert_eq!(back.odometry.len(), 20);
+    assert_eq!(back.lidar.angle_increment_rad, 0.5);
+    assert_eq!(back.lidar.range_max_m, 30.0);
+}
