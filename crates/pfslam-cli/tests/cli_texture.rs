@@ -54,16 +54,14 @@ fn npy_shape(path: &Path) -> String {
     header
 }
 
-#[test]
-fn texture_colours_the_red_square() {
-    let tmp = tempfile::tempdir().unwrap();
-    make_dataset(tmp.path());
-    let out_dir = tmp.path().join("out");
+/// Runs `pfslam texture DIR --poses DIR/poses.tum --out DIR/out`, which must succeed.
+fn run_texture(dir: &Path) -> std::path::PathBuf {
+    let out_dir = dir.join("out");
     let out = pfslam()
         .arg("texture")
-        .arg(tmp.path())
+        .arg(dir)
         .arg("--poses")
-        .arg(tmp.path().join("poses.tum"))
+        .arg(dir.join("poses.tum"))
         .arg("--out")
         .arg(&out_dir)
         .output()
@@ -73,6 +71,14 @@ fn texture_colours_the_red_square() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+    out_dir
+}
+
+#[test]
+fn texture_colours_the_red_square() {
+    let tmp = tempfile::tempdir().unwrap();
+    make_dataset(tmp.path());
+    let out_dir = run_texture(tmp.path());
     assert!(out_dir.join("texture.png").is_file());
     let header = npy_shape(&out_dir.join("texture_rgb.npy"));
     assert!(
@@ -173,21 +179,7 @@ fn texture_over_the_lidar_map_of_a_simulated_drive() {
         )
         .unwrap();
     }
-    let out_dir = dir.join("out");
-    let out = pfslam()
-        .arg("texture")
-        .arg(dir)
-        .arg("--poses")
-        .arg(dir.join("poses.tum"))
-        .arg("--out")
-        .arg(&out_dir)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let out_dir = run_texture(dir);
     let meta: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out_dir.join("texture.json")).unwrap()).unwrap();
     assert_eq!(meta["background"], "occupancy map", "{meta}");

@@ -14,8 +14,8 @@ use pfslam::stereo::render::{
     WorldScene, ground_disparity, hash01, render_ground_pair, value_noise,
 };
 use pfslam::stereo::{
-    MatcherOptions, PinholeIntrinsics, RgbdCamera, StereoOptions, StereoPipeline, TextureMap,
-    accumulate_rgbd, fit_plane_ransac,
+    DisparityMap, MatcherOptions, PinholeIntrinsics, RgbdCamera, StereoOptions, StereoPipeline,
+    TextureMap, accumulate_rgbd, fit_plane_ransac,
 };
 
 /// The synthetic ground: asphalt-like noise, three coloured areas and dashed lane markings,
@@ -42,6 +42,49 @@ fn ground_texture(layout_from_world: &Pose2, x: f64, y: f64) -> [f64; 3] {
 
 fn percentile(sorted: &[f64], q: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * q).round() as usize]
+}
+
+/// Disparity error against the exact one where the true disparity is within the search range
+/// (depth up to ~18 m) and away from the image border.
+struct DisparityStats {
+    candidates: usize,
+    /// Fraction of the candidates with a disparity.
+    valid: f64,
+    /// Median |error| (px).
+    median: f64,
+    /// 90th percentile |error| (px).
+    p90: f64,
+    /// Fraction of the valid pixels off by more than 2 px.
+    gross: f64,
+}
+
+impl DisparityStats {
+    fn measure(truth: &[f32], disparity: &DisparityMap, options: &StereoOptions) -> Self {
+        let max_d = (options.matcher.num_disparities - 1) as f32;
+        let (mut errors, mut candidates) = (Vec::new(), 0usize);
+        for (i, &t) in truth.iter().enumerate() {
+            let (u, v) = (i % disparity.width, i / disparity.width);
+            if !(t >= 20.0 && t <= max_d - 1.0)
+                || u < 20
+                || u + 20 > disparity.width
+                || v + 12 > disparity.height
+            {
+                continue;
+            }
+            candidates += 1;
+            if disparity.data[i] >= 0.0 {
+                errors.push((disparity.data[i] - t).abs() as f64);
+            }
+        }
+        errors.sort_by(f64::total_cmp);
+        DisparityStats {
+            candidates,
+            valid: errors.len() as f64 / candidates as f64,
+            median: percentile(&errors, 0.5),
+            p90: percentile(&errors, 0.9),
+            gross: errors.iter().filter(|e| **e > 2.0).count() as f64 / errors.len() as f64,
+        }
+    }
 }
 
 /// RGB test images. `natural`: brightness edges, shading and fine texture under a smoothly
@@ -363,30 +406,13 @@ fn rendered_ground_disparity_and_texture() {
             )
             .unwrap();
         }
-        let max_d = (options.matcher.num_disparities - 1) as f32;
-        let mut errors = Vec::new();
-        let mut candidates = 0usize;
-        for (i, &t) in truth.iter().enumerate() {
-            // Depth up to ~18 m, away from the image border.
-            let (u, v) = (i % disparity.width, i / disparity.width);
-            if !(t >= 20.0 && t <= max_d - 1.0)
-                || u < 20
-                || u + 20 > disparity.width
-                || v + 12 > disparity.height
-            {
-                continue;
-            }
-            candidates += 1;
-            let d = disparity.data[i];
-            if d >= 0.0 {
-                errors.push((d - t).abs() as f64);
-            }
-        }
-        errors.sort_by(f64::total_cmp);
-        let valid = errors.len() as f64 / candidates as f64;
-        let median = percentile(&errors, 0.5);
-        let p90 = percentile(&errors, 0.9);
-        let gross = errors.iter().filter(|e| **e > 2.0).count() as f64 / errors.len() as f64;
+        let DisparityStats {
+            candidates,
+            valid,
+            median,
+            p90,
+            gross,
+        } = DisparityStats::measure(&truth, disparity, &options);
         eprintln!(
             "rendered ground ({name}): {candidates} pixels, valid {:.1} %, |error| median {median:.3} px, \
              p90 {p90:.3} px, > 2 px {:.2} %",
@@ -632,26 +658,13 @@ fn simulator_world_pair_disparity_and_texture() {
     pipeline.process_raw_pair(&left, &right).unwrap();
     let truth = scene.true_disparity(pipeline.geometry(), &world_from_body);
     let disparity = pipeline.disparity();
-    let max_d = (options.matcher.num_disparities - 1) as f32;
-    let (mut errors, mut candidates) = (Vec::new(), 0usize);
-    for (i, &t) in truth.iter().enumerate() {
-        let (u, v) = (i % disparity.width, i / disparity.width);
-        if !(t >= 20.0 && t <= max_d - 1.0)
-            || u < 20
-            || u + 20 > disparity.width
-            || v + 12 > disparity.height
-        {
-            continue;
-        }
-        candidates += 1;
-        if disparity.data[i] >= 0.0 {
-            errors.push((disparity.data[i] - t).abs() as f64);
-        }
-    }
-    errors.sort_by(f64::total_cmp);
-    let valid = errors.len() as f64 / candidates as f64;
-    let (median, p90) = (percentile(&errors, 0.5), percentile(&errors, 0.9));
-    let gross = errors.iter().filter(|e| **e > 2.0).count() as f64 / errors.len() as f64;
+    let DisparityStats {
+        candidates,
+        valid,
+        median,
+        p90,
+        gross,
+    } = DisparityStats::measure(&truth, disparity, &options);
     eprintln!(
         "campus world pair: {candidates} pixels (ground and facades), valid {:.1} %, |error| median \
          {median:.3} px, p90 {p90:.3} px, > 2 px {:.2} %",

@@ -555,17 +555,23 @@ fn select_row(
 mod tests {
     use super::*;
 
+    /// `n` xorshift random bytes.
+    fn random_bytes(n: usize, seed: u64) -> Vec<u8> {
+        let mut state = seed;
+        (0..n)
+            .map(|_| {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                (state >> 56) as u8
+            })
+            .collect()
+    }
+
     /// A random-dot pair: the right image is the left shifted by `shift(y)` px.
     fn shifted_pair(w: usize, h: usize, shift: impl Fn(usize) -> usize) -> (GrayImage, GrayImage) {
-        let mut state = 0x1234_5678_9abc_def0u64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 56) as u8
-        };
         let big_w = w + 200;
-        let tex: Vec<u8> = (0..big_w * h).map(|_| next()).collect();
+        let tex = random_bytes(big_w * h, 0x1234_5678_9abc_def0);
         let mut l = GrayImage::new(w, h);
         let mut r = GrayImage::new(w, h);
         for y in 0..h {
@@ -653,15 +659,8 @@ mod tests {
     fn sgm_recovers_a_slanted_surface_and_is_deterministic() {
         // Disparity 6 + x / 40: a surface slanted in depth, smooth for SGM's penalties.
         let (w, h) = (240, 48);
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 56) as u8
-        };
         let big_w = w + 64;
-        let tex: Vec<u8> = (0..big_w * h).map(|_| next()).collect();
+        let tex = random_bytes(big_w * h, 0x9e37_79b9_7f4a_7c15);
         let truth = |x: usize| 6 + x / 40;
         let mut l = GrayImage::new(w, h);
         let mut r = GrayImage::new(w, h);
