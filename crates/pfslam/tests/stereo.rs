@@ -46,6 +46,7 @@ fn percentile(sorted: &[f64], q: f64) -> f64 {
 
 /// Disparity error against the exact one where the true disparity is within the search range
 /// (depth up to ~18 m) and away from the image border.
+#[derive(Clone, Copy)]
 struct DisparityStats {
     candidates: usize,
     /// Fraction of the candidates with a disparity.
@@ -59,6 +60,27 @@ struct DisparityStats {
 }
 
 impl DisparityStats {
+    /// Prints the figures and asserts the bounds every rendered scene must meet.
+    fn check(&self, label: &str) {
+        let DisparityStats {
+            candidates,
+            valid,
+            median,
+            p90,
+            gross,
+        } = *self;
+        eprintln!(
+            "{label}: {candidates} pixels, valid {:.1} %, |error| median {median:.3} px, p90 \
+             {p90:.3} px, > 2 px {:.2} %",
+            100.0 * valid,
+            100.0 * gross
+        );
+        assert!(valid > 0.6, "{label}: valid {valid}");
+        assert!(median < 0.3, "{label}: median {median}");
+        assert!(p90 < 0.8, "{label}: p90 {p90}");
+        assert!(gross < 0.05, "{label}: gross {gross}");
+    }
+
     fn measure(truth: &[f32], disparity: &DisparityMap, options: &StereoOptions) -> Self {
         let max_d = (options.matcher.num_disparities - 1) as f32;
         let (mut errors, mut candidates) = (Vec::new(), 0usize);
@@ -406,23 +428,8 @@ fn rendered_ground_disparity_and_texture() {
             )
             .unwrap();
         }
-        let DisparityStats {
-            candidates,
-            valid,
-            median,
-            p90,
-            gross,
-        } = DisparityStats::measure(&truth, disparity, &options);
-        eprintln!(
-            "rendered ground ({name}): {candidates} pixels, valid {:.1} %, |error| median {median:.3} px, \
-             p90 {p90:.3} px, > 2 px {:.2} %",
-            100.0 * valid,
-            100.0 * gross
-        );
-        assert!(valid > 0.6, "valid {valid}");
-        assert!(median < 0.3, "median {median}");
-        assert!(p90 < 0.8, "p90 {p90}");
-        assert!(gross < 0.05, "gross {gross}");
+        DisparityStats::measure(&truth, disparity, &options)
+            .check(&format!("rendered ground ({name})"));
 
         // Texture map against the true texture, per 10 cm cell, 6-15 m ahead, 3.5 m either side.
         let mut map = TextureMap::new(MapLimits::new(0.1, 0.0, 0.0));
@@ -658,23 +665,8 @@ fn simulator_world_pair_disparity_and_texture() {
     pipeline.process_raw_pair(&left, &right).unwrap();
     let truth = scene.true_disparity(pipeline.geometry(), &world_from_body);
     let disparity = pipeline.disparity();
-    let DisparityStats {
-        candidates,
-        valid,
-        median,
-        p90,
-        gross,
-    } = DisparityStats::measure(&truth, disparity, &options);
-    eprintln!(
-        "campus world pair: {candidates} pixels (ground and facades), valid {:.1} %, |error| median \
-         {median:.3} px, p90 {p90:.3} px, > 2 px {:.2} %",
-        100.0 * valid,
-        100.0 * gross
-    );
-    assert!(valid > 0.6, "valid {valid}");
-    assert!(median < 0.3, "median {median}");
-    assert!(p90 < 0.8, "p90 {p90}");
-    assert!(gross < 0.05, "gross {gross}");
+    DisparityStats::measure(&truth, disparity, &options)
+        .check(&"campus world pair (ground and facades)".to_string());
 
     // Texture map (10 cm) against the world's true ground colours, 6-15 m ahead, 3.5 m either
     // side, over the cells the left camera actually sees.
