@@ -666,7 +666,7 @@ fn simulator_world_pair_disparity_and_texture() {
     let truth = scene.true_disparity(pipeline.geometry(), &world_from_body);
     let disparity = pipeline.disparity();
     DisparityStats::measure(&truth, disparity, &options)
-        .check(&"campus world pair (ground and facades)".to_string());
+        .check("campus world pair (ground and facades)");
 
     // Texture map (10 cm) against the world's true ground colours, 6-15 m ahead, 3.5 m either
     // side, over the cells the left camera actually sees.
