@@ -15,6 +15,139 @@ use crate::sensors::Recording;
 use std::collections::BTreeMap;
 use std::path::Path;
 
+/// Largest decompressed chunk accepted (bytes).
+const MAX_CHUNK_BYTES: u64 = 1 << 30;
+/// Largest accepted ratio of decompressed to compressed chunk size.
+const MAX_COMPRESSION_RATIO: u64 = 256;
+
+/// Walks the top-level records and rejects chunks whose declared decompressed size is
+/// implausible: the `mcap` crate allocates that size before decompressing, so a corrupt
+/// header would otherwise abort the process on a failed allocation instead of giving an
+/// error. A record that runs past the end of the file is an error too.
+fn check_chunk_sizes(bytes: &[u8], path: &Path) -> Result<(), RosError> {
+    const MAGIC_LEN: usize = 8;
+    const OP_FOOTER: u8 = 0x02;
+    const OP_CHUNK: u8 = 0x06;
+    let u64_at = |at: usize| -> Option<u64> {
+        bytes
+            .get(at..at + 8)
+            .and_then(|b| <[u8; 8]>::try_from(b).ok())
+            .map(u64::from_le_bytes)
+    };
+    let u32_at = |at: usize| -> Option<u32> {
+        bytes
+            .get(at..at + 4)
+            .and_then(|b| <[u8; 4]>::try_from(b).ok())
+            .map(u32::from_le_bytes)
+    };
+    let mut at = MAGIC_LEN;
+    while at + 9 <= bytes.len() {
+        let op = bytes[at];
+        let Some(len) = u64_at(at + 1) else { break };
+        let body = at + 9;
+        let end = usize::try_from(len).ok().and_then(|l| body.checked_add(l));
+        let Some(end) = end.filter(|&e| e <= bytes.len()) else {
+            return Err(RosError::format(
+                path,
+                format!("byte {at}"),
+                format!("record (opcode 0x{op:02x}) of {len} bytes runs past the end of the file"),
+            ));
+        };
+        if op == OP_FOOTER {
+            break;
+        }
+        if op == OP_CHUNK {
+            // message_start_time u64, message_end_time u64, uncompressed_size u64,
+            // uncompressed_crc u32, compression string, records (u64 length + bytes)
+            let bad = |what: String| RosError::format(path, format!("byte {at}"), what);
+            let uncompressed = u64_at(body + 16).ok_or_else(|| bad("chunk header cut".into()))?;
+            let comp_len = u32_at(body + 28).ok_or_else(|| bad("chunk header cut".into()))?;
+            let records_at = body + 32 + comp_len as usize;
+            let records_len = u64_at(records_at).ok_or_else(|| bad("chunk header cut".into()))?;
+            let limit = if comp_len == 0 {
+                records_len
+            } else {
+                records_len
+                    .saturating_mul(MAX_COMPRESSION_RATIO)
+                    .saturating_add(4096)
+                    .min(MAX_CHUNK_BYTES)
+            };
+            if uncompressed > limit {
+                return Err(bad(format!(
+                    "chunk declares {uncompressed} decompressed bytes for {records_len} stored \
+                     bytes: corrupt"
+                )));
+            }
+            let comp_at = body + 32;
+            let compression = &bytes[comp_at..records_at];
+            let data_at = records_at + 8;
+            let data_end = usize::try_from(records_len)
+                .ok()
+                .and_then(|l| data_at.checked_add(l))
+                .filter(|&e| e <= end)
+                .ok_or_else(|| bad("chunk records run past the chunk".into()))?;
+            let stored = &bytes[data_at..data_end];
+            let content = decompress_chunk(compression, stored, uncompressed as usize)
+                .map_err(|e| bad(format!("chunk does not decompress: {e}")))?;
+            check_inner_records(&content).map_err(|off| {
+                bad(format!(
+                    "record at offset {off} inside the chunk runs past the chunk's end"
+                ))
+            })?;
+        }
+        at = end;
+    }
+    Ok(())
+}
+
+/// Decompresses a chunk's records with a known output size (already checked to be sane).
+fn decompress_chunk<'a>(
+    compression: &[u8],
+    stored: &'a [u8],
+    uncompressed: usize,
+) -> Result<std::borrow::Cow<'a, [u8]>, String> {
+    use std::io::Read;
+    match compression {
+        b"" => Ok(std::borrow::Cow::Borrowed(stored)),
+        b"zstd" => zstd::bulk::decompress(stored, uncompressed)
+            .map(std::borrow::Cow::Owned)
+            .map_err(|e| e.to_string()),
+        b"lz4" => {
+            let mut out = Vec::with_capacity(uncompressed);
+            lz4::Decoder::new(stored)
+                .map_err(|e| e.to_string())?
+                .take(uncompressed as u64 + 1)
+                .read_to_end(&mut out)
+                .map_err(|e| e.to_string())?;
+            Ok(std::borrow::Cow::Owned(out))
+        }
+        other => Err(format!(
+            "unsupported compression {:?}",
+            String::from_utf8_lossy(other)
+        )),
+    }
+}
+
+/// Checks that every record inside decompressed chunk content ends inside it (the `mcap` crate
+/// reserves a record's declared length before reading it). Returns the offset of a bad record.
+fn check_inner_records(content: &[u8]) -> Result<(), usize> {
+    let mut at = 0usize;
+    while at < content.len() {
+        let len = content
+            .get(at + 1..at + 9)
+            .and_then(|b| <[u8; 8]>::try_from(b).ok())
+            .map(u64::from_le_bytes)
+            .ok_or(at)?;
+        let end = usize::try_from(len)
+            .ok()
+            .and_then(|l| (at + 9).checked_add(l))
+            .filter(|&e| e <= content.len())
+            .ok_or(at)?;
+        at = end;
+    }
+    Ok(())
+}
+
 /// Reads an MCAP file into a [`Recording`].
 pub fn read_mcap(path: &Path, options: &RosOptions) -> Result<Recording, RosError> {
     read_mcap_with_stats(path, options).map(|(r, _)| r)
@@ -29,6 +162,7 @@ pub fn read_mcap_with_stats(
     // SAFETY: the file is opened read-only; as with any memory map, another process
     // truncating it while we read is outside what we can guard against.
     let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|e| IoError::io(path, e))?;
+    check_chunk_sizes(&map, path)?;
     let stream = ::mcap::MessageStream::new(&map)
         .map_err(|e| RosError::format(path, "byte 0", e.to_string()))?;
     let mut builder = RecordingBuilder::new();
