@@ -35,6 +35,8 @@ pub enum Command {
     Experiment(cmd::experiment::Args),
     /// Particle-filter SLAM on a dataset: trajectory, maps, summary.
     Run(cmd::run::Args),
+    /// Colour the ground from the car's stereo pairs along a trajectory: texture.png/.npy.
+    Texture(cmd::texture::Args),
     /// Print the full default configuration as TOML.
     PrintConfig(cmd::print_config::Args),
     /// Accuracy of a trajectory: ATE/RPE against ground truth, or the relations metric.
@@ -54,6 +56,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Eval(a)) => cmd::eval::run(a),
         Some(Command::Simulate(a)) => cmd::simulate::run(a),
         Some(Command::Map(a)) => cmd::map::run(a),
+        Some(Command::Texture(a)) => cmd::texture::run(a),
     }
 }
 

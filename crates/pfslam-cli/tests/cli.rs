@@ -28,3 +28,4 @@ mod cli_demo;
 mod cli_eval;
 mod cli_map;
 mod cli_run;
+mod cli_texture;

@@ -8,4 +8,5 @@ mod map;
 mod motion;
 mod readers;
 mod sim;
+mod stereo;
 mod ucsd;

@@ -9,3 +9,4 @@ pub mod map;
 pub mod print_config;
 pub mod run;
 pub mod simulate;
+pub mod texture;

@@ -1,8 +1,286 @@
-//! Stereo (placeholder: see ARCHITECTURE.md).
+//! Stereo texture mapping: the ground's colours from the car's stereo camera (or an RGB-D
+//! camera) onto a grid.
+//!
+//! Pipeline: raw Bayer frames -> [`image::demosaic_into`] -> [`rectify::StereoRectifier`]
+//! (undistort + rectify with the calibration's R and P) -> [`disparity::compute_disparity`]
+//! (census block matching, left-right check, sub-pixel) -> 3-D points in the body frame ->
+//! world frame with the pose at the image's stamp -> ground points coloured into a
+//! [`texture::TextureMap`].
+
+pub mod disparity;
+pub mod ground;
+pub mod image;
+pub mod rectify;
+pub mod render;
+pub mod texture;
 
 use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+
+pub use disparity::{DisparityMap, DisparityWorkspace, INVALID_DISPARITY, MatcherOptions};
+pub use ground::{ColouredPoint, PlaneFit, RgbdCamera, fit_plane_ransac};
+pub use image::{BayerPattern, Demosaic, GrayImage, RgbImage};
+pub use rectify::{PinholeIntrinsics, RectifiedGeometry, StereoRectifier};
+pub use texture::{CellColour, TextureMap};
+
+use crate::geometry::{Pose2, Rigid3};
+use crate::sensors::StereoCalibration;
+
+/// Errors of the stereo pipeline.
+#[derive(Debug, thiserror::Error)]
+pub enum StereoError {
+    /// An image could not be read, decoded or encoded.
+    #[error("{path}: {message}")]
+    Image {
+        /// The file.
+        path: PathBuf,
+        /// What went wrong.
+        message: String,
+    },
+    /// Image sizes do not fit together.
+    #[error("image size: {0}")]
+    Size(String),
+    /// The calibration is unusable.
+    #[error("calibration: {0}")]
+    Calibration(String),
+    /// Invalid options.
+    #[error("stereo options: {0}")]
+    Options(String),
+    /// Writing an output failed.
+    #[error(transparent)]
+    Io(#[from] crate::io::IoError),
+}
 
 /// Options of the stereo component (`[stereo]` in the configuration).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
-pub struct StereoOptions {}
+pub struct StereoOptions {
+    /// Colour filter layout of the raw frames (the car: `bggr`).
+    pub bayer_pattern: BayerPattern,
+    /// Demosaicing algorithm. Bilinear by default: Malvar-He-Cutler gains 3.8 dB PSNR on a
+    /// natural test image, but on the real pair it gives 17 % fewer matched road pixels (its
+    /// sharpening also sharpens noise, which the census transform sees) and no better cell
+    /// colours on the rendered ground (5.68 vs 5.62 mean error).
+    pub demosaic: Demosaic,
+    /// Block matcher.
+    pub matcher: MatcherOptions,
+    /// Texture grid cell size (m); 0 takes the occupancy map's resolution (the grid's origin
+    /// is always the map's).
+    pub cell_size_m: f64,
+    /// Points below this world z (m) are not ground.
+    pub ground_z_min_m: f64,
+    /// Points above this world z (m) are not ground.
+    pub ground_z_max_m: f64,
+    /// Points farther than this along the optical axis (m) are dropped (depth error grows
+    /// with the square of the distance).
+    pub max_depth_m: f64,
+    /// Use every n-th pixel in both directions when projecting (1 = all).
+    pub pixel_stride: usize,
+}
+
+impl Default for StereoOptions {
+    fn default() -> Self {
+        StereoOptions {
+            bayer_pattern: BayerPattern::UCSD,
+            demosaic: Demosaic::Bilinear,
+            matcher: MatcherOptions::default(),
+            cell_size_m: 0.0,
+            ground_z_min_m: -0.3,
+            ground_z_max_m: 0.3,
+            max_depth_m: 20.0,
+            pixel_stride: 1,
+        }
+    }
+}
+
+impl StereoOptions {
+    /// Checks the options (image width for the matcher's window).
+    pub fn validate(&self, width: usize) -> Result<(), StereoError> {
+        self.matcher.validate(width)?;
+        if !(self.cell_size_m.is_finite() && self.cell_size_m >= 0.0) {
+            return Err(StereoError::Options(format!(
+                "cell_size_m must be >= 0 (0 = the map's), got {}",
+                self.cell_size_m
+            )));
+        }
+        if !(self.ground_z_min_m.is_finite()
+            && self.ground_z_max_m.is_finite()
+            && self.ground_z_min_m < self.ground_z_max_m)
+        {
+            return Err(StereoError::Options(format!(
+                "ground z window [{}, {}] m is empty",
+                self.ground_z_min_m, self.ground_z_max_m
+            )));
+        }
+        if !(self.max_depth_m.is_finite() && self.max_depth_m > 0.0) {
+            return Err(StereoError::Options(format!(
+                "max_depth_m must be positive, got {}",
+                self.max_depth_m
+            )));
+        }
+        if self.pixel_stride == 0 {
+            return Err(StereoError::Options("pixel_stride must be >= 1".into()));
+        }
+        Ok(())
+    }
+}
+
+impl StereoOptions {
+    /// The texture grid: the map's origin, and `cell_size_m` or else the map's resolution.
+    pub fn texture_limits(&self, map: &crate::map::MapOptions) -> crate::map::MapLimits {
+        let res = if self.cell_size_m > 0.0 {
+            self.cell_size_m
+        } else {
+            map.resolution_m
+        };
+        crate::map::MapLimits::new(res, map.origin_x_m, map.origin_y_m)
+    }
+}
+
+/// The whole stereo chain for one rig, with every buffer owned and reused across pairs.
+#[derive(Debug, Clone)]
+pub struct StereoPipeline {
+    options: StereoOptions,
+    rectifier: StereoRectifier,
+    workspace: DisparityWorkspace,
+    raw_left: RgbImage,
+    raw_right: RgbImage,
+    rect_left: RgbImage,
+    rect_right: RgbImage,
+    gray_left: GrayImage,
+    gray_right: GrayImage,
+    disparity: DisparityMap,
+    points: Vec<ColouredPoint>,
+}
+
+impl StereoPipeline {
+    /// Builds the rectification tables of the rig and checks the options.
+    pub fn new(
+        calibration: &StereoCalibration,
+        options: &StereoOptions,
+    ) -> Result<Self, StereoError> {
+        options.validate(calibration.left.width as usize)?;
+        Ok(StereoPipeline {
+            options: options.clone(),
+            rectifier: StereoRectifier::new(calibration)?,
+            workspace: DisparityWorkspace::new(),
+            raw_left: RgbImage::default(),
+            raw_right: RgbImage::default(),
+            rect_left: RgbImage::default(),
+            rect_right: RgbImage::default(),
+            gray_left: GrayImage::default(),
+            gray_right: GrayImage::default(),
+            disparity: DisparityMap::default(),
+            points: Vec::new(),
+        })
+    }
+
+    /// The rectified geometry (intrinsics, baseline, mount).
+    pub fn geometry(&self) -> &RectifiedGeometry {
+        &self.rectifier.geometry
+    }
+
+    /// Demosaics, rectifies and matches a pair of raw Bayer frames.
+    pub fn process_raw_pair(
+        &mut self,
+        left: &GrayImage,
+        right: &GrayImage,
+    ) -> Result<(), StereoError> {
+        let geometry = &self.rectifier.geometry.intrinsics;
+        for img in [left, right] {
+            if img.width != geometry.width || img.height != geometry.height {
+                return Err(StereoError::Size(format!(
+                    "frame is {}x{}, the calibration says {}x{}",
+                    img.width, img.height, geometry.width, geometry.height
+                )));
+            }
+        }
+        let (pattern, method) = (self.options.bayer_pattern, self.options.demosaic);
+        image::demosaic_into(left, pattern, method, &mut self.raw_left)?;
+        image::demosaic_into(right, pattern, method, &mut self.raw_right)?;
+        self.rectifier
+            .left
+            .remap_rgb_into(&self.raw_left, &mut self.rect_left);
+        self.rectifier
+            .right
+            .remap_rgb_into(&self.raw_right, &mut self.rect_right);
+        self.rect_left.to_gray_into(&mut self.gray_left);
+        self.rect_right.to_gray_into(&mut self.gray_right);
+        disparity::compute_disparity(
+            &self.gray_left,
+            &self.gray_right,
+            &self.options.matcher,
+            &mut self.workspace,
+            &mut self.disparity,
+        )
+    }
+
+    /// The disparity of the last pair (left rectified image).
+    pub fn disparity(&self) -> &DisparityMap {
+        &self.disparity
+    }
+
+    /// The last left rectified colour image.
+    pub fn rectified_left(&self) -> &RgbImage {
+        &self.rect_left
+    }
+
+    /// The last right rectified colour image.
+    pub fn rectified_right(&self) -> &RgbImage {
+        &self.rect_right
+    }
+
+    /// The last pair's coloured points in the frame `frame_from_body` maps into (identity: the
+    /// body frame), within `max_depth_m`, every `pixel_stride`-th pixel.
+    pub fn points(&mut self, frame_from_body: &Rigid3) -> &[ColouredPoint] {
+        self.points.clear();
+        let frame_from_rectified =
+            frame_from_body.compose(&self.rectifier.geometry.body_from_rectified);
+        ground::disparity_to_points(
+            &self.disparity,
+            &self.rect_left,
+            &self.rectifier.geometry,
+            &frame_from_rectified,
+            self.options.max_depth_m,
+            self.options.pixel_stride,
+            &mut self.points,
+        );
+        &self.points
+    }
+
+    /// Adds the last pair's ground points (world z in the options' window), seen from
+    /// `world_from_body`, to `map`; returns how many points were added.
+    pub fn accumulate(&mut self, world_from_body: &Pose2, map: &mut TextureMap) -> usize {
+        let (z0, z1) = (self.options.ground_z_min_m, self.options.ground_z_max_m);
+        let pts = self.points(&Rigid3::from_pose2(world_from_body));
+        map.add_ground_points(pts, z0, z1)
+    }
+}
+
+/// Adds an RGB-D frame's ground points to `map`: depth (m, row-major, registered to
+/// `camera.depth`), colour, the camera's mount `body_from_depth` and the pose
+/// `world_from_body`. Returns how many points were added.
+#[allow(clippy::too_many_arguments)]
+pub fn accumulate_rgbd(
+    depth_m: &[f32],
+    colour: &RgbImage,
+    camera: &RgbdCamera,
+    body_from_depth: &Rigid3,
+    world_from_body: &Pose2,
+    options: &StereoOptions,
+    points: &mut Vec<ColouredPoint>,
+    map: &mut TextureMap,
+) -> usize {
+    points.clear();
+    let world_from_depth = Rigid3::from_pose2(world_from_body).compose(body_from_depth);
+    ground::depth_to_points(
+        depth_m,
+        colour,
+        camera,
+        &world_from_depth,
+        options.max_depth_m,
+        options.pixel_stride,
+        points,
+    );
+    map.add_ground_points(points, options.ground_z_min_m, options.ground_z_max_m)
+}
