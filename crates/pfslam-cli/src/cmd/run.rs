@@ -148,7 +148,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &result,
         load_s,
         anchored,
-    )
+    )?;
+    // The ground's colours along the SLAM path, when the dataset has stereo images.
+    let (traj, map) = (&result.trajectory, &result.map);
+    super::texture::texture_after_run(&args.dataset, traj, &config, map, &args.out)?;
+    Ok(())
 }
 
 fn metrics(

@@ -24,6 +24,10 @@ pub struct Args {
     /// Switch every simulated error off (exact sensors, true wheels = calibrated).
     #[arg(long)]
     pub noise_free: bool,
+    /// Stereo pair rate (Hz; overrides `[sim.car] stereo_rate_hz`; 0 = none). Each pair is
+    /// ray-cast (~1 s on 2 cores), so keep it low for long drives.
+    #[arg(long)]
+    pub stereo_rate_hz: Option<f64>,
     /// Configuration file (TOML); its `[sim]` section sets every simulator option. A
     /// `sim.toml` written by an earlier run reproduces that run.
     #[arg(long)]
@@ -59,6 +63,9 @@ pub fn options(args: &Args) -> anyhow::Result<SimOptions> {
     if let Some(s) = args.seed {
         opts.seed = s;
     }
+    if let Some(r) = args.stereo_rate_hz {
+        opts.car.stereo_rate_hz = r;
+    }
     opts.validate()?;
     Ok(opts)
 }
@@ -77,16 +84,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             let t_all = t0.elapsed().as_secs_f64();
             let ds = &out.dataset;
             println!(
-                "simulated the car in world {:?} for {:.1} s ({:.0} m driven): {} encoder rows, {} FOG rows, {} LiDAR scans",
+                "simulated the car in world {:?} for {:.1} s ({:.0} m driven): {} encoder rows, {} FOG rows, {} LiDAR scans, {} stereo pairs",
                 world.name,
                 opts.duration_s,
                 out.distance_m,
                 ds.encoder.len(),
                 ds.fog.len(),
-                ds.lidar.len()
+                ds.lidar.len(),
+                out.stereo_poses.len()
             );
             println!(
-                "simulation {t_sim:.2} s, simulation + writing {t_all:.2} s; wrote {}",
+                "simulation {t_sim:.2} s, simulation + writing{} {t_all:.2} s; wrote {}",
+                if out.stereo_poses.is_empty() {
+                    ""
+                } else {
+                    " + rendering the stereo pairs"
+                },
                 args.out.display()
             );
         }

@@ -8,6 +8,7 @@
 
 use anyhow::Context;
 use pfslam::config::Config;
+use pfslam::geometry::{StampedPose2, Trajectory};
 use pfslam::io::map_files::write_npy_f32;
 use pfslam::io::tum::read_tum;
 use pfslam::io::ucsd::{
@@ -18,12 +19,9 @@ use pfslam::io::{write_atomic, write_bytes_atomic};
 use pfslam::map::{CellRect, CellState, OccupancyGrid, map_with_poses};
 use pfslam::motion::car_recording;
 use pfslam::sensors::StereoCalibration;
-use pfslam::stereo::image::{RgbImage, encode_rgb_png, load_gray_png};
-use pfslam::stereo::{StereoPipeline, TextureMap};
+use pfslam::stereo::image::{RgbImage, encode_rgb_png};
+use pfslam::stereo::{TextureMap, TextureStats, texture_dataset};
 use std::path::{Path, PathBuf};
-
-/// Right images, beside the left ones.
-const STEREO_RIGHT_DIR: &str = "stereo_images/stereo_right";
 
 /// Longest side of `texture.png` (px); larger rasters are reduced by an integer factor.
 const MAX_PNG_SIDE_PX: usize = 4000;
@@ -66,8 +64,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let calibration = load_calibration(&args.dataset)?;
     config.stereo.validate(calibration.left.width as usize)?;
-    let stamps = read_stereo_stamps(&args.dataset)?;
-    if stamps.is_empty() {
+    if read_stereo_stamps(&args.dataset)?.is_empty() {
         anyhow::bail!(
             "{}: no stereo images (expected {STEREO_LEFT_DIR}/<stamp_ns>.png)",
             args.dataset.display()
@@ -77,45 +74,79 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if poses.is_empty() {
         anyhow::bail!("{}: no poses", args.poses.display());
     }
+    let grid = grey_map(&args.dataset, &poses, &config);
+    write_texture(
+        &args.dataset,
+        &calibration,
+        &poses,
+        &config,
+        args.every,
+        grid.as_ref(),
+        &args.out,
+    )?;
+    Ok(())
+}
 
-    let mut pipeline = StereoPipeline::new(&calibration, &config.stereo)?;
-    let mut texture = TextureMap::new(config.stereo.texture_limits(&config.map));
-    let (mut frames, mut without_pose, mut ground_points) = (0usize, 0usize, 0usize);
-    for &stamp in stamps.iter().step_by(args.every) {
-        let Some(pose) = poses.pose_at(stamp) else {
-            without_pose += 1;
-            continue;
-        };
-        let name = format!("{stamp}.png");
-        let left = load_gray_png(&args.dataset.join(STEREO_LEFT_DIR).join(&name))?;
-        let right_path = args.dataset.join(STEREO_RIGHT_DIR).join(&name);
-        let right = load_gray_png(&right_path)?;
-        pipeline
-            .process_raw_pair(&left, &right)
-            .with_context(|| format!("stereo pair {stamp}"))?;
-        ground_points += pipeline.accumulate(&pose, &mut texture);
-        frames += 1;
+/// `pfslam run`'s texture: when the dataset directory has stereo images, colours the ground
+/// along the SLAM `trajectory`, over the SLAM `map`, into `out` (the files of `texture`).
+/// Returns whether there were images.
+pub fn texture_after_run(
+    dataset: &Path,
+    trajectory: &[StampedPose2],
+    config: &Config,
+    map: &OccupancyGrid,
+    out: &Path,
+) -> anyhow::Result<bool> {
+    if !dataset.is_dir() || read_stereo_stamps(dataset)?.is_empty() {
+        return Ok(false);
     }
-    if without_pose > 0 {
+    let calibration = load_calibration(dataset)?;
+    let poses = Trajectory::new(trajectory.to_vec());
+    write_texture(dataset, &calibration, &poses, config, 1, Some(map), out)?;
+    Ok(true)
+}
+
+/// Accumulates every `every`-th pair along `poses` and writes `texture.png`, the `.npy`
+/// rasters and `texture.json` into `out`.
+fn write_texture(
+    dataset: &Path,
+    calibration: &StereoCalibration,
+    poses: &Trajectory,
+    config: &Config,
+    every: usize,
+    grid: Option<&OccupancyGrid>,
+    out: &Path,
+) -> anyhow::Result<TextureStats> {
+    let (texture, stats) = texture_dataset(
+        dataset,
+        calibration,
+        poses,
+        &config.stereo,
+        config.stereo.texture_limits(&config.map),
+        every,
+    )?;
+    if stats.pairs_without_pose > 0 {
         tracing::warn!(
-            "{without_pose} stereo pairs lie outside the trajectory's time span: skipped"
+            "{} stereo pairs lie outside the trajectory's time span: skipped",
+            stats.pairs_without_pose
         );
     }
     let rect = texture
         .bounds()
         .context("no ground point was coloured (no pair within the trajectory, or no match)")?;
     tracing::info!(
-        "{frames} pairs, {ground_points} ground points, {} cells coloured",
+        "{} pairs, {} ground points, {} cells coloured",
+        stats.pairs_used,
+        stats.ground_points,
         texture.cells.len()
     );
 
-    let grid = grey_map(&args.dataset, &poses, &config);
     let (rgb, count) = texture.rasterize(&rect);
     let (w, h) = (rect.width(), rect.height());
-    write_npy_f32(&args.out.join("texture_rgb.npy"), &[h, w, 3], &rgb)?;
-    write_npy_f32(&args.out.join("texture_count.npy"), &[h, w], &count)?;
-    let png = picture(&texture, &rect, grid.as_ref());
-    write_bytes_atomic(&args.out.join("texture.png"), &encode_rgb_png(&png)?)?;
+    write_npy_f32(&out.join("texture_rgb.npy"), &[h, w, 3], &rgb)?;
+    write_npy_f32(&out.join("texture_count.npy"), &[h, w], &count)?;
+    let png = picture(&texture, &rect, grid);
+    write_bytes_atomic(&out.join("texture.png"), &encode_rgb_png(&png)?)?;
     let limits = texture.limits();
     let (x0, y0) = limits.cell_corner(pfslam::map::Cell::new(rect.min_i, rect.min_j));
     let meta = serde_json::json!({
@@ -126,21 +157,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "row_0": "largest y",
         "png_cells_per_pixel": reduction(&rect),
         "background": if grid.is_some() { "occupancy map" } else { "plain grey (no LiDAR data)" },
-        "pairs_used": frames,
-        "pairs_without_pose": without_pose,
-        "ground_points": ground_points,
+        "pairs_used": stats.pairs_used,
+        "pairs_without_pose": stats.pairs_without_pose,
+        "ground_points": stats.ground_points,
         "cells_coloured": texture.cells.len(),
     });
-    write_atomic(&args.out.join("texture.json"), |wr| {
+    write_atomic(&out.join("texture.json"), |wr| {
         serde_json::to_writer_pretty(&mut *wr, &meta)?;
         wr.write_all(b"\n")
     })?;
     println!(
-        "texture: {frames} pairs, {} cells coloured -> {}",
+        "texture: {} pairs, {} cells coloured -> {}",
+        stats.pairs_used,
         texture.cells.len(),
-        args.out.display()
+        out.join("texture.png").display()
     );
-    Ok(())
+    Ok(stats)
 }
 
 /// The rig from `DATASET/param/` or, when that folder is absent, the built-in UCSD rig.

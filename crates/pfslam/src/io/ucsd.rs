@@ -65,6 +65,8 @@ pub const LIDAR_CSV: &str = "sensor_data/lidar.csv";
 pub const PARAM_DIR: &str = "param";
 /// `stereo_images/stereo_left/`.
 pub const STEREO_LEFT_DIR: &str = "stereo_images/stereo_left";
+/// `stereo_images/stereo_right/` (same file names as the left images).
+pub const STEREO_RIGHT_DIR: &str = "stereo_images/stereo_right";
 
 /// A streaming line reader with one reused buffer; lines are returned without `\n`/`\r\n`.
 struct Lines {

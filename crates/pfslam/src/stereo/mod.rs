@@ -7,6 +7,7 @@
 //! world frame with the pose at the image's stamp -> ground points coloured into a
 //! [`texture::TextureMap`].
 
+pub mod dataset;
 pub mod disparity;
 pub mod ground;
 pub mod image;
@@ -17,6 +18,7 @@ pub mod texture;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
+pub use dataset::{TextureStats, texture_dataset};
 pub use disparity::{DisparityMap, DisparityWorkspace, INVALID_DISPARITY, MatcherOptions};
 pub use ground::{ColouredPoint, PlaneFit, RgbdCamera, fit_plane_ransac};
 pub use image::{BayerPattern, Demosaic, GrayImage, RgbImage};
