@@ -28,4 +28,5 @@ mod cli_demo;
 mod cli_eval;
 mod cli_map;
 mod cli_run;
+mod cli_sim_texture;
 mod cli_texture;
