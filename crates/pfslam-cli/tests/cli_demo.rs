@@ -26,6 +26,8 @@ fn demo_runs_every_stage_and_reports_accuracy() {
         "slam/trajectory.tum",
         "slam/map.png",
         "slam/summary.json",
+        "slam/texture.png",
+        "slam/texture_rgb.npy",
     ] {
         assert!(out.join(f).is_file(), "missing {f}\n{stdout}");
     }

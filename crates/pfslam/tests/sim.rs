@@ -173,7 +173,7 @@ fn default_errors_make_dead_reckoning_drift_by_metres() {
     assert!(max > 1.0 && max < 50.0, "max error {max} m");
 }
 
-fn assert_same_files(a: &Path, b: &Path) {
+pub(crate) fn assert_same_files(a: &Path, b: &Path) {
     let mut names: Vec<_> = walk(a);
     names.sort();
     assert!(names.len() > 8);

@@ -8,5 +8,6 @@ mod map;
 mod motion;
 mod readers;
 mod sim;
+mod sim_stereo;
 mod stereo;
 mod ucsd;
