@@ -2,7 +2,8 @@
 //!
 //! Writes `trajectory.tum` (best particle at every scan), `dead_reckoning.tum`, `map.png`
 //! (map with the SLAM, dead-reckoning and ground-truth paths), `binary_map.png`, `map.pgm` +
-//! `map.yaml`, `summary.json` and map snapshots in `snapshots/`.
+//! `map.yaml`, `summary.json` and map snapshots in `snapshots/`; when the dataset has stereo
+//! images, the texture along the SLAM path (the files of `pfslam texture`).
 
 use anyhow::Context;
 use pfslam::config::Config;

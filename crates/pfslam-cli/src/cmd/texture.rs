@@ -4,7 +4,8 @@
 //! Writes `texture.png` (coloured ground over the grey occupancy map when the dataset has
 //! LiDAR scans, else over plain grey), `texture_rgb.npy` (float32 HxWx3 mean colour 0-255, NaN
 //! where unobserved), `texture_count.npy` (float32 HxW samples per cell) and `texture.json`
-//! (the raster's geometry). Row 0 of every raster is the largest world y.
+//! (the raster's geometry). Row 0 of every raster is the largest world y. `pfslam run` writes
+//! the same files along its SLAM trajectory ([`texture_after_run`]).
 
 use anyhow::Context;
 use pfslam::config::Config;

@@ -7,7 +7,8 @@
 //! - [`RayCaster`]: 3-D ray casting against the world and the ground plane.
 //! - [`simulate_car`] / [`write_car_sim`]: the seed car with its real calibration
 //!   ([`crate::sensors::CarCalibration::ucsd`]): encoders, FOG, the tilted LiDAR, and the
-//!   configurable errors of [`CarSimOptions`].
+//!   configurable errors of [`CarSimOptions`], and optionally the stereo camera's raw pairs
+//!   (`stereo_rate_hz`, rendered by [`crate::stereo::render::WorldScene`]).
 //! - [`TrueMap`]: the world rasterised by the rule documented in [`truth`].
 //!
 //! Same options (including `seed`) -> identical output, whatever the number of threads.
