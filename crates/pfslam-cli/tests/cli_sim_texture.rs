@@ -229,3 +229,39 @@ fn simulated_stereo_drive_run_writes_a_true_texture() {
         assert!(q.mean_error < 5.0, "{label}: {q:?}");
     }
 }
+
+#[test]
+fn run_warns_and_keeps_the_slam_outputs_when_a_stereo_image_is_bad() {
+    let tmp = tempfile::tempdir().unwrap();
+    let sim = tmp.path().join("sim");
+    let o = pfslam()
+        .args([
+            "simulate",
+            "--duration-s",
+            "3",
+            "--stereo-rate-hz",
+            "0.5",
+            "--out",
+        ])
+        .arg(&sim)
+        .output()
+        .unwrap();
+    check_success(&o);
+    let stamps = read_stereo_stamps(&sim).unwrap();
+    assert_eq!(stamps.len(), 2);
+    let bad = sim.join(format!("stereo_images/stereo_right/{}.png", stamps[1]));
+    std::fs::write(&bad, b"not a png").unwrap();
+    let run = tmp.path().join("run");
+    let o = pfslam()
+        .args(["run", "--particles", "5", "--out"])
+        .arg(&run)
+        .arg(&sim)
+        .output()
+        .unwrap();
+    check_success(&o);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(stderr.contains("texture not written"), "{stderr}");
+    assert!(stderr.contains(&format!("{}.png", stamps[1])), "{stderr}");
+    assert!(run.join("trajectory.tum").is_file());
+    assert!(!run.join("texture.png").exists());
+}

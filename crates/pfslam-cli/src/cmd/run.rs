@@ -152,7 +152,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     )?;
     // The ground's colours along the SLAM path, when the dataset has stereo images.
     let (traj, map) = (&result.trajectory, &result.map);
-    super::texture::texture_after_run(&args.dataset, traj, &config, map, &args.out)?;
+    super::texture::texture_after_run(&args.dataset, traj, &config, map, &args.out);
     Ok(())
 }
 

@@ -89,22 +89,36 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 /// `pfslam run`'s texture: when the dataset directory has stereo images, colours the ground
-/// along the SLAM `trajectory`, over the SLAM `map`, into `out` (the files of `texture`).
-/// Returns whether there were images.
+/// along the SLAM `trajectory`, over the SLAM `map`, into `out` (the files of `texture`). The
+/// texture is an extra of `run`, so a failure is a warning: the SLAM outputs and the exit
+/// status stay.
 pub fn texture_after_run(
     dataset: &Path,
     trajectory: &[StampedPose2],
     config: &Config,
     map: &OccupancyGrid,
     out: &Path,
-) -> anyhow::Result<bool> {
+) {
+    if let Err(e) = try_texture_after_run(dataset, trajectory, config, map, out) {
+        tracing::warn!("texture not written: {e:#}");
+    }
+}
+
+/// [`texture_after_run`], with its error.
+fn try_texture_after_run(
+    dataset: &Path,
+    trajectory: &[StampedPose2],
+    config: &Config,
+    map: &OccupancyGrid,
+    out: &Path,
+) -> anyhow::Result<()> {
     if !dataset.is_dir() || read_stereo_stamps(dataset)?.is_empty() {
-        return Ok(false);
+        return Ok(());
     }
     let calibration = load_calibration(dataset)?;
     let poses = Trajectory::new(trajectory.to_vec());
     write_texture(dataset, &calibration, &poses, config, 1, Some(map), out)?;
-    Ok(true)
+    Ok(())
 }
 
 /// Accumulates every `every`-th pair along `poses` and writes `texture.png`, the `.npy`
