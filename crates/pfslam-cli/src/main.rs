@@ -35,6 +35,8 @@ pub enum Command {
     Experiment(cmd::experiment::Args),
     /// Particle-filter SLAM on a dataset: trajectory, maps, summary.
     Run(cmd::run::Args),
+    /// SLAM on every Freiburg recording with relations: one accuracy table.
+    Benchmark(cmd::benchmark::Args),
     /// Colour the ground from the car's stereo pairs along a trajectory: texture.png/.npy.
     Texture(cmd::texture::Args),
     /// Print the full default configuration as TOML.
@@ -57,6 +59,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Simulate(a)) => cmd::simulate::run(a),
         Some(Command::Map(a)) => cmd::map::run(a),
         Some(Command::Texture(a)) => cmd::texture::run(a),
+        Some(Command::Benchmark(a)) => cmd::benchmark::run(a),
     }
 }
 

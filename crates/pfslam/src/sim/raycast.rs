@@ -45,6 +45,13 @@ pub struct RayCaster {
     /// CSR layout: segments of cell `c` are `cell_items[cell_start[c]..cell_start[c + 1]]`.
     cell_start: Vec<u32>,
     cell_items: Vec<u32>,
+    /// CSR layout of the prisms whose footprint's bounding box touches each cell: their top
+    /// and bottom faces are tested in every cell they cover, so a face hit is found in the cell
+    /// where it lies (the walk stops at the nearest hit so far, possibly before the ray reaches
+    /// the wall through which it would leave the footprint).
+    prism_start: Vec<u32>,
+    prism_items: Vec<u32>,
+    z_range: Vec<[f64; 2]>,
     origin: [f64; 2],
     cell_m: f64,
     nx: usize,
@@ -95,18 +102,54 @@ impl RayCaster {
                 }
             }
         }
-        let mut cell_start = Vec::with_capacity(nx * ny + 1);
-        let mut cell_items = Vec::new();
-        cell_start.push(0u32);
-        for l in &lists {
-            cell_items.extend_from_slice(l);
-            cell_start.push(cell_items.len() as u32);
+        let cell_range = |lo: f64, hi: f64, o: f64, n: usize| {
+            let a = (((lo - o) / cell_m).floor().max(0.0) as usize).min(n - 1);
+            let b = (((hi - o) / cell_m).floor().max(0.0) as usize).min(n - 1);
+            a..=b
+        };
+        let mut prism_lists: Vec<Vec<u32>> = vec![Vec::new(); nx * ny];
+        for (pi, p) in world.prisms.iter().enumerate() {
+            let xs = p.footprint.iter().map(|q| q[0]);
+            let ys = p.footprint.iter().map(|q| q[1]);
+            let (x0, x1) = xs.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+                (a.min(v), b.max(v))
+            });
+            let (y0, y1) = ys.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+                (a.min(v), b.max(v))
+            });
+            if !(x0.is_finite() && y0.is_finite()) {
+                continue;
+            }
+            for cy in cell_range(y0, y1, origin[1], ny) {
+                for cx in cell_range(x0, x1, origin[0], nx) {
+                    prism_lists[cy * nx + cx].push(pi as u32);
+                }
+            }
         }
+        let csr = |lists: &[Vec<u32>]| {
+            let mut start = Vec::with_capacity(lists.len() + 1);
+            let mut items = Vec::new();
+            start.push(0u32);
+            for l in lists {
+                items.extend_from_slice(l);
+                start.push(items.len() as u32);
+            }
+            (start, items)
+        };
+        let (cell_start, cell_items) = csr(&lists);
+        let (prism_start, prism_items) = csr(&prism_lists);
         RayCaster {
             segments,
             footprints: world.prisms.iter().map(|p| p.footprint.clone()).collect(),
             cell_start,
             cell_items,
+            prism_start,
+            prism_items,
+            z_range: world
+                .prisms
+                .iter()
+                .map(|p| [p.z_min_m, p.z_max_m])
+                .collect(),
             origin,
             cell_m,
             nx,
@@ -184,6 +227,18 @@ impl RayCaster {
                     best_kind = Some(HitKind::Obstacle(s.prism));
                 }
             }
+            let (p0, p1) = (
+                self.prism_start[c] as usize,
+                self.prism_start[c + 1] as usize,
+            );
+            for &pi in &self.prism_items[p0..p1] {
+                if let Some(t) = self.face_hit(pi, o, d)
+                    && t < best_t
+                {
+                    best_t = t;
+                    best_kind = Some(HitKind::Obstacle(pi));
+                }
+            }
             let t_next = t_max_x.min(t_max_y);
             if t_next >= best_t.min(t_end) {
                 break;
@@ -206,6 +261,24 @@ impl RayCaster {
             range_m: best_t,
             kind,
         })
+    }
+
+    /// Distance to the top face (ray going down from above it) or the bottom face (going up
+    /// from below it) of prism `pi`, if the ray meets it over the footprint.
+    #[inline]
+    fn face_hit(&self, pi: u32, o: [f64; 3], d: [f64; 3]) -> Option<f64> {
+        let [z_min, z_max] = self.z_range[pi as usize];
+        let z_face = if d[2] < 0.0 && o[2] > z_max {
+            z_max
+        } else if d[2] > 0.0 && o[2] < z_min {
+            z_min
+        } else {
+            return None;
+        };
+        let tf = (z_face - o[2]) / d[2];
+        let px = o[0] + tf * d[0];
+        let py = o[1] + tf * d[1];
+        point_in_polygon(&self.footprints[pi as usize], px, py).then_some(tf)
     }
 
     /// Distance to the obstacle surface reached through wall segment `s`, if any: the wall

@@ -1,0 +1,242 @@
+//! `pfslam benchmark [--data DIR]`: SLAM on every Freiburg recording found with its relations,
+//! scored with the Kümmerle et al. 2009 metric, in one table beside the published results.
+//!
+//! A recording is `<data>/freiburg/<name>/<name>.bag` (or `<name>.clf`) with
+//! `<name>.relations` beside it. All recordings run with the same configuration (the defaults,
+//! or `--config`): no per-dataset tuning.
+
+use anyhow::Context;
+use pfslam::config::Config;
+use pfslam::eval::relations::{RelationsOptions, evaluate_relations, read_relations};
+use pfslam::filter::slam::run_slam;
+use pfslam::geometry::Trajectory;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Arguments of `benchmark`.
+#[derive(Debug, Default, clap::Args)]
+pub struct Args {
+    /// The data directory holding `freiburg/` (default: `$PFSLAM_DATA`, else `shared/data`
+    /// beside the workspace, else `../shared/data`).
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Only these recordings (comma separated, e.g. `intel,aces`).
+    #[arg(long, value_delimiter = ',')]
+    pub only: Vec<String>,
+    /// TOML configuration over the defaults (one for all recordings).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Seed of the filter.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Also write each trajectory and the table (`benchmark.md`, `benchmark.json`) here.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// Published mean translational (m) / rotational (deg) errors on the relations (from
+/// `shared/data/freiburg/README.md`): graph mapping, RBPF (GMapping, 50 particles),
+/// Cartographer. `None` where no figure is published.
+type Published = [(&'static str, f64, Option<f64>); 3];
+
+fn published(name: &str) -> Option<Published> {
+    Some(match name {
+        "intel" => [
+            ("graph", 0.031, Some(1.3)),
+            ("RBPF", 0.070, None),
+            ("Cartographer", 0.0229, Some(0.453)),
+        ],
+        "aces" => [
+            ("graph", 0.044, Some(0.4)),
+            ("RBPF", 0.060, None),
+            ("Cartographer", 0.0375, Some(0.373)),
+        ],
+        "mit-csail" => [
+            ("graph", 0.004, Some(0.05)),
+            ("RBPF", 0.049, None),
+            ("Cartographer", 0.0319, Some(0.369)),
+        ],
+        _ => return None,
+    })
+}
+
+/// One row of the table.
+#[derive(Debug, serde::Serialize)]
+pub struct Row {
+    /// Recording name.
+    pub name: String,
+    /// Scans in the recording.
+    pub scans: usize,
+    /// Wall time of SLAM (s), loading excluded.
+    pub wall_s: f64,
+    /// Recording duration / wall time.
+    pub realtime_factor: f64,
+    /// Mean ± std translational error (m).
+    pub trans_mean_m: f64,
+    /// Std of the translational error (m).
+    pub trans_std_m: f64,
+    /// Mean rotational error (deg).
+    pub rot_mean_deg: f64,
+    /// Std of the rotational error (deg).
+    pub rot_std_deg: f64,
+    /// Relations used / total.
+    pub relations_used: usize,
+    /// Relations in the file.
+    pub relations_total: usize,
+    /// The same metric on the raw odometry.
+    pub odometry_trans_mean_m: f64,
+}
+
+fn default_data_dir() -> Option<PathBuf> {
+    pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")).or_else(|| {
+        let p = PathBuf::from("../shared/data");
+        p.is_dir().then_some(p)
+    })
+}
+
+/// Finds `(name, recording, relations)` under `data/freiburg`, sorted by name.
+pub fn find_recordings(data: &Path) -> anyhow::Result<Vec<(String, PathBuf, PathBuf)>> {
+    let root = data.join("freiburg");
+    let entries = std::fs::read_dir(&root).with_context(|| root.display().to_string())?;
+    let mut found = Vec::new();
+    for e in entries {
+        let dir = e?.path();
+        let Some(name) = dir.file_name().map(|n| n.to_string_lossy().into_owned()) else {
+            continue;
+        };
+        let rel = dir.join(format!("{name}.relations"));
+        let rec = ["bag", "clf", "mcap", "log", "log.gz"]
+            .iter()
+            .map(|ext| dir.join(format!("{name}.{ext}")))
+            .find(|p| p.is_file());
+        if let (true, Some(rec)) = (rel.is_file(), rec) {
+            found.push((name, rec, rel));
+        }
+    }
+    found.sort();
+    Ok(found)
+}
+
+/// Runs the benchmark.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let config = match &args.config {
+        Some(p) => Config::from_toml_file(p)?,
+        None => Config::default(),
+    };
+    let data = match &args.data {
+        Some(d) => d.clone(),
+        None => default_data_dir().ok_or_else(|| {
+            anyhow::anyhow!("no data directory: pass --data DIR or set PFSLAM_DATA")
+        })?,
+    };
+    let mut recordings = find_recordings(&data)?;
+    if !args.only.is_empty() {
+        for o in &args.only {
+            if !recordings.iter().any(|(n, _, _)| n == o) {
+                anyhow::bail!(
+                    "--only {o}: no such recording with relations under {}",
+                    data.display()
+                );
+            }
+        }
+        recordings.retain(|(n, _, _)| args.only.contains(n));
+    }
+    if recordings.is_empty() {
+        anyhow::bail!(
+            "{}: no recording with relations found (expected freiburg/<name>/<name>.bag and <name>.relations)",
+            data.display()
+        );
+    }
+    let mut rows = Vec::new();
+    for (name, rec_path, rel_path) in &recordings {
+        let relations = read_relations(rel_path)?;
+        let recording = pfslam::io::recording::read_recording(rec_path, &Default::default())
+            .with_context(|| rec_path.display().to_string())?;
+        let t = Instant::now();
+        let result = run_slam(&recording, &config, args.seed, &mut |_| {})
+            .with_context(|| format!("SLAM on {}", rec_path.display()))?;
+        let wall_s = t.elapsed().as_secs_f64();
+        let opts = RelationsOptions::default();
+        let est = Trajectory::new(result.trajectory.clone());
+        let r = evaluate_relations(&est, &relations, &opts)?;
+        let odo = evaluate_relations(
+            &Trajectory::new(result.dead_reckoning.clone()),
+            &relations,
+            &opts,
+        )?;
+        let stamps = &recording.scans.stamps_ns;
+        let duration_s = match (stamps.first(), stamps.last()) {
+            (Some(a), Some(b)) => (b - a) as f64 * 1e-9,
+            _ => 0.0,
+        };
+        if let Some(out) = &args.out {
+            pfslam::io::tum::write_tum(&out.join(format!("{name}.tum")), &result.trajectory)?;
+        }
+        let row = Row {
+            name: name.clone(),
+            scans: recording.scans.len(),
+            wall_s,
+            realtime_factor: duration_s / wall_s.max(1e-9),
+            trans_mean_m: r.trans_m.abs.mean,
+            trans_std_m: r.trans_m.abs.std,
+            rot_mean_deg: r.rot_deg.abs.mean,
+            rot_std_deg: r.rot_deg.abs.std,
+            relations_used: r.used,
+            relations_total: r.relations,
+            odometry_trans_mean_m: odo.trans_m.abs.mean,
+        };
+        eprintln!(
+            "{name}: {:.4} m, {:.3} deg, {:.1} s ({:.0}x real time)",
+            row.trans_mean_m, row.rot_mean_deg, row.wall_s, row.realtime_factor
+        );
+        rows.push(row);
+    }
+    let table = render_table(&rows);
+    print!("{table}");
+    if let Some(out) = &args.out {
+        pfslam::io::write_bytes_atomic(&out.join("benchmark.md"), table.as_bytes())?;
+        let json = serde_json::to_string_pretty(&rows)?;
+        pfslam::io::write_bytes_atomic(&out.join("benchmark.json"), json.as_bytes())?;
+    }
+    Ok(())
+}
+
+/// The markdown table: our figures, then the published ones.
+pub fn render_table(rows: &[Row]) -> String {
+    let mut s = Vec::new();
+    let _ = writeln!(
+        s,
+        "| dataset | scans | wall (s) | x real time | trans. error (m) | rot. error (deg) | relations | raw odometry (m) | graph mapping | RBPF (50 p.) | Cartographer |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|");
+    for r in rows {
+        let pubs = published(&r.name);
+        let cell = |k: usize| match &pubs {
+            Some(p) => match p[k].2 {
+                Some(rot) => format!("{:.4} m / {rot:.3} deg", p[k].1),
+                None => format!("{:.4} m", p[k].1),
+            },
+            None => "-".to_string(),
+        };
+        let _ = writeln!(
+            s,
+            "| {} | {} | {:.1} | {:.0} | {:.4} ± {:.4} | {:.3} ± {:.3} | {}/{} | {:.3} | {} | {} | {} |",
+            r.name,
+            r.scans,
+            r.wall_s,
+            r.realtime_factor,
+            r.trans_mean_m,
+            r.trans_std_m,
+            r.rot_mean_deg,
+            r.rot_std_deg,
+            r.relations_used,
+            r.relations_total,
+            r.odometry_trans_mean_m,
+            cell(0),
+            cell(1),
+            cell(2)
+        );
+    }
+    String::from_utf8_lossy(&s).into_owned()
+}
