@@ -297,7 +297,7 @@ fn run_synthetic(
     seed: u64,
 ) -> pfslam::filter::slam::SlamResult {
     use pfslam::filter::slam::{BestParticleMap, run_slam_with};
-    let mut config = pfslam::config::Config::default();
+    let mut config = pfslam::filter::seed_config();
     config.filter.particles = particles;
     config.map.scan.range_min_m = 0.5;
     config.map.scan.range_max_m = 29.0;
@@ -354,7 +354,7 @@ fn correlation_search_recovers_a_perturbed_pose() {
     use pfslam::filter::correlate::{CorrelationScratch, best_match, correlation};
     use pfslam::map::{InsertScratch, OccupancyGrid, PlanarScan, ScanProjector, to_world};
     let rec = synthetic::recording(1.0, 3);
-    let mut config = pfslam::config::Config::default();
+    let mut config = pfslam::filter::seed_config();
     config.map.scan.range_min_m = 0.5;
     config.map.scan.range_max_m = 29.0;
     let truth = rec.ground_truth.as_ref().unwrap()[0].pose;
@@ -431,6 +431,23 @@ fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> 
     let out = simulate_car(&world, &opts).unwrap();
     let mut rec = out.recording(&config.motion).unwrap();
     assert!(anchor_odometry_to_ground_truth(&mut rec));
+    if let Some(i) = std::env::var("PF_SCANDUMP")
+        .ok()
+        .and_then(|v| v.parse::<usize>().ok())
+    {
+        let ranges = rec.scans.ranges(i);
+        for (k, &r) in ranges.iter().enumerate() {
+            let a = rec.lidar.beam_angle_rad(k);
+            let p = rec.body_from_lidar.transform_point(&nalgebra::Vector3::new(
+                f64::from(r) * a.cos(),
+                f64::from(r) * a.sin(),
+                0.0,
+            ));
+            if k % 4 == 0 {
+                eprintln!("SCAN {k} r {r:.2} body {:.2} {:.2} {:.2}", p.x, p.y, p.z);
+            }
+        }
+    }
     let result = run_slam(&rec, config, seed, &mut |_| {}).unwrap();
     let gt = &out.ground_truth;
     let truth = out.true_map.to_binary_map();
@@ -446,6 +463,25 @@ fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> 
             c.recall(),
             c.recall_all()
         );
+    }
+    if std::env::var("PF_TRACE").is_ok() {
+        let gt_traj = pfslam::geometry::Trajectory::new(gt.clone());
+        for (k, p) in result.trajectory.iter().enumerate().step_by(40) {
+            if let Some(g) = gt_traj.pose_at(p.stamp_ns) {
+                let e = g.between(&p.pose);
+                let d = result.dead_reckoning[k].pose;
+                let ed = g.between(&d);
+                eprintln!(
+                    "TRACE {k} along {:.3} across {:.3} yaw {:.3}deg | dr {:.3} {:.3} {:.3}",
+                    e.x_m,
+                    e.y_m,
+                    e.yaw_rad.to_degrees(),
+                    ed.x_m,
+                    ed.y_m,
+                    ed.yaw_rad.to_degrees()
+                );
+            }
+        }
     }
     let est = result.map.to_binary_map(None);
     let cmp = pfslam::map::compare_maps(&est, &truth, 1).unwrap();
@@ -504,6 +540,27 @@ fn explore_sim() {
     config.filter.map_between_updates = env("PF_MAPALL", 0.0) > 0.5;
     config.filter.offset_penalty_hits_per_cell2 = env("PF_PEN", 0.0);
     config.filter.dilation_cells = env("PF_DIL", 0.0) as u32;
+    config.map.free_margin_m = env("PF_FM", 0.0);
+    let sm = &mut config.filter.scan_match;
+    sm.prior_sigma_xy_m = env("SM_PXY", sm.prior_sigma_xy_m);
+    sm.prior_sigma_yaw_deg = env("SM_PYAW", sm.prior_sigma_yaw_deg);
+    sm.field_sigma_m = env("SM_SIG", sm.field_sigma_m);
+    sm.unknown_value = env("SM_UNK", sm.unknown_value);
+    sm.proposal_sigma_xy_m = env("SM_JXY", sm.proposal_sigma_xy_m);
+    sm.proposal_sigma_yaw_deg = env("SM_JYAW", sm.proposal_sigma_yaw_deg);
+    sm.beam_decimation = env("SM_DEC", sm.beam_decimation as f64) as usize;
+    sm.weight_temperature = env("SM_T", sm.weight_temperature);
+    sm.xy_search_radius_cells = env("SM_R", sm.xy_search_radius_cells as f64) as u32;
+    if env("PF_SEED", 0.0) > 0.5 {
+        config.filter.mode = pfslam::filter::FilterMode::Seed;
+    }
+    if env("PF_ESE", 0.0) > 0.5 {
+        config.map.log_odds = pfslam::map::LogOddsParams::ese650();
+    }
+    let zmax = env("PF_ZMAX", 1e9);
+    if zmax < 1e8 {
+        config.map.scan.z_max_m = Some(zmax);
+    }
     let zmin = env("PF_ZMIN", -1e9);
     if zmin > -1e8 {
         config.map.scan.z_min_m = Some(zmin);

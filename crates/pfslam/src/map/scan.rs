@@ -45,6 +45,18 @@ pub struct ScanOptions {
     pub z_min_m: Option<f64>,
     /// Points above this height are dropped (m, world/body frame; `None` = no bound).
     pub z_max_m: Option<f64>,
+    /// Ground removal for tilted scanners: when the scan plane is tilted by more than 1 deg
+    /// (the car's LiDAR; a nodding head), returns lower than this above the body frame's
+    /// z = 0 (the ground) are dropped. A level scanner cannot hit the ground, so planar
+    /// recordings (z = 0 everywhere) keep every point. `None` = off (the seeds).
+    pub ground_clearance_m: Option<f64>,
+    /// Consecutive returns closer than this (m, in the plane) are joined by extra returns
+    /// every `densify_step_m`: a wall sampled by beams a few decimetres apart becomes a line,
+    /// in the map and in scan matching, so matching has no ripple that favours repeating the
+    /// previous scan's beam pattern. `None` = off (the seeds).
+    pub densify_max_gap_m: Option<f64>,
+    /// Spacing of the joining returns (m).
+    pub densify_step_m: f64,
 }
 
 impl Default for ScanOptions {
@@ -56,6 +68,9 @@ impl Default for ScanOptions {
             no_return_clear_m: 20.0,
             z_min_m: None,
             z_max_m: None,
+            ground_clearance_m: Some(0.5),
+            densify_max_gap_m: Some(1.0),
+            densify_step_m: 0.1,
         }
     }
 }
@@ -76,6 +91,18 @@ impl ScanOptions {
             if v.is_some_and(|z| !z.is_finite()) {
                 return Err(format!("map.scan.{k} must be finite"));
             }
+        }
+        if self
+            .densify_max_gap_m
+            .is_some_and(|g| !(g.is_finite() && g >= 0.0))
+        {
+            return Err("map.scan.densify_max_gap_m must be finite and >= 0".into());
+        }
+        if !(self.densify_step_m.is_finite() && self.densify_step_m >= 0.01) {
+            return Err("map.scan.densify_step_m must be at least 0.01".into());
+        }
+        if self.ground_clearance_m.is_some_and(|z| !z.is_finite()) {
+            return Err("map.scan.ground_clearance_m must be finite".into());
         }
         if let (Some(a), Some(b)) = (self.z_min_m, self.z_max_m)
             && a >= b
@@ -135,6 +162,15 @@ pub struct ScanProjector {
     origin_body: Vector3<f64>,
     /// Unit beam directions in the body frame.
     dirs_body: Vec<Vector3<f64>>,
+    /// The ground-removal height in force for this mount (`None` for a level scan plane).
+    ground_z_m: Option<f64>,
+}
+
+/// The ground-removal height for a mount: `clearance` when the scan plane is tilted.
+fn ground_z(body_from_lidar: &Rigid3, clearance: Option<f64>) -> Option<f64> {
+    let normal = body_from_lidar.rotation * Vector3::new(0.0, 0.0, 1.0);
+    let tilted = normal.z.abs() < 1f64.to_radians().cos();
+    clearance.filter(|_| tilted)
 }
 
 impl ScanProjector {
@@ -152,6 +188,7 @@ impl ScanProjector {
             })
             .collect();
         Ok(ScanProjector {
+            ground_z_m: ground_z(body_from_lidar, opts.ground_clearance_m),
             opts: *opts,
             sensor_range_max_m: geometry.range_max_m,
             origin_body: body_from_lidar.translation,
@@ -162,6 +199,7 @@ impl ScanProjector {
     /// Replaces the mount (a LiDAR that moves on the body), keeping geometry and options.
     pub fn set_mount(&mut self, geometry: &LidarGeometry, body_from_lidar: &Rigid3) {
         self.origin_body = body_from_lidar.translation;
+        self.ground_z_m = ground_z(body_from_lidar, self.opts.ground_clearance_m);
         for (k, d) in self.dirs_body.iter_mut().enumerate() {
             let (s, c) = geometry.beam_angle_rad(k).sin_cos();
             *d = body_from_lidar.rotation * Vector3::new(c, s, 0.0);
@@ -204,8 +242,30 @@ impl ScanProjector {
                 (r as f64, true)
             };
             let p = self.origin_body + d * dist_m;
-            if o.z_min_m.is_some_and(|z| p.z < z) || o.z_max_m.is_some_and(|z| p.z > z) {
+            if o.z_min_m.is_some_and(|z| p.z < z)
+                || o.z_max_m.is_some_and(|z| p.z > z)
+                || (hit && self.ground_z_m.is_some_and(|z| p.z < z))
+            {
                 continue;
+            }
+            if hit
+                && let Some(gap) = o.densify_max_gap_m
+                && let Some(prev) = out.points.last().copied()
+                && prev.hit
+            {
+                let (dx, dy) = (p.x - prev.x_m, p.y - prev.y_m);
+                let d = dx.hypot(dy);
+                if d <= gap && d > o.densify_step_m {
+                    let n = (d / o.densify_step_m).ceil() as usize;
+                    for k in 1..n {
+                        let t = k as f64 / n as f64;
+                        out.points.push(ScanPoint {
+                            x_m: prev.x_m + t * dx,
+                            y_m: prev.y_m + t * dy,
+                            hit: true,
+                        });
+                    }
+                }
             }
             out.points.push(ScanPoint {
                 x_m: p.x,
