@@ -5,7 +5,8 @@
 //! - [`particles`]: the weighted set; [`weights`]: log-space softmax and Neff;
 //!   [`resample`]: stratified, systematic and multinomial resampling;
 //!   [`rng`]: per-chunk random streams, so results do not depend on the thread count;
-//!   [`correlate`]: the map-correlation search;
+//!   [`correlate`]: the seeds' map-correlation search; [`scanmatch`]: the default mode's
+//!   likelihood field and scan-matching proposal;
 //! - [`ParticleFilter`] ties them together; the map is reached only through
 //!   [`ParticleMaps`], so one shared map (the seeds) and per-particle maps fit the same code.
 
@@ -186,13 +187,14 @@ impl FilterOptions {
 
 /// The seeds' configuration: `mode = "seed"`, the UCSD log-odds model (one hit makes a cell
 /// occupied), and none of the scan preprocessing the scan-matching mode relies on (ground
-/// removal, densification). Everything else as [`Config::default`].
+/// removal, densification, partial clearing of climbing beams). Everything else as [`Config::default`].
 pub fn seed_config() -> Config {
     let mut config = Config::default();
     config.filter.mode = FilterMode::Seed;
     config.map.log_odds = crate::map::LogOddsParams::ucsd();
     config.map.scan.ground_clearance_m = None;
     config.map.scan.densify_max_gap_m = None;
+    config.map.scan.free_z_max_m = None;
     config
 }
 

@@ -490,6 +490,7 @@ mod tests {
                 x_m: c * t,
                 y_m: s * t,
                 hit: true,
+                free_to: 1.0,
             });
         }
         PlanarScan {
@@ -557,6 +558,7 @@ mod tests {
                         x_m: x,
                         y_m: y,
                         hit: true,
+                        free_to: 1.0,
                     });
                 }
             }

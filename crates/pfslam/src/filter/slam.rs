@@ -1,6 +1,7 @@
-//! The SLAM loop of the seeds: predict at every odometry step, update every k-th scan
-//! (correlate, reweight, resample on low Neff), map with the best particle, output a pose at
-//! every scan.
+//! The SLAM loop: predict at every odometry step, update every k-th scan (`[filter] mode`:
+//! the seeds' correlation, or the scan-matching proposal of [`super::scanmatch`]), reweight,
+//! resample on low Neff, map with the best particle (the scan-matching mode also maps the
+//! scans between updates at the odometry-composed pose), output a pose at every scan.
 
 use super::correlate::{CorrelationSearch, OccupancyLookup};
 use super::odometry::OdometryCursor;

@@ -382,8 +382,19 @@ impl OccupancyGrid {
         for p in &world_scan.points {
             let end = self.cell_of(p.x_m, p.y_m);
             let margin = if p.hit { self.free_margin_cells } else { 0 };
-            bresenham(origin, end, |c| {
-                if (c.i - end.i).abs().max((c.j - end.j).abs()) <= margin {
+            // A ray cleared only part of the way stops at that point, free cells only.
+            let (clear_end, partial) = if p.free_to < 1.0 {
+                let t = f64::from(p.free_to.max(0.0));
+                let x = world_scan.sensor_x_m + t * (p.x_m - world_scan.sensor_x_m);
+                let y = world_scan.sensor_y_m + t * (p.y_m - world_scan.sensor_y_m);
+                (self.cell_of(x, y), true)
+            } else {
+                (end, false)
+            };
+            bresenham(origin, clear_end, |c| {
+                if (c.i - end.i).abs().max((c.j - end.j).abs()) <= margin
+                    || (partial && c == clear_end)
+                {
                     return;
                 }
                 let k = index(c);
