@@ -348,6 +348,41 @@ fn slam_is_bit_identical_with_1_and_4_threads() {
     assert_ne!(a.trajectory, c.trajectory, "the seed matters");
 }
 
+/// The default (scan-matching) mode on a short simulated car drive: bit-identical with 1 and
+/// 4 threads, with resampling exercised, and the seed matters.
+#[test]
+fn scan_match_mode_is_bit_identical_with_1_and_4_threads() {
+    use pfslam::filter::slam::{anchor_odometry_to_ground_truth, run_slam};
+    use pfslam::sim::{SimOptions, World, simulate_car};
+    let opts = SimOptions {
+        duration_s: 12.0,
+        ..SimOptions::default()
+    };
+    let world = World::builtin(opts.world_name()).unwrap();
+    let out = simulate_car(&world, &opts).unwrap();
+    let mut config = pfslam::config::Config::default();
+    config.filter.particles = 10;
+    let mut rec = out.recording(&config.motion).unwrap();
+    assert!(anchor_odometry_to_ground_truth(&mut rec));
+    let run = |threads: usize, seed: u64| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| run_slam(&rec, &config, seed, &mut |_| {}).unwrap())
+    };
+    let a = run(1, 5);
+    let b = run(4, 5);
+    assert!(
+        a.stats.updates > 50 && a.stats.resamples > 0,
+        "{:?}",
+        a.stats
+    );
+    assert_eq!(a.trajectory, b.trajectory);
+    assert_eq!(a.stats.neff_mean.to_bits(), b.stats.neff_mean.to_bits());
+    assert_ne!(a.trajectory, run(4, 6).trajectory, "the seed matters");
+}
+
 /// Build a map from one scan at a known pose; a perturbed particle finds the pose again.
 #[test]
 fn correlation_search_recovers_a_perturbed_pose() {
