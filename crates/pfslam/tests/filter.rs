@@ -491,7 +491,36 @@ fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> 
         let mut mo = config.map.clone();
         mo.scan_step = config.filter.update_every_scans;
         let (g, _, _) = pfslam::map::map_with_poses(&rec, &gt_traj, &mo).unwrap();
-        let c = pfslam::map::compare_maps(&g.to_binary_map(None), &truth, 1).unwrap();
+        let gb = g.to_binary_map(None);
+        let c = pfslam::map::compare_maps(&gb, &truth, 1).unwrap();
+        if std::env::var("PF_MISS").is_ok() {
+            use pfslam::map::CellState;
+            let mut kinds: std::collections::BTreeMap<String, usize> = Default::default();
+            for j in 0..truth.height {
+                for i in 0..truth.width {
+                    if truth.cells[j * truth.width + i] != CellState::Occupied {
+                        continue;
+                    }
+                    let (x, y) = truth
+                        .limits
+                        .cell_centre(pfslam::map::Cell::new(i as i32, j as i32));
+                    let near_free = (-1..=1).any(|dj: i64| {
+                        (-1..=1).any(|di: i64| {
+                            truth.get(i as i64 + di, j as i64 + dj) == CellState::Free
+                        })
+                    });
+                    if gb.state_at(x, y) == CellState::Free && !near_free {
+                        let k = world
+                            .prisms
+                            .iter()
+                            .find(|p| p.contains_xy(x, y))
+                            .map_or("none".to_string(), |p| p.kind.clone());
+                        *kinds.entry(k).or_default() += 1;
+                    }
+                }
+            }
+            eprintln!("MISSES by kind {kinds:?}");
+        }
         eprintln!(
             "GT-POSE MAP precision {:.3} recall {:.3} recall_all {:.3}",
             c.precision(),
@@ -588,6 +617,10 @@ fn explore_sim() {
     }
     if env("PF_ESE", 0.0) > 0.5 {
         config.map.log_odds = pfslam::map::LogOddsParams::ese650();
+    }
+    let fz = env("PF_FZ", -1.0);
+    if fz > 0.0 {
+        config.map.scan.free_z_max_m = Some(fz);
     }
     let zmax = env("PF_ZMAX", 1e9);
     if zmax < 1e8 {
