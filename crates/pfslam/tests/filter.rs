@@ -297,7 +297,7 @@ fn run_synthetic(
     seed: u64,
 ) -> pfslam::filter::slam::SlamResult {
     use pfslam::filter::slam::{BestParticleMap, run_slam_with};
-    let mut config = pfslam::config::Config::default();
+    let mut config = pfslam::filter::seed_config();
     config.filter.particles = particles;
     config.map.scan.range_min_m = 0.5;
     config.map.scan.range_max_m = 29.0;
@@ -348,13 +348,48 @@ fn slam_is_bit_identical_with_1_and_4_threads() {
     assert_ne!(a.trajectory, c.trajectory, "the seed matters");
 }
 
+/// The default (scan-matching) mode on a short simulated car drive: bit-identical with 1 and
+/// 4 threads, with resampling exercised, and the seed matters.
+#[test]
+fn scan_match_mode_is_bit_identical_with_1_and_4_threads() {
+    use pfslam::filter::slam::{anchor_odometry_to_ground_truth, run_slam};
+    use pfslam::sim::{SimOptions, World, simulate_car};
+    let opts = SimOptions {
+        duration_s: 12.0,
+        ..SimOptions::default()
+    };
+    let world = World::builtin(opts.world_name()).unwrap();
+    let out = simulate_car(&world, &opts).unwrap();
+    let mut config = pfslam::config::Config::default();
+    config.filter.particles = 10;
+    let mut rec = out.recording(&config.motion).unwrap();
+    assert!(anchor_odometry_to_ground_truth(&mut rec));
+    let run = |threads: usize, seed: u64| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| run_slam(&rec, &config, seed, &mut |_| {}).unwrap())
+    };
+    let a = run(1, 5);
+    let b = run(4, 5);
+    assert!(
+        a.stats.updates > 50 && a.stats.resamples > 0,
+        "{:?}",
+        a.stats
+    );
+    assert_eq!(a.trajectory, b.trajectory);
+    assert_eq!(a.stats.neff_mean.to_bits(), b.stats.neff_mean.to_bits());
+    assert_ne!(a.trajectory, run(4, 6).trajectory, "the seed matters");
+}
+
 /// Build a map from one scan at a known pose; a perturbed particle finds the pose again.
 #[test]
 fn correlation_search_recovers_a_perturbed_pose() {
     use pfslam::filter::correlate::{CorrelationScratch, best_match, correlation};
     use pfslam::map::{InsertScratch, OccupancyGrid, PlanarScan, ScanProjector, to_world};
     let rec = synthetic::recording(1.0, 3);
-    let mut config = pfslam::config::Config::default();
+    let mut config = pfslam::filter::seed_config();
     config.map.scan.range_min_m = 0.5;
     config.map.scan.range_max_m = 29.0;
     let truth = rec.ground_truth.as_ref().unwrap()[0].pose;
@@ -431,6 +466,23 @@ fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> 
     let out = simulate_car(&world, &opts).unwrap();
     let mut rec = out.recording(&config.motion).unwrap();
     assert!(anchor_odometry_to_ground_truth(&mut rec));
+    if let Some(i) = std::env::var("PF_SCANDUMP")
+        .ok()
+        .and_then(|v| v.parse::<usize>().ok())
+    {
+        let ranges = rec.scans.ranges(i);
+        for (k, &r) in ranges.iter().enumerate() {
+            let a = rec.lidar.beam_angle_rad(k);
+            let p = rec.body_from_lidar.transform_point(&nalgebra::Vector3::new(
+                f64::from(r) * a.cos(),
+                f64::from(r) * a.sin(),
+                0.0,
+            ));
+            if k % 4 == 0 {
+                eprintln!("SCAN {k} r {r:.2} body {:.2} {:.2} {:.2}", p.x, p.y, p.z);
+            }
+        }
+    }
     let result = run_slam(&rec, config, seed, &mut |_| {}).unwrap();
     let gt = &out.ground_truth;
     let truth = out.true_map.to_binary_map();
@@ -439,13 +491,61 @@ fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> 
         let mut mo = config.map.clone();
         mo.scan_step = config.filter.update_every_scans;
         let (g, _, _) = pfslam::map::map_with_poses(&rec, &gt_traj, &mo).unwrap();
-        let c = pfslam::map::compare_maps(&g.to_binary_map(None), &truth, 1).unwrap();
+        let gb = g.to_binary_map(None);
+        let c = pfslam::map::compare_maps(&gb, &truth, 1).unwrap();
+        if std::env::var("PF_MISS").is_ok() {
+            use pfslam::map::CellState;
+            let mut kinds: std::collections::BTreeMap<String, usize> = Default::default();
+            for j in 0..truth.height {
+                for i in 0..truth.width {
+                    if truth.cells[j * truth.width + i] != CellState::Occupied {
+                        continue;
+                    }
+                    let (x, y) = truth
+                        .limits
+                        .cell_centre(pfslam::map::Cell::new(i as i32, j as i32));
+                    let near_free = (-1..=1).any(|dj: i64| {
+                        (-1..=1).any(|di: i64| {
+                            truth.get(i as i64 + di, j as i64 + dj) == CellState::Free
+                        })
+                    });
+                    if gb.state_at(x, y) == CellState::Free && !near_free {
+                        let k = world
+                            .prisms
+                            .iter()
+                            .find(|p| p.contains_xy(x, y))
+                            .map_or("none".to_string(), |p| p.kind.clone());
+                        *kinds.entry(k).or_default() += 1;
+                    }
+                }
+            }
+            eprintln!("MISSES by kind {kinds:?}");
+        }
         eprintln!(
             "GT-POSE MAP precision {:.3} recall {:.3} recall_all {:.3}",
             c.precision(),
             c.recall(),
             c.recall_all()
         );
+    }
+    if std::env::var("PF_TRACE").is_ok() {
+        let gt_traj = pfslam::geometry::Trajectory::new(gt.clone());
+        for (k, p) in result.trajectory.iter().enumerate().step_by(40) {
+            if let Some(g) = gt_traj.pose_at(p.stamp_ns) {
+                let e = g.between(&p.pose);
+                let d = result.dead_reckoning[k].pose;
+                let ed = g.between(&d);
+                eprintln!(
+                    "TRACE {k} along {:.3} across {:.3} yaw {:.3}deg | dr {:.3} {:.3} {:.3}",
+                    e.x_m,
+                    e.y_m,
+                    e.yaw_rad.to_degrees(),
+                    ed.x_m,
+                    ed.y_m,
+                    ed.yaw_rad.to_degrees()
+                );
+            }
+        }
     }
     let est = result.map.to_binary_map(None);
     let cmp = pfslam::map::compare_maps(&est, &truth, 1).unwrap();
@@ -459,17 +559,14 @@ fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> 
 }
 
 /// The issue's acceptance figures on a short simulated drive: SLAM ATE 5x lower than dead
-/// reckoning, map precision/recall >= 0.9. The seeds' hit-count correlation does not reach
-/// them: the car's LiDAR samples walls sparsely at fixed body-frame positions, so the best
-/// match aligns each scan with the previous update's beam pattern (zero motion) and the
-/// estimate lags along the street (measured: offsets of -1..-4 cells along-track in most
-/// updates with perfect data; ground returns make it worse). Kept as the measurement to turn
-/// on once the observation model is smooth (issue 7).
+/// reckoning, map precision/recall >= 0.9, with the default configuration (scan-matching
+/// mode). Not reached yet (measured on the 180 s default drive: ATE 0.18-1.0 m vs dead
+/// reckoning 0.55 m depending on the seed, precision ~0.8, recall ~0.3; with true poses the
+/// map's recall is only ~0.35, see the report). The seeds' mode lags along-track (45 m).
 #[test]
-#[ignore = "fails with the seeds' filter: SLAM lags along-track on the campus drive"]
+#[ignore = "not reached yet: SLAM 0.18-1.0 m vs dead reckoning 0.55 m, map recall ~0.3"]
 fn simulated_car_slam_acceptance() {
-    let mut config = pfslam::config::Config::default();
-    config.map.scan.z_min_m = Some(0.5);
+    let config = pfslam::config::Config::default();
     let r = sim_car_slam(60.0, &config, 1);
     eprintln!(
         "simulated car (60 s): ATE RMSE slam {:.3} m, dead reckoning {:.3} m, map precision {:.3} recall {:.3}; {:?}",
@@ -504,6 +601,31 @@ fn explore_sim() {
     config.filter.map_between_updates = env("PF_MAPALL", 0.0) > 0.5;
     config.filter.offset_penalty_hits_per_cell2 = env("PF_PEN", 0.0);
     config.filter.dilation_cells = env("PF_DIL", 0.0) as u32;
+    config.map.free_margin_m = env("PF_FM", 0.0);
+    let sm = &mut config.filter.scan_match;
+    sm.prior_sigma_xy_m = env("SM_PXY", sm.prior_sigma_xy_m);
+    sm.prior_sigma_yaw_deg = env("SM_PYAW", sm.prior_sigma_yaw_deg);
+    sm.field_sigma_m = env("SM_SIG", sm.field_sigma_m);
+    sm.unknown_value = env("SM_UNK", sm.unknown_value);
+    sm.proposal_sigma_xy_m = env("SM_JXY", sm.proposal_sigma_xy_m);
+    sm.proposal_sigma_yaw_deg = env("SM_JYAW", sm.proposal_sigma_yaw_deg);
+    sm.beam_decimation = env("SM_DEC", sm.beam_decimation as f64) as usize;
+    sm.weight_temperature = env("SM_T", sm.weight_temperature);
+    sm.xy_search_radius_cells = env("SM_R", sm.xy_search_radius_cells as f64) as u32;
+    if env("PF_SEED", 0.0) > 0.5 {
+        config.filter.mode = pfslam::filter::FilterMode::Seed;
+    }
+    if env("PF_ESE", 0.0) > 0.5 {
+        config.map.log_odds = pfslam::map::LogOddsParams::ese650();
+    }
+    let fz = env("PF_FZ", -1.0);
+    if fz > 0.0 {
+        config.map.scan.free_z_max_m = Some(fz);
+    }
+    let zmax = env("PF_ZMAX", 1e9);
+    if zmax < 1e8 {
+        config.map.scan.z_max_m = Some(zmax);
+    }
     let zmin = env("PF_ZMIN", -1e9);
     if zmin > -1e8 {
         config.map.scan.z_min_m = Some(zmin);

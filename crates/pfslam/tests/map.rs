@@ -108,8 +108,10 @@ fn one_known_scan_marks_walls_and_free_space() {
     let opts = MapOptions {
         scan: ScanOptions {
             range_min_m: 0.1,
+            densify_max_gap_m: None,
             ..ScanOptions::default()
         },
+        log_odds: pfslam::map::LogOddsParams::ucsd(),
         ..MapOptions::default()
     };
     let mut grid = OccupancyGrid::new(&opts).unwrap();
@@ -168,8 +170,10 @@ fn synthetic_drive_with_exact_poses_matches_the_truth() {
     let opts = MapOptions {
         scan: ScanOptions {
             range_min_m: 0.1,
+            densify_max_gap_m: None,
             ..ScanOptions::default()
         },
+        log_odds: pfslam::map::LogOddsParams::ucsd(),
         ..MapOptions::default()
     };
     let (grid, last, stats) = map_with_poses(&rec, &traj, &opts).unwrap();
@@ -297,7 +301,8 @@ fn map_files_roundtrip_for_a_mapped_grid() {
     let pose = Pose2::new(4.0, 3.0, 0.3);
     let rec = synthetic_recording(&[pose]);
     let traj = Trajectory::new(vec![StampedPose2 { stamp_ns: 0, pose }]);
-    let (grid, _, _) = map_with_poses(&rec, &traj, &MapOptions::default()).unwrap();
+    let opts = MapOptions::default().with_preset(pfslam::map::LogOddsPreset::Ucsd);
+    let (grid, _, _) = map_with_poses(&rec, &traj, &opts).unwrap();
     let rect = grid.observed_bounds().unwrap();
     let bin = grid.to_binary_map(Some(rect));
     let dir = tempfile::tempdir().unwrap();

@@ -50,7 +50,7 @@ fn ate_rmse(est: &[StampedPose2], gt: &[StampedPose2]) -> anyhow::Result<f64> {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let mut config = match &args.config {
         Some(p) => Config::from_toml_file(p)?,
-        None => Config::default(),
+        None => pfslam::filter::seed_config(),
     };
     if let Some(d) = args.duration_s {
         config.sim.duration_s = d;

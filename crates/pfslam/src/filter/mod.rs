@@ -5,7 +5,8 @@
 //! - [`particles`]: the weighted set; [`weights`]: log-space softmax and Neff;
 //!   [`resample`]: stratified, systematic and multinomial resampling;
 //!   [`rng`]: per-chunk random streams, so results do not depend on the thread count;
-//!   [`correlate`]: the map-correlation search;
+//!   [`correlate`]: the seeds' map-correlation search; [`scanmatch`]: the default mode's
+//!   likelihood field and scan-matching proposal;
 //! - [`ParticleFilter`] ties them together; the map is reached only through
 //!   [`ParticleMaps`], so one shared map (the seeds) and per-particle maps fit the same code.
 
@@ -15,6 +16,7 @@ pub mod particles;
 pub mod prediction;
 pub mod resample;
 pub mod rng;
+pub mod scanmatch;
 pub mod slam;
 pub mod weights;
 
@@ -30,10 +32,25 @@ use resample::ResampleMethod;
 use rng::{CHUNK_PARTICLES, FilterRng};
 use serde::{Deserialize, Serialize};
 
+/// Which filter runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum FilterMode {
+    /// The seeds: hit-count correlation over a small offset grid, best offset taken.
+    Seed,
+    /// Likelihood-field scan matching with an odometry prior (`[filter.scan_match]`).
+    #[default]
+    ScanMatch,
+}
+
 /// Options of the filter component (`[filter]` in the configuration).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct FilterOptions {
+    /// "scan_match" (default: likelihood field + scan-matching proposal, see
+    /// `[filter.scan_match]`) or "seed" (the seeds' map correlation; the keys below up to
+    /// `temperature` and `resample_threshold` apply to it).
+    pub mode: FilterMode,
     /// Number of particles (the UCSD seed's best runs use 40, the ESE650 seed 100).
     pub particles: usize,
     /// Update (correlate, reweight, map) with every k-th scan; the seeds use 5.
@@ -69,6 +86,8 @@ pub struct FilterOptions {
     /// The odometry model when `motion_model = "odometry"` ("ese650": the ESE650 seed's
     /// sigmas `[0.005, 0.005, 0.005]`; "thrun": four alphas).
     pub odometry_model: OdometryModelOptions,
+    /// The scan-matching mode's options.
+    pub scan_match: scanmatch::ScanMatchOptions,
 }
 
 impl Default for FilterOptions {
@@ -88,6 +107,8 @@ impl Default for FilterOptions {
             snapshot_every_scans: 10_000,
             motion_model: PredictionModel::Velocity,
             odometry_model: OdometryModelOptions::ese650(),
+            mode: FilterMode::default(),
+            scan_match: scanmatch::ScanMatchOptions::default(),
         }
     }
 }
@@ -140,6 +161,12 @@ impl FilterOptions {
         if !(0.0..=1.0).contains(&self.resample_threshold) {
             return bad("resample_threshold", "must lie in [0, 1]");
         }
+        self.scan_match
+            .validate()
+            .map_err(|message| FilterError::InvalidOption {
+                name: "scan_match",
+                message,
+            })?;
         Ok(())
     }
 
@@ -156,6 +183,19 @@ impl FilterOptions {
             dilation_cells: self.dilation_cells as i32,
         }
     }
+}
+
+/// The seeds' configuration: `mode = "seed"`, the UCSD log-odds model (one hit makes a cell
+/// occupied), and none of the scan preprocessing the scan-matching mode relies on (ground
+/// removal, densification, partial clearing of climbing beams). Everything else as [`Config::default`].
+pub fn seed_config() -> Config {
+    let mut config = Config::default();
+    config.filter.mode = FilterMode::Seed;
+    config.map.log_odds = crate::map::LogOddsParams::ucsd();
+    config.map.scan.ground_clearance_m = None;
+    config.map.scan.densify_max_gap_m = None;
+    config.map.scan.free_z_max_m = None;
+    config
 }
 
 /// The map each particle is weighed against. One shared map (the seeds) returns the same map
@@ -343,6 +383,67 @@ impl ParticleFilter {
         self.particles
             .apply_resample(&self.ancestors, &mut self.pose_scratch);
         Some(&self.ancestors)
+    }
+
+    /// Scan-matching update: every particle is matched against `field` around its pose
+    /// (see [`scanmatch`]), moved to the optimum, and its log-weight grows by the objective /
+    /// `temperature`. Returns Neff after reweighting and the best particle; does not resample.
+    pub fn scan_match_update(
+        &mut self,
+        field: &scanmatch::LikelihoodField,
+        points_body: &[[f64; 2]],
+        params: &scanmatch::MatchParams,
+        temperature: f64,
+    ) -> UpdateReport {
+        let n = self.particles.len();
+        let mut results = vec![
+            scanmatch::MatchResult {
+                pose: Pose2::IDENTITY,
+                objective: 0.0,
+                fit: 0.0,
+            };
+            n
+        ];
+        results
+            .par_iter_mut()
+            .zip(self.particles.poses.par_iter())
+            .for_each_init(scanmatch::MatchScratch::default, |scratch, (m, pose)| {
+                *m = scanmatch::match_scan(field, points_body, pose, params, scratch);
+            });
+        self.scores.clear();
+        self.scores.extend(results.iter().map(|m| m.objective));
+        for (p, m) in self.particles.poses.iter_mut().zip(&results) {
+            *p = m.pose;
+        }
+        weights::update_log_space(&mut self.particles.weights, &self.scores, temperature);
+        let best = self.particles.best_index();
+        UpdateReport {
+            neff: self.particles.neff(),
+            resampled: false,
+            best,
+            best_score: results
+                .get(best)
+                .map_or(0, |m| (m.fit * points_body.len() as f64).round() as u32),
+        }
+    }
+
+    /// Adds zero-mean Gaussian noise (`sigma_xy_m` in x and y, `sigma_yaw_rad` in yaw) to
+    /// every particle, per chunk with its own stream (deterministic for any thread count).
+    pub fn jitter(&mut self, sigma_xy_m: f64, sigma_yaw_rad: f64) {
+        use rand::RngExt;
+        use rand_distr::StandardNormal;
+        self.predict_chunks(|poses, rng| {
+            for p in poses {
+                let (a, b, c): (f64, f64, f64) = (
+                    rng.sample(StandardNormal),
+                    rng.sample(StandardNormal),
+                    rng.sample(StandardNormal),
+                );
+                p.x_m += sigma_xy_m * a;
+                p.y_m += sigma_xy_m * b;
+                p.yaw_rad = crate::geometry::wrap_angle(p.yaw_rad + sigma_yaw_rad * c);
+            }
+        });
     }
 
     /// The heaviest particle's pose.

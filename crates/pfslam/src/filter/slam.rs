@@ -1,10 +1,12 @@
-//! The SLAM loop of the seeds: predict at every odometry step, update every k-th scan
-//! (correlate, reweight, resample on low Neff), map with the best particle, output a pose at
-//! every scan.
+//! The SLAM loop: predict at every odometry step, update every k-th scan (`[filter] mode`:
+//! the seeds' correlation, or the scan-matching proposal of [`super::scanmatch`]), reweight,
+//! resample on low Neff, map with the best particle (the scan-matching mode also maps the
+//! scans between updates at the odometry-composed pose), output a pose at every scan.
 
 use super::correlate::{CorrelationSearch, OccupancyLookup};
 use super::odometry::OdometryCursor;
-use super::{FilterError, ParticleFilter, ParticleMaps};
+use super::scanmatch;
+use super::{FilterError, FilterMode, ParticleFilter, ParticleMaps};
 use crate::config::Config;
 use crate::geometry::{Pose2, StampedPose2};
 use crate::map::{
@@ -298,6 +300,13 @@ pub fn run_slam_with<P: MapPolicy>(
     let mut steps: Vec<(StampedPose2, StampedPose2)> = Vec::new();
     let mut last_estimate = start;
     let mut last_update_odom = start;
+    let mut match_pts: Vec<[f64; 2]> = Vec::new();
+    let mut field = scanmatch::LikelihoodField::new();
+    let match_params = opts.scan_match.params(config.map.resolution_m);
+    let resample_threshold = match opts.mode {
+        FilterMode::Seed => opts.resample_threshold,
+        FilterMode::ScanMatch => opts.scan_match.resample_threshold,
+    };
     let mut neff_sum = 0.0;
     let mut score_sum = 0.0;
     let progress_every = (total / 200).max(1);
@@ -311,7 +320,12 @@ pub fn run_slam_with<P: MapPolicy>(
         };
         stats.odometry_steps += steps.len();
         if !steps.is_empty() {
-            pf.predict_steps(&steps, motion);
+            match opts.mode {
+                FilterMode::Seed => pf.predict_steps(&steps, motion),
+                // The scan match is the proposal: odometry without noise here, the spread
+                // comes from sampling around each match.
+                FilterMode::ScanMatch => pf.predict_steps(&steps, &ExactOdometry),
+            }
         }
         stats.timings.predict_s += t.elapsed().as_secs_f64();
         let k = i - first;
@@ -328,13 +342,47 @@ pub fn run_slam_with<P: MapPolicy>(
                 0
             } else {
                 let t = Instant::now();
-                let report = pf.reweight(
-                    &*policy,
-                    &hits,
-                    &search,
-                    opts.temperature,
-                    opts.move_to_best_offset,
-                );
+                let report = match opts.mode {
+                    FilterMode::Seed => pf.reweight(
+                        &*policy,
+                        &hits,
+                        &search,
+                        opts.temperature,
+                        opts.move_to_best_offset,
+                    ),
+                    FilterMode::ScanMatch => {
+                        let sm = &opts.scan_match;
+                        scanmatch::match_points(
+                            &body,
+                            sm.match_range_max_m,
+                            sm.beam_decimation,
+                            &mut match_pts,
+                        );
+                        let grid = policy.map_for_output(pf.particles.best_index());
+                        let rect = field_window(
+                            grid.limits(),
+                            &pf.particles.poses,
+                            pf.best_pose(),
+                            &match_pts,
+                            match_params.xy_radius_cells + 2,
+                        );
+                        field.build(grid, &rect, sm.field_sigma_m, sm.unknown_value);
+                        let report = pf.scan_match_update(
+                            &field,
+                            &match_pts,
+                            &match_params,
+                            sm.weight_temperature,
+                        );
+                        let best = pf.particles.poses[report.best];
+                        pf.jitter(
+                            sm.proposal_sigma_xy_m,
+                            sm.proposal_sigma_yaw_deg.to_radians(),
+                        );
+                        // The estimate is the match itself, not its jittered sample.
+                        pf.particles.poses[report.best] = best;
+                        report
+                    }
+                };
                 stats.timings.correlate_s += t.elapsed().as_secs_f64();
                 stats.updates += 1;
                 neff_sum += report.neff;
@@ -350,7 +398,7 @@ pub fn run_slam_with<P: MapPolicy>(
             let t = Instant::now();
             if k > 0
                 && let Some(ancestors) =
-                    pf.resample_if_needed(opts.resample_threshold, opts.resample_method)
+                    pf.resample_if_needed(resample_threshold, opts.resample_method)
             {
                 policy.resampled(ancestors);
                 stats.resamples += 1;
@@ -361,7 +409,7 @@ pub fn run_slam_with<P: MapPolicy>(
             estimate
         } else {
             let estimate = last_estimate.compose(&last_update_odom.between(&odom.pose));
-            if opts.map_between_updates {
+            if opts.map_between_updates || opts.mode == FilterMode::ScanMatch {
                 // Insert this scan at the composed pose: the map then reaches up to the
                 // latest scan when the next update correlates against it.
                 let t = Instant::now();
@@ -414,6 +462,55 @@ pub fn run_slam_with<P: MapPolicy>(
         map,
         stats,
     })
+}
+
+/// Odometry composed without noise.
+struct ExactOdometry;
+
+impl MotionModel for ExactOdometry {
+    fn sample(
+        &self,
+        pose: &Pose2,
+        from: &StampedPose2,
+        to: &StampedPose2,
+        _rng: &mut Xoshiro256PlusPlus,
+    ) -> Pose2 {
+        pose.compose(&from.pose.between(&to.pose))
+    }
+}
+
+/// The window of the likelihood field for one update: the matching points seen from `best`,
+/// grown by how far the other particles are from it (at most 5 m) and by `margin_cells`.
+fn field_window(
+    limits: &crate::map::MapLimits,
+    poses: &[Pose2],
+    best: Pose2,
+    points_body: &[[f64; 2]],
+    margin_cells: i32,
+) -> crate::map::CellRect {
+    let c0 = limits.cell_of(best.x_m, best.y_m);
+    let mut rect = crate::map::CellRect::around(c0);
+    for p in points_body {
+        let (x, y) = best.transform_point(p[0], p[1]);
+        rect = rect.union(&crate::map::CellRect::around(limits.cell_of(x, y)));
+    }
+    let spread_m = poses
+        .iter()
+        .map(|p| (p.x_m - best.x_m).hypot(p.y_m - best.y_m))
+        .fold(0.0, f64::max)
+        .min(5.0);
+    let reach_m = points_body
+        .iter()
+        .map(|p| p[0].hypot(p[1]))
+        .fold(0.0, f64::max);
+    // A yaw difference between particles swings far points sideways too.
+    let yaw_spread = poses
+        .iter()
+        .map(|p| crate::geometry::wrap_angle(p.yaw_rad - best.yaw_rad).abs())
+        .fold(0.0, f64::max)
+        .min(0.1);
+    let grow_m = spread_m + reach_m * yaw_spread;
+    rect.expanded((grow_m / limits.resolution_m()).ceil() as i32 + margin_cells)
 }
 
 impl ParticleFilter {

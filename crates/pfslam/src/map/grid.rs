@@ -219,13 +219,16 @@ pub struct OccupancyGrid {
     params: LogOddsParams,
     fixed: FixedLogOdds,
     dir: TileDir,
+    free_margin_cells: i32,
 }
 
 impl OccupancyGrid {
     /// An empty grid (every cell unknown) from validated options.
     pub fn new(opts: &MapOptions) -> Result<Self, MapError> {
         opts.validate().map_err(MapError::Options)?;
-        Ok(OccupancyGrid::with_params(opts.limits(), opts.log_odds))
+        let mut grid = OccupancyGrid::with_params(opts.limits(), opts.log_odds);
+        grid.free_margin_cells = (opts.free_margin_m / opts.resolution_m).round() as i32;
+        Ok(grid)
     }
 
     /// An empty grid with explicit limits and parameters. The parameters should have passed
@@ -236,6 +239,7 @@ impl OccupancyGrid {
             params,
             fixed: params.to_fixed(),
             dir: TileDir::default(),
+            free_margin_cells: 0,
         }
     }
 
@@ -377,8 +381,20 @@ impl OccupancyGrid {
         };
         for p in &world_scan.points {
             let end = self.cell_of(p.x_m, p.y_m);
-            bresenham(origin, end, |c| {
-                if c == end {
+            let margin = if p.hit { self.free_margin_cells } else { 0 };
+            // A ray cleared only part of the way stops at that point, free cells only.
+            let (clear_end, partial) = if p.free_to < 1.0 {
+                let t = f64::from(p.free_to.max(0.0));
+                let x = world_scan.sensor_x_m + t * (p.x_m - world_scan.sensor_x_m);
+                let y = world_scan.sensor_y_m + t * (p.y_m - world_scan.sensor_y_m);
+                (self.cell_of(x, y), true)
+            } else {
+                (end, false)
+            };
+            bresenham(origin, clear_end, |c| {
+                if (c.i - end.i).abs().max((c.j - end.j).abs()) <= margin
+                    || (partial && c == clear_end)
+                {
                     return;
                 }
                 let k = index(c);
@@ -503,6 +519,35 @@ impl OccupancyGrid {
             }
         }
         n
+    }
+
+    /// Calls `visit(cell, log_odds_fixed)` with every cell of `rect` whose log-odds is not 0
+    /// (observed at least once), tile by tile (unallocated tiles are skipped without a lookup
+    /// per cell). Order: tiles row-major, then cells row-major within a tile; deterministic.
+    pub fn for_each_observed_in<F: FnMut(Cell, i16)>(&self, rect: &CellRect, mut visit: F) {
+        let (ti_a, tj_a) = (rect.min_i >> TILE_SHIFT, rect.min_j >> TILE_SHIFT);
+        let (ti_b, tj_b) = (rect.max_i >> TILE_SHIFT, rect.max_j >> TILE_SHIFT);
+        for tj in tj_a..=tj_b {
+            for ti in ti_a..=ti_b {
+                let Some(tile) = self.dir.get(ti, tj) else {
+                    continue;
+                };
+                let (ci, cj) = (ti << TILE_SHIFT, tj << TILE_SHIFT);
+                let li0 = (rect.min_i - ci).max(0);
+                let li1 = (rect.max_i - ci).min(TILE_MASK);
+                let lj0 = (rect.min_j - cj).max(0);
+                let lj1 = (rect.max_j - cj).min(TILE_MASK);
+                for lj in lj0..=lj1 {
+                    let row = &tile.cells[(lj as usize) << TILE_SHIFT..][..TILE_SIZE];
+                    for li in li0..=li1 {
+                        let v = row[li as usize];
+                        if v != 0 {
+                            visit(Cell::new(ci + li, cj + lj), v);
+                        }
+                    }
+                }
+            }
+        }
     }
 
     /// Copies the fixed-point log-odds of `rect` into `out` (row-major, row 0 = `rect.min_j`,

@@ -80,6 +80,11 @@ pub struct MapOptions {
     pub log_odds: LogOddsParams,
     /// Scan preprocessing.
     pub scan: ScanOptions,
+    /// Cells within this distance (m, Chebyshev in cells) of a ray's return get no free
+    /// update from that ray. Rays that graze a wall cross the wall's cells just before their
+    /// end point; without a margin they erase the wall behind the vehicle between passes, so
+    /// only the latest scan's hit spots stay occupied (0 = the seeds).
+    pub free_margin_m: f64,
 }
 
 impl Default for MapOptions {
@@ -89,8 +94,9 @@ impl Default for MapOptions {
             origin_x_m: 0.0,
             origin_y_m: 0.0,
             scan_step: 1,
-            log_odds: LogOddsParams::ucsd(),
+            log_odds: LogOddsParams::ese650(),
             scan: ScanOptions::default(),
+            free_margin_m: 0.0,
         }
     }
 }
@@ -114,6 +120,9 @@ impl MapOptions {
         }
         if !(self.origin_x_m.is_finite() && self.origin_y_m.is_finite()) {
             return Err("map.origin_x_m / origin_y_m must be finite".into());
+        }
+        if !(self.free_margin_m.is_finite() && (0.0..=10.0).contains(&self.free_margin_m)) {
+            return Err("map.free_margin_m must lie in [0, 10]".into());
         }
         if self.scan_step == 0 {
             return Err("map.scan_step must be >= 1".into());

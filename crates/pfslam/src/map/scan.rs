@@ -45,6 +45,24 @@ pub struct ScanOptions {
     pub z_min_m: Option<f64>,
     /// Points above this height are dropped (m, world/body frame; `None` = no bound).
     pub z_max_m: Option<f64>,
+    /// Ground removal for tilted scanners: when the scan plane is tilted by more than 1 deg
+    /// (the car's LiDAR; a nodding head), returns lower than this above the body frame's
+    /// z = 0 (the ground) are dropped. A level scanner cannot hit the ground, so planar
+    /// recordings (z = 0 everywhere) keep every point. Off: a large negative value (TOML
+    /// cannot write `None`; the seeds keep every point).
+    pub ground_clearance_m: Option<f64>,
+    /// Consecutive returns closer than this (m, in the plane) are joined by extra returns
+    /// every `densify_step_m`: a wall sampled by beams a few decimetres apart becomes a line,
+    /// in the map and in scan matching, so matching has no ripple that favours repeating the
+    /// previous scan's beam pattern. 0 = off (the seeds).
+    pub densify_max_gap_m: Option<f64>,
+    /// Spacing of the joining returns (m).
+    pub densify_step_m: f64,
+    /// A beam clears free space only up to where it climbs above this height (m, body
+    /// frame); a large value = the whole ray (the seeds). The car's forward beams rise 37 deg: past
+    /// a few metres they fly over parked vans and low buildings, and clearing their whole
+    /// ray would erase those obstacles from the 2-D map.
+    pub free_z_max_m: Option<f64>,
 }
 
 impl Default for ScanOptions {
@@ -56,6 +74,10 @@ impl Default for ScanOptions {
             no_return_clear_m: 20.0,
             z_min_m: None,
             z_max_m: None,
+            ground_clearance_m: Some(0.5),
+            densify_max_gap_m: Some(1.0),
+            densify_step_m: 0.1,
+            free_z_max_m: Some(2.5),
         }
     }
 }
@@ -76,6 +98,21 @@ impl ScanOptions {
             if v.is_some_and(|z| !z.is_finite()) {
                 return Err(format!("map.scan.{k} must be finite"));
             }
+        }
+        if self
+            .densify_max_gap_m
+            .is_some_and(|g| !(g.is_finite() && g >= 0.0))
+        {
+            return Err("map.scan.densify_max_gap_m must be finite and >= 0".into());
+        }
+        if !(self.densify_step_m.is_finite() && self.densify_step_m >= 0.01) {
+            return Err("map.scan.densify_step_m must be at least 0.01".into());
+        }
+        if self.free_z_max_m.is_some_and(|z| !z.is_finite()) {
+            return Err("map.scan.free_z_max_m must be finite".into());
+        }
+        if self.ground_clearance_m.is_some_and(|z| !z.is_finite()) {
+            return Err("map.scan.ground_clearance_m must be finite".into());
         }
         if let (Some(a), Some(b)) = (self.z_min_m, self.z_max_m)
             && a >= b
@@ -104,6 +141,10 @@ pub struct ScanPoint {
     /// True for a return (the end cell is occupied); false for a free-space end point of a
     /// "no return" beam.
     pub hit: bool,
+    /// Fraction of the ray (from the sensor) whose cells are cleared (1 = all of it). Less
+    /// for a tilted beam that climbs above `free_z_max_m`: beyond that it flies over
+    /// whatever is lower, so the plane below says nothing about those cells.
+    pub free_to: f32,
 }
 
 /// A scan as 2-D rays from one sensor position, in one frame (body or world: the variable
@@ -135,6 +176,15 @@ pub struct ScanProjector {
     origin_body: Vector3<f64>,
     /// Unit beam directions in the body frame.
     dirs_body: Vec<Vector3<f64>>,
+    /// The ground-removal height in force for this mount (`None` for a level scan plane).
+    ground_z_m: Option<f64>,
+}
+
+/// The ground-removal height for a mount: `clearance` when the scan plane is tilted.
+fn ground_z(body_from_lidar: &Rigid3, clearance: Option<f64>) -> Option<f64> {
+    let normal = body_from_lidar.rotation * Vector3::new(0.0, 0.0, 1.0);
+    let tilted = normal.z.abs() < 1f64.to_radians().cos();
+    clearance.filter(|_| tilted)
 }
 
 impl ScanProjector {
@@ -152,6 +202,7 @@ impl ScanProjector {
             })
             .collect();
         Ok(ScanProjector {
+            ground_z_m: ground_z(body_from_lidar, opts.ground_clearance_m),
             opts: *opts,
             sensor_range_max_m: geometry.range_max_m,
             origin_body: body_from_lidar.translation,
@@ -162,6 +213,7 @@ impl ScanProjector {
     /// Replaces the mount (a LiDAR that moves on the body), keeping geometry and options.
     pub fn set_mount(&mut self, geometry: &LidarGeometry, body_from_lidar: &Rigid3) {
         self.origin_body = body_from_lidar.translation;
+        self.ground_z_m = ground_z(body_from_lidar, self.opts.ground_clearance_m);
         for (k, d) in self.dirs_body.iter_mut().enumerate() {
             let (s, c) = geometry.beam_angle_rad(k).sin_cos();
             *d = body_from_lidar.rotation * Vector3::new(c, s, 0.0);
@@ -204,13 +256,44 @@ impl ScanProjector {
                 (r as f64, true)
             };
             let p = self.origin_body + d * dist_m;
-            if o.z_min_m.is_some_and(|z| p.z < z) || o.z_max_m.is_some_and(|z| p.z > z) {
+            if o.z_min_m.is_some_and(|z| p.z < z)
+                || o.z_max_m.is_some_and(|z| p.z > z)
+                || (hit && self.ground_z_m.is_some_and(|z| p.z < z))
+            {
                 continue;
             }
+            if hit
+                && let Some(gap) = o.densify_max_gap_m
+                && let Some(prev) = out.points.last().copied()
+                && prev.hit
+            {
+                let (dx, dy) = (p.x - prev.x_m, p.y - prev.y_m);
+                let d = dx.hypot(dy);
+                if d <= gap && d > o.densify_step_m {
+                    let n = (d / o.densify_step_m).ceil() as usize;
+                    for k in 1..n {
+                        let t = k as f64 / n as f64;
+                        out.points.push(ScanPoint {
+                            x_m: prev.x_m + t * dx,
+                            y_m: prev.y_m + t * dy,
+                            hit: true,
+                            free_to: 1.0,
+                        });
+                    }
+                }
+            }
+            let free_to = match o.free_z_max_m {
+                Some(zmax) if p.z > zmax && p.z > self.origin_body.z => {
+                    ((zmax - self.origin_body.z) / (p.z - self.origin_body.z)).clamp(0.0, 1.0)
+                        as f32
+                }
+                _ => 1.0,
+            };
             out.points.push(ScanPoint {
                 x_m: p.x,
                 y_m: p.y,
                 hit,
+                free_to,
             });
         }
         Ok(())
@@ -230,6 +313,7 @@ pub fn to_world(body: &PlanarScan, world_from_body: &Pose2, out: &mut PlanarScan
         x_m: tx + c * p.x_m - s * p.y_m,
         y_m: ty + s * p.x_m + c * p.y_m,
         hit: p.hit,
+        free_to: p.free_to,
     }));
 }
 
@@ -292,6 +376,52 @@ mod tests {
         assert!((world.sensor_x_m - 10.0).abs() < 1e-9 && (world.sensor_y_m - 1.0).abs() < 1e-9);
         assert!((world.points[0].x_m - 7.0).abs() < 1e-9);
         assert!((world.points[0].y_m - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn ground_removal_only_for_tilted_mounts_and_densify_and_partial_clearing() {
+        let opts = ScanOptions {
+            range_min_m: 0.1,
+            ..ScanOptions::default()
+        };
+        // Level scanner at z = 0 (a planar recording): nothing is ground, nothing dropped.
+        let p = ScanProjector::new(&geom4(), &Rigid3::IDENTITY, &opts).unwrap();
+        let mut out = PlanarScan::default();
+        p.to_body(&[4.0, 3.0, 2.0, 1.0], &mut out).unwrap();
+        assert_eq!(out.hit_count(), 4);
+        assert!(out.points.iter().all(|q| q.free_to == 1.0));
+        // Pitched down 30 deg at 2 m: beam 0 reaches the ground at 4 m and is dropped.
+        let mount = Rigid3::from_rpy(0.0, 30f64.to_radians(), 0.0, [0.0, 0.0, 2.0]);
+        let p = ScanProjector::new(&geom4(), &mount, &opts).unwrap();
+        p.to_body(&[4.0, 3.0, 0.0, 0.0], &mut out).unwrap();
+        assert_eq!(out.hit_count(), 1);
+        // Pitched up 30 deg at 2 m: a 4 m return ends at 4 m height, cleared only up to
+        // 2.5 m height (a quarter of the ray).
+        let mount = Rigid3::from_rpy(0.0, -30f64.to_radians(), 0.0, [0.0, 0.0, 2.0]);
+        let p = ScanProjector::new(&geom4(), &mount, &opts).unwrap();
+        p.to_body(&[4.0, 0.0, 0.0, 0.0], &mut out).unwrap();
+        assert_eq!(out.points.len(), 1);
+        assert!(
+            (out.points[0].free_to - 0.25).abs() < 1e-6,
+            "{:?}",
+            out.points[0]
+        );
+        // Densification: two returns 0.5 m apart on a wall get joining points every 0.1 m.
+        let g = LidarGeometry {
+            angle_min_rad: 0.0,
+            angle_increment_rad: (0.5f64 / 10.0).atan(),
+            beam_count: 2,
+            range_max_m: 80.0,
+        };
+        let p = ScanProjector::new(&g, &Rigid3::IDENTITY, &opts).unwrap();
+        p.to_body(&[10.0, (10.0f64.hypot(0.5)) as f32], &mut out)
+            .unwrap();
+        assert_eq!(out.points.len(), 6);
+        assert!(
+            out.points
+                .iter()
+                .all(|q| (q.x_m - 10.0).abs() < 1e-5 && q.hit)
+        );
     }
 
     #[test]

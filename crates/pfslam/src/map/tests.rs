@@ -13,7 +13,12 @@ fn scan_at(sx: f64, sy: f64, pts: &[(f64, f64, bool)]) -> PlanarScan {
         sensor_y_m: sy,
         points: pts
             .iter()
-            .map(|&(x_m, y_m, hit)| ScanPoint { x_m, y_m, hit })
+            .map(|&(x_m, y_m, hit)| ScanPoint {
+                x_m,
+                y_m,
+                hit,
+                free_to: 1.0,
+            })
             .collect(),
     }
 }

@@ -437,6 +437,7 @@ mod tests {
                     x_m: 5.0 * a.cos(),
                     y_m: 5.0 * a.sin(),
                     hit: true,
+                    free_to: 1.0,
                 }
             })
             .collect();

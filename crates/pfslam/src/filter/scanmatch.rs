@@ -1,0 +1,599 @@
+//! The scan-matching mode (issue 7): a smooth observation model and a scan-matching proposal.
+//!
+//! - [`LikelihoodField`]: per update, a local window of the map around the scan where each
+//!   cell holds `255 * exp(-d^2 / 2 sigma^2)`, `d` the distance to the nearest occupied cell
+//!   (truncated at 3 sigma). A scan point scores by its field value, so points that land
+//!   beside a wall still count, and sliding along a wall costs nothing.
+//! - [`match_scan`]: per particle, a correlative search over x/y (whole cells, integer index
+//!   shifts) and yaw around the particle's predicted pose, then a sub-cell hill climb on the
+//!   bilinearly interpolated field. The objective adds a Gaussian prior on the deviation from
+//!   the predicted pose: where the scan does not fix the pose (along a street whose walls are
+//!   sampled at the same body-frame spots every scan) the odometry decides, instead of the
+//!   previous scan's beam pattern.
+//! - The particle moves to the optimum and its log-weight grows by the objective divided by a
+//!   temperature; resampling is selective (Neff below a fraction of N).
+
+use crate::geometry::Pose2;
+use crate::map::{Cell, CellRect, MapLimits, OccupancyGrid};
+use serde::{Deserialize, Serialize};
+
+/// Options of the scan-matching mode (`[filter.scan_match]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ScanMatchOptions {
+    /// Use every k-th return of a scan for matching (1 = all; mapping always uses all).
+    pub beam_decimation: usize,
+    /// Returns farther than this from the sensor are not matched (m; they are still mapped).
+    pub match_range_max_m: f64,
+    /// Standard deviation of the likelihood field's Gaussian (m).
+    pub field_sigma_m: f64,
+    /// Half-width of the coarse x/y search in cells.
+    pub xy_search_radius_cells: u32,
+    /// Half-width of the coarse yaw search (deg).
+    pub yaw_search_deg: f64,
+    /// Step of the coarse yaw search (deg).
+    pub yaw_step_deg: f64,
+    /// Standard deviation of the prior on the x/y deviation from the predicted pose (m).
+    pub prior_sigma_xy_m: f64,
+    /// Standard deviation of the prior on the yaw deviation from the predicted pose (deg).
+    pub prior_sigma_yaw_deg: f64,
+    /// Field value (0..1) of never-observed cells: a point that lands there neither fits nor
+    /// contradicts the map. Matters at the frontier: the far end of a wall seen by the
+    /// previous scan ends just short of this scan's, and scoring the unknown beyond it as
+    /// empty would pull every match back along the street.
+    pub unknown_value: f64,
+    /// Log-likelihood of one scan point lying exactly on an occupied cell (field value 1).
+    pub point_gain: f64,
+    /// Divisor of the match objective in the log-weight update.
+    pub weight_temperature: f64,
+    /// Resample when Neff < this fraction of the particle count (selective resampling).
+    pub resample_threshold: f64,
+    /// Halvings of the step in the sub-cell refinement (0 = coarse search only).
+    pub refine_levels: u32,
+    /// Particles are sampled around their match with this standard deviation in x and y
+    /// (m); the prediction itself composes the odometry without noise (the match, not the
+    /// motion noise, is the proposal).
+    pub proposal_sigma_xy_m: f64,
+    /// Standard deviation of the yaw sampled around the match (deg).
+    pub proposal_sigma_yaw_deg: f64,
+}
+
+impl Default for ScanMatchOptions {
+    fn default() -> Self {
+        ScanMatchOptions {
+            beam_decimation: 2,
+            match_range_max_m: 40.0,
+            field_sigma_m: 0.15,
+            xy_search_radius_cells: 3,
+            yaw_search_deg: 0.75,
+            yaw_step_deg: 0.25,
+            prior_sigma_xy_m: 0.02,
+            prior_sigma_yaw_deg: 0.05,
+            unknown_value: 0.5,
+            point_gain: 1.0,
+            weight_temperature: 10.0,
+            resample_threshold: 0.5,
+            refine_levels: 3,
+            proposal_sigma_xy_m: 0.01,
+            proposal_sigma_yaw_deg: 0.02,
+        }
+    }
+}
+
+impl ScanMatchOptions {
+    /// Checks ranges; the message names the bad key.
+    pub fn validate(&self) -> Result<(), String> {
+        let pos = |v: f64| v.is_finite() && v > 0.0;
+        if self.beam_decimation == 0 {
+            return Err("filter.scan_match.beam_decimation must be at least 1".into());
+        }
+        for (k, v) in [
+            ("match_range_max_m", self.match_range_max_m),
+            ("field_sigma_m", self.field_sigma_m),
+            ("yaw_step_deg", self.yaw_step_deg),
+            ("prior_sigma_xy_m", self.prior_sigma_xy_m),
+            ("prior_sigma_yaw_deg", self.prior_sigma_yaw_deg),
+            ("point_gain", self.point_gain),
+            ("weight_temperature", self.weight_temperature),
+        ] {
+            if !pos(v) {
+                return Err(format!("filter.scan_match.{k} must be positive and finite"));
+            }
+        }
+        if !(self.yaw_search_deg.is_finite() && (0.0..=45.0).contains(&self.yaw_search_deg)) {
+            return Err("filter.scan_match.yaw_search_deg must lie in [0, 45]".into());
+        }
+        if self.xy_search_radius_cells > 32 {
+            return Err("filter.scan_match.xy_search_radius_cells must be at most 32".into());
+        }
+        if self.refine_levels > 8 {
+            return Err("filter.scan_match.refine_levels must be at most 8".into());
+        }
+        if !(0.0..=1.0).contains(&self.resample_threshold) {
+            return Err("filter.scan_match.resample_threshold must lie in [0, 1]".into());
+        }
+        Ok(())
+    }
+
+    /// The per-update search parameters for a map of `resolution_m`.
+    pub fn params(&self, resolution_m: f64) -> MatchParams {
+        let steps = (self.yaw_search_deg / self.yaw_step_deg).floor() as i32;
+        // Order: 0 first, then growing magnitude, so exact ties keep the smallest offset.
+        let mut yaw_offsets_rad = vec![0.0];
+        for k in 1..=steps {
+            let d = (f64::from(k) * self.yaw_step_deg).to_radians();
+            yaw_offsets_rad.push(-d);
+            yaw_offsets_rad.push(d);
+        }
+        MatchParams {
+            resolution_m,
+            xy_radius_cells: self.xy_search_radius_cells as i32,
+            yaw_offsets_rad,
+            yaw_step_rad: self.yaw_step_deg.to_radians(),
+            inv_var_xy: 1.0 / (self.prior_sigma_xy_m * self.prior_sigma_xy_m),
+            inv_var_yaw: 1.0 / self.prior_sigma_yaw_deg.to_radians().powi(2),
+            gain_per_unit: self.point_gain / 255.0,
+            refine_levels: self.refine_levels,
+        }
+    }
+}
+
+/// Search parameters derived from [`ScanMatchOptions`] once per run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MatchParams {
+    /// Map cell size (m).
+    pub resolution_m: f64,
+    /// Coarse x/y half-width (cells).
+    pub xy_radius_cells: i32,
+    /// Coarse yaw offsets (rad), 0 first.
+    pub yaw_offsets_rad: Vec<f64>,
+    /// Coarse yaw step (rad); the refinement starts at half of it.
+    pub yaw_step_rad: f64,
+    /// `1 / sigma_xy^2` of the prior (1/m^2).
+    pub inv_var_xy: f64,
+    /// `1 / sigma_yaw^2` of the prior (1/rad^2).
+    pub inv_var_yaw: f64,
+    /// Log-likelihood per unit of field value (field values run 0..=255).
+    pub gain_per_unit: f64,
+    /// Step halvings of the refinement.
+    pub refine_levels: u32,
+}
+
+/// A window of the likelihood field (see the module docs), in the map's cell frame.
+#[derive(Debug, Clone, Default)]
+pub struct LikelihoodField {
+    limits: Option<MapLimits>,
+    i0: i32,
+    j0: i32,
+    w: usize,
+    h: usize,
+    values: Vec<u8>,
+    kernel: Vec<(i32, i32, u8)>,
+    kernel_radius: i32,
+    occupied: Vec<(i32, i32)>,
+}
+
+impl LikelihoodField {
+    /// An empty field (every lookup 0).
+    pub fn new() -> Self {
+        LikelihoodField::default()
+    }
+
+    /// Rebuilds the field over `rect` from the occupied cells of `grid` (Gaussian of
+    /// `sigma_m`, truncated at 3 sigma); never-observed cells away from walls hold
+    /// `unknown_value` (0..1), observed ones 0. Reuses its buffers.
+    pub fn build(
+        &mut self,
+        grid: &OccupancyGrid,
+        rect: &CellRect,
+        sigma_m: f64,
+        unknown_value: f64,
+    ) {
+        let limits = *grid.limits();
+        let sigma_cells = (sigma_m / limits.resolution_m()).max(0.25);
+        let r = (3.0 * sigma_cells).ceil().min(16.0) as i32;
+        if self.kernel_radius != r || self.kernel.is_empty() {
+            self.kernel.clear();
+            for dj in -r..=r {
+                for di in -r..=r {
+                    let d2 = f64::from(di * di + dj * dj);
+                    let v = (255.0 * (-0.5 * d2 / (sigma_cells * sigma_cells)).exp()).round();
+                    if v >= 1.0 {
+                        self.kernel.push((di, dj, v as u8));
+                    }
+                }
+            }
+            self.kernel_radius = r;
+        }
+        self.limits = Some(limits);
+        self.i0 = rect.min_i;
+        self.j0 = rect.min_j;
+        self.w = rect.width();
+        self.h = rect.height();
+        let unknown = (255.0 * unknown_value.clamp(0.0, 1.0)).round() as u8;
+        self.values.clear();
+        self.values.resize(self.w * self.h, unknown);
+        let (w, h) = (self.w as i32, self.h as i32);
+        let (i0, j0) = (self.i0, self.j0);
+        let occupied_threshold = grid.fixed().occupied;
+        // Pass 1: observed cells are 0 (free or not yet occupied); collect the occupied ones,
+        // including those up to `r` outside the window (they still reach into it).
+        self.occupied.clear();
+        let values = &mut self.values;
+        let occupied = &mut self.occupied;
+        grid.for_each_observed_in(&rect.expanded(r), |c, v| {
+            let (li, lj) = (c.i - i0, c.j - j0);
+            if li >= 0 && lj >= 0 && li < w && lj < h {
+                values[(lj * w + li) as usize] = 0;
+            }
+            if v >= occupied_threshold {
+                occupied.push((li, lj));
+            }
+        });
+        // Pass 2: the Gaussian around every occupied cell (maximum, so order does not matter).
+        for &(li, lj) in &self.occupied {
+            let inside = li >= r && lj >= r && li < w - r && lj < h - r;
+            for &(di, dj, v) in &self.kernel {
+                let (x, y) = (li + di, lj + dj);
+                if !inside && (x < 0 || y < 0 || x >= w || y >= h) {
+                    continue;
+                }
+                let slot = &mut self.values[(y * w + x) as usize];
+                if v > *slot {
+                    *slot = v;
+                }
+            }
+        }
+    }
+
+    /// Field value of a cell (0 outside the window).
+    #[inline]
+    pub fn at(&self, cell: Cell) -> u8 {
+        let (li, lj) = (cell.i - self.i0, cell.j - self.j0);
+        if li < 0 || lj < 0 || li as usize >= self.w || lj as usize >= self.h {
+            return 0;
+        }
+        self.values[lj as usize * self.w + li as usize]
+    }
+
+    /// Bilinear interpolation between cell centres at continuous cell coordinates `(u, v)`
+    /// (cell `(i, j)` spans `[i, i+1) x [j, j+1)`), in field units (0..=255).
+    #[inline]
+    fn bilinear(&self, u: f64, v: f64) -> f64 {
+        let (x, y) = (u - 0.5, v - 0.5);
+        let (fx, fy) = (x.floor(), y.floor());
+        let (ax, ay) = (x - fx, y - fy);
+        let (i, j) = (fx as i32, fy as i32);
+        let f = |di, dj| f64::from(self.at(Cell::new(i + di, j + dj)));
+        let bottom = f(0, 0) * (1.0 - ax) + f(1, 0) * ax;
+        let top = f(0, 1) * (1.0 - ax) + f(1, 1) * ax;
+        bottom * (1.0 - ay) + top * ay
+    }
+}
+
+/// Caller-owned buffers of [`match_scan`], one per worker.
+#[derive(Debug, Clone, Default)]
+pub struct MatchScratch {
+    base: Vec<usize>,
+}
+
+/// The optimum found for one particle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MatchResult {
+    /// The matched pose.
+    pub pose: Pose2,
+    /// Objective there: log-likelihood of the points minus the prior's penalty.
+    pub objective: f64,
+    /// Mean field value of the points there (0..1): how well the scan fits.
+    pub fit: f64,
+}
+
+fn prior_penalty(p: &MatchParams, dx: f64, dy: f64, dyaw: f64) -> f64 {
+    0.5 * ((dx * dx + dy * dy) * p.inv_var_xy + dyaw * dyaw * p.inv_var_yaw)
+}
+
+/// Sum of bilinear field values of `points_body` seen from `pose`.
+fn field_sum(
+    field: &LikelihoodField,
+    limits: &MapLimits,
+    points: &[[f64; 2]],
+    pose: &Pose2,
+) -> f64 {
+    let (s, c) = pose.yaw_rad.sin_cos();
+    points
+        .iter()
+        .map(|p| {
+            let x = pose.x_m + c * p[0] - s * p[1];
+            let y = pose.y_m + s * p[0] + c * p[1];
+            let (u, v) = limits.cell_coords(x, y);
+            field.bilinear(u, v)
+        })
+        .sum()
+}
+
+/// Matches `points_body` (body-frame returns, m) against `field` around `predicted` (see the
+/// module docs). Deterministic: fixed search order, strict improvements only.
+pub fn match_scan(
+    field: &LikelihoodField,
+    points_body: &[[f64; 2]],
+    predicted: &Pose2,
+    params: &MatchParams,
+    scratch: &mut MatchScratch,
+) -> MatchResult {
+    let n = points_body.len().max(1) as f64;
+    let Some(limits) = field.limits else {
+        return MatchResult {
+            pose: *predicted,
+            objective: 0.0,
+            fit: 0.0,
+        };
+    };
+    let res = params.resolution_m;
+    let r = params.xy_radius_cells.max(0);
+    let (w, h) = (field.w as i32, field.h as i32);
+    let side = (2 * r + 1) as usize;
+    // Coarse: per yaw, points to window indices once; x/y offsets are index shifts.
+    let mut best = (f64::NEG_INFINITY, 0i32, 0i32, 0.0f64);
+    for &dyaw in &params.yaw_offsets_rad {
+        let (s, c) = (predicted.yaw_rad + dyaw).sin_cos();
+        scratch.base.clear();
+        for p in points_body {
+            let x = predicted.x_m + c * p[0] - s * p[1];
+            let y = predicted.y_m + s * p[0] + c * p[1];
+            let cell = limits.cell_of(x, y);
+            let (li, lj) = (cell.i - field.i0, cell.j - field.j0);
+            if li >= r && lj >= r && li < w - r && lj < h - r {
+                scratch
+                    .base
+                    .push((lj - r) as usize * field.w + (li - r) as usize);
+            }
+        }
+        for oy in 0..side {
+            for ox in 0..side {
+                let off = oy * field.w + ox;
+                let sum: u32 = scratch
+                    .base
+                    .iter()
+                    .map(|&b| u32::from(field.values[b + off]))
+                    .sum();
+                let (dx, dy) = (ox as i32 - r, oy as i32 - r);
+                let obj = params.gain_per_unit * f64::from(sum)
+                    - prior_penalty(params, f64::from(dx) * res, f64::from(dy) * res, dyaw);
+                if obj > best.0 {
+                    best = (obj, dx, dy, dyaw);
+                }
+            }
+        }
+    }
+    let mut dx = f64::from(best.1) * res;
+    let mut dy = f64::from(best.2) * res;
+    let mut dyaw = best.3;
+    let eval = |dx: f64, dy: f64, dyaw: f64| {
+        let pose = Pose2::new(
+            predicted.x_m + dx,
+            predicted.y_m + dy,
+            predicted.yaw_rad + dyaw,
+        );
+        let sum = field_sum(field, &limits, points_body, &pose);
+        (
+            params.gain_per_unit * sum - prior_penalty(params, dx, dy, dyaw),
+            sum,
+        )
+    };
+    let (mut obj, mut sum) = eval(dx, dy, dyaw);
+    // Refinement: pattern search with step halving on the interpolated field.
+    let mut step_xy = 0.5 * res;
+    let mut step_yaw = 0.5 * params.yaw_step_rad;
+    let mut level = 0;
+    let mut iterations = 0;
+    while level < params.refine_levels && iterations < 64 {
+        iterations += 1;
+        let mut moved = None;
+        for (ex, ey, eyaw) in [
+            (step_xy, 0.0, 0.0),
+            (-step_xy, 0.0, 0.0),
+            (0.0, step_xy, 0.0),
+            (0.0, -step_xy, 0.0),
+            (0.0, 0.0, step_yaw),
+            (0.0, 0.0, -step_yaw),
+        ] {
+            let cand = eval(dx + ex, dy + ey, dyaw + eyaw);
+            if cand.0 > moved.map_or(obj, |m: (f64, f64, f64, f64, f64)| m.0) {
+                moved = Some((cand.0, cand.1, dx + ex, dy + ey, dyaw + eyaw));
+            }
+        }
+        match moved {
+            Some((o, s, x, y, a)) => {
+                obj = o;
+                sum = s;
+                dx = x;
+                dy = y;
+                dyaw = a;
+            }
+            None => {
+                step_xy *= 0.5;
+                step_yaw *= 0.5;
+                level += 1;
+            }
+        }
+    }
+    MatchResult {
+        pose: Pose2::new(
+            predicted.x_m + dx,
+            predicted.y_m + dy,
+            predicted.yaw_rad + dyaw,
+        ),
+        objective: obj,
+        fit: sum / (255.0 * n),
+    }
+}
+
+/// The returns of `scan` within `range_max_m` of the sensor, every `decimation`-th, as
+/// body-frame matching points (into a caller-owned buffer).
+pub fn match_points(
+    scan: &crate::map::PlanarScan,
+    range_max_m: f64,
+    decimation: usize,
+    out: &mut Vec<[f64; 2]>,
+) {
+    out.clear();
+    let r2 = range_max_m * range_max_m;
+    out.extend(
+        scan.points
+            .iter()
+            .filter(|p| {
+                p.hit && {
+                    let (dx, dy) = (p.x_m - scan.sensor_x_m, p.y_m - scan.sensor_y_m);
+                    dx * dx + dy * dy <= r2
+                }
+            })
+            .step_by(decimation.max(1))
+            .map(|p| [p.x_m, p.y_m]),
+    );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::map::{MapOptions, PlanarScan, ScanPoint, to_world};
+
+    /// A room with walls at x = +-5 m and y = +-4 m, with a pillar, mapped from the origin.
+    fn room_scan() -> PlanarScan {
+        let mut points = Vec::new();
+        for k in 0..720 {
+            let a = f64::from(k) * std::f64::consts::PI / 360.0;
+            let (s, c) = a.sin_cos();
+            // Walls through cell centres (0.1 m cells), so the map has no quantisation offset.
+            let tx = if c > 1e-9 {
+                5.05 / c
+            } else if c < -1e-9 {
+                -4.95 / c
+            } else {
+                f64::MAX
+            };
+            let ty = if s > 1e-9 {
+                4.05 / s
+            } else if s < -1e-9 {
+                -3.95 / s
+            } else {
+                f64::MAX
+            };
+            let mut t = tx.min(ty);
+            // pillar: circle radius 0.3 at (2, 1)
+            let (px, py) = (2.0, 1.0);
+            let b = c * px + s * py;
+            let disc = b * b - (px * px + py * py - 0.09);
+            if disc >= 0.0 && b - disc.sqrt() > 0.0 {
+                t = t.min(b - disc.sqrt());
+            }
+            points.push(ScanPoint {
+                x_m: c * t,
+                y_m: s * t,
+                hit: true,
+                free_to: 1.0,
+            });
+        }
+        PlanarScan {
+            sensor_x_m: 0.0,
+            sensor_y_m: 0.0,
+            points,
+        }
+    }
+
+    #[test]
+    fn match_recovers_small_offsets_sub_cell() {
+        let opts = MapOptions {
+            resolution_m: 0.1,
+            ..MapOptions::default()
+        };
+        let mut grid = OccupancyGrid::new(&opts).unwrap();
+        let scan = room_scan();
+        let mut world = PlanarScan::default();
+        let truth = Pose2::new(0.0, 0.0, 0.0);
+        let mut scratch = crate::map::InsertScratch::new();
+        for _ in 0..3 {
+            to_world(&scan, &truth, &mut world);
+            grid.insert_scan(&world, &mut scratch).unwrap();
+        }
+        let mut field = LikelihoodField::new();
+        let rect = CellRect {
+            min_i: -70,
+            min_j: -60,
+            max_i: 70,
+            max_j: 60,
+        };
+        field.build(&grid, &rect, 0.15, 0.5);
+        let mut pts = Vec::new();
+        match_points(&scan, 40.0, 2, &mut pts);
+        let o = ScanMatchOptions {
+            prior_sigma_xy_m: 10.0,
+            prior_sigma_yaw_deg: 50.0,
+            ..ScanMatchOptions::default()
+        };
+        let params = o.params(0.1);
+        let mut ms = MatchScratch::default();
+        for (dx, dy, dyaw_deg) in [(0.17, -0.12, 0.4), (-0.23, 0.08, -0.6), (0.04, 0.26, 0.0)] {
+            let predicted = Pose2::new(dx, dy, f64::to_radians(dyaw_deg));
+            let m = match_scan(&field, &pts, &predicted, &params, &mut ms);
+            assert!(
+                m.pose.translation_norm_m() < 0.03,
+                "{m:?} from {predicted:?}"
+            );
+            assert!(m.pose.yaw_rad.abs() < 0.15f64.to_radians(), "{m:?}");
+            assert!(m.fit > 0.8, "{m:?}");
+        }
+    }
+
+    #[test]
+    fn flat_direction_keeps_the_prediction() {
+        // Two long parallel walls (a street): x is unobservable, the prior keeps it.
+        let opts = MapOptions::default();
+        let mut grid = OccupancyGrid::new(&opts).unwrap();
+        let street = |half_len: i32| {
+            let mut points = Vec::new();
+            for k in -half_len..=half_len {
+                let x = f64::from(k) * 0.1 + 0.05;
+                for y in [-5.95, 6.05] {
+                    points.push(ScanPoint {
+                        x_m: x,
+                        y_m: y,
+                        hit: true,
+                        free_to: 1.0,
+                    });
+                }
+            }
+            PlanarScan {
+                sensor_x_m: 0.0,
+                sensor_y_m: 0.0,
+                points,
+            }
+        };
+        // The map's walls run beyond the scan's ends: x is unobservable.
+        let mut scratch = crate::map::InsertScratch::new();
+        for _ in 0..3 {
+            grid.insert_scan(&street(380), &mut scratch).unwrap();
+        }
+        let scan = street(250);
+        let mut field = LikelihoodField::new();
+        let rect = CellRect {
+            min_i: -400,
+            min_j: -100,
+            max_i: 400,
+            max_j: 100,
+        };
+        field.build(&grid, &rect, 0.15, 0.5);
+        let mut pts = Vec::new();
+        match_points(&scan, 40.0, 1, &mut pts);
+        let params = ScanMatchOptions::default().params(opts.resolution_m);
+        let predicted = Pose2::new(0.137, 0.02, 0.0);
+        let m = match_scan(
+            &field,
+            &pts,
+            &predicted,
+            &params,
+            &mut MatchScratch::default(),
+        );
+        assert!((m.pose.x_m - 0.137).abs() < 0.02, "{m:?}");
+        assert!(m.pose.y_m.abs() < 0.02, "{m:?}");
+    }
+}
