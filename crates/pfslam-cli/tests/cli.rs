@@ -8,6 +8,22 @@ fn pfslam() -> Command {
     Command::new(env!("CARGO_BIN_EXE_pfslam"))
 }
 
+/// Asserts that a run succeeded, showing its stderr otherwise.
+fn assert_ok(out: &std::process::Output) {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// Runs the command and asserts it succeeded.
+fn run_ok(cmd: &mut Command) -> std::process::Output {
+    let out = cmd.output().unwrap();
+    assert_ok(&out);
+    out
+}
+
 #[test]
 fn print_config_is_valid_toml() {
     let out = pfslam().arg("print-config").output().unwrap();

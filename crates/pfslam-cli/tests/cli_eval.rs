@@ -1,6 +1,6 @@
 //! `pfslam eval`: ATE/RPE against ground truth, the relations metric, bad input.
 
-use super::pfslam;
+use super::{assert_ok, pfslam};
 use pfslam::geometry::{Pose2, StampedPose2};
 use pfslam::io::tum::{format_stamp_s, write_tum};
 use std::ffi::OsStr;
@@ -45,11 +45,7 @@ fn eval_ground_truth_text_and_json() {
     write_tum(&gt_path, &gt).unwrap();
     write_tum(&est_path, &est).unwrap();
     let out = eval(&[&"--ground-truth", &gt_path, &est_path]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_ok(&out);
     let text = String::from_utf8(out.stdout).unwrap();
     assert!(
         text.contains("ATE aligned (SE(2)):   rmse 0.0000 m"),
@@ -104,11 +100,7 @@ fn eval_relations_json() {
     let rel_path = dir.path().join("t.relations");
     std::fs::write(&rel_path, text).unwrap();
     let out = eval(&[&"--json", &"--relations", &rel_path, &path]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_ok(&out);
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let v = &v["relations"];
     assert_eq!(v["relations"], 51);
@@ -169,11 +161,7 @@ fn eval_relations_of_raw_odometry_on_real_data() {
     write_tum(&path, &traj.poses).unwrap();
     let rel_path = dir.join("aces.relations");
     let out = eval(&[&"--json", &"--relations", &rel_path, &path]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_ok(&out);
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let v = &v["relations"];
     // the TUM round trip (9 decimals) keeps the figures of the library
@@ -188,11 +176,7 @@ fn eval_relations_of_raw_odometry_on_real_data() {
     assert!((mean - lib.trans_m.abs.mean).abs() < 1e-6, "{mean}");
     // the recording itself as the trajectory: its raw odometry, the same figures
     let out = eval(&[&"--relations", &rel_path, &dir.join("aces.bag")]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_ok(&out);
     let text = String::from_utf8(out.stdout).unwrap();
     assert!(text.contains("raw odometry of"), "{text}");
     let want = format!("translational error: {:.4} +-", lib.trans_m.abs.mean);

@@ -1,19 +1,14 @@
 //! `pfslam map`: end to end on a short noise-free simulation.
 
-use super::pfslam;
+use super::{pfslam, run_ok};
 use std::path::Path;
 
 /// Simulates 12 s of the car (noise free) into `dir`.
 fn simulate(dir: &Path) {
-    let out = pfslam()
-        .args(["simulate", "--noise-free", "--duration-s", "12", "--out"])
-        .arg(dir)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    run_ok(
+        pfslam()
+            .args(["simulate", "--noise-free", "--duration-s", "12", "--out"])
+            .arg(dir),
     );
 }
 

@@ -1,20 +1,15 @@
 //! `pfslam run` and `pfslam print-config` end to end.
 
-use super::pfslam;
+use super::{pfslam, run_ok};
 
 #[test]
 fn run_on_a_short_simulated_drive() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("sim");
-    let out = pfslam()
-        .args(["simulate", "--duration-s", "6", "--out"])
-        .arg(&data)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    run_ok(
+        pfslam()
+            .args(["simulate", "--duration-s", "6", "--out"])
+            .arg(&data),
     );
     let cfg = dir.path().join("run.toml");
     std::fs::write(&cfg, "[filter]\nsnapshot_every_scans = 200\n").unwrap();

@@ -1,21 +1,16 @@
 //! `pfslam simulate` end to end.
 
-use std::process::Command;
-
-fn pfslam() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_pfslam"))
-}
+use super::{pfslam, run_ok};
 
 #[test]
 fn simulate_car_writes_dataset_and_ground_truth() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("car");
-    let o = pfslam()
-        .args(["simulate", "--duration-s", "3", "--seed", "5", "--out"])
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    run_ok(
+        pfslam()
+            .args(["simulate", "--duration-s", "3", "--seed", "5", "--out"])
+            .arg(&out),
+    );
     for f in [
         "sensor_data/encoder.csv",
         "sensor_data/fog.csv",
@@ -54,20 +49,19 @@ fn simulate_car_writes_dataset_and_ground_truth() {
 #[test]
 fn simulate_humanoid_writes_its_layout() {
     let dir = tempfile::tempdir().unwrap();
-    let o = pfslam()
-        .args([
-            "simulate",
-            "--vehicle",
-            "humanoid",
-            "--duration-s",
-            "2",
-            "--noise-free",
-            "--out",
-        ])
-        .arg(dir.path())
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    run_ok(
+        pfslam()
+            .args([
+                "simulate",
+                "--vehicle",
+                "humanoid",
+                "--duration-s",
+                "2",
+                "--noise-free",
+                "--out",
+            ])
+            .arg(dir.path()),
+    );
     let ds = pfslam::io::humanoid::read_humanoid_dataset(dir.path()).unwrap();
     assert_eq!(ds.lidar.beam_count, 1081);
     assert!(dir.path().join("beam_labels.csv").is_file());

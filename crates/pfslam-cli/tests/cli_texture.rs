@@ -1,6 +1,6 @@
 //! `pfslam texture` end to end on a rendered two-pair dataset.
 
-use super::pfslam;
+use super::{pfslam, run_ok};
 use pfslam::geometry::Pose2;
 use pfslam::sensors::StereoCalibration;
 use pfslam::stereo::image::{BayerPattern, encode_gray_png};
@@ -57,19 +57,14 @@ fn npy_shape(path: &Path) -> String {
 /// Runs `pfslam texture DIR --poses DIR/poses.tum --out DIR/out`, which must succeed.
 fn run_texture(dir: &Path) -> std::path::PathBuf {
     let out_dir = dir.join("out");
-    let out = pfslam()
-        .arg("texture")
-        .arg(dir)
-        .arg("--poses")
-        .arg(dir.join("poses.tum"))
-        .arg("--out")
-        .arg(&out_dir)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    run_ok(
+        pfslam()
+            .arg("texture")
+            .arg(dir)
+            .arg("--poses")
+            .arg(dir.join("poses.tum"))
+            .arg("--out")
+            .arg(&out_dir),
     );
     out_dir
 }
