@@ -12,13 +12,9 @@ use pfslam::config::Config;
 use pfslam::geometry::{StampedPose2, Trajectory};
 use pfslam::io::map_files::write_npy_f32;
 use pfslam::io::tum::read_tum;
-use pfslam::io::ucsd::{
-    PARAM_DIR, ReadOptions, STEREO_LEFT_DIR, read_car_calibration, read_car_dataset,
-    read_stereo_stamps,
-};
+use pfslam::io::ucsd::{PARAM_DIR, STEREO_LEFT_DIR, read_car_calibration, read_stereo_stamps};
 use pfslam::io::{write_atomic, write_bytes_atomic};
 use pfslam::map::{CellRect, CellState, OccupancyGrid, map_with_poses};
-use pfslam::motion::car_recording;
 use pfslam::sensors::StereoCalibration;
 use pfslam::stereo::image::{RgbImage, encode_rgb_png};
 use pfslam::stereo::{TextureMap, TextureStats, texture_dataset};
@@ -217,8 +213,7 @@ fn grey_map(
         return None;
     }
     let built = (|| -> anyhow::Result<OccupancyGrid> {
-        let ds = read_car_dataset(dataset, &ReadOptions::default())?;
-        let rec = car_recording(&ds, &config.motion, "dataset")?;
+        let rec = super::dataset::load_dataset(dataset, config, false)?.recording;
         Ok(map_with_poses(&rec, poses, &config.map)?.0)
     })();
     match built {
