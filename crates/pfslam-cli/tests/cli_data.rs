@@ -189,3 +189,24 @@ fn bad_config_exits_2() {
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("c.toml"));
 }
+
+#[test]
+fn dead_reckon_takes_the_odometry_of_a_carmen_log() {
+    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+        eprintln!("SKIP dead_reckon_takes_the_odometry_of_a_carmen_log: no real data");
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("dr");
+    super::run_ok(
+        super::pfslam()
+            .arg("dead-reckon")
+            .arg(data.join("freiburg/mit-csail/mit-csail.clf"))
+            .arg("--out")
+            .arg(&out),
+    );
+    let traj = pfslam::io::tum::read_tum(&out.join("trajectory.tum")).unwrap();
+    // one pose per scan (README table: 1,988 scans), moving: the log's odometry, not zeros
+    assert_eq!(traj.len(), 1988);
+    assert!(traj.path_length_m() > 100.0, "{}", traj.path_length_m());
+}

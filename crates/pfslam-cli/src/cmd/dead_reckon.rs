@@ -1,6 +1,6 @@
-//! `pfslam dead-reckon DATASET --out DIR`: dead reckoning of the car's dataset (encoders +
-//! FOG), written as `trajectory.tum` and `trajectory.csv` (one pose per LiDAR scan) and
-//! `trajectory.png`.
+//! `pfslam dead-reckon DATASET --out DIR`: dead reckoning of a dataset (for the car, its
+//! encoders + FOG; for other recordings, their odometry), written as `trajectory.tum` and
+//! `trajectory.csv` (one pose per LiDAR scan) and `trajectory.png`.
 
 use anyhow::Context;
 use pfslam::config::Config;
@@ -15,7 +15,8 @@ use std::path::PathBuf;
 /// Arguments of `dead-reckon`.
 #[derive(Debug, Default, clap::Args)]
 pub struct Args {
-    /// Dataset directory (sensor_data/, param/ as the course distributed them).
+    /// Dataset: a car dataset directory (sensor_data/, param/ as the course distributed them),
+    /// a humanoid dataset directory, or a recording file (CARMEN log, ROS bag, MCAP).
     pub dataset: PathBuf,
     /// Output directory (created if needed).
     #[arg(long)]

@@ -28,7 +28,8 @@ pub enum Preset {
 /// Arguments of `map`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Dataset directory (the car's layout: sensor_data/, param/).
+    /// Dataset: a car or humanoid dataset directory, or a recording file (CARMEN log, ROS bag,
+    /// MCAP).
     pub dataset: PathBuf,
     /// Poses of the body in the map frame (TUM); scans outside their time span are skipped.
     #[arg(long)]
