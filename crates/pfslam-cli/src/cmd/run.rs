@@ -43,7 +43,7 @@ pub struct Args {
     pub sort_timestamps: bool,
 }
 
-pub use super::dataset::{Dataset, load_dataset};
+use super::dataset::{Dataset, load_dataset};
 
 /// Runs SLAM and writes the outputs.
 pub fn run(args: Args) -> anyhow::Result<()> {
