@@ -32,6 +32,10 @@ use resample::ResampleMethod;
 use rng::{CHUNK_PARTICLES, FilterRng};
 use serde::{Deserialize, Serialize};
 
+/// Below this many particle moves (particles x odometry steps) the chunks run on the calling
+/// thread: cheaper than a round trip through the thread pool, same result.
+const SERIAL_BELOW_PARTICLE_STEPS: usize = 2048;
+
 /// Which filter runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
@@ -309,11 +313,29 @@ impl ParticleFilter {
     where
         F: Fn(&mut [Pose2], &mut Xoshiro256PlusPlus) + Sync,
     {
-        self.particles
-            .poses
-            .par_chunks_mut(CHUNK_PARTICLES)
-            .zip(self.rng.chunks.par_iter_mut())
-            .for_each(|(poses, rng)| work(poses, rng));
+        self.par_chunks(true, work);
+    }
+
+    /// [`Self::predict_chunks`], in parallel only when `parallel`: the chunks and their
+    /// streams are the same either way, so is the result. Waking the thread pool costs more
+    /// than moving a hundred particles by one odometry step, which the scan-matching mode does
+    /// at every scan.
+    fn par_chunks<F>(&mut self, parallel: bool, work: F)
+    where
+        F: Fn(&mut [Pose2], &mut Xoshiro256PlusPlus) + Sync,
+    {
+        if parallel {
+            self.particles
+                .poses
+                .par_chunks_mut(CHUNK_PARTICLES)
+                .zip(self.rng.chunks.par_iter_mut())
+                .for_each(|(poses, rng)| work(poses, rng));
+        } else {
+            let chunks = self.particles.poses.chunks_mut(CHUNK_PARTICLES);
+            for (poses, rng) in chunks.zip(self.rng.chunks.iter_mut()) {
+                work(poses, rng);
+            }
+        }
     }
 
     /// Correlates every particle's view of `points_body` with its map over `search`, moves it
@@ -432,7 +454,8 @@ impl ParticleFilter {
     pub fn jitter(&mut self, sigma_xy_m: f64, sigma_yaw_rad: f64) {
         use rand::RngExt;
         use rand_distr::StandardNormal;
-        self.predict_chunks(|poses, rng| {
+        let parallel = self.particles.len() >= SERIAL_BELOW_PARTICLE_STEPS;
+        self.par_chunks(parallel, |poses, rng| {
             for p in poses {
                 let (a, b, c): (f64, f64, f64) = (
                     rng.sample(StandardNormal),

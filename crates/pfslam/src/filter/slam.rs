@@ -6,7 +6,7 @@
 use super::correlate::{CorrelationSearch, OccupancyLookup};
 use super::odometry::OdometryCursor;
 use super::scanmatch;
-use super::{FilterError, FilterMode, ParticleFilter, ParticleMaps};
+use super::{FilterError, FilterMode, ParticleFilter, ParticleMaps, SERIAL_BELOW_PARTICLE_STEPS};
 use crate::config::Config;
 use crate::geometry::{Pose2, StampedPose2};
 use crate::map::{
@@ -521,7 +521,8 @@ impl ParticleFilter {
         steps: &[(StampedPose2, StampedPose2)],
         motion: &dyn MotionModel,
     ) {
-        self.predict_chunks(|poses, rng| {
+        let parallel = self.particles.len() * steps.len() >= SERIAL_BELOW_PARTICLE_STEPS;
+        self.par_chunks(parallel, |poses, rng| {
             for (from, to) in steps {
                 for p in poses.iter_mut() {
                     *p = motion.sample(p, from, to, rng);

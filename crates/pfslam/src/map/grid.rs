@@ -164,23 +164,27 @@ impl TileDir {
 /// What one scan does to a cell. Rule: each cell gets at most one update per scan; a cell
 /// that is the end cell of any return is occupied, whatever other rays crossed it (occupied
 /// wins over free).
+/// Encoded so that "occupied wins" is a bitwise OR: `max(a, b) == a | b` on {0, 1, 3}.
 const MARK_NONE: u8 = 0;
 const MARK_FREE: u8 = 1;
-const MARK_OCCUPIED: u8 = 2;
+const MARK_OCCUPIED: u8 = 3;
 
 /// Caller-owned scratch for [`OccupancyGrid::insert_scan`]: a zeroed mask around the
-/// sensor's cell and the list of cells touched by the current scan. The mask is made of
-/// blocks aligned with the grid's tiles (one block = one tile, 4 KiB), so a ray stays in cache
-/// and a run of touched cells maps to one tile. Reuse one per thread (or per particle); it
-/// never needs clearing (insertion leaves the mask zeroed).
+/// sensor's cell and the list of cells touched by the current scan. The mask is a flat
+/// row-major array whose row stride is a power of two and whose origin is aligned with the
+/// grid's tiles: a ray walks it by adding a constant per step, and a mask index splits into
+/// tile and cell with shifts. Reuse one per thread (or per particle); it never needs clearing
+/// (insertion leaves the mask zeroed).
 #[derive(Debug, Default, Clone)]
 pub struct InsertScratch {
     mask: Vec<u8>,
     /// Largest Chebyshev ray length the mask holds (cells).
     half: i32,
-    /// Blocks per side.
-    blocks: i32,
-    /// Touched cells: `block << 12 | local index`.
+    /// Mask side in cells (a whole number of tiles).
+    side: i32,
+    /// log2 of the row stride (>= side).
+    shift: u32,
+    /// Touched cells (mask indices); only the first `len` of an insertion are meaningful.
     touched: Vec<u32>,
 }
 
@@ -194,10 +198,47 @@ impl InsertScratch {
         if half > self.half || self.mask.is_empty() {
             // 2 * half + 1 cells starting anywhere in a tile span at most this many tiles.
             let blocks = (2 * half + 1 + TILE_MASK) / TILE_SIZE as i32 + 1;
-            self.mask = vec![MARK_NONE; (blocks * blocks) as usize * TILE_CELLS];
+            let side = blocks * TILE_SIZE as i32;
+            let shift = (side as u32).next_power_of_two().trailing_zeros();
+            self.mask = vec![MARK_NONE; (side as usize) << shift];
             self.half = half;
-            self.blocks = blocks;
+            self.side = side;
+            self.shift = shift;
         }
+    }
+}
+
+/// Walks the first `count` cells of [`bresenham`]`(from, to)` as mask indices (`start` is
+/// `from`'s index, `stride` the mask's row stride), without per-cell checks: the same cells,
+/// in the same order, as the callback form.
+#[inline(always)]
+fn walk_mask<F: FnMut(usize)>(
+    from: Cell,
+    to: Cell,
+    count: i32,
+    start: usize,
+    stride: isize,
+    mut visit: F,
+) {
+    let (dx, dy) = ((to.i - from.i).abs(), (to.j - from.j).abs());
+    let step_i: isize = if to.i >= from.i { 1 } else { -1 };
+    let step_j: isize = if to.j >= from.j { stride } else { -stride };
+    // Major axis: one step per cell; minor axis: when the error crosses half a cell.
+    let (major, minor, d_major, d_minor) = if dx >= dy {
+        (step_i, step_j, dx, dy)
+    } else {
+        (step_j, step_i, dy, dx)
+    };
+    let mut idx = start as isize;
+    let mut err = 2 * d_minor - d_major;
+    for _ in 0..count {
+        visit(idx as usize);
+        if err > 0 {
+            idx += minor;
+            err -= 2 * d_major;
+        }
+        err += 2 * d_minor;
+        idx += major;
     }
 }
 
@@ -370,14 +411,21 @@ impl OccupancyGrid {
             });
         }
         scratch.ensure_half(half);
-        let (sh, nb) = (scratch.half, scratch.blocks);
-        // Tile coordinates of mask block (0, 0).
+        let (sh, shift) = (scratch.half, scratch.shift);
+        // Tile coordinates of the mask's first tile, and its first cell.
         let (t0i, t0j) = ((origin.i - sh) >> TILE_SHIFT, (origin.j - sh) >> TILE_SHIFT);
+        let (mi0, mj0) = (t0i << TILE_SHIFT, t0j << TILE_SHIFT);
+        let flat = |c: Cell| (((c.j - mj0) as usize) << shift) | (c.i - mi0) as usize;
+        let stride = 1isize << shift;
         let InsertScratch { mask, touched, .. } = scratch;
-        touched.clear();
-        let index = |c: Cell| {
-            let (ti, tj) = tile_of(c);
-            ((((tj - t0j) * nb + (ti - t0i)) as u32) << (2 * TILE_SHIFT)) | local_index(c) as u32
+        let mut len = 0usize;
+        // Marks a cell and records it when first touched; branch-free (the mask read is the
+        // cost of a ray; whether a cell is new is unpredictable).
+        let mark = |mask: &mut [u8], touched: &mut [u32], len: &mut usize, k: usize, m: u8| {
+            let old = mask[k];
+            mask[k] = old | m;
+            touched[*len] = k as u32;
+            *len += usize::from(old == MARK_NONE);
         };
         for p in &world_scan.points {
             let end = self.cell_of(p.x_m, p.y_m);
@@ -391,26 +439,33 @@ impl OccupancyGrid {
             } else {
                 (end, false)
             };
-            bresenham(origin, clear_end, |c| {
-                if (c.i - end.i).abs().max((c.j - end.j).abs()) <= margin
-                    || (partial && c == clear_end)
-                {
-                    return;
-                }
-                let k = index(c);
-                let m = &mut mask[k as usize];
-                if *m == MARK_NONE {
-                    *m = MARK_FREE;
-                    touched.push(k);
-                }
-            });
-            let k = index(end);
-            let m = &mut mask[k as usize];
-            let want = if p.hit { MARK_OCCUPIED } else { MARK_FREE };
-            if *m == MARK_NONE {
-                touched.push(k);
+            let n = (clear_end.i - origin.i)
+                .abs()
+                .max((clear_end.j - origin.j).abs());
+            // Room for every cell of this ray and its end cell.
+            if touched.len() < len + n as usize + 2 {
+                touched.resize(len + n as usize + 2 + 4096, 0);
             }
-            *m = (*m).max(want);
+            if partial && margin > 0 {
+                // Rare (a free margin and a climbing beam): the per-cell rule as written.
+                bresenham(origin, clear_end, |c| {
+                    if (c.i - end.i).abs().max((c.j - end.j).abs()) <= margin || c == clear_end {
+                        return;
+                    }
+                    mark(mask, touched, &mut len, flat(c), MARK_FREE);
+                });
+            } else {
+                // Along a digital line the Chebyshev distance to its last cell drops by one
+                // per cell, so the cells the rule skips are the last ones: within `margin`
+                // of `end` (full ray), or the last one (partial ray: `clear_end`; `end` lies
+                // beyond it, hence not on the line).
+                let count = if partial { n } else { (n - margin).max(0) };
+                walk_mask(origin, clear_end, count, flat(origin), stride, |k| {
+                    mark(mask, touched, &mut len, k, MARK_FREE);
+                });
+            }
+            let want = if p.hit { MARK_OCCUPIED } else { MARK_FREE };
+            mark(mask, touched, &mut len, flat(end), want);
         }
         // Apply in touch order (ray order: consecutive cells share tiles), clearing the mask.
         let f = self.fixed;
@@ -418,18 +473,26 @@ impl OccupancyGrid {
             rays: world_scan.points.len(),
             ..InsertStats::default()
         };
-        // Runs of consecutive cells in one block (= one tile) get one directory lookup.
+        let touched = &touched[..len];
+        let col_mask = (1usize << shift) - 1;
+        // Mask index -> (tile column, tile row) of the mask, packed.
+        let block_of = |k: u32| {
+            let k = k as usize;
+            (((k >> shift) >> TILE_SHIFT) << 16) | ((k & col_mask) >> TILE_SHIFT)
+        };
+        // Runs of consecutive cells in one tile get one directory lookup.
         let mut start = 0;
         while start < touched.len() {
-            let block = touched[start] >> (2 * TILE_SHIFT);
+            let block = block_of(touched[start]);
             let mut end = start + 1;
-            while end < touched.len() && touched[end] >> (2 * TILE_SHIFT) == block {
+            while end < touched.len() && block_of(touched[end]) == block {
                 end += 1;
             }
-            let (bi, bj) = (block as i32 % nb, block as i32 / nb);
+            let (bi, bj) = ((block & 0xffff) as i32, (block >> 16) as i32);
             let tile = self.dir.get_mut(t0i + bi, t0j + bj);
             for &k in &touched[start..end] {
-                let m = std::mem::replace(&mut mask[k as usize], MARK_NONE);
+                let k = k as usize;
+                let m = std::mem::replace(&mut mask[k], MARK_NONE);
                 let delta = if m == MARK_OCCUPIED {
                     stats.occupied_cells += 1;
                     f.hit
@@ -437,7 +500,9 @@ impl OccupancyGrid {
                     stats.free_cells += 1;
                     f.miss
                 };
-                let v = &mut tile.cells[(k as usize) & (TILE_CELLS - 1)];
+                let local =
+                    (((k >> shift) & TILE_MASK as usize) << TILE_SHIFT) | (k & TILE_MASK as usize);
+                let v = &mut tile.cells[local];
                 *v = f.apply(*v, delta);
             }
             start = end;
@@ -561,6 +626,117 @@ impl OccupancyGrid {
             for (k, v) in row.iter_mut().enumerate() {
                 *v = self.logodds_fixed(Cell::new(rect.min_i + k as i32, j));
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod reference_tests {
+    use super::*;
+    use crate::map::ScanPoint;
+    use rand::{RngExt, SeedableRng};
+    use std::collections::BTreeMap;
+
+    /// The per-scan rule of [`OccupancyGrid::insert_scan`] written plainly (a map of marks,
+    /// per-cell checks on every Bresenham cell): the optimised insertion must equal it.
+    fn insert_reference(g: &mut OccupancyGrid, scan: &PlanarScan) -> InsertStats {
+        let origin = g.cell_of(scan.sensor_x_m, scan.sensor_y_m);
+        let mut marks: BTreeMap<Cell, u8> = BTreeMap::new();
+        for p in &scan.points {
+            let end = g.cell_of(p.x_m, p.y_m);
+            let margin = if p.hit { g.free_margin_cells } else { 0 };
+            let (clear_end, partial) = if p.free_to < 1.0 {
+                let t = f64::from(p.free_to.max(0.0));
+                let x = scan.sensor_x_m + t * (p.x_m - scan.sensor_x_m);
+                let y = scan.sensor_y_m + t * (p.y_m - scan.sensor_y_m);
+                (g.cell_of(x, y), true)
+            } else {
+                (end, false)
+            };
+            bresenham(origin, clear_end, |c| {
+                if (c.i - end.i).abs().max((c.j - end.j).abs()) <= margin
+                    || (partial && c == clear_end)
+                {
+                    return;
+                }
+                let m = marks.entry(c).or_insert(1);
+                *m = (*m).max(1);
+            });
+            let m = marks.entry(end).or_insert(0);
+            *m = (*m).max(if p.hit { 2 } else { 1 });
+        }
+        let f = g.fixed;
+        let mut stats = InsertStats {
+            rays: scan.points.len(),
+            ..InsertStats::default()
+        };
+        for (c, m) in marks {
+            let delta = if m == 2 {
+                stats.occupied_cells += 1;
+                f.hit
+            } else {
+                stats.free_cells += 1;
+                f.miss
+            };
+            let v = g.logodds_fixed(c);
+            g.set_fixed(c, f.apply(v, delta)).unwrap();
+        }
+        stats
+    }
+
+    #[test]
+    fn optimised_insertion_equals_the_plain_rule() {
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(11);
+        for case in 0..40 {
+            let res = [0.05, 0.1, 0.37, 1.0][case % 4];
+            let opts = MapOptions {
+                resolution_m: res,
+                free_margin_m: [0.0, 0.0, 0.2, 1.0][(case / 4) % 4],
+                ..MapOptions::default()
+            };
+            let mut fast = OccupancyGrid::new(&opts).unwrap();
+            let mut slow = OccupancyGrid::new(&opts).unwrap();
+            let mut scratch = InsertScratch::new();
+            for _ in 0..4 {
+                let (sx, sy) = (rng.random_range(-30.0..30.0), rng.random_range(-30.0..30.0));
+                let range_max = rng.random_range(0.5..40.0);
+                let points = (0..rng.random_range(0..200))
+                    .map(|_| {
+                        let a = rng.random_range(-3.2..3.2f64);
+                        let r = rng.random_range(0.0..range_max);
+                        ScanPoint {
+                            x_m: sx + r * a.cos(),
+                            y_m: sy + r * a.sin(),
+                            hit: rng.random_range(0..5) > 0,
+                            free_to: if rng.random_range(0..3) == 0 {
+                                rng.random_range(-0.1..1.0)
+                            } else {
+                                1.0
+                            },
+                        }
+                    })
+                    .collect();
+                let scan = PlanarScan {
+                    sensor_x_m: sx,
+                    sensor_y_m: sy,
+                    points,
+                };
+                let a = fast.insert_scan(&scan, &mut scratch).unwrap();
+                let b = insert_reference(&mut slow, &scan);
+                assert_eq!(a, b, "case {case}");
+            }
+            let (ra, rb) = (fast.observed_bounds(), slow.observed_bounds());
+            assert_eq!(ra, rb, "case {case}");
+            if let Some(r) = ra {
+                let (mut va, mut vb) = (Vec::new(), Vec::new());
+                fast.copy_rect_fixed(&r, &mut va);
+                slow.copy_rect_fixed(&r, &mut vb);
+                assert!(va == vb, "case {case}: cells differ");
+            }
+            assert!(
+                scratch.mask.iter().all(|&m| m == MARK_NONE),
+                "mask left dirty"
+            );
         }
     }
 }
