@@ -37,6 +37,9 @@ pub enum Command {
     Run(cmd::run::Args),
     /// SLAM on every Freiburg recording with relations: one accuracy table.
     Benchmark(cmd::benchmark::Args),
+    /// End-to-end speed: simulate the full-size car recording once, then time read -> SLAM
+    /// -> write maps (median of N runs, CPU time, peak memory).
+    BenchE2e(cmd::bench_e2e::Args),
     /// Colour the ground from the car's stereo pairs along a trajectory: texture.png/.npy.
     Texture(cmd::texture::Args),
     /// Print the full default configuration as TOML.
@@ -60,6 +63,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Map(a)) => cmd::map::run(a),
         Some(Command::Texture(a)) => cmd::texture::run(a),
         Some(Command::Benchmark(a)) => cmd::benchmark::run(a),
+        Some(Command::BenchE2e(a)) => cmd::bench_e2e::run(a),
     }
 }
 

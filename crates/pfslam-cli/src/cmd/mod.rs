@@ -1,5 +1,6 @@
 //! One module per subcommand: its clap `Args` and its `run`.
 
+pub mod bench_e2e;
 pub mod benchmark;
 pub mod dataset;
 pub mod dead_reckon;

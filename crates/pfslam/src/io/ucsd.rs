@@ -430,6 +430,62 @@ pub fn read_fog_csv(path: &Path, opts: &ReadOptions) -> Result<Vec<FogSample>, I
     Ok(rows)
 }
 
+/// Exact powers of ten as f64 (10^22 is the largest exactly representable one).
+const POW10: [f64; 23] = [
+    1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15, 1e16,
+    1e17, 1e18, 1e19, 1e20, 1e21, 1e22,
+];
+
+/// Fast path for the common form of a range, `digits[.digits]` (no sign, no exponent):
+/// `(value, bytes used)`, or `None` to leave the field to the general parser. Correctly
+/// rounded, so bit-identical to `fast_float2`: the mantissa (< 2^53) and the power of ten
+/// (<= 10^22) are exact f64s, their quotient is the correctly rounded f64 (Clinger's fast
+/// path), and rounding that to f32 is the correctly rounded f32 unless the f64 lies exactly
+/// halfway between two f32s (then double rounding could differ: the general parser decides).
+/// Mantissas below 2^24 with at most 10 decimals take the same path in f32 directly.
+#[inline(always)]
+fn parse_plain_decimal_f32(s: &[u8]) -> Option<(f32, usize)> {
+    let mut pos = 0;
+    let mut mantissa: u64 = 0;
+    while pos < s.len() && s[pos].is_ascii_digit() {
+        mantissa = mantissa * 10 + u64::from(s[pos] - b'0');
+        pos += 1;
+        if mantissa >= 1 << 53 {
+            return None;
+        }
+    }
+    if pos == 0 {
+        return None;
+    }
+    let mut frac_digits = 0usize;
+    if pos < s.len() && s[pos] == b'.' {
+        pos += 1;
+        while pos < s.len() && s[pos].is_ascii_digit() {
+            mantissa = mantissa * 10 + u64::from(s[pos] - b'0');
+            pos += 1;
+            frac_digits += 1;
+            if mantissa >= 1 << 53 || frac_digits > 22 {
+                return None;
+            }
+        }
+    }
+    // Anything but a field end (an exponent, a second dot, ...) goes to the general parser.
+    if pos < s.len() && !matches!(s[pos], b',' | b' ' | b'\t') {
+        return None;
+    }
+    if mantissa < 1 << 24 && frac_digits <= 10 {
+        // Both exact in f32 too: one (faster) f32 division, correctly rounded.
+        const POW10_F32: [f32; 11] = [1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10];
+        return Some((mantissa as f32 / POW10_F32[frac_digits], pos));
+    }
+    let q = mantissa as f64 / POW10[frac_digits];
+    const BEYOND_F32: u64 = (1 << 29) - 1;
+    if q.to_bits() & BEYOND_F32 == 1 << 28 {
+        return None;
+    }
+    Some((q as f32, pos))
+}
+
 /// Column count of a row (for error messages only).
 fn count_columns(line: &[u8]) -> usize {
     line.iter().filter(|&&b| b == b',').count() + 1
@@ -470,6 +526,21 @@ fn parse_lidar_row(
         let start = pos;
         while pos < len && (line[pos] == b' ' || line[pos] == b'\t') {
             pos += 1;
+        }
+        if let Some((v, used)) = parse_plain_decimal_f32(&line[pos..]) {
+            // The common case: a plain non-negative decimal, then a comma or the end.
+            let after = pos + used;
+            if after == len || line[after] == b',' {
+                if n == beam_count {
+                    return Err(columns_error());
+                }
+                row.push(v);
+                if after == len {
+                    break;
+                }
+                pos = after + 1;
+                continue;
+            }
         }
         let parsed = fast_float2::parse_partial::<f32, _>(&line[pos..]);
         let field_text = || {
@@ -667,6 +738,59 @@ mod tests {
         assert!(parse_int(p, 1, "t", b"1.5").is_err());
         assert!(parse_int(p, 1, "t", b"").is_err());
         assert!(parse_int(p, 1, "t", b"99999999999999999999").is_err());
+    }
+
+    #[test]
+    fn plain_decimal_fast_path_equals_fast_float() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(5);
+        let mut texts: Vec<String> = [
+            "0",
+            "0.0",
+            "1.",
+            "000.5000",
+            "80",
+            "79.99999999999999999999",
+            "1e3",
+            "1.5e-2",
+            "0.1",
+            "16777217",
+            "9007199254740993",
+            "0.00000000000000000000001",
+            "3.4028235e38",
+            "123456789012345678901234",
+            "1.00000005960464477539",
+            "0.000000000000000000000001",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        for _ in 0..200_000 {
+            let v: f32 = rng.random_range(0.0..80.0);
+            texts.push(format!("{v}"));
+            texts.push(format!("{:.3}", rng.random_range(0.0..80.0f64)));
+            texts.push(format!(
+                "{:.*}",
+                rng.random_range(0..14),
+                rng.random_range(0.0..1e4f64)
+            ));
+            // halfway cases between two f32s, written exactly
+            let h = f64::from(v) + f64::from(v.next_up() - v) / 2.0;
+            texts.push(format!("{h}"));
+        }
+        let mut fast = 0;
+        for t in &texts {
+            for tail in ["", ",7", " ,1"] {
+                let s = format!("{t}{tail}");
+                let want = fast_float2::parse_partial::<f32, _>(s.as_bytes()).unwrap();
+                if let Some((v, used)) = parse_plain_decimal_f32(s.as_bytes()) {
+                    fast += 1;
+                    assert_eq!(v.to_bits(), want.0.to_bits(), "{s:?}");
+                    assert_eq!(used, want.1, "{s:?}");
+                }
+            }
+        }
+        assert!(fast > texts.len() * 2, "fast path taken {fast} times");
     }
 
     #[test]

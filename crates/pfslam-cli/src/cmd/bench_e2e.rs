@@ -1,0 +1,344 @@
+//! `pfslam bench-e2e`: the end-to-end speed benchmark (issue 9).
+//!
+//! Simulates the car once (by default the full-size recording: 1160.5 s, 116k LiDAR scans,
+//! 1.16M FOG rows) into a scratch directory, or takes `--dataset`, then times `--runs` times
+//! the whole job as `pfslam run` does it: read the files (CSV parsing, dead reckoning), SLAM,
+//! write the maps (map.png, binary_map.png, map.pgm/.yaml) and the trajectory. Reports per run
+//! and as medians: wall time and CPU time (user + system, all threads) per stage, the SLAM
+//! loop's own stage timings, scans per second, the real-time factor and the peak resident
+//! memory of the run (VmHWM, reset before each run through /proc/self/clear_refs).
+
+use super::dataset::{Dataset, load_dataset};
+use anyhow::Context;
+use pfslam::config::Config;
+use pfslam::filter::slam::{StageTimings, anchor_odometry_to_ground_truth, run_slam};
+use pfslam::geometry::Pose2;
+use pfslam::io::map_files::write_map_server;
+use pfslam::io::tum::write_tum;
+use pfslam::sim::{SimOptions, World};
+use pfslam::viz::map_image::{MapImageOptions, TrajectoryOverlay, write_binary_png, write_map_png};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Arguments of `bench-e2e`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Dataset to time (any `pfslam run` input); default: simulate the car first.
+    #[arg(long)]
+    pub dataset: Option<PathBuf>,
+    /// Length of the simulated drive (s); 1160.5 is the full-size recording.
+    #[arg(long, default_value_t = 1160.5)]
+    pub duration_s: f64,
+    /// Seed of the simulation and of the filter.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Particles (overrides `[filter] particles`).
+    #[arg(long, default_value_t = 100)]
+    pub particles: usize,
+    /// Map resolution (m; overrides `[map] resolution_m`).
+    #[arg(long)]
+    pub resolution: Option<f64>,
+    /// TOML configuration over the defaults.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Timed runs (the median is reported).
+    #[arg(long, default_value_t = 3)]
+    pub runs: usize,
+    /// Where the simulated dataset and the outputs go (kept); default: a scratch directory
+    /// under the system's temporary directory, removed at the end.
+    #[arg(long)]
+    pub work_dir: Option<PathBuf>,
+    /// Also write the medians as JSON to this file.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+/// Wall and CPU seconds of one stage.
+#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+struct Cost {
+    wall_s: f64,
+    cpu_s: f64,
+}
+
+/// One timed run.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+struct RunFigures {
+    load: Cost,
+    slam: Cost,
+    write: Cost,
+    total: Cost,
+    slam_stages: StageTimings,
+    peak_rss_mb: Option<f64>,
+}
+
+/// CPU seconds (user + system, all threads) of this process so far; `None` off Linux.
+fn process_cpu_s() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which may contain spaces) start at state (field 3);
+    // utime and stime are fields 14 and 15, in clock ticks (100 per second on Linux).
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    let utime: f64 = fields.get(11)?.parse().ok()?;
+    let stime: f64 = fields.get(12)?.parse().ok()?;
+    Some((utime + stime) / 100.0)
+}
+
+/// Peak resident set size (MB) since the last reset; `None` off Linux.
+fn peak_rss_mb() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+/// Resets the peak RSS to the current RSS (Linux >= 4.0); false when unsupported.
+fn reset_peak_rss() -> bool {
+    std::fs::write("/proc/self/clear_refs", "5").is_ok()
+}
+
+/// Times `f`: wall and process CPU seconds.
+fn timed<T>(f: impl FnOnce() -> anyhow::Result<T>) -> anyhow::Result<(T, Cost)> {
+    let (t, c) = (Instant::now(), process_cpu_s());
+    let v = f()?;
+    let cost = Cost {
+        wall_s: t.elapsed().as_secs_f64(),
+        cpu_s: match (c, process_cpu_s()) {
+            (Some(a), Some(b)) => b - a,
+            _ => f64::NAN,
+        },
+    };
+    Ok((v, cost))
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    match v.len() {
+        0 => f64::NAN,
+        n if n % 2 == 1 => v[n / 2],
+        n => 0.5 * (v[n / 2 - 1] + v[n / 2]),
+    }
+}
+
+/// One run: read, SLAM, write.
+fn one_run(dataset: &Path, config: &Config, seed: u64, out: &Path) -> anyhow::Result<RunFigures> {
+    let rss_reset = reset_peak_rss();
+    let t_all = (Instant::now(), process_cpu_s());
+    let (mut recording, load) = timed(|| {
+        let Dataset { recording, .. } = load_dataset(dataset, config, false)
+            .with_context(|| format!("loading {}", dataset.display()))?;
+        Ok(recording)
+    })?;
+    anchor_odometry_to_ground_truth(&mut recording);
+    let (result, slam) = timed(|| Ok(run_slam(&recording, config, seed, &mut |_| {})?))?;
+    let ((), write) = timed(|| {
+        std::fs::create_dir_all(out)?;
+        write_tum(&out.join("trajectory.tum"), &result.trajectory)?;
+        let poses: Vec<Pose2> = result.trajectory.iter().map(|p| p.pose).collect();
+        let overlay = [TrajectoryOverlay {
+            label: "SLAM",
+            poses: &poses,
+        }];
+        write_map_png(
+            &out.join("map.png"),
+            &result.map,
+            &overlay,
+            None,
+            &MapImageOptions::default(),
+        )?;
+        write_binary_png(&out.join("binary_map.png"), &result.map, None)?;
+        write_map_server(&result.map.to_binary_map(None), &out.join("map.yaml"))?;
+        Ok(())
+    })?;
+    let total = Cost {
+        wall_s: t_all.0.elapsed().as_secs_f64(),
+        cpu_s: match (t_all.1, process_cpu_s()) {
+            (Some(a), Some(b)) => b - a,
+            _ => f64::NAN,
+        },
+    };
+    Ok(RunFigures {
+        load,
+        slam,
+        write,
+        total,
+        slam_stages: result.stats.timings,
+        peak_rss_mb: if rss_reset { peak_rss_mb() } else { None },
+    })
+}
+
+/// Runs the benchmark.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let mut config = match &args.config {
+        Some(p) => Config::from_toml_file(p)?,
+        None => Config::default(),
+    };
+    config.filter.particles = args.particles;
+    if let Some(r) = args.resolution {
+        config.map.resolution_m = r;
+    }
+    config.filter.validate()?;
+    config.motion.validate()?;
+    config.map.validate().map_err(anyhow::Error::msg)?;
+    if args.runs == 0 {
+        anyhow::bail!("--runs must be at least 1");
+    }
+    let (work, scratch) = match &args.work_dir {
+        Some(d) => (d.clone(), false),
+        None => (
+            std::env::temp_dir().join(format!("pfslam-bench-e2e-{}", std::process::id())),
+            true,
+        ),
+    };
+    let result = bench(&args, &config, &work);
+    if scratch {
+        // Best effort: a leftover scratch directory is not worth failing the benchmark for.
+        let _ = std::fs::remove_dir_all(&work);
+    }
+    result
+}
+
+fn bench(args: &Args, config: &Config, work: &Path) -> anyhow::Result<()> {
+    let dataset = match &args.dataset {
+        Some(d) => d.clone(),
+        None => {
+            let opts = SimOptions {
+                duration_s: args.duration_s,
+                seed: args.seed,
+                ..config.sim.clone()
+            };
+            opts.validate()?;
+            let world = World::from_name_or_file(opts.world_name())?;
+            let dir = work.join("dataset");
+            let t = Instant::now();
+            let out = pfslam::sim::simulate_car(&world, &opts)?;
+            pfslam::sim::write_car_sim(&dir, &out)
+                .with_context(|| format!("writing {}", dir.display()))?;
+            println!(
+                "simulated {:.1} s ({} scans, {} FOG rows) into {} in {:.1} s (not timed below)",
+                opts.duration_s,
+                out.dataset.lidar.len(),
+                out.dataset.fog.len(),
+                dir.display(),
+                t.elapsed().as_secs_f64()
+            );
+            dir
+        }
+    };
+    let input_mb = input_bytes(&dataset) as f64 / 1e6;
+    let mut runs = Vec::with_capacity(args.runs);
+    let mut scans = 0usize;
+    let mut span_s = 0.0;
+    for k in 0..args.runs {
+        let out = work.join(format!("out_{k}"));
+        let r = one_run(&dataset, config, args.seed, &out)?;
+        if k == 0 {
+            // Scan count and recording length, for rates (from the trajectory written).
+            let traj = pfslam::io::tum::read_tum(&out.join("trajectory.tum"))?;
+            scans = traj.poses.len();
+            if let (Some(a), Some(b)) = (traj.poses.first(), traj.poses.last()) {
+                span_s = (b.stamp_ns - a.stamp_ns) as f64 * 1e-9;
+            }
+        }
+        println!(
+            "run {}: total {:.2} s wall / {:.2} s CPU; load {:.2} / {:.2}, SLAM {:.2} / {:.2} \
+             (match {:.2}, map {:.2}, predict {:.2}), write {:.2} / {:.2}; peak RSS {}",
+            k + 1,
+            r.total.wall_s,
+            r.total.cpu_s,
+            r.load.wall_s,
+            r.load.cpu_s,
+            r.slam.wall_s,
+            r.slam.cpu_s,
+            r.slam_stages.correlate_s,
+            r.slam_stages.map_update_s,
+            r.slam_stages.predict_s,
+            r.write.wall_s,
+            r.write.cpu_s,
+            r.peak_rss_mb
+                .map_or("n/a".to_string(), |m| format!("{m:.0} MB"))
+        );
+        runs.push(r);
+    }
+    let med = |f: &dyn Fn(&RunFigures) -> f64| median(runs.iter().map(f).collect());
+    let total_wall = med(&|r| r.total.wall_s);
+    let slam_wall = med(&|r| r.slam.wall_s);
+    let summary = serde_json::json!({
+        "dataset": dataset.display().to_string(),
+        "input_mb": input_mb,
+        "scans": scans,
+        "recording_s": span_s,
+        "particles": config.filter.particles,
+        "resolution_m": config.map.resolution_m,
+        "mode": config.filter.mode,
+        "runs": runs.len(),
+        "threads": threads(),
+        "median": {
+            "total_wall_s": total_wall,
+            "total_cpu_s": med(&|r| r.total.cpu_s),
+            "load_wall_s": med(&|r| r.load.wall_s),
+            "load_cpu_s": med(&|r| r.load.cpu_s),
+            "slam_wall_s": slam_wall,
+            "slam_cpu_s": med(&|r| r.slam.cpu_s),
+            "match_wall_s": med(&|r| r.slam_stages.correlate_s),
+            "map_update_wall_s": med(&|r| r.slam_stages.map_update_s),
+            "predict_wall_s": med(&|r| r.slam_stages.predict_s),
+            "write_wall_s": med(&|r| r.write.wall_s),
+            "peak_rss_mb": med(&|r| r.peak_rss_mb.unwrap_or(f64::NAN)),
+            "scans_per_s": scans as f64 / slam_wall,
+            "real_time_factor": span_s / total_wall,
+        },
+        "runs_figures": runs,
+    });
+    let m = &summary["median"];
+    let f = |k: &str| m[k].as_f64().unwrap_or(f64::NAN);
+    println!(
+        "median of {} runs ({} scans, {} particles, {} m cells, {:.0} MB input, {} threads): \
+         total {:.2} s wall / {:.2} s CPU (load {:.2}, SLAM {:.2}, write {:.2} s wall), \
+         {:.0} scans/s, {:.1}x real time, peak RSS {:.0} MB",
+        runs.len(),
+        scans,
+        config.filter.particles,
+        config.map.resolution_m,
+        input_mb,
+        threads(),
+        total_wall,
+        f("total_cpu_s"),
+        f("load_wall_s"),
+        slam_wall,
+        f("write_wall_s"),
+        f("scans_per_s"),
+        f("real_time_factor"),
+        f("peak_rss_mb"),
+    );
+    if let Some(p) = &args.json {
+        let text = serde_json::to_string_pretty(&summary)?;
+        pfslam::io::write_bytes_atomic(p, text.as_bytes())?;
+    }
+    Ok(())
+}
+
+/// Worker threads available (rayon's default pool uses one per logical CPU).
+fn threads() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+/// Bytes of the input: a file's size, or the sizes of a directory's files (recursively).
+fn input_bytes(path: &Path) -> u64 {
+    if path.is_file() {
+        return std::fs::metadata(path).map_or(0, |m| m.len());
+    }
+    let Ok(entries) = std::fs::read_dir(path) else {
+        return 0;
+    };
+    entries
+        .flatten()
+        .map(|e| {
+            let p = e.path();
+            if p.is_dir() {
+                input_bytes(&p)
+            } else {
+                e.metadata().map_or(0, |m| m.len())
+            }
+        })
+        .sum()
+}
