@@ -1,5 +1,8 @@
 //! The correlation search (9x9 cells x 3 yaws) of one scan for one particle and for a set of
-//! particles in parallel, against a grid built from simulated car scans.
+//! particles in parallel, against a grid built from simulated car scans (the `seed` mode);
+//! and the default `scan_match` mode's kernels: the likelihood field's build, one particle's
+//! match (7x7 cells x 7 yaws, then the sub-cell refinement), and the update of 40 / 100
+//! particles in parallel.
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use pfslam::config::Config;
@@ -62,6 +65,76 @@ fn bench(c: &mut Criterion) {
                 })
             },
         );
+    }
+    g.finish();
+    scan_match(c);
+}
+
+fn scan_match(c: &mut Criterion) {
+    use pfslam::filter::scanmatch::{LikelihoodField, MatchScratch, match_points, match_scan};
+    let opts = SimOptions {
+        duration_s: 8.0,
+        ..SimOptions::default()
+    };
+    let world = World::builtin(opts.world_name()).expect("campus");
+    let out = simulate_car(&world, &opts).expect("simulation");
+    let config = Config::default();
+    let rec = pfslam::motion::car_recording(&out.dataset, &config.motion, "bench").expect("rec");
+    let proj = ScanProjector::new(&rec.lidar, &rec.body_from_lidar, &config.map.scan).expect("p");
+    let mut grid = OccupancyGrid::new(&config.map).expect("grid");
+    let (mut body, mut world_scan) = (PlanarScan::default(), PlanarScan::default());
+    let mut ins = InsertScratch::new();
+    let n = rec.scans.len();
+    for k in 0..n - 1 {
+        proj.to_body(rec.scans.ranges(k), &mut body).expect("scan");
+        to_world(&body, &out.ground_truth[k].pose, &mut world_scan);
+        grid.insert_scan(&world_scan, &mut ins).expect("insert");
+    }
+    proj.to_body(rec.scans.ranges(n - 1), &mut body)
+        .expect("scan");
+    let sm = &config.filter.scan_match;
+    let mut pts = Vec::new();
+    match_points(&body, sm.match_range_max_m, sm.beam_decimation, &mut pts);
+    let pose = out.ground_truth[n - 1].pose;
+    // The window the SLAM loop would use for particles within a few cells of the pose.
+    let limits = *grid.limits();
+    let c0 = limits.cell_of(pose.x_m, pose.y_m);
+    let mut rect = pfslam::map::CellRect::around(c0);
+    for p in &pts {
+        let (x, y) = pose.transform_point(p[0], p[1]);
+        rect = rect.union(&pfslam::map::CellRect::around(limits.cell_of(x, y)));
+    }
+    let rect = rect.expanded(sm.xy_search_radius_cells as i32 + 4);
+    let params = sm.params(config.map.resolution_m);
+    let mut field = LikelihoodField::new();
+    let mut g = c.benchmark_group("scan_match");
+    g.bench_function(
+        format!("field_build_{}x{}", rect.width(), rect.height()),
+        |b| b.iter(|| field.build(&grid, &rect, sm.field_sigma_m, sm.unknown_value)),
+    );
+    let mut scratch = MatchScratch::default();
+    // A prediction 12 cm and 0.3 deg off, as after an odometry step.
+    let predicted =
+        pfslam::geometry::Pose2::new(pose.x_m + 0.09, pose.y_m - 0.08, pose.yaw_rad + 0.005);
+    g.bench_function(format!("one_particle_{}_points", pts.len()), |b| {
+        b.iter(|| {
+            black_box(match_scan(
+                &field,
+                black_box(&pts),
+                &predicted,
+                &params,
+                &mut scratch,
+            ))
+        })
+    });
+    for particles in [40usize, 100] {
+        let mut pf = ParticleFilter::new(particles, predicted, 1);
+        g.bench_with_input(BenchmarkId::new("update", particles), &particles, |b, _| {
+            b.iter(|| {
+                pf.particles.poses.fill(predicted);
+                black_box(pf.scan_match_update(&field, &pts, &params, sm.weight_temperature))
+            })
+        });
     }
     g.finish();
 }

@@ -32,9 +32,9 @@ pub struct Args {
     /// Seed of the simulation and of the filter.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Particles (overrides `[filter] particles`).
-    #[arg(long, default_value_t = 100)]
-    pub particles: usize,
+    /// Particles (overrides `[filter] particles`; the full-size figure uses 100).
+    #[arg(long)]
+    pub particles: Option<usize>,
     /// Map resolution (m; overrides `[map] resolution_m`).
     #[arg(long)]
     pub resolution: Option<f64>,
@@ -172,7 +172,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(p) => Config::from_toml_file(p)?,
         None => Config::default(),
     };
-    config.filter.particles = args.particles;
+    if let Some(n) = args.particles {
+        config.filter.particles = n;
+    }
     if let Some(r) = args.resolution {
         config.map.resolution_m = r;
     }
@@ -308,6 +310,20 @@ fn bench(args: &Args, config: &Config, work: &Path) -> anyhow::Result<()> {
         f("write_wall_s"),
         f("scans_per_s"),
         f("real_time_factor"),
+        f("peak_rss_mb"),
+    );
+    // One markdown row for tables (scripts/scaling.sh collects them).
+    println!(
+        "row: | {} | {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.0} | {:.0} |",
+        scans,
+        config.filter.particles,
+        config.map.resolution_m,
+        total_wall,
+        f("total_cpu_s"),
+        slam_wall,
+        f("slam_cpu_s"),
+        f("match_wall_s"),
+        f("scans_per_s"),
         f("peak_rss_mb"),
     );
     if let Some(p) = &args.json {

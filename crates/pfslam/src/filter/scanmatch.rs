@@ -160,6 +160,9 @@ pub struct MatchParams {
     pub refine_levels: u32,
 }
 
+/// Zero bytes kept after a field's cells (never read as cells).
+const FIELD_PAD: usize = 8;
+
 /// A window of the likelihood field (see the module docs), in the map's cell frame.
 #[derive(Debug, Clone, Default)]
 pub struct LikelihoodField {
@@ -245,6 +248,8 @@ impl LikelihoodField {
                 }
             }
         }
+        // Spare bytes after the last cell: the coarse search loads whole 8-byte rows.
+        self.values.extend_from_slice(&[0; FIELD_PAD]);
     }
 
     /// Field value of a cell (0 outside the window).
@@ -371,6 +376,35 @@ fn coarse_sums<const S: usize>(values: &[u8], w: usize, base: &[usize], sums: &m
     }
 }
 
+/// [`coarse_sums`] for sides up to 8, in SWAR: each row of the block is one 8-byte load
+/// (the field keeps 8 spare bytes after its last cell), split into even and odd bytes as four
+/// u16 lanes each and added to two u64 accumulators per row. Lanes cannot carry into each
+/// other within blocks of 257 points (257 * 255 = 65535); lanes beyond `S` hold bytes right
+/// of the block and are ignored.
+fn coarse_sums_swar<const S: usize>(values: &[u8], w: usize, base: &[usize], sums: &mut [u32]) {
+    const EVEN: u64 = 0x00ff_00ff_00ff_00ff;
+    for block in base.chunks(257) {
+        let mut even = [0u64; S];
+        let mut odd = [0u64; S];
+        for &b in block {
+            for oy in 0..S {
+                let Some(bytes) = values[b + oy * w..].first_chunk::<8>() else {
+                    continue;
+                };
+                let x = u64::from_le_bytes(*bytes);
+                even[oy] = even[oy].wrapping_add(x & EVEN);
+                odd[oy] = odd[oy].wrapping_add((x >> 8) & EVEN);
+            }
+        }
+        for (oy, sum_row) in sums.chunks_exact_mut(S).enumerate() {
+            for (ox, s) in sum_row.iter_mut().enumerate() {
+                let lanes = if ox % 2 == 0 { even[oy] } else { odd[oy] };
+                *s += ((lanes >> (16 * (ox / 2))) & 0xffff) as u32;
+            }
+        }
+    }
+}
+
 /// [`coarse_sums`] for any side.
 fn coarse_sums_any(values: &[u8], w: usize, side: usize, base: &[usize], sums: &mut [u32]) {
     for &b in base {
@@ -429,9 +463,9 @@ pub fn match_scan(
         let sums = &mut scratch.sums[..];
         match side {
             // Fixed sides: the accumulators live in registers.
-            3 => coarse_sums::<3>(values, fw, base, sums),
-            5 => coarse_sums::<5>(values, fw, base, sums),
-            7 => coarse_sums::<7>(values, fw, base, sums),
+            3 => coarse_sums_swar::<3>(values, fw, base, sums),
+            5 => coarse_sums_swar::<5>(values, fw, base, sums),
+            7 => coarse_sums_swar::<7>(values, fw, base, sums),
             9 => coarse_sums::<9>(values, fw, base, sums),
             11 => coarse_sums::<11>(values, fw, base, sums),
             _ => coarse_sums_any(values, fw, side, base, sums),
