@@ -315,6 +315,8 @@ impl LikelihoodField {
 #[derive(Debug, Clone, Default)]
 pub struct MatchScratch {
     base: Vec<usize>,
+    /// Refinement: the points rotated by the current yaw.
+    rotated: Vec<[f64; 4]>,
     /// Coarse search: field sums per x/y offset for one yaw.
     sums: Vec<u32>,
 }
@@ -334,23 +336,64 @@ fn prior_penalty(p: &MatchParams, dx: f64, dy: f64, dyaw: f64) -> f64 {
     0.5 * ((dx * dx + dy * dy) * p.inv_var_xy + dyaw * dyaw * p.inv_var_yaw)
 }
 
-/// Sum of bilinear field values of `points_body` seen from `pose`.
-fn field_sum(
-    field: &LikelihoodField,
-    limits: &MapLimits,
-    points: &[[f64; 2]],
-    pose: &Pose2,
-) -> f64 {
-    let (s, c) = pose.yaw_rad.sin_cos();
-    // The same left-to-right fold as `Iterator::sum` for f64 (which starts at -0.0).
-    let mut sum = -0.0;
-    for p in points {
-        let x = pose.x_m + c * p[0] - s * p[1];
-        let y = pose.y_m + s * p[0] + c * p[1];
-        let (u, v) = limits.cell_coords(x, y);
-        sum += field.bilinear(u, v);
+/// The body-frame points rotated by one yaw, `(c x, s y, s x, c y)` per point, kept while the
+/// refinement moves in x and y only: the products are those `field_sum` would compute, so
+/// the sums are bit-identical.
+struct RotatedPoints {
+    yaw_bits: Option<u64>,
+    points: Vec<[f64; 4]>,
+}
+
+impl RotatedPoints {
+    fn take(buf: &mut Vec<[f64; 4]>) -> Self {
+        RotatedPoints {
+            yaw_bits: None,
+            points: std::mem::take(buf),
+        }
     }
-    sum
+
+    /// Sum of bilinear field values of `points_body` seen from `pose`; the same left-to-right
+    /// fold as `Iterator::sum` for f64 (which starts at -0.0). `keep`: cache this yaw's
+    /// rotation (the yaw the x/y moves will reuse).
+    fn field_sum(
+        &mut self,
+        field: &LikelihoodField,
+        limits: &MapLimits,
+        points_body: &[[f64; 2]],
+        pose: &Pose2,
+        keep: bool,
+    ) -> f64 {
+        let (s, c) = pose.yaw_rad.sin_cos();
+        if self.yaw_bits != Some(pose.yaw_rad.to_bits()) {
+            if !keep {
+                // A one-off yaw (a yaw candidate): not worth caching.
+                let mut sum = -0.0;
+                for p in points_body {
+                    let x = pose.x_m + c * p[0] - s * p[1];
+                    let y = pose.y_m + s * p[0] + c * p[1];
+                    let (u, v) = limits.cell_coords(x, y);
+                    sum += field.bilinear(u, v);
+                }
+                return sum;
+            }
+            self.points.clear();
+            self.points.extend(
+                points_body
+                    .iter()
+                    .map(|p| [c * p[0], s * p[1], s * p[0], c * p[1]]),
+            );
+            self.yaw_bits = Some(pose.yaw_rad.to_bits());
+        }
+        let mut sum = -0.0;
+        for r in &self.points {
+            // Evaluated as `pose.x_m + c * p[0] - s * p[1]` is: left to right.
+            let x = pose.x_m + r[0] - r[1];
+            let y = pose.y_m + r[2] + r[3];
+            let (u, v) = limits.cell_coords(x, y);
+            sum += field.bilinear(u, v);
+        }
+        sum
+    }
 }
 
 /// Adds, for every base index `b`, the `S x S` block of `values` (row stride `w`) at `b` to
@@ -485,24 +528,28 @@ pub fn match_scan(
     let mut dx = f64::from(best.1) * res;
     let mut dy = f64::from(best.2) * res;
     let mut dyaw = best.3;
-    let eval = |dx: f64, dy: f64, dyaw: f64| {
+    let mut rot = RotatedPoints::take(&mut scratch.rotated);
+    let mut eval = |dx: f64, dy: f64, dyaw: f64, keep: bool| {
         let pose = Pose2::new(
             predicted.x_m + dx,
             predicted.y_m + dy,
             predicted.yaw_rad + dyaw,
         );
-        let sum = field_sum(field, &limits, points_body, &pose);
+        let sum = rot.field_sum(field, &limits, points_body, &pose, keep);
         (
             params.gain_per_unit * sum - prior_penalty(params, dx, dy, dyaw),
             sum,
         )
     };
-    let (mut obj, mut sum) = eval(dx, dy, dyaw);
+    let (mut obj, mut sum) = eval(dx, dy, dyaw, true);
     // Refinement: pattern search with step halving on the interpolated field.
     let mut step_xy = 0.5 * res;
     let mut step_yaw = 0.5 * params.yaw_step_rad;
     let mut level = 0;
     let mut iterations = 0;
+    // The position the last move came from: its objective is below the current one, so a
+    // candidate that lands exactly (bit for bit) on it cannot win and is not evaluated.
+    let mut previous: Option<[u64; 3]> = None;
     while level < params.refine_levels && iterations < 64 {
         iterations += 1;
         let mut moved = None;
@@ -514,13 +561,18 @@ pub fn match_scan(
             (0.0, 0.0, step_yaw),
             (0.0, 0.0, -step_yaw),
         ] {
-            let cand = eval(dx + ex, dy + ey, dyaw + eyaw);
+            let at = [dx + ex, dy + ey, dyaw + eyaw];
+            if previous == Some(at.map(f64::to_bits)) {
+                continue;
+            }
+            let cand = eval(at[0], at[1], at[2], eyaw == 0.0);
             if cand.0 > moved.map_or(obj, |m: (f64, f64, f64, f64, f64)| m.0) {
-                moved = Some((cand.0, cand.1, dx + ex, dy + ey, dyaw + eyaw));
+                moved = Some((cand.0, cand.1, at[0], at[1], at[2]));
             }
         }
         match moved {
             Some((o, s, x, y, a)) => {
+                previous = Some([dx, dy, dyaw].map(f64::to_bits));
                 obj = o;
                 sum = s;
                 dx = x;
@@ -534,6 +586,7 @@ pub fn match_scan(
             }
         }
     }
+    scratch.rotated = rot.points;
     MatchResult {
         pose: Pose2::new(
             predicted.x_m + dx,
