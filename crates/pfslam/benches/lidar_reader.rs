@@ -7,45 +7,13 @@
 //! the cores; the target is per core, so the CPU figure is the one to quote on a
 //! busy machine.
 
-use criterion::measurement::{Measurement, ValueFormatter, WallTime};
+mod cpu_time;
+
+use cpu_time::ThreadCpuTime;
+use criterion::measurement::Measurement;
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use pfslam::io::ucsd::{ReadOptions, read_fog_csv, read_lidar_csv, write_fog_csv, write_lidar_csv};
 use pfslam::sensors::{FogSample, ScanSet};
-
-/// CPU time of the calling thread (ns), from the scheduler's statistics.
-struct ThreadCpuTime;
-
-fn thread_cpu_ns() -> u64 {
-    std::fs::read_to_string("/proc/thread-self/schedstat")
-        .ok()
-        .and_then(|s| s.split_whitespace().next()?.parse().ok())
-        .unwrap_or(0)
-}
-
-impl Measurement for ThreadCpuTime {
-    type Intermediate = u64;
-    type Value = u64;
-    fn start(&self) -> u64 {
-        thread_cpu_ns()
-    }
-    fn end(&self, i: u64) -> u64 {
-        thread_cpu_ns().saturating_sub(i)
-    }
-    fn add(&self, a: &u64, b: &u64) -> u64 {
-        a + b
-    }
-    fn zero(&self) -> u64 {
-        0
-    }
-    fn to_f64(&self, v: &u64) -> f64 {
-        *v as f64
-    }
-    fn formatter(&self) -> &dyn ValueFormatter {
-        // Nanoseconds, like wall time.
-        static WALL: WallTime = WallTime;
-        WALL.formatter()
-    }
-}
 
 fn xorshift(state: &mut u64) -> u64 {
     *state ^= *state << 13;
