@@ -39,6 +39,7 @@ fn unknown_subcommand_exits_2() {
     assert_eq!(out.status.code(), Some(2));
 }
 
+mod cli_bench_e2e;
 mod cli_benchmark;
 mod cli_data;
 mod cli_demo;

@@ -9,35 +9,42 @@ use pfslam::config::Config;
 use pfslam::filter::correlate::{CorrelationScratch, best_match};
 use pfslam::filter::slam::BestParticleMap;
 use pfslam::filter::{ParticleFilter, SharedMap};
+use pfslam::geometry::Pose2;
 use pfslam::map::{InsertScratch, OccupancyGrid, PlanarScan, ScanProjector, to_world};
 use pfslam::sim::{SimOptions, World, simulate_car};
 use std::hint::black_box;
 
-fn bench(c: &mut Criterion) {
+/// An 8 s simulated drive mapped with the true poses (every `step`-th scan but the last)
+/// with `config`; returns the grid, the last scan in the body frame and the true last pose.
+fn mapped_drive(config: &Config, step: usize) -> (OccupancyGrid, PlanarScan, Pose2) {
     let opts = SimOptions {
         duration_s: 8.0,
         ..SimOptions::default()
     };
     let world = World::builtin(opts.world_name()).expect("campus");
     let out = simulate_car(&world, &opts).expect("simulation");
-    let mut config = Config::default();
-    config.map.scan.z_min_m = Some(0.5);
     let rec = pfslam::motion::car_recording(&out.dataset, &config.motion, "bench").expect("rec");
     let proj = ScanProjector::new(&rec.lidar, &rec.body_from_lidar, &config.map.scan).expect("p");
     let mut grid = OccupancyGrid::new(&config.map).expect("grid");
     let (mut body, mut world_scan) = (PlanarScan::default(), PlanarScan::default());
     let mut ins = InsertScratch::new();
     let n = rec.scans.len();
-    for k in (0..n - 1).step_by(5) {
+    for k in (0..n - 1).step_by(step) {
         proj.to_body(rec.scans.ranges(k), &mut body).expect("scan");
         to_world(&body, &out.ground_truth[k].pose, &mut world_scan);
         grid.insert_scan(&world_scan, &mut ins).expect("insert");
     }
     proj.to_body(rec.scans.ranges(n - 1), &mut body)
         .expect("scan");
+    (grid, body, out.ground_truth[n - 1].pose)
+}
+
+fn bench(c: &mut Criterion) {
+    let mut config = Config::default();
+    config.map.scan.z_min_m = Some(0.5);
+    let (grid, body, pose) = mapped_drive(&config, 5);
     let mut hits = Vec::new();
     pfslam::filter::correlate::hit_points(&body, &mut hits);
-    let pose = out.ground_truth[n - 1].pose;
     let search = config.filter.search();
     let mut g = c.benchmark_group("correlate");
     let mut scratch = CorrelationScratch::default();
@@ -72,30 +79,11 @@ fn bench(c: &mut Criterion) {
 
 fn scan_match(c: &mut Criterion) {
     use pfslam::filter::scanmatch::{LikelihoodField, MatchScratch, match_points, match_scan};
-    let opts = SimOptions {
-        duration_s: 8.0,
-        ..SimOptions::default()
-    };
-    let world = World::builtin(opts.world_name()).expect("campus");
-    let out = simulate_car(&world, &opts).expect("simulation");
     let config = Config::default();
-    let rec = pfslam::motion::car_recording(&out.dataset, &config.motion, "bench").expect("rec");
-    let proj = ScanProjector::new(&rec.lidar, &rec.body_from_lidar, &config.map.scan).expect("p");
-    let mut grid = OccupancyGrid::new(&config.map).expect("grid");
-    let (mut body, mut world_scan) = (PlanarScan::default(), PlanarScan::default());
-    let mut ins = InsertScratch::new();
-    let n = rec.scans.len();
-    for k in 0..n - 1 {
-        proj.to_body(rec.scans.ranges(k), &mut body).expect("scan");
-        to_world(&body, &out.ground_truth[k].pose, &mut world_scan);
-        grid.insert_scan(&world_scan, &mut ins).expect("insert");
-    }
-    proj.to_body(rec.scans.ranges(n - 1), &mut body)
-        .expect("scan");
+    let (grid, body, pose) = mapped_drive(&config, 1);
     let sm = &config.filter.scan_match;
     let mut pts = Vec::new();
     match_points(&body, sm.match_range_max_m, sm.beam_decimation, &mut pts);
-    let pose = out.ground_truth[n - 1].pose;
     // The window the SLAM loop would use for particles within a few cells of the pose.
     let limits = *grid.limits();
     let c0 = limits.cell_of(pose.x_m, pose.y_m);
