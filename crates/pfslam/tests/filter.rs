@@ -488,6 +488,10 @@ fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> 
     let truth = out.true_map.to_binary_map();
     if std::env::var("PF_GTMAP").is_ok() {
         let gt_traj = pfslam::geometry::Trajectory::new(gt.clone());
+        let (g, _, _) = pfslam::map::map_with_poses(&rec, &gt_traj, &config.map).unwrap();
+        let c = out.scan_truth.compare(&g.to_binary_map(None), 1).unwrap();
+        eprintln!("GT-POSE MAP vs scan-surface truth: {c}");
+        let gt_traj = pfslam::geometry::Trajectory::new(gt.clone());
         let mut mo = config.map.clone();
         mo.scan_step = config.filter.update_every_scans;
         let (g, _, _) = pfslam::map::map_with_poses(&rec, &gt_traj, &mo).unwrap();
@@ -548,7 +552,7 @@ fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> 
         }
     }
     let est = result.map.to_binary_map(None);
-    let cmp = pfslam::map::compare_maps(&est, &truth, 1).unwrap();
+    let cmp = out.scan_truth.compare(&est, 1).unwrap();
     SimRun {
         slam_ate_m: ate_rmse(&result.trajectory, gt),
         dr_ate_m: ate_rmse(&result.dead_reckoning, gt),
