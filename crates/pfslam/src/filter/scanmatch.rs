@@ -57,15 +57,20 @@ pub struct ScanMatchOptions {
     /// Standard deviation of the yaw sampled around the match (deg).
     pub proposal_sigma_yaw_deg: f64,
     /// Cells at least this likely occupied are walls of the likelihood field (0 = the map's
-    /// own `occupied_prob`). Lower than the map's threshold so a surface first seen one or
-    /// two scans ago already attracts points: held at 0 (observed, not yet occupied) it
-    /// repels them towards the unknown beyond, a drift along the street at every frontier.
+    /// own `occupied_prob`, the default). Lower, a surface first seen one or two scans ago
+    /// attracts points at once (held at 0, observed but not yet occupied, it repels them
+    /// towards the unknown beyond); but contested cells (canopy undersides, car roofs seen
+    /// at one height and passed at another) join too: 0.6 gave 0.53 m ATE on the default
+    /// drive (seed 1) against 0.18 m, 0.97 0.24 m, 0.995 diverged.
     pub field_occupied_prob: f64,
     /// An update needs at least this much travel (m) or turn (10 x this, deg) since the
     /// previous one; otherwise the scan is only mapped at the odometry pose (0 = update
     /// every `update_every_scans` scans regardless). Standing still, matching a scan
     /// against copies of itself only walks the pose: the simulated car's 2 s standstill
-    /// moved it 6 cm and 0.14 deg before it started.
+    /// moved it 6 cm and 0.14 deg before it started. Not the default: with 0.05 the default
+    /// drive's ATE RMSE over filter seeds 1-5 was 0.143 / 0.269 / 0.632 / 0.272 / 0.179 m
+    /// against 0.183 / 0.223 / 0.304 / 0.316 / 0.258 m without (noise-dominated), and the
+    /// Freiburg figures moved by < 1 %.
     pub min_update_travel_m: f64,
 }
 
@@ -88,7 +93,7 @@ impl Default for ScanMatchOptions {
             proposal_sigma_xy_m: 0.01,
             proposal_sigma_yaw_deg: 0.02,
             field_occupied_prob: 0.0,
-            min_update_travel_m: 0.05,
+            min_update_travel_m: 0.0,
         }
     }
 }

@@ -434,32 +434,8 @@ impl Tracer<'_> {
         let fx = (o[0] - self.origin[0]) / res;
         let fy = (o[1] - self.origin[1]) / res;
         let (mut cx, mut cy) = (fx.floor() as i64, fy.floor() as i64);
-        let step_x: i64 = if ux > 0.0 { 1 } else { -1 };
-        let step_y: i64 = if uy > 0.0 { 1 } else { -1 };
-        let t_delta_x = if ux != 0.0 {
-            res / ux.abs()
-        } else {
-            f64::INFINITY
-        };
-        let t_delta_y = if uy != 0.0 {
-            res / uy.abs()
-        } else {
-            f64::INFINITY
-        };
-        let mut t_max_x = if ux > 0.0 {
-            (cx as f64 + 1.0 - fx) * t_delta_x
-        } else if ux < 0.0 {
-            (fx - cx as f64) * t_delta_x
-        } else {
-            f64::INFINITY
-        };
-        let mut t_max_y = if uy > 0.0 {
-            (cy as f64 + 1.0 - fy) * t_delta_y
-        } else if uy < 0.0 {
-            (fy - cy as f64) * t_delta_y
-        } else {
-            f64::INFINITY
-        };
+        let (step_x, t_delta_x, mut t_max_x) = dda_axis(fx, ux, res);
+        let (step_y, t_delta_y, mut t_max_y) = dda_axis(fy, uy, res);
         let mut t_in = 0.0f64;
         loop {
             if cx < 0 || cy < 0 || cx >= self.width as i64 || cy >= self.height as i64 {
@@ -506,6 +482,23 @@ impl Tracer<'_> {
             t_in = t_out;
         }
     }
+}
+
+/// Grid walk along one axis for a ray at cell coordinate `f` with horizontal direction
+/// component `u`: the cell step, the distance between cell boundaries and the distance to
+/// the first boundary (m).
+fn dda_axis(f: f64, u: f64, res: f64) -> (i64, f64, f64) {
+    let step = if u > 0.0 { 1 } else { -1 };
+    if u == 0.0 {
+        return (step, f64::INFINITY, f64::INFINITY);
+    }
+    let t_delta = res / u.abs();
+    let first = if u > 0.0 {
+        f.floor() + 1.0 - f
+    } else {
+        f - f.floor()
+    };
+    (step, t_delta, first * t_delta)
 }
 
 #[cfg(test)]
