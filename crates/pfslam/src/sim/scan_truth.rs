@@ -360,9 +360,26 @@ fn coverage(
     let mut overflow = false;
     for (pi, p) in world.prisms.iter().enumerate() {
         let pi = pi as u32;
+        // The stack of this prism alone: most cells are covered by one prism only.
+        let single = match index.get(&vec![pi]) {
+            Some(&k) => k,
+            None => {
+                let Ok(k) = u16::try_from(cov.stacks.len()) else {
+                    overflow = true;
+                    break;
+                };
+                index.insert(vec![pi], k);
+                cov.stacks.push(vec![pi]);
+                k
+            }
+        };
         // Cells are visited at most a few times per prism; adding twice is a no-op.
         for_each_footprint_cell(p, origin, res, size, |i| {
             let cur = cov.stack[i] as usize;
+            if cur == 0 {
+                cov.stack[i] = single;
+                return;
+            }
             if cov.stacks[cur].contains(&pi) {
                 return;
             }
