@@ -523,6 +523,16 @@ mod tests {
     use super::*;
     use crate::sim::world::Prism;
 
+    /// The truth seen from one pose at the origin, 0.1 deg rays up to 20 m, 0.1 m cells.
+    fn from_origin(w: &World, geometry: &LidarGeometry, mount: &Rigid3) -> ScanSurfaceTruth {
+        let opts = ScanTruthOptions {
+            pose_step: 1,
+            angle_step_deg: 0.1,
+            range_max_m: 20.0,
+        };
+        ScanSurfaceTruth::compute(w, &[Pose2::IDENTITY], mount, geometry, 0.1, &opts).unwrap()
+    }
+
     fn world(prisms: Vec<Prism>) -> World {
         World {
             name: "t".into(),
@@ -550,13 +560,7 @@ mod tests {
             range_max_m: 30.0,
         };
         let mount = Rigid3::from_rpy(0.0, 0.0, 0.0, [0.0, 0.0, 1.0]);
-        let opts = ScanTruthOptions {
-            pose_step: 1,
-            angle_step_deg: 0.1,
-            range_max_m: 20.0,
-        };
-        let t = ScanSurfaceTruth::compute(&w, &[Pose2::IDENTITY], &mount, &geometry, 0.1, &opts)
-            .unwrap();
+        let t = from_origin(&w, &geometry, &mount);
         let v = &t.visible;
         // The face cell is the one just before or at x = 9.5 (rounding of the outline).
         let face = |y: f64| {
@@ -627,13 +631,7 @@ mod tests {
         };
         let pitch = -30f64.to_radians();
         let mount = Rigid3::from_rpy(0.0, pitch, 0.0, [0.0, 0.0, 1.0]);
-        let opts = ScanTruthOptions {
-            pose_step: 1,
-            angle_step_deg: 0.1,
-            range_max_m: 20.0,
-        };
-        let t = ScanSurfaceTruth::compute(&w, &[Pose2::IDENTITY], &mount, &geometry, 0.1, &opts)
-            .unwrap();
+        let t = from_origin(&w, &geometry, &mount);
         // Straight ahead the beam reaches z = 3 at x = 2 / tan 30 = 3.46 m: outside the
         // canopy (x in 4..8), so it enters through the side face at x = 4 (z = 3.31).
         assert_eq!(t.visible.state_at(4.05, 0.0), CellState::Occupied);
