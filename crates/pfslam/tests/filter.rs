@@ -488,6 +488,10 @@ fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> 
     let truth = out.true_map.to_binary_map();
     if std::env::var("PF_GTMAP").is_ok() {
         let gt_traj = pfslam::geometry::Trajectory::new(gt.clone());
+        let (g, _, _) = pfslam::map::map_with_poses(&rec, &gt_traj, &config.map).unwrap();
+        let c = out.scan_truth.compare(&g.to_binary_map(None), 1).unwrap();
+        eprintln!("GT-POSE MAP vs scan-surface truth: {c}");
+        let gt_traj = pfslam::geometry::Trajectory::new(gt.clone());
         let mut mo = config.map.clone();
         mo.scan_step = config.filter.update_every_scans;
         let (g, _, _) = pfslam::map::map_with_poses(&rec, &gt_traj, &mo).unwrap();
@@ -548,7 +552,7 @@ fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> 
         }
     }
     let est = result.map.to_binary_map(None);
-    let cmp = pfslam::map::compare_maps(&est, &truth, 1).unwrap();
+    let cmp = out.scan_truth.compare(&est, 1).unwrap();
     SimRun {
         slam_ate_m: ate_rmse(&result.trajectory, gt),
         dr_ate_m: ate_rmse(&result.dead_reckoning, gt),
@@ -558,21 +562,26 @@ fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> 
     }
 }
 
-/// The issue's acceptance figures on a short simulated drive: SLAM ATE 5x lower than dead
-/// reckoning, map precision/recall >= 0.9, with the default configuration (scan-matching
-/// mode). Not reached yet (measured on the 180 s default drive: ATE 0.18-1.0 m vs dead
-/// reckoning 0.55 m depending on the seed, precision ~0.8, recall ~0.3; with true poses the
-/// map's recall is only ~0.35, see the report). The seeds' mode lags along-track (45 m).
+/// Issue 5's acceptance on the default simulated drive (180 s, 1359 m, default errors, 40
+/// particles): SLAM ATE RMSE 5x lower than dead reckoning, map precision/recall >= 0.9
+/// against the scan-surface truth (`pfslam::sim::scan_truth`). Not reached yet, hence
+/// ignored (~45 s in release): with filter seeds 1-5, ATE RMSE 0.183 / 0.223 / 0.304 /
+/// 0.316 / 0.258 m vs dead reckoning 0.550 m (3.0x at best); map precision 0.83, recall 0.33
+/// (seed 1; with the true poses 1.000 / 0.681). The matcher is biased: on the noise-free
+/// drive a single particle drifts ahead along the streets to 0.36 m ATE (0.10 m with
+/// `unknown_value = 0`): returns from surfaces the scanner also passes (canopy undersides,
+/// car roofs) sit at the free/unknown frontier its own scans create, and the interpolated
+/// field rewards moving them into the unknown.
 #[test]
-#[ignore = "not reached yet: SLAM 0.18-1.0 m vs dead reckoning 0.55 m, map recall ~0.3"]
+#[ignore = "not reached yet: SLAM ATE 0.18-0.32 m vs dead reckoning 0.55 m (target 5x), map recall ~0.33"]
 fn simulated_car_slam_acceptance() {
     let config = pfslam::config::Config::default();
-    let r = sim_car_slam(60.0, &config, 1);
+    let r = sim_car_slam(180.0, &config, 1);
     eprintln!(
-        "simulated car (60 s): ATE RMSE slam {:.3} m, dead reckoning {:.3} m, map precision {:.3} recall {:.3}; {:?}",
+        "simulated car (180 s): ATE RMSE slam {:.3} m, dead reckoning {:.3} m, map precision {:.3} recall {:.3}; {:?}",
         r.slam_ate_m, r.dr_ate_m, r.precision, r.recall, r.result.stats
     );
-    assert!(r.slam_ate_m * 5.0 < r.dr_ate_m);
+    assert!(r.slam_ate_m * 5.0 <= r.dr_ate_m);
     assert!(r.precision >= 0.9 && r.recall >= 0.9);
 }
 
@@ -612,12 +621,17 @@ fn explore_sim() {
     sm.beam_decimation = env("SM_DEC", sm.beam_decimation as f64) as usize;
     sm.weight_temperature = env("SM_T", sm.weight_temperature);
     sm.xy_search_radius_cells = env("SM_R", sm.xy_search_radius_cells as f64) as u32;
+    sm.field_occupied_prob = env("SM_SRC", sm.field_occupied_prob);
+    sm.min_update_travel_m = env("SM_MT", sm.min_update_travel_m);
+    sm.yaw_search_deg = env("SM_YS", sm.yaw_search_deg);
+    sm.refine_levels = env("SM_RL", sm.refine_levels as f64) as u32;
     if env("PF_SEED", 0.0) > 0.5 {
         config.filter.mode = pfslam::filter::FilterMode::Seed;
     }
     if env("PF_ESE", 0.0) > 0.5 {
         config.map.log_odds = pfslam::map::LogOddsParams::ese650();
     }
+    config.map.log_odds.miss = env("PF_LOMISS", config.map.log_odds.miss);
     let fz = env("PF_FZ", -1.0);
     if fz > 0.0 {
         config.map.scan.free_z_max_m = Some(fz);
@@ -636,7 +650,7 @@ fn explore_sim() {
         3 => pfslam::motion::VelocityNoise::seed_iteration_3(),
         _ => pfslam::motion::VelocityNoise::seed_iteration_1(),
     };
-    let r = sim_car_slam(env("PF_DUR", 20.0), &config, 1);
+    let r = sim_car_slam(env("PF_DUR", 20.0), &config, env("PF_SEEDNUM", 1.0) as u64);
     if let Ok(path) = std::env::var("PF_DUMP") {
         pfslam::io::tum::write_tum(std::path::Path::new(&path), &r.result.trajectory).unwrap();
     }

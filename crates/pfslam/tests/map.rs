@@ -321,3 +321,33 @@ fn map_files_roundtrip_for_a_mapped_grid() {
     }
     assert!(data.iter().any(|&v| v > 1.0) && data.iter().any(|&v| v < -1.0));
 }
+
+/// Issue 4 on the whole default drive (180 s, default simulated errors) with the true poses,
+/// judged by the simulator's scan-surface truth (`pfslam::sim::scan_truth`: what the tilted
+/// LiDAR can face with line of sight within 75 m, from the world's solids and the true poses,
+/// never from the simulated ranges). Measured (seed 1): precision 1.000, free agreement
+/// 1.000, recall 0.686 over the 46,026 visible surface cells. Not yet the issue's 0.95
+/// recall: nearly all misses are surfaces the LiDAR sees at one height and flies over or
+/// under at another (parked cars' roofs under the 3 deg dipping edge beams, canopy
+/// undersides above the level beams, vans), which the log-odds map votes free. The assertions
+/// hold the measured figures.
+#[test]
+fn whole_default_drive_with_ground_truth_vs_scan_surface_truth() {
+    use pfslam::sim::{SimOptions, World, simulate_car};
+    let sim_opts = SimOptions::default();
+    let world = World::builtin(sim_opts.world_name()).unwrap();
+    let out = simulate_car(&world, &sim_opts).unwrap();
+    let rec = out.recording(&Default::default()).unwrap();
+    let gt = Trajectory::new(out.ground_truth.clone());
+    let (grid, _, stats) = map_with_poses(&rec, &gt, &MapOptions::default()).unwrap();
+    assert_eq!(stats.scans_without_pose, 0);
+    let est = grid.to_binary_map(None);
+    let c = out.scan_truth.compare(&est, 1).unwrap();
+    let band = compare_maps(&est, &out.true_map.to_binary_map(), 1).unwrap();
+    eprintln!("whole drive vs scan-surface truth: {c}");
+    eprintln!("whole drive vs fixed-band truth (1.7-4 m): {band}");
+    assert!(c.true_occupied_observed > 30_000, "{c}");
+    assert!(c.precision() >= 0.95, "{c}");
+    assert!(c.free_agreement() >= 0.99, "{c}");
+    assert!(c.recall() >= 0.65, "{c}");
+}

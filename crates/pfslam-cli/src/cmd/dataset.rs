@@ -1,7 +1,8 @@
 //! Loading a dataset from a path, whatever its format: the one place that knows layouts.
 //!
 //! - a directory with `sensor_data/` + `param/`: the seed car's layout (the simulator writes it
-//!   too, with `ground_truth.tum` and `true_map.yaml` beside, which are picked up);
+//!   too, with `ground_truth.tum` and `true_map.yaml` (+ `true_map_visible.yaml`) beside,
+//!   which are picked up);
 //! - a directory with `calibration.txt` + `odometry.csv`: the humanoid layout;
 //! - a file: CARMEN log (`.clf`, `.log`, gzipped or not), ROS 1 bag, ROS 2 MCAP, detected by
 //!   [`pfslam::io::recording::read_recording`].
@@ -10,7 +11,7 @@ use pfslam::config::Config;
 use pfslam::io::map_files::read_map_server;
 use pfslam::io::tum::read_tum;
 use pfslam::io::ucsd::{ReadOptions, TimestampPolicy, read_car_dataset};
-use pfslam::map::BinaryMap;
+use pfslam::map::{BinaryMap, MapComparison, compare_maps, compare_maps_visible};
 use pfslam::sensors::{CarDataset, Recording};
 use std::path::Path;
 
@@ -19,7 +20,7 @@ pub struct Dataset {
     /// The recording (ground truth included when known).
     pub recording: Recording,
     /// The true occupancy map, when the dataset has one.
-    pub true_map: Option<BinaryMap>,
+    pub true_map: Option<TrueMaps>,
     /// The raw car streams, for a car-layout dataset.
     pub car: Option<CarDataset>,
 }
@@ -62,7 +63,7 @@ pub fn load_dataset(
         }
         let map_path = path.join("true_map.yaml");
         let true_map = if map_path.is_file() {
-            Some(read_map_server(&map_path)?)
+            Some(TrueMaps::read(&map_path)?)
         } else {
             None
         };
@@ -78,4 +79,41 @@ pub fn load_dataset(
         true_map: None,
         car: None,
     })
+}
+
+/// A true map (map_server yaml) and, when a `<stem>_visible.yaml` lies beside it (the
+/// simulator's scan-surface truth, see `pfslam::sim::scan_truth`), its visibility raster.
+pub struct TrueMaps {
+    /// Occupancy truth: precision is counted against it.
+    pub occupancy: BinaryMap,
+    /// Visible surfaces (occupied) and passed-free cells (free): recall and free agreement.
+    pub visible: Option<BinaryMap>,
+}
+
+impl TrueMaps {
+    /// Reads `path` and its `_visible` sibling when present.
+    pub fn read(path: &Path) -> anyhow::Result<TrueMaps> {
+        let occupancy = read_map_server(path)?;
+        let stem = path.file_stem().unwrap_or_default().to_string_lossy();
+        let sibling = path.with_file_name(format!("{stem}_visible.yaml"));
+        let visible = if sibling.is_file() {
+            Some(read_map_server(&sibling)?)
+        } else {
+            None
+        };
+        Ok(TrueMaps { occupancy, visible })
+    }
+
+    /// Compares an estimate (`compare_maps_visible` with a visibility raster, else
+    /// `compare_maps`).
+    pub fn compare(
+        &self,
+        estimate: &BinaryMap,
+        tolerance_cells: u32,
+    ) -> anyhow::Result<MapComparison> {
+        Ok(match &self.visible {
+            Some(v) => compare_maps_visible(estimate, &self.occupancy, v, tolerance_cells)?,
+            None => compare_maps(estimate, &self.occupancy, tolerance_cells)?,
+        })
+    }
 }

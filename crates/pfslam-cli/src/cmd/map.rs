@@ -9,10 +9,10 @@
 use anyhow::{Context, bail};
 use pfslam::config::Config;
 use pfslam::geometry::Pose2;
-use pfslam::io::map_files::{read_map_server, write_logodds_npy, write_map_server};
+use pfslam::io::map_files::{write_logodds_npy, write_map_server};
 use pfslam::io::tum::read_tum;
 use pfslam::io::write_bytes_atomic;
-use pfslam::map::{LogOddsPreset, MapComparison, compare_maps, map_with_poses};
+use pfslam::map::{LogOddsPreset, MapComparison, map_with_poses};
 use pfslam::viz::map_image::{MapImageOptions, TrajectoryOverlay, render_map, write_binary_png};
 use std::path::{Path, PathBuf};
 
@@ -55,7 +55,9 @@ pub struct Args {
     /// Extra trajectory drawn on map.png, as LABEL=FILE.tum (repeatable).
     #[arg(long = "overlay", value_name = "LABEL=FILE")]
     pub overlays: Vec<String>,
-    /// A true map (map_server yaml) to compare with: precision, recall, free agreement.
+    /// A true map (map_server yaml) to compare with: precision, recall, free agreement (with
+    /// a `<stem>_visible.yaml` beside it, the simulator's scan-surface truth: recall over the
+    /// visible surfaces, free agreement over the passed-free cells).
     #[arg(long)]
     pub truth: Option<PathBuf>,
     /// Tolerance of the comparison (cells).
@@ -117,7 +119,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ));
     }
     let truth = match &args.truth {
-        Some(p) => Some(read_map_server(p)?),
+        Some(p) => Some(super::dataset::TrueMaps::read(p)?),
         None => None,
     };
 
@@ -153,11 +155,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .observed_bounds()
         .context("the map is empty: no scan produced a ray")?;
     let comparison: Option<MapComparison> = match &truth {
-        Some(t) => Some(compare_maps(
-            &grid.to_binary_map(Some(rect)),
-            t,
-            args.tolerance_cells,
-        )?),
+        Some(t) => Some(t.compare(&grid.to_binary_map(Some(rect)), args.tolerance_cells)?),
         None => None,
     };
 

@@ -12,7 +12,6 @@ use pfslam::filter::slam::{SlamEvent, SlamResult, anchor_odometry_to_ground_trut
 use pfslam::geometry::{Pose2, StampedPose2, Trajectory};
 use pfslam::io::map_files::write_map_server;
 use pfslam::io::tum::write_tum;
-use pfslam::map::{BinaryMap, compare_maps};
 use pfslam::sensors::Recording;
 use pfslam::viz::map_image::{MapImageOptions, TrajectoryOverlay, write_binary_png, write_map_png};
 use std::io::IsTerminal;
@@ -175,7 +174,7 @@ fn write_outputs(
     args: &Args,
     config: &Config,
     recording: &Recording,
-    true_map: Option<&BinaryMap>,
+    true_map: Option<&super::dataset::TrueMaps>,
     result: &SlamResult,
     load_s: f64,
     anchored: bool,
@@ -240,7 +239,7 @@ fn write_outputs(
         && anchored
         && binary.width > 0
     {
-        let c = compare_maps(&binary, truth, 1)?;
+        let c = truth.compare(&binary, 1)?;
         summary["map_vs_true_map"] = serde_json::json!({
             "tolerance_cells": c.tolerance_cells,
             "precision": c.precision(),

@@ -302,6 +302,7 @@ pub fn run_slam_with<P: MapPolicy>(
     let mut last_update_odom = start;
     let mut match_pts: Vec<[f64; 2]> = Vec::new();
     let mut field = scanmatch::LikelihoodField::new();
+    field.set_source_threshold(opts.scan_match.field_source_threshold());
     let match_params = opts.scan_match.params(config.map.resolution_m);
     let resample_threshold = match opts.mode {
         FilterMode::Seed => opts.resample_threshold,
@@ -329,7 +330,13 @@ pub fn run_slam_with<P: MapPolicy>(
         }
         stats.timings.predict_s += t.elapsed().as_secs_f64();
         let k = i - first;
-        let estimate = if k.is_multiple_of(opts.update_every_scans) {
+        let due = k.is_multiple_of(opts.update_every_scans)
+            && (k == 0
+                || opts.mode != FilterMode::ScanMatch
+                || opts
+                    .scan_match
+                    .moved_enough(&last_update_odom.between(&odom.pose)));
+        let estimate = if due {
             let t = Instant::now();
             if recording.body_from_lidar_per_scan.is_some() {
                 projector.set_mount(&recording.lidar, recording.body_from_lidar_at(i));

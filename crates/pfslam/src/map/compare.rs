@@ -16,6 +16,15 @@
 //!   within `tol` cells of a true free cell (a wall's boundary), over all estimated free
 //!   cells ("free space is where the true map is free"). `estimated_free_truly_occupied`
 //!   counts, without tolerance, the estimated free cells whose centre is truly occupied.
+//!
+//! [`compare_maps_visible`] judges against a truth that says what the sensor could observe
+//! (the simulator's scan-surface truth, [`crate::sim::ScanSurfaceTruth`]): besides the occupancy
+//! truth (precision, as above) a *visibility* raster whose occupied cells are the surfaces a
+//! beam could reach first within range and whose free cells are where a beam could pass
+//! freely. Recall is then counted over every visible surface cell (an estimated occupied cell
+//! within `tol`), whatever the estimate says or leaves unknown there, and free agreement
+//! counts estimated free cells whose centre is free in the visibility raster or lies within
+//! `tol` cells of such a cell.
 
 use super::MapError;
 use super::binary::BinaryMap;
@@ -120,6 +129,30 @@ pub fn compare_maps(
     truth: &BinaryMap,
     tolerance_cells: u32,
 ) -> Result<MapComparison, MapError> {
+    compare_impl(estimate, truth, None, tolerance_cells)
+}
+
+/// Compares `estimate` with an occupancy truth and a visibility truth (see the module docs):
+/// precision against `truth`'s occupied cells, recall over `visible`'s occupied cells, free
+/// agreement against `visible`'s free cells.
+pub fn compare_maps_visible(
+    estimate: &BinaryMap,
+    truth: &BinaryMap,
+    visible: &BinaryMap,
+    tolerance_cells: u32,
+) -> Result<MapComparison, MapError> {
+    if visible.width == 0 || visible.height == 0 {
+        return Err(MapError::Compare("the visibility truth is empty".into()));
+    }
+    compare_impl(estimate, truth, Some(visible), tolerance_cells)
+}
+
+fn compare_impl(
+    estimate: &BinaryMap,
+    truth: &BinaryMap,
+    visible: Option<&BinaryMap>,
+    tolerance_cells: u32,
+) -> Result<MapComparison, MapError> {
     if estimate.width == 0 || estimate.height == 0 {
         return Err(MapError::Compare("the estimated map is empty".into()));
     }
@@ -146,6 +179,14 @@ pub fn compare_maps(
                     }
                     CellState::Free => {
                         n[2] += 1;
+                        if let Some(v) = visible {
+                            if state_near(v, x, y, tol, CellState::Free) {
+                                n[3] += 1;
+                            } else if truth.state_at(x, y) == CellState::Occupied {
+                                n[4] += 1;
+                            }
+                            continue;
+                        }
                         match truth.state_at(x, y) {
                             CellState::Free => n[3] += 1,
                             CellState::Occupied => {
@@ -189,6 +230,10 @@ pub fn compare_maps(
                 let matched = state_near(estimate, x, y, tol, CellState::Occupied);
                 n[0] += 1;
                 n[1] += matched as usize;
+                if visible.is_some() {
+                    // recall is counted over the visibility truth below
+                    continue;
+                }
                 let observed = matched
                     || match estimate.state_at(x, y) {
                         CellState::Occupied => true,
@@ -204,6 +249,27 @@ pub fn compare_maps(
             n
         })
         .reduce(|| [0; 4], |a, b| std::array::from_fn(|k| a[k] + b[k]));
+    let tru = match visible {
+        None => tru,
+        Some(v) => {
+            let seen = (0..v.height)
+                .into_par_iter()
+                .map(|j| {
+                    let mut n = [0usize; 2];
+                    for i in 0..v.width {
+                        if v.cells[j * v.width + i] != CellState::Occupied {
+                            continue;
+                        }
+                        let (x, y) = v.limits.cell_centre(super::Cell::new(i as i32, j as i32));
+                        n[0] += 1;
+                        n[1] += state_near(estimate, x, y, tol, CellState::Occupied) as usize;
+                    }
+                    n
+                })
+                .reduce(|| [0; 2], |a, b| [a[0] + b[0], a[1] + b[1]]);
+            [tru[0], tru[1], seen[0], seen[1]]
+        }
+    };
     Ok(MapComparison {
         tolerance_cells,
         estimated_occupied: est[0],

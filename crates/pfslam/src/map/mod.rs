@@ -16,7 +16,7 @@ pub mod ray;
 pub mod scan;
 
 pub use binary::BinaryMap;
-pub use compare::{MapComparison, compare_maps};
+pub use compare::{MapComparison, compare_maps, compare_maps_visible};
 pub use grid::{InsertScratch, InsertStats, OccupancyGrid, TILE_SIZE};
 pub use limits::{Cell, CellRect, MapLimits};
 pub use logodds::{CellState, FixedLogOdds, LogOddsParams, LogOddsPreset, logit, sigmoid};

@@ -13,6 +13,7 @@
 
 use super::path::{DriveProfile, Motion};
 use super::raycast::{BeamErrors, RayCaster, beam_directions, cast_scan};
+use super::scan_truth::ScanSurfaceTruth;
 use super::truth::TrueMap;
 use super::world::World;
 use super::{
@@ -35,8 +36,11 @@ pub struct CarSimOutput {
     pub dataset: CarDataset,
     /// True pose at every recorded LiDAR stamp.
     pub ground_truth: Vec<StampedPose2>,
-    /// The true map (rule in [`super::truth`]).
+    /// The fixed-band true map (rule in [`super::truth`]), written as `true_map_band.*`.
     pub true_map: TrueMap,
+    /// The scan-surface truth (rule in [`super::scan_truth`]), written as `true_map.*` and
+    /// `true_map_visible.*`: what the tilted LiDAR can observe along the true path.
+    pub scan_truth: ScanSurfaceTruth,
     /// The options used (with the seed).
     pub options: SimOptions,
     /// The world, in world-file form (written as `world.world`).
@@ -233,6 +237,7 @@ pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, Si
         [opts.truth_band_min_m, opts.truth_band_max_m],
         20.0,
     );
+    let scan_truth = ScanSurfaceTruth::for_car(world, &ground_truth, &calib, opts)?;
     Ok(CarSimOutput {
         dataset: CarDataset {
             calibration: calib,
@@ -243,6 +248,7 @@ pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, Si
         },
         ground_truth,
         true_map,
+        scan_truth,
         options: opts.clone(),
         world_text: world.to_text(),
         distance_m,
@@ -252,7 +258,9 @@ pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, Si
 }
 
 /// Writes a simulated car recording into `dir`: the dataset in the car's layout, plus
-/// `ground_truth.tum`, `true_map.{png,pgm,yaml}`, `world.world` and `sim.toml`; and the stereo
+/// `ground_truth.tum`, the scan-surface truth `true_map.{png,pgm,yaml}` +
+/// `true_map_visible.{pgm,yaml}`, the fixed-band `true_map_band.{png,pgm,yaml}`,
+/// `world.world` and `sim.toml`; and the stereo
 /// pairs, rendered here (see [`write_stereo_pairs`]).
 pub fn write_car_sim(dir: &Path, out: &CarSimOutput) -> Result<(), SimError> {
     std::fs::create_dir_all(dir).map_err(|e| crate::io::IoError::io(dir, e))?;
@@ -262,9 +270,12 @@ pub fn write_car_sim(dir: &Path, out: &CarSimOutput) -> Result<(), SimError> {
         dir,
         &out.ground_truth,
         &out.true_map,
+        "true_map_band",
         &out.world_text,
         &out.options,
-    )
+    )?;
+    out.scan_truth.write(dir, "true_map")?;
+    Ok(())
 }
 
 /// Renders the stereo pair at each of `out.stereo_poses` (the rig of the dataset's calibration,

@@ -270,6 +270,7 @@ pub fn write_humanoid_sim(dir: &Path, out: &HumanoidSimOutput) -> Result<(), Sim
         dir,
         &out.ground_truth,
         &out.true_map,
+        "true_map",
         &out.world_text,
         &out.options,
     )?;

@@ -17,12 +17,14 @@ pub mod car;
 pub mod humanoid;
 pub mod path;
 pub mod raycast;
+pub mod scan_truth;
 pub mod truth;
 pub mod world;
 
 pub use car::{CarSimOutput, simulate_car, write_car_sim};
 pub use humanoid::{HumanoidSimOutput, simulate_humanoid, write_humanoid_sim};
 pub use raycast::{Hit, HitKind, RayCaster};
+pub use scan_truth::{ScanSurfaceTruth, ScanTruthOptions};
 pub use truth::TrueMap;
 pub use world::{Prism, World};
 
@@ -85,6 +87,9 @@ pub struct SimOptions {
     pub truth_band_min_m: f64,
     /// Upper end of that band (m).
     pub truth_band_max_m: f64,
+    /// The car's scan-surface truth (`[sim.scan_truth]`, rule in [`scan_truth`]): written as
+    /// `true_map.*` and `true_map_visible.*`; the fixed-band map above is `true_map_band.*`.
+    pub scan_truth: ScanTruthOptions,
     /// The car (`[sim.car]`).
     pub car: CarSimOptions,
     /// The humanoid (`[sim.humanoid]`).
@@ -102,6 +107,7 @@ impl Default for SimOptions {
             truth_map_resolution_m: 0.1,
             truth_band_min_m: 1.7,
             truth_band_max_m: 4.0,
+            scan_truth: ScanTruthOptions::default(),
             car: CarSimOptions::default(),
             humanoid: HumanoidSimOptions::default(),
         }
@@ -144,6 +150,7 @@ impl SimOptions {
         if self.truth_band_max_m.is_nan() || self.truth_band_max_m < self.truth_band_min_m {
             return bad("truth_band_max_m must be >= truth_band_min_m");
         }
+        self.scan_truth.validate()?;
         self.car.validate()?;
         self.humanoid.validate()
     }
@@ -496,17 +503,18 @@ pub(crate) fn jumped_stream_vec(
         .collect()
 }
 
-/// Writes what every simulated recording has: `ground_truth.tum`, `true_map.{png,pgm,yaml}`,
-/// `world.world` and `sim.toml`.
+/// Writes what every simulated recording has: `ground_truth.tum`, the band true map as
+/// `<true_map_stem>.{png,pgm,yaml}`, `world.world` and `sim.toml`.
 pub(crate) fn write_truth(
     dir: &std::path::Path,
     ground_truth: &[crate::geometry::StampedPose2],
     true_map: &TrueMap,
+    true_map_stem: &str,
     world_text: &str,
     options: &SimOptions,
 ) -> Result<(), SimError> {
     crate::io::tum::write_tum(&dir.join("ground_truth.tum"), ground_truth)?;
-    true_map.write(dir, "true_map")?;
+    true_map.write(dir, true_map_stem)?;
     crate::io::write_bytes_atomic(&dir.join("world.world"), world_text.as_bytes())?;
     crate::io::write_bytes_atomic(&dir.join("sim.toml"), sim_toml(options)?.as_bytes())?;
     Ok(())

@@ -42,51 +42,11 @@ impl TrueMap {
         let width = ((b[2] + margin_m - origin_m[0]) / res).ceil().max(1.0) as usize;
         let height = ((b[3] + margin_m - origin_m[1]) / res).ceil().max(1.0) as usize;
         let mut occupied = vec![false; width * height];
-        let cell = |x: f64, y: f64| -> Option<usize> {
-            let ix = ((x - origin_m[0]) / res).floor();
-            let iy = ((y - origin_m[1]) / res).floor();
-            (ix >= 0.0 && iy >= 0.0 && (ix as usize) < width && (iy as usize) < height)
-                .then(|| iy as usize * width + ix as usize)
-        };
         for p in &world.prisms {
             if p.z_max_m < band_m[0] || p.z_min_m > band_m[1] {
                 continue;
             }
-            let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
-            for v in &p.footprint {
-                x0 = x0.min(v[0]);
-                y0 = y0.min(v[1]);
-                x1 = x1.max(v[0]);
-                y1 = y1.max(v[1]);
-            }
-            // interior: cell centres inside the polygon
-            let ix0 = ((x0 - origin_m[0]) / res).floor().max(0.0) as usize;
-            let iy0 = ((y0 - origin_m[1]) / res).floor().max(0.0) as usize;
-            let ix1 = (((x1 - origin_m[0]) / res).floor().max(0.0) as usize).min(width - 1);
-            let iy1 = (((y1 - origin_m[1]) / res).floor().max(0.0) as usize).min(height - 1);
-            for iy in iy0..=iy1 {
-                let cy = origin_m[1] + (iy as f64 + 0.5) * res;
-                for ix in ix0..=ix1 {
-                    let cx = origin_m[0] + (ix as f64 + 0.5) * res;
-                    if point_in_polygon(&p.footprint, cx, cy) {
-                        occupied[iy * width + ix] = true;
-                    }
-                }
-            }
-            // outline: sample every edge densely so thin obstacles (poles) appear
-            let n = p.footprint.len();
-            for k in 0..n {
-                let a = p.footprint[k];
-                let c = p.footprint[(k + 1) % n];
-                let len = (c[0] - a[0]).hypot(c[1] - a[1]);
-                let steps = (len / (0.25 * res)).ceil().max(1.0) as usize;
-                for j in 0..=steps {
-                    let t = j as f64 / steps as f64;
-                    if let Some(i) = cell(a[0] + t * (c[0] - a[0]), a[1] + t * (c[1] - a[1])) {
-                        occupied[i] = true;
-                    }
-                }
-            }
+            for_each_footprint_cell(p, origin_m, res, [width, height], |i| occupied[i] = true);
         }
         TrueMap {
             resolution_m: res,
@@ -163,6 +123,64 @@ impl TrueMap {
                     }
                 })
                 .collect(),
+        }
+    }
+}
+
+/// Calls `mark(iy * width + ix)` for every cell of the raster (`origin_m`, `res`, `size` =
+/// `[width, height]`) covered by the footprint of `p`: cells whose centre lies inside, and
+/// cells its outline passes through (sampled every quarter cell, so thin obstacles such as
+/// poles appear).
+pub(crate) fn for_each_footprint_cell(
+    p: &super::world::Prism,
+    origin_m: [f64; 2],
+    res: f64,
+    size: [usize; 2],
+    mut mark: impl FnMut(usize),
+) {
+    let [width, height] = size;
+    if width == 0 || height == 0 {
+        return;
+    }
+    let cell = |x: f64, y: f64| -> Option<usize> {
+        let ix = ((x - origin_m[0]) / res).floor();
+        let iy = ((y - origin_m[1]) / res).floor();
+        (ix >= 0.0 && iy >= 0.0 && (ix as usize) < width && (iy as usize) < height)
+            .then(|| iy as usize * width + ix as usize)
+    };
+    let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
+    for v in &p.footprint {
+        x0 = x0.min(v[0]);
+        y0 = y0.min(v[1]);
+        x1 = x1.max(v[0]);
+        y1 = y1.max(v[1]);
+    }
+    // interior: cell centres inside the polygon
+    let ix0 = ((x0 - origin_m[0]) / res).floor().max(0.0) as usize;
+    let iy0 = ((y0 - origin_m[1]) / res).floor().max(0.0) as usize;
+    let ix1 = (((x1 - origin_m[0]) / res).floor().max(0.0) as usize).min(width - 1);
+    let iy1 = (((y1 - origin_m[1]) / res).floor().max(0.0) as usize).min(height - 1);
+    for iy in iy0..=iy1 {
+        let cy = origin_m[1] + (iy as f64 + 0.5) * res;
+        for ix in ix0..=ix1 {
+            let cx = origin_m[0] + (ix as f64 + 0.5) * res;
+            if point_in_polygon(&p.footprint, cx, cy) {
+                mark(iy * width + ix);
+            }
+        }
+    }
+    // outline: sample every edge densely so thin obstacles (poles) appear
+    let n = p.footprint.len();
+    for k in 0..n {
+        let a = p.footprint[k];
+        let c = p.footprint[(k + 1) % n];
+        let len = (c[0] - a[0]).hypot(c[1] - a[1]);
+        let steps = (len / (0.25 * res)).ceil().max(1.0) as usize;
+        for j in 0..=steps {
+            let t = j as f64 / steps as f64;
+            if let Some(i) = cell(a[0] + t * (c[0] - a[0]), a[1] + t * (c[1] - a[1])) {
+                mark(i);
+            }
         }
     }
 }
