@@ -67,6 +67,8 @@ pub struct GraphOptions {
     pub sequential_window_m: f64,
     /// Half-width of the sequential search in yaw (deg).
     pub sequential_window_deg: f64,
+    /// Yaw step of the searches (deg; the sub-cell refinement goes below it).
+    pub yaw_step_deg: f64,
     /// Prior on the deviation from the front end's relative motion: x/y (m).
     pub sequential_prior_sigma_m: f64,
     /// Prior on the deviation from the front end's relative motion: yaw (deg).
@@ -114,10 +116,21 @@ pub struct GraphOptions {
     /// After the final optimisation, loop edges with a whitened squared error above this
     /// are removed and the graph optimised again.
     pub loop_outlier_chi2: f64,
-    /// Optimise after accepted closures at most every this many keyframes.
+    /// Optimise after accepted closures at most every this many keyframes ...
     pub optimize_every_keyframes: usize,
+    /// ... or at once when a new closure disagrees with the current estimates by more than
+    /// this whitened squared error (a loop closing after drift).
+    pub optimize_chi2: f64,
     /// Levenberg-Marquardt iterations per optimisation.
     pub max_iterations: usize,
+    /// After the optimisation, match every scan between keyframes against the corrected
+    /// keyframes around it (a small window around the pose composed from its keyframe), so
+    /// the scans between keyframes do not keep the front end's local errors.
+    pub refine_scans: bool,
+    /// Half-width of that refinement search in x and y (m).
+    pub refine_window_m: f64,
+    /// Half-width of that refinement search in yaw (deg).
+    pub refine_window_deg: f64,
 }
 
 impl Default for GraphOptions {
@@ -134,6 +147,7 @@ impl Default for GraphOptions {
             submap_keyframes: 10,
             sequential_window_m: 0.15,
             sequential_window_deg: 3.0,
+            yaw_step_deg: 0.3,
             sequential_prior_sigma_m: 0.1,
             sequential_prior_sigma_deg: 2.0,
             sequential_sigma_m: 0.02,
@@ -156,8 +170,12 @@ impl Default for GraphOptions {
             loop_sigma_deg: 1.0,
             loop_kernel_width: 3.0,
             loop_outlier_chi2: 100.0,
-            optimize_every_keyframes: 10,
+            optimize_every_keyframes: 50,
+            optimize_chi2: 25.0,
             max_iterations: 20,
+            refine_scans: true,
+            refine_window_m: 0.05,
+            refine_window_deg: 1.0,
         }
     }
 }
@@ -169,6 +187,7 @@ impl GraphOptions {
         for (k, v) in [
             ("keyframe_distance_m", self.keyframe_distance_m),
             ("keyframe_angle_deg", self.keyframe_angle_deg),
+            ("yaw_step_deg", self.yaw_step_deg),
             ("resolution_m", self.resolution_m),
             ("field_sigma_m", self.field_sigma_m),
             ("range_max_m", self.range_max_m),
@@ -184,6 +203,7 @@ impl GraphOptions {
             ("loop_sigma_m", self.loop_sigma_m),
             ("loop_sigma_deg", self.loop_sigma_deg),
             ("loop_outlier_chi2", self.loop_outlier_chi2),
+            ("optimize_chi2", self.optimize_chi2),
         ] {
             if !pos(v) {
                 return Err(format!("graph.{k} must be positive and finite"));
@@ -199,6 +219,8 @@ impl GraphOptions {
             ("loop_window_deg", self.loop_window_deg),
             ("loop_ambiguity_radius_m", self.loop_ambiguity_radius_m),
             ("loop_kernel_width", self.loop_kernel_width),
+            ("refine_window_m", self.refine_window_m),
+            ("refine_window_deg", self.refine_window_deg),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!("graph.{k} must be finite and >= 0"));
@@ -264,6 +286,8 @@ pub struct GraphStats {
     pub matching_s: f64,
     /// Seconds in optimisation.
     pub optimize_s: f64,
+    /// Seconds in the final per-scan refinement.
+    pub refine_s: f64,
     /// Seconds in all.
     pub total_s: f64,
 }
@@ -310,7 +334,7 @@ pub fn optimize_trajectory(
     let seq_win = SearchWindow {
         xy_m: opts.sequential_window_m,
         yaw_rad: opts.sequential_window_deg.to_radians(),
-        yaw_step_rad: yaw_step(opts.resolution_m, opts.range_max_m),
+        yaw_step_rad: opts.yaw_step_deg.to_radians(),
     };
     let loop_win = SearchWindow {
         xy_m: opts.loop_window_m,
@@ -318,6 +342,7 @@ pub fn optimize_trajectory(
         yaw_step_rad: seq_win.yaw_step_rad,
     };
     let mut closures_pending = false;
+    let mut urgent = false;
     let mut last_opt = 0usize;
     let mut submap_pts: Vec<[f64; 2]> = Vec::new();
     for k in 0..keyframes.len() {
@@ -334,7 +359,9 @@ pub fn optimize_trajectory(
         let first = k.saturating_sub(opts.submap_keyframes);
         gather_points(&keyframes, &graph.poses, first..k, &mut submap_pts);
         let margin = opts.sequential_window_m + 3.0 * opts.field_sigma_m + opts.resolution_m;
-        let matched = bounds_around(&kf.points_body, &predicted, margin).and_then(|(lo, hi)| {
+        let bounds = bounds_around(&kf.points_body, &predicted, margin)
+            .and_then(|b| clip_to_points(b, &submap_pts, 3.0 * opts.field_sigma_m));
+        let matched = bounds.and_then(|(lo, hi)| {
             let field = PointField::build(
                 &submap_pts,
                 lo,
@@ -415,7 +442,9 @@ pub fn optimize_trajectory(
                 let hi = (j + opts.loop_submap_keyframes + 1).min(k);
                 gather_points(&keyframes, &graph.poses, lo..hi, &mut submap_pts);
                 let margin = opts.loop_window_m + 3.0 * opts.field_sigma_m + opts.resolution_m;
-                let Some((blo, bhi)) = bounds_around(&kf.points_body, &pose, margin) else {
+                let Some((blo, bhi)) = bounds_around(&kf.points_body, &pose, margin)
+                    .and_then(|b| clip_to_points(b, &submap_pts, 3.0 * opts.field_sigma_m))
+                else {
                     continue;
                 };
                 let field = PointField::build(
@@ -442,6 +471,9 @@ pub fn optimize_trajectory(
                         ));
                         loop_edges.push(graph.edges.len() - 1);
                         closures_pending = true;
+                        if graph.edge_chi2(graph.edges.len() - 1) > opts.optimize_chi2 {
+                            urgent = true;
+                        }
                     }
                     Verdict::LowScore => stats.loop_rejected_score += 1,
                     Verdict::Ambiguous => stats.loop_rejected_ambiguous += 1,
@@ -449,13 +481,14 @@ pub fn optimize_trajectory(
             }
         }
         stats.matching_s += t.elapsed().as_secs_f64();
-        if closures_pending && k - last_opt >= opts.optimize_every_keyframes {
+        if urgent || (closures_pending && k - last_opt >= opts.optimize_every_keyframes) {
             let t = Instant::now();
             let r = graph.optimize(&opt_opts);
             stats.optimizations += 1;
             stats.iterations += r.iterations;
             stats.optimize_s += t.elapsed().as_secs_f64();
             closures_pending = false;
+            urgent = false;
             last_opt = k;
         }
     }
@@ -494,7 +527,20 @@ pub fn optimize_trajectory(
         .filter(|e| e.to != e.from + 1)
         .map(|e| (e.from, e.to))
         .collect();
-    let out = correct_trajectory(trajectory, &keyframes, &graph.poses);
+    let t = Instant::now();
+    let mut out = correct_trajectory(trajectory, &keyframes, &graph.poses);
+    if opts.refine_scans {
+        refine_scans(
+            recording,
+            scan_opts,
+            trajectory,
+            &keyframes,
+            &graph.poses,
+            opts,
+            &mut out,
+        )?;
+    }
+    stats.refine_s = t.elapsed().as_secs_f64();
     let kf_out = keyframes
         .iter()
         .zip(&graph.poses)
@@ -556,11 +602,6 @@ pub fn verify_closure(
     Verdict::Accepted(pose)
 }
 
-/// Yaw step such that the farthest matched point moves about one cell.
-fn yaw_step(resolution_m: f64, range_max_m: f64) -> f64 {
-    (resolution_m / range_max_m.max(resolution_m)).clamp(0.1f64.to_radians(), 2f64.to_radians())
-}
-
 /// Pooled levels so that the top level spans about an eighth of the window.
 fn levels_for(window_m: f64, resolution_m: f64) -> usize {
     let cells = (window_m / resolution_m).max(1.0);
@@ -589,6 +630,29 @@ fn bounds_around(
     ))
 }
 
+/// `bounds` cut to the bounding box of `points` grown by `margin_m`; `None` if they do not
+/// overlap.
+fn clip_to_points(
+    bounds: ([f64; 2], [f64; 2]),
+    points: &[[f64; 2]],
+    margin_m: f64,
+) -> Option<([f64; 2], [f64; 2])> {
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for p in points {
+        lo = [lo[0].min(p[0]), lo[1].min(p[1])];
+        hi = [hi[0].max(p[0]), hi[1].max(p[1])];
+    }
+    let lo = [
+        bounds.0[0].max(lo[0] - margin_m),
+        bounds.0[1].max(lo[1] - margin_m),
+    ];
+    let hi = [
+        bounds.1[0].min(hi[0] + margin_m),
+        bounds.1[1].min(hi[1] + margin_m),
+    ];
+    (lo[0] < hi[0] && lo[1] < hi[1]).then_some((lo, hi))
+}
+
 /// World-frame points of keyframes `range` at `poses` into `out`.
 fn gather_points(
     keyframes: &[Keyframe],
@@ -613,18 +677,7 @@ fn select_keyframes(
     trajectory: &[StampedPose2],
     opts: &GraphOptions,
 ) -> Result<Vec<Keyframe>, GraphError> {
-    // Matching takes every return in the range window; densification would only add
-    // correlated points.
-    let proj_opts = ScanOptions {
-        range_min_m: opts.range_min_m as f32,
-        range_max_m: scan_opts.range_max_m.max(opts.range_max_m as f32),
-        densify_max_gap_m: None,
-        ..*scan_opts
-    };
-    let mut projector =
-        ScanProjector::new(&recording.lidar, &recording.body_from_lidar, &proj_opts)?;
-    let stamps = &recording.scans.stamps_ns;
-    let mut body = PlanarScan::default();
+    let mut pts = ScanPoints::new(recording, scan_opts, opts)?;
     let mut out: Vec<Keyframe> = Vec::new();
     let mut path_m = 0.0;
     let mut last_pose: Option<Pose2> = None;
@@ -646,16 +699,7 @@ fn select_keyframes(
         if !due && t + 1 != trajectory.len() {
             continue;
         }
-        let i = stamps.partition_point(|&s| s < sp.stamp_ns);
-        let points_body = if i < stamps.len() && stamps[i] == sp.stamp_ns {
-            if recording.body_from_lidar_per_scan.is_some() {
-                projector.set_mount(&recording.lidar, recording.body_from_lidar_at(i));
-            }
-            projector.to_body(recording.scans.ranges(i), &mut body)?;
-            matching_points(&body, opts)
-        } else {
-            Vec::new()
-        };
+        let points_body = pts.at_stamp(sp.stamp_ns)?;
         if out.is_empty() || due || t + 1 == trajectory.len() {
             out.push(Keyframe {
                 traj_index: t,
@@ -669,17 +713,125 @@ fn select_keyframes(
     Ok(out)
 }
 
-/// Returns within `range_max_m` of the sensor, evenly thinned to `max_points`.
-fn matching_points(body: &PlanarScan, opts: &GraphOptions) -> Vec<[f64; 2]> {
-    let mut pts = Vec::new();
-    crate::filter::scanmatch::match_points(body, opts.range_max_m, 1, &mut pts);
-    if pts.len() > opts.max_points {
-        let n = pts.len();
-        pts = (0..opts.max_points)
-            .map(|k| pts[k * n / opts.max_points])
-            .collect();
+/// The matching points of a recording's scans, looked up by stamp.
+struct ScanPoints<'a> {
+    recording: &'a Recording,
+    projector: ScanProjector,
+    body: PlanarScan,
+    range_max_m: f64,
+    max_points: usize,
+}
+
+impl<'a> ScanPoints<'a> {
+    fn new(
+        recording: &'a Recording,
+        scan_opts: &ScanOptions,
+        opts: &GraphOptions,
+    ) -> Result<Self, GraphError> {
+        // Matching takes every return in the range window; densification would only add
+        // correlated points.
+        let proj_opts = ScanOptions {
+            range_min_m: opts.range_min_m as f32,
+            range_max_m: scan_opts.range_max_m.max(opts.range_max_m as f32),
+            densify_max_gap_m: None,
+            ..*scan_opts
+        };
+        let projector =
+            ScanProjector::new(&recording.lidar, &recording.body_from_lidar, &proj_opts)?;
+        Ok(ScanPoints {
+            recording,
+            projector,
+            body: PlanarScan::default(),
+            range_max_m: opts.range_max_m,
+            max_points: opts.max_points,
+        })
     }
-    pts
+
+    /// Returns of the scan stamped `stamp_ns` within `range_max_m` of the sensor, evenly
+    /// thinned to `max_points` (empty when no scan has that stamp).
+    fn at_stamp(&mut self, stamp_ns: i64) -> Result<Vec<[f64; 2]>, GraphError> {
+        let rec = self.recording;
+        let stamps = &rec.scans.stamps_ns;
+        let i = stamps.partition_point(|&s| s < stamp_ns);
+        if i >= stamps.len() || stamps[i] != stamp_ns {
+            return Ok(Vec::new());
+        }
+        if rec.body_from_lidar_per_scan.is_some() {
+            self.projector
+                .set_mount(&rec.lidar, rec.body_from_lidar_at(i));
+        }
+        self.projector
+            .to_body(rec.scans.ranges(i), &mut self.body)?;
+        let mut pts = Vec::new();
+        crate::filter::scanmatch::match_points(&self.body, self.range_max_m, 1, &mut pts);
+        if pts.len() > self.max_points {
+            let n = pts.len();
+            pts = (0..self.max_points)
+                .map(|k| pts[k * n / self.max_points])
+                .collect();
+        }
+        Ok(pts)
+    }
+}
+
+/// Matches every non-keyframe pose of `out` (already moved with its keyframe) against the
+/// corrected keyframes around its keyframe (see `GraphOptions::refine_scans`).
+fn refine_scans(
+    recording: &Recording,
+    scan_opts: &ScanOptions,
+    trajectory: &[StampedPose2],
+    keyframes: &[Keyframe],
+    corrected: &[Pose2],
+    opts: &GraphOptions,
+    out: &mut [StampedPose2],
+) -> Result<(), GraphError> {
+    let mut pts = ScanPoints::new(recording, scan_opts, opts)?;
+    let mut submap: Vec<[f64; 2]> = Vec::new();
+    let half = opts.submap_keyframes.div_ceil(2);
+    let win = SearchWindow {
+        xy_m: opts.refine_window_m,
+        yaw_rad: opts.refine_window_deg.to_radians(),
+        yaw_step_rad: opts.yaw_step_deg.to_radians(),
+    };
+    for (k, kf) in keyframes.iter().enumerate() {
+        let end = keyframes
+            .get(k + 1)
+            .map_or(trajectory.len(), |n| n.traj_index);
+        if end <= kf.traj_index + 1 {
+            continue;
+        }
+        gather_points(
+            keyframes,
+            corrected,
+            k.saturating_sub(half)..(k + half + 1).min(keyframes.len()),
+            &mut submap,
+        );
+        // The scans until the next keyframe stay within a keyframe step of this one.
+        let margin = opts.keyframe_distance_m + win.xy_m + 3.0 * opts.field_sigma_m + 0.5;
+        let Some((lo, hi)) = bounds_around(&kf.points_body, &corrected[k], margin)
+            .and_then(|b| clip_to_points(b, &submap, 3.0 * opts.field_sigma_m))
+        else {
+            continue;
+        };
+        let field = PointField::build(&submap, lo, hi, opts.resolution_m, opts.field_sigma_m, 0);
+        for t in kf.traj_index + 1..end {
+            let body = pts.at_stamp(trajectory[t].stamp_ns)?;
+            if body.len() < opts.loop_min_points {
+                continue;
+            }
+            let prior = Prior {
+                pose: out[t].pose,
+                sigma_xy_m: opts.sequential_prior_sigma_m,
+                sigma_yaw_rad: opts.sequential_prior_sigma_deg.to_radians(),
+            };
+            let coarse = field.search_with_prior(&body, &prior, &win);
+            let (pose, score) = field.refine(&body, &coarse, win.yaw_step_rad, 4, Some(&prior));
+            if score >= opts.sequential_min_score {
+                out[t].pose = pose;
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Every input pose moved with its keyframe: `corrected(kf) * front(kf)^-1 * front(t)`.
