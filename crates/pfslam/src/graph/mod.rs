@@ -27,6 +27,7 @@ use crate::map::{MapError, PlanarScan, ScanOptions, ScanProjector};
 use crate::sensors::Recording;
 use matcher::{PointField, Prior, SearchWindow};
 use optimize::{Edge, OptimizeOptions, PoseGraph};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
@@ -136,7 +137,7 @@ pub struct GraphOptions {
 impl Default for GraphOptions {
     fn default() -> Self {
         GraphOptions {
-            enabled: false,
+            enabled: true,
             keyframe_distance_m: 0.3,
             keyframe_angle_deg: 10.0,
             resolution_m: 0.05,
@@ -155,12 +156,12 @@ impl Default for GraphOptions {
             sequential_min_score: 0.3,
             fallback_sigma_m: 0.1,
             fallback_sigma_deg: 2.0,
-            loop_search_radius_m: 4.0,
+            loop_search_radius_m: 8.0,
             loop_min_path_m: 10.0,
             loop_max_candidates: 2,
-            loop_every_keyframes: 1,
-            loop_submap_keyframes: 10,
-            loop_window_m: 2.0,
+            loop_every_keyframes: 5,
+            loop_submap_keyframes: 20,
+            loop_window_m: 3.0,
             loop_window_deg: 20.0,
             loop_min_score: 0.55,
             loop_ambiguity_ratio: 0.9,
@@ -437,25 +438,36 @@ pub fn optimize_trajectory(
                     continue;
                 }
                 tried.push(j);
-                stats.loop_candidates += 1;
-                let lo = j.saturating_sub(opts.loop_submap_keyframes);
-                let hi = (j + opts.loop_submap_keyframes + 1).min(k);
-                gather_points(&keyframes, &graph.poses, lo..hi, &mut submap_pts);
-                let margin = opts.loop_window_m + 3.0 * opts.field_sigma_m + opts.resolution_m;
-                let Some((blo, bhi)) = bounds_around(&kf.points_body, &pose, margin)
-                    .and_then(|b| clip_to_points(b, &submap_pts, 3.0 * opts.field_sigma_m))
-                else {
-                    continue;
-                };
-                let field = PointField::build(
-                    &submap_pts,
-                    blo,
-                    bhi,
-                    opts.resolution_m,
-                    opts.field_sigma_m,
-                    levels_for(opts.loop_window_m, opts.resolution_m),
-                );
-                match verify_closure(&field, &kf.points_body, &pose, &loop_win, opts) {
+            }
+            stats.loop_candidates += tried.len();
+            // The candidates are independent: verify them in parallel, add them in order.
+            let poses = &graph.poses;
+            let verdicts: Vec<Verdict> = tried
+                .par_iter()
+                .map(|&j| {
+                    let lo = j.saturating_sub(opts.loop_submap_keyframes);
+                    let hi = (j + opts.loop_submap_keyframes + 1).min(k);
+                    let mut submap = Vec::new();
+                    gather_points(&keyframes, poses, lo..hi, &mut submap);
+                    let margin = opts.loop_window_m + 3.0 * opts.field_sigma_m + opts.resolution_m;
+                    let Some((blo, bhi)) = bounds_around(&kf.points_body, &pose, margin)
+                        .and_then(|b| clip_to_points(b, &submap, 3.0 * opts.field_sigma_m))
+                    else {
+                        return Verdict::LowScore;
+                    };
+                    let field = PointField::build(
+                        &submap,
+                        blo,
+                        bhi,
+                        opts.resolution_m,
+                        opts.field_sigma_m,
+                        levels_for(opts.loop_window_m, opts.resolution_m),
+                    );
+                    verify_closure(&field, &kf.points_body, &pose, &loop_win, opts)
+                })
+                .collect();
+            for (&j, verdict) in tried.iter().zip(verdicts) {
+                match verdict {
                     Verdict::Accepted(found) => {
                         stats.loop_accepted += 1;
                         let z = graph.poses[j].between(&found);
@@ -714,6 +726,7 @@ fn select_keyframes(
 }
 
 /// The matching points of a recording's scans, looked up by stamp.
+#[derive(Clone)]
 struct ScanPoints<'a> {
     recording: &'a Recording,
     projector: ScanProjector,
@@ -785,50 +798,63 @@ fn refine_scans(
     opts: &GraphOptions,
     out: &mut [StampedPose2],
 ) -> Result<(), GraphError> {
-    let mut pts = ScanPoints::new(recording, scan_opts, opts)?;
-    let mut submap: Vec<[f64; 2]> = Vec::new();
+    let pts = ScanPoints::new(recording, scan_opts, opts)?;
     let half = opts.submap_keyframes.div_ceil(2);
     let win = SearchWindow {
         xy_m: opts.refine_window_m,
         yaw_rad: opts.refine_window_deg.to_radians(),
         yaw_step_rad: opts.yaw_step_deg.to_radians(),
     };
-    for (k, kf) in keyframes.iter().enumerate() {
-        let end = keyframes
-            .get(k + 1)
-            .map_or(trajectory.len(), |n| n.traj_index);
-        if end <= kf.traj_index + 1 {
-            continue;
-        }
-        gather_points(
-            keyframes,
-            corrected,
-            k.saturating_sub(half)..(k + half + 1).min(keyframes.len()),
-            &mut submap,
-        );
-        // The scans until the next keyframe stay within a keyframe step of this one.
-        let margin = opts.keyframe_distance_m + win.xy_m + 3.0 * opts.field_sigma_m + 0.5;
-        let Some((lo, hi)) = bounds_around(&kf.points_body, &corrected[k], margin)
-            .and_then(|b| clip_to_points(b, &submap, 3.0 * opts.field_sigma_m))
-        else {
-            continue;
-        };
-        let field = PointField::build(&submap, lo, hi, opts.resolution_m, opts.field_sigma_m, 0);
-        for t in kf.traj_index + 1..end {
-            let body = pts.at_stamp(trajectory[t].stamp_ns)?;
-            if body.len() < opts.loop_min_points {
-                continue;
-            }
-            let prior = Prior {
-                pose: out[t].pose,
-                sigma_xy_m: opts.sequential_prior_sigma_m,
-                sigma_yaw_rad: opts.sequential_prior_sigma_deg.to_radians(),
-            };
-            let coarse = field.search_with_prior(&body, &prior, &win);
-            let (pose, score) = field.refine(&body, &coarse, win.yaw_step_rad, 4, Some(&prior));
-            if score >= opts.sequential_min_score {
-                out[t].pose = pose;
-            }
+    let current: &[StampedPose2] = out;
+    // Keyframes are independent here: in parallel, each worker with its own projector.
+    let moved: Vec<Result<Vec<(usize, Pose2)>, GraphError>> = (0..keyframes.len())
+        .into_par_iter()
+        .map_init(
+            || (pts.clone(), Vec::new()),
+            |(pts, submap), k| {
+                let kf = &keyframes[k];
+                let end = keyframes
+                    .get(k + 1)
+                    .map_or(trajectory.len(), |n| n.traj_index);
+                let mut found = Vec::new();
+                if end <= kf.traj_index + 1 {
+                    return Ok(found);
+                }
+                let range = k.saturating_sub(half)..(k + half + 1).min(keyframes.len());
+                gather_points(keyframes, corrected, range, submap);
+                // The scans until the next keyframe stay within a keyframe step of this one.
+                let margin = opts.keyframe_distance_m + win.xy_m + 3.0 * opts.field_sigma_m + 0.5;
+                let Some((lo, hi)) = bounds_around(&kf.points_body, &corrected[k], margin)
+                    .and_then(|b| clip_to_points(b, submap, 3.0 * opts.field_sigma_m))
+                else {
+                    return Ok(found);
+                };
+                let field =
+                    PointField::build(submap, lo, hi, opts.resolution_m, opts.field_sigma_m, 0);
+                for t in kf.traj_index + 1..end {
+                    let body = pts.at_stamp(trajectory[t].stamp_ns)?;
+                    if body.len() < opts.loop_min_points {
+                        continue;
+                    }
+                    let prior = Prior {
+                        pose: current[t].pose,
+                        sigma_xy_m: opts.sequential_prior_sigma_m,
+                        sigma_yaw_rad: opts.sequential_prior_sigma_deg.to_radians(),
+                    };
+                    let coarse = field.search_with_prior(&body, &prior, &win);
+                    let (pose, score) =
+                        field.refine(&body, &coarse, win.yaw_step_rad, 4, Some(&prior));
+                    if score >= opts.sequential_min_score {
+                        found.push((t, pose));
+                    }
+                }
+                Ok(found)
+            },
+        )
+        .collect();
+    for m in moved {
+        for (t, pose) in m? {
+            out[t].pose = pose;
         }
     }
     Ok(())
