@@ -227,7 +227,7 @@ impl PointField {
 
     /// Branch-and-bound search of the best pose within `win` around `centre` whose mean
     /// cell score exceeds `min_score`; poses within `exclude.1` (m) and `exclude.2` (rad) of
-    /// `exclude.0` are not considered. Returns the pose (on the cell grid) and its mean
+    /// `exclude.0` are not considered (whole branches at once when they lie inside). Returns the pose (on the cell grid) and its mean
     /// cell score.
     pub fn search_bnb(
         &self,
@@ -280,11 +280,19 @@ impl PointField {
             n_pts,
             &mut best,
             &mut best_score,
+            // A node is excluded when every offset it covers is: its four corners are.
             &|c: &Candidate| {
                 exclude.is_some_and(|(p, r, ryaw)| {
+                    let span = (1i64 << c.level) - 1;
                     let q = pose_of(c);
-                    (q.x_m - p.x_m).hypot(q.y_m - p.y_m) < r
-                        && wrap_angle(q.yaw_rad - p.yaw_rad).abs() < ryaw
+                    wrap_angle(q.yaw_rad - p.yaw_rad).abs() < ryaw
+                        && [(0, 0), (span, 0), (0, span), (span, span)]
+                            .iter()
+                            .all(|&(ox, oy)| {
+                                let x = q.x_m + ox as f64 * self.resolution_m;
+                                let y = q.y_m + oy as f64 * self.resolution_m;
+                                (x - p.x_m).hypot(y - p.y_m) < r
+                            })
                 })
             },
         );
@@ -307,11 +315,12 @@ impl PointField {
             if c.score <= *best_score {
                 break;
             }
+            if excluded(&c) {
+                continue;
+            }
             if c.level == 0 {
-                if !excluded(&c) {
-                    *best_score = c.score;
-                    *best = Some(c);
-                }
+                *best_score = c.score;
+                *best = Some(c);
                 continue;
             }
             let half = 1i64 << (c.level - 1);
