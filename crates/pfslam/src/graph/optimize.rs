@@ -323,21 +323,14 @@ impl System {
                 let k0 = fr.max(fc);
                 let mut sum = l[r][c - fr];
                 if c == r {
-                    for k in k0..c {
-                        let v = l[r][k - fr];
-                        sum -= v * v;
-                    }
+                    let row = &l[r][k0 - fr..c - fr];
+                    sum -= dot(row, row);
                     if sum <= 0.0 || !sum.is_finite() {
                         return None;
                     }
                     l[r][c - fr] = sum.sqrt();
                 } else {
-                    let (lr, lc) = (&l[r], &l[c]);
-                    let mut acc = 0.0;
-                    for k in k0..c {
-                        acc += lr[k - fr] * lc[k - fc];
-                    }
-                    sum -= acc;
+                    sum -= dot(&l[r][k0 - fr..c - fr], &l[c][k0 - fc..c - fc]);
                     let diag = l[c][c - fc];
                     l[r][c - fr] = sum / diag;
                 }
@@ -363,6 +356,28 @@ impl System {
         }
         Some(y)
     }
+}
+
+/// Dot product with four accumulators (the factorisation's inner loop).
+#[inline]
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let mut acc = [0.0; 4];
+    let mut ca = a.chunks_exact(4);
+    let mut cb = b.chunks_exact(4);
+    for (x, y) in (&mut ca).zip(&mut cb) {
+        for k in 0..4 {
+            acc[k] += x[k] * y[k];
+        }
+    }
+    let tail: f64 = ca
+        .remainder()
+        .iter()
+        .zip(cb.remainder())
+        .map(|(x, y)| x * y)
+        .sum();
+    (acc[0] + acc[1]) + (acc[2] + acc[3]) + tail
 }
 
 /// Reverse Cuthill-McKee order of a graph given by sorted adjacency lists: each component
