@@ -205,7 +205,7 @@ fn closure_matcher_finds_a_known_offset() {
     let opts = GraphOptions::default();
     let truth = Pose2::new(6.3, 2.4, 0.4);
     let scan = scan_from(&world, &truth, 8.0, 9);
-    assert!(scan.len() >= opts.loop_min_points);
+    assert!(scan.len() >= opts.min_points);
     let field = field_for(&world, [-4.0, -4.0], [16.0, 10.0], &opts);
     // The estimate is off by 1.2 m, 0.9 m and 12 deg (within the default window).
     let guess = truth.compose(&Pose2::new(-1.2, 0.9, 12f64.to_radians()));

@@ -186,6 +186,47 @@ impl PointField {
         sum / points_body.len() as f64
     }
 
+    /// Curvature of the match objective `n * score` at `pose`: minus its Hessian with
+    /// respect to world (x, y, yaw), by central differences with steps `h_xy_m`, `h_yaw_rad`.
+    /// Large along directions the scan pins down, near zero along a corridor's axis.
+    pub fn curvature(
+        &self,
+        points_body: &[[f64; 2]],
+        pose: &Pose2,
+        h_xy_m: f64,
+        h_yaw_rad: f64,
+    ) -> nalgebra::Matrix3<f64> {
+        let n = points_body.len() as f64;
+        let h = [h_xy_m, h_xy_m, h_yaw_rad];
+        let f = |d: [f64; 3]| {
+            let p = Pose2::new(pose.x_m + d[0], pose.y_m + d[1], pose.yaw_rad + d[2]);
+            n * self.score(points_body, &p)
+        };
+        let f0 = f([0.0; 3]);
+        let mut m = nalgebra::Matrix3::zeros();
+        for i in 0..3 {
+            let mut d = [0.0; 3];
+            d[i] = h[i];
+            let fp = f(d);
+            d[i] = -h[i];
+            let fm = f(d);
+            m[(i, i)] = -(fp - 2.0 * f0 + fm) / (h[i] * h[i]);
+            for j in 0..i {
+                let g = |si: f64, sj: f64| {
+                    let mut d = [0.0; 3];
+                    d[i] = si * h[i];
+                    d[j] = sj * h[j];
+                    f(d)
+                };
+                let v = -(g(1.0, 1.0) - g(1.0, -1.0) - g(-1.0, 1.0) + g(-1.0, -1.0))
+                    / (4.0 * h[i] * h[j]);
+                m[(i, j)] = v;
+                m[(j, i)] = v;
+            }
+        }
+        m
+    }
+
     /// Cells of the points for each yaw of the window (translation of `centre` applied).
     fn rotated_cells(
         &self,

@@ -74,16 +74,18 @@ pub struct GraphOptions {
     pub sequential_prior_sigma_m: f64,
     /// Prior on the deviation from the front end's relative motion: yaw (deg).
     pub sequential_prior_sigma_deg: f64,
-    /// Standard deviation of a matched sequential edge in x and y (m).
+    /// Smallest standard deviation of a matched sequential edge in x and y (m): its
+    /// information is the curvature of the match objective, capped at this.
     pub sequential_sigma_m: f64,
-    /// Standard deviation of a matched sequential edge in yaw (deg).
+    /// Smallest standard deviation of a matched sequential edge in yaw (deg).
     pub sequential_sigma_deg: f64,
     /// A sequential match scoring below this (mean field value, 0..1) is replaced by the
     /// front end's relative motion with the `fallback_sigma_*` uncertainty.
     pub sequential_min_score: f64,
-    /// Standard deviation of a front-end edge in x and y (m).
+    /// Standard deviation of the front-end edge (the front end's relative motion) beside
+    /// every match, and alone where the match failed, in x and y (m).
     pub fallback_sigma_m: f64,
-    /// Standard deviation of a front-end edge in yaw (deg).
+    /// Standard deviation of the front-end edge in yaw (deg).
     pub fallback_sigma_deg: f64,
     /// Loop-closure candidates lie within this distance of the keyframe's estimate (m).
     pub loop_search_radius_m: f64,
@@ -106,8 +108,9 @@ pub struct GraphOptions {
     pub loop_ambiguity_ratio: f64,
     /// See `loop_ambiguity_ratio` (m).
     pub loop_ambiguity_radius_m: f64,
-    /// A scan needs at least this many matching points for a closure.
-    pub loop_min_points: usize,
+    /// A scan needs at least this many matching points to be matched at all (sequential
+    /// edge, closure, refinement); fewer points fit anywhere.
+    pub min_points: usize,
     /// Standard deviation of a loop-closure edge in x and y (m).
     pub loop_sigma_m: f64,
     /// Standard deviation of a loop-closure edge in yaw (deg).
@@ -132,6 +135,10 @@ pub struct GraphOptions {
     pub refine_window_m: f64,
     /// Half-width of that refinement search in yaw (deg).
     pub refine_window_deg: f64,
+    /// When no loop closure survives, return the front end's trajectory unchanged: without
+    /// a closure the back end only re-matches scans, and on the simulated car (tilted
+    /// LiDAR, streets) its re-matching drifts where the filter does not (open problem).
+    pub keep_front_end_without_closures: bool,
 }
 
 impl Default for GraphOptions {
@@ -166,7 +173,7 @@ impl Default for GraphOptions {
             loop_min_score: 0.55,
             loop_ambiguity_ratio: 0.9,
             loop_ambiguity_radius_m: 0.5,
-            loop_min_points: 50,
+            min_points: 50,
             loop_sigma_m: 0.05,
             loop_sigma_deg: 1.0,
             loop_kernel_width: 3.0,
@@ -177,6 +184,7 @@ impl Default for GraphOptions {
             refine_scans: true,
             refine_window_m: 0.05,
             refine_window_deg: 1.0,
+            keep_front_end_without_closures: true,
         }
     }
 }
@@ -362,7 +370,8 @@ pub fn optimize_trajectory(
         let margin = opts.sequential_window_m + 3.0 * opts.field_sigma_m + opts.resolution_m;
         let bounds = bounds_around(&kf.points_body, &predicted, margin)
             .and_then(|b| clip_to_points(b, &submap_pts, 3.0 * opts.field_sigma_m));
-        let matched = bounds.and_then(|(lo, hi)| {
+        let enough = kf.points_body.len() >= opts.min_points;
+        let matched = bounds.filter(|_| enough).and_then(|(lo, hi)| {
             let field = PointField::build(
                 &submap_pts,
                 lo,
@@ -384,39 +393,54 @@ pub fn optimize_trajectory(
                 4,
                 Some(&prior),
             );
-            (score >= opts.sequential_min_score).then_some(pose)
+            (score >= opts.sequential_min_score).then(|| {
+                let curv = field.curvature(
+                    &kf.points_body,
+                    &pose,
+                    0.5 * opts.resolution_m,
+                    seq_win.yaw_step_rad,
+                );
+                (pose, curv)
+            })
         });
+        // The front end's relative motion always constrains the pair (weakly): where the
+        // match pins nothing down (along a corridor) it decides.
+        let front_edge = Edge::with_sigmas(
+            k - 1,
+            k,
+            rel_front,
+            opts.fallback_sigma_m,
+            opts.fallback_sigma_deg.to_radians(),
+            None,
+        );
         let (pose, edge) = match matched {
-            Some(pose) => {
+            Some((pose, curv)) => {
                 stats.sequential_matched += 1;
                 let z = graph.poses[k - 1].between(&pose);
-                let e = Edge::with_sigmas(
-                    k - 1,
-                    k,
-                    z,
-                    opts.sequential_sigma_m,
-                    opts.sequential_sigma_deg.to_radians(),
-                    None,
-                );
+                let e = Edge {
+                    from: k - 1,
+                    to: k,
+                    measurement: z,
+                    information: capped_information(
+                        &curv,
+                        pose.yaw_rad,
+                        opts.sequential_sigma_m,
+                        opts.sequential_sigma_deg.to_radians(),
+                    ),
+                    robust_width: None,
+                };
+                graph.edges.push(front_edge);
                 (pose, e)
             }
             None => {
                 stats.sequential_fallback += 1;
-                let e = Edge::with_sigmas(
-                    k - 1,
-                    k,
-                    rel_front,
-                    opts.fallback_sigma_m,
-                    opts.fallback_sigma_deg.to_radians(),
-                    None,
-                );
-                (predicted, e)
+                (predicted, front_edge)
             }
         };
         graph.poses.push(pose);
         graph.edges.push(edge);
         // Loop closures.
-        if k % opts.loop_every_keyframes == 0 && kf.points_body.len() >= opts.loop_min_points {
+        if k % opts.loop_every_keyframes == 0 && kf.points_body.len() >= opts.min_points {
             let mut cands: Vec<(f64, usize)> = (0..k)
                 .filter(|&j| kf.path_m - keyframes[j].path_m >= opts.loop_min_path_m)
                 .filter_map(|j| {
@@ -540,8 +564,12 @@ pub fn optimize_trajectory(
         .map(|e| (e.from, e.to))
         .collect();
     let t = Instant::now();
+    let closed = stats.loop_accepted > stats.loop_removed_outliers;
+    if !closed && opts.keep_front_end_without_closures {
+        graph.poses = keyframes.iter().map(|kf| kf.front_pose).collect();
+    }
     let mut out = correct_trajectory(trajectory, &keyframes, &graph.poses);
-    if opts.refine_scans {
+    if opts.refine_scans && (closed || !opts.keep_front_end_without_closures) {
         refine_scans(
             recording,
             scan_opts,
@@ -590,7 +618,7 @@ pub fn verify_closure(
     win: &SearchWindow,
     opts: &GraphOptions,
 ) -> Verdict {
-    if points_body.len() < opts.loop_min_points {
+    if points_body.len() < opts.min_points {
         return Verdict::LowScore;
     }
     let Some((best, score)) = field.search_bnb(points_body, centre, win, opts.loop_min_score, None)
@@ -612,6 +640,34 @@ pub fn verify_closure(
     }
     let (pose, _) = field.refine(points_body, &best, win.yaw_step_rad, 4, None);
     Verdict::Accepted(pose)
+}
+
+/// The information of a match edge: the match's curvature (world x, y, yaw) in the edge's
+/// error frame (rotated into the matched pose's frame), its eigenvalues capped, after
+/// whitening by `sigma_xy_m` / `sigma_yaw_rad`, at 1 (no direction more certain than those
+/// standard deviations) and floored at 0.
+fn capped_information(
+    curvature_world: &nalgebra::Matrix3<f64>,
+    yaw_rad: f64,
+    sigma_xy_m: f64,
+    sigma_yaw_rad: f64,
+) -> nalgebra::Matrix3<f64> {
+    let (s, c) = yaw_rad.sin_cos();
+    let r = nalgebra::Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0);
+    let local = r.transpose() * curvature_world * r;
+    let w = nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(
+        sigma_xy_m,
+        sigma_xy_m,
+        sigma_yaw_rad,
+    ));
+    let m = w * local * w;
+    let m = (m + m.transpose()) * 0.5;
+    let eig = m.symmetric_eigen();
+    let capped = eig.eigenvalues.map(|v| v.clamp(0.0, 1.0));
+    let m =
+        eig.eigenvectors * nalgebra::Matrix3::from_diagonal(&capped) * eig.eigenvectors.transpose();
+    let winv = w.try_inverse().unwrap_or_else(nalgebra::Matrix3::identity);
+    winv * m * winv
 }
 
 /// Pooled levels so that the top level spans about an eighth of the window.
@@ -833,7 +889,7 @@ fn refine_scans(
                     PointField::build(submap, lo, hi, opts.resolution_m, opts.field_sigma_m, 0);
                 for t in kf.traj_index + 1..end {
                     let body = pts.at_stamp(trajectory[t].stamp_ns)?;
-                    if body.len() < opts.loop_min_points {
+                    if body.len() < opts.min_points {
                         continue;
                     }
                     let prior = Prior {
