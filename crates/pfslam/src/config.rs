@@ -17,6 +17,8 @@ pub struct Config {
     pub sim: crate::sim::SimOptions,
     /// Stereo texture mapping (`[stereo]`).
     pub stereo: crate::stereo::StereoOptions,
+    /// Pose-graph back end: loop closure after the filter (`[graph]`).
+    pub graph: crate::graph::GraphOptions,
 }
 
 /// Errors of loading a configuration.

@@ -36,6 +36,7 @@ pub mod config;
 pub mod eval;
 pub mod filter;
 pub mod geometry;
+pub mod graph;
 pub mod io;
 pub mod map;
 pub mod motion;

@@ -4,6 +4,7 @@
 mod common;
 mod eval;
 mod filter;
+mod graph;
 mod map;
 mod motion;
 mod readers;

@@ -1,0 +1,537 @@
+//! Scan-to-submap matching for the pose graph's edges.
+//!
+//! A [`PointField`] is a dense window of a likelihood field built from submap points: each
+//! cell holds `exp(-d^2 / 2 sigma^2)` of the distance `d` to the nearest point (0..1), plus
+//! max-pooled copies (cell `c` of level `k` = the maximum over the `2^k x 2^k` cells from
+//! `c`), the upper bounds of Olson's / Cartographer's branch-and-bound correlative search.
+//! - [`PointField::search_bnb`]: the best pose over a large x/y/yaw window (loop closures),
+//!   exact on the cell grid, optionally excluding a neighbourhood (to measure ambiguity).
+//! - [`PointField::search_with_prior`]: a small exhaustive window with a Gaussian prior on the
+//!   deviation from a prediction (sequential edges: along a corridor the prediction decides).
+//! - [`PointField::refine`]: sub-cell pattern search on the bilinearly interpolated field.
+
+use crate::geometry::{Pose2, wrap_angle};
+
+/// A likelihood-field window with max-pooled levels.
+#[derive(Debug, Clone)]
+pub struct PointField {
+    origin_x_m: f64,
+    origin_y_m: f64,
+    resolution_m: f64,
+    w: usize,
+    h: usize,
+    /// `levels[0]` = the field, `levels[k]` = max over `2^k x 2^k` blocks.
+    levels: Vec<Vec<f32>>,
+}
+
+/// A search window around a centre pose.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SearchWindow {
+    /// Half-width in x and y (m).
+    pub xy_m: f64,
+    /// Half-width in yaw (rad).
+    pub yaw_rad: f64,
+    /// Yaw step (rad).
+    pub yaw_step_rad: f64,
+}
+
+/// A Gaussian prior on the deviation from a predicted pose, in units of "points": the
+/// objective is `sum(field) - 0.5 * (d_xy^2 / sigma_xy^2 + d_yaw^2 / sigma_yaw^2)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Prior {
+    /// The predicted pose.
+    pub pose: Pose2,
+    /// Standard deviation in x and y (m).
+    pub sigma_xy_m: f64,
+    /// Standard deviation in yaw (rad).
+    pub sigma_yaw_rad: f64,
+}
+
+impl Prior {
+    fn penalty(&self, p: &Pose2) -> f64 {
+        let (dx, dy) = (p.x_m - self.pose.x_m, p.y_m - self.pose.y_m);
+        let dyaw = wrap_angle(p.yaw_rad - self.pose.yaw_rad);
+        0.5 * ((dx * dx + dy * dy) / (self.sigma_xy_m * self.sigma_xy_m)
+            + dyaw * dyaw / (self.sigma_yaw_rad * self.sigma_yaw_rad))
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Candidate {
+    yaw_index: usize,
+    dx: i64,
+    dy: i64,
+    level: usize,
+    score: f64,
+}
+
+impl PointField {
+    /// Builds the field over `[min, max]` (world, m) from `points` (world, m), with cells of
+    /// `resolution_m`, Gaussian `sigma_m` (truncated at 3 sigma) and `levels` pooled levels
+    /// above the field.
+    pub fn build(
+        points: &[[f64; 2]],
+        min: [f64; 2],
+        max: [f64; 2],
+        resolution_m: f64,
+        sigma_m: f64,
+        levels: usize,
+    ) -> PointField {
+        let w = (((max[0] - min[0]) / resolution_m).ceil().max(1.0) as usize).min(1 << 14);
+        let h = (((max[1] - min[1]) / resolution_m).ceil().max(1.0) as usize).min(1 << 14);
+        let mut field = vec![0f32; w * h];
+        let sigma_cells = (sigma_m / resolution_m).max(0.25);
+        let r = (3.0 * sigma_cells).ceil() as i64;
+        let mut kernel = Vec::new();
+        for dj in -r..=r {
+            for di in -r..=r {
+                let d2 = (di * di + dj * dj) as f64;
+                let v = (-0.5 * d2 / (sigma_cells * sigma_cells)).exp() as f32;
+                if v > 0.01 {
+                    kernel.push((di, dj, v));
+                }
+            }
+        }
+        let (wi, hi) = (w as i64, h as i64);
+        for p in points {
+            let ci = ((p[0] - min[0]) / resolution_m).floor() as i64;
+            let cj = ((p[1] - min[1]) / resolution_m).floor() as i64;
+            if ci < -r || cj < -r || ci >= wi + r || cj >= hi + r {
+                continue;
+            }
+            for &(di, dj, v) in &kernel {
+                let (x, y) = (ci + di, cj + dj);
+                if x >= 0 && y >= 0 && x < wi && y < hi {
+                    let slot = &mut field[(y * wi + x) as usize];
+                    if v > *slot {
+                        *slot = v;
+                    }
+                }
+            }
+        }
+        let mut all = vec![field];
+        for k in 1..=levels {
+            let prev = &all[k - 1];
+            let s = 1usize << (k - 1);
+            let mut next = prev.clone();
+            for y in 0..h {
+                for x in 0..w {
+                    let mut m = prev[y * w + x];
+                    if x + s < w {
+                        m = m.max(prev[y * w + x + s]);
+                    }
+                    if y + s < h {
+                        m = m.max(prev[(y + s) * w + x]);
+                        if x + s < w {
+                            m = m.max(prev[(y + s) * w + x + s]);
+                        }
+                    }
+                    next[y * w + x] = m;
+                }
+            }
+            all.push(next);
+        }
+        PointField {
+            origin_x_m: min[0],
+            origin_y_m: min[1],
+            resolution_m,
+            w,
+            h,
+            levels: all,
+        }
+    }
+
+    /// Number of pooled levels above the field.
+    pub fn pooled_levels(&self) -> usize {
+        self.levels.len() - 1
+    }
+
+    #[inline]
+    fn at(&self, level: usize, i: i64, j: i64) -> f32 {
+        if i < 0 || j < 0 || i >= self.w as i64 || j >= self.h as i64 {
+            return 0.0;
+        }
+        self.levels[level][j as usize * self.w + i as usize]
+    }
+
+    /// Bilinear interpolation between cell centres (0 outside).
+    #[inline]
+    fn bilinear(&self, x_m: f64, y_m: f64) -> f64 {
+        let u = (x_m - self.origin_x_m) / self.resolution_m - 0.5;
+        let v = (y_m - self.origin_y_m) / self.resolution_m - 0.5;
+        let (fu, fv) = (u.floor(), v.floor());
+        let (au, av) = (u - fu, v - fv);
+        let (i, j) = (fu as i64, fv as i64);
+        let f = |di, dj| f64::from(self.at(0, i + di, j + dj));
+        let bottom = f(0, 0) * (1.0 - au) + f(1, 0) * au;
+        let top = f(0, 1) * (1.0 - au) + f(1, 1) * au;
+        bottom * (1.0 - av) + top * av
+    }
+
+    /// Mean interpolated field value (0..1) of `points_body` seen from `pose`.
+    pub fn score(&self, points_body: &[[f64; 2]], pose: &Pose2) -> f64 {
+        if points_body.is_empty() {
+            return 0.0;
+        }
+        let (s, c) = pose.yaw_rad.sin_cos();
+        let sum: f64 = points_body
+            .iter()
+            .map(|p| {
+                self.bilinear(
+                    pose.x_m + c * p[0] - s * p[1],
+                    pose.y_m + s * p[0] + c * p[1],
+                )
+            })
+            .sum();
+        sum / points_body.len() as f64
+    }
+
+    /// Curvature of the match objective `n * score` at `pose`: minus its Hessian with
+    /// respect to world (x, y, yaw), by central differences with steps `h_xy_m`, `h_yaw_rad`.
+    /// Large along directions the scan pins down, near zero along a corridor's axis.
+    pub fn curvature(
+        &self,
+        points_body: &[[f64; 2]],
+        pose: &Pose2,
+        h_xy_m: f64,
+        h_yaw_rad: f64,
+    ) -> nalgebra::Matrix3<f64> {
+        let n = points_body.len() as f64;
+        let h = [h_xy_m, h_xy_m, h_yaw_rad];
+        let f = |d: [f64; 3]| {
+            let p = Pose2::new(pose.x_m + d[0], pose.y_m + d[1], pose.yaw_rad + d[2]);
+            n * self.score(points_body, &p)
+        };
+        let f0 = f([0.0; 3]);
+        let mut m = nalgebra::Matrix3::zeros();
+        for i in 0..3 {
+            let mut d = [0.0; 3];
+            d[i] = h[i];
+            let fp = f(d);
+            d[i] = -h[i];
+            let fm = f(d);
+            m[(i, i)] = -(fp - 2.0 * f0 + fm) / (h[i] * h[i]);
+            for j in 0..i {
+                let g = |si: f64, sj: f64| {
+                    let mut d = [0.0; 3];
+                    d[i] = si * h[i];
+                    d[j] = sj * h[j];
+                    f(d)
+                };
+                let v = -(g(1.0, 1.0) - g(1.0, -1.0) - g(-1.0, 1.0) + g(-1.0, -1.0))
+                    / (4.0 * h[i] * h[j]);
+                m[(i, j)] = v;
+                m[(j, i)] = v;
+            }
+        }
+        m
+    }
+
+    /// Cells of the points for each yaw of the window (translation of `centre` applied).
+    fn rotated_cells(
+        &self,
+        points_body: &[[f64; 2]],
+        centre: &Pose2,
+        yaws: &[f64],
+    ) -> Vec<Vec<(i64, i64)>> {
+        yaws.iter()
+            .map(|&yaw| {
+                let (s, c) = yaw.sin_cos();
+                points_body
+                    .iter()
+                    .map(|p| {
+                        let x = centre.x_m + c * p[0] - s * p[1];
+                        let y = centre.y_m + s * p[0] + c * p[1];
+                        (
+                            ((x - self.origin_x_m) / self.resolution_m).floor() as i64,
+                            ((y - self.origin_y_m) / self.resolution_m).floor() as i64,
+                        )
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    fn window_yaws(centre: &Pose2, win: &SearchWindow) -> Vec<f64> {
+        let m = (win.yaw_rad / win.yaw_step_rad.max(1e-6)).ceil() as i64;
+        (-m..=m)
+            .map(|k| centre.yaw_rad + k as f64 * win.yaw_step_rad)
+            .collect()
+    }
+
+    fn cell_sum(&self, cells: &[(i64, i64)], level: usize, dx: i64, dy: i64) -> f64 {
+        cells
+            .iter()
+            .map(|&(i, j)| f64::from(self.at(level, i + dx, j + dy)))
+            .sum()
+    }
+
+    /// Branch-and-bound search of the best pose within `win` around `centre` whose mean
+    /// cell score exceeds `min_score`; poses within `exclude.1` (m) and `exclude.2` (rad) of
+    /// `exclude.0` are not considered (whole branches at once when they lie inside). Returns the pose (on the cell grid) and its mean
+    /// cell score.
+    pub fn search_bnb(
+        &self,
+        points_body: &[[f64; 2]],
+        centre: &Pose2,
+        win: &SearchWindow,
+        min_score: f64,
+        exclude: Option<(Pose2, f64, f64)>,
+    ) -> Option<(Pose2, f64)> {
+        if points_body.is_empty() {
+            return None;
+        }
+        let n_pts = points_body.len() as f64;
+        let yaws = Self::window_yaws(centre, win);
+        let cells = self.rotated_cells(points_body, centre, &yaws);
+        let n = (win.xy_m / self.resolution_m).ceil() as i64;
+        let top = self.pooled_levels();
+        let step = 1i64 << top;
+        let mut cands = Vec::new();
+        for (a, c) in cells.iter().enumerate() {
+            let mut dy = -n;
+            while dy <= n {
+                let mut dx = -n;
+                while dx <= n {
+                    cands.push(Candidate {
+                        yaw_index: a,
+                        dx,
+                        dy,
+                        level: top,
+                        score: self.cell_sum(c, top, dx, dy) / n_pts,
+                    });
+                    dx += step;
+                }
+                dy += step;
+            }
+        }
+        let mut best: Option<Candidate> = None;
+        let mut best_score = min_score;
+        let pose_of = |c: &Candidate| {
+            Pose2::new(
+                centre.x_m + c.dx as f64 * self.resolution_m,
+                centre.y_m + c.dy as f64 * self.resolution_m,
+                yaws[c.yaw_index],
+            )
+        };
+        self.branch(
+            cands,
+            &cells,
+            n,
+            n_pts,
+            &mut best,
+            &mut best_score,
+            // A node is excluded when every offset it covers is: its four corners are.
+            &|c: &Candidate| {
+                exclude.is_some_and(|(p, r, ryaw)| {
+                    let span = (1i64 << c.level) - 1;
+                    let q = pose_of(c);
+                    wrap_angle(q.yaw_rad - p.yaw_rad).abs() < ryaw
+                        && [(0, 0), (span, 0), (0, span), (span, span)]
+                            .iter()
+                            .all(|&(ox, oy)| {
+                                let x = q.x_m + ox as f64 * self.resolution_m;
+                                let y = q.y_m + oy as f64 * self.resolution_m;
+                                (x - p.x_m).hypot(y - p.y_m) < r
+                            })
+                })
+            },
+        );
+        best.map(|c| (pose_of(&c), c.score))
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn branch(
+        &self,
+        mut cands: Vec<Candidate>,
+        cells: &[Vec<(i64, i64)>],
+        n: i64,
+        n_pts: f64,
+        best: &mut Option<Candidate>,
+        best_score: &mut f64,
+        excluded: &dyn Fn(&Candidate) -> bool,
+    ) {
+        cands.sort_by(|a, b| b.score.total_cmp(&a.score));
+        for c in cands {
+            if c.score <= *best_score {
+                break;
+            }
+            if excluded(&c) {
+                continue;
+            }
+            if c.level == 0 {
+                *best_score = c.score;
+                *best = Some(c);
+                continue;
+            }
+            let half = 1i64 << (c.level - 1);
+            let mut children = Vec::with_capacity(4);
+            for (ox, oy) in [(0, 0), (half, 0), (0, half), (half, half)] {
+                let (dx, dy) = (c.dx + ox, c.dy + oy);
+                if dx > n || dy > n {
+                    continue;
+                }
+                children.push(Candidate {
+                    yaw_index: c.yaw_index,
+                    dx,
+                    dy,
+                    level: c.level - 1,
+                    score: self.cell_sum(&cells[c.yaw_index], c.level - 1, dx, dy) / n_pts,
+                });
+            }
+            self.branch(children, cells, n, n_pts, best, best_score, excluded);
+        }
+    }
+
+    /// Exhaustive search over `win` around `prior.pose` maximising the cell scores minus
+    /// the prior's penalty; returns the best pose on the cell grid.
+    pub fn search_with_prior(
+        &self,
+        points_body: &[[f64; 2]],
+        prior: &Prior,
+        win: &SearchWindow,
+    ) -> Pose2 {
+        let centre = prior.pose;
+        let yaws = Self::window_yaws(&centre, win);
+        let cells = self.rotated_cells(points_body, &centre, &yaws);
+        let n = (win.xy_m / self.resolution_m).ceil() as i64;
+        let mut best = (f64::NEG_INFINITY, centre);
+        for (a, c) in cells.iter().enumerate() {
+            for dy in -n..=n {
+                for dx in -n..=n {
+                    let pose = Pose2::new(
+                        centre.x_m + dx as f64 * self.resolution_m,
+                        centre.y_m + dy as f64 * self.resolution_m,
+                        yaws[a],
+                    );
+                    let obj = self.cell_sum(c, 0, dx, dy) - prior.penalty(&pose);
+                    if obj > best.0 {
+                        best = (obj, pose);
+                    }
+                }
+            }
+        }
+        best.1
+    }
+
+    /// Sub-cell pattern search from `start` on the interpolated field (step halving from half
+    /// a cell and `yaw_step_rad / 2`, `levels` times), with an optional prior. Returns the
+    /// pose and its mean interpolated score.
+    pub fn refine(
+        &self,
+        points_body: &[[f64; 2]],
+        start: &Pose2,
+        yaw_step_rad: f64,
+        levels: u32,
+        prior: Option<&Prior>,
+    ) -> (Pose2, f64) {
+        let n_pts = points_body.len().max(1) as f64;
+        let objective = |p: &Pose2| {
+            let s = self.score(points_body, p);
+            (s * n_pts - prior.map_or(0.0, |q| q.penalty(p)), s)
+        };
+        let mut pose = *start;
+        let (mut obj, mut score) = objective(&pose);
+        let mut step_xy = 0.5 * self.resolution_m;
+        let mut step_yaw = 0.5 * yaw_step_rad;
+        let mut level = 0;
+        let mut iterations = 0;
+        while level < levels && iterations < 100 {
+            iterations += 1;
+            let mut moved: Option<(f64, f64, Pose2)> = None;
+            for (ex, ey, eyaw) in [
+                (step_xy, 0.0, 0.0),
+                (-step_xy, 0.0, 0.0),
+                (0.0, step_xy, 0.0),
+                (0.0, -step_xy, 0.0),
+                (0.0, 0.0, step_yaw),
+                (0.0, 0.0, -step_yaw),
+            ] {
+                let cand = Pose2::new(pose.x_m + ex, pose.y_m + ey, pose.yaw_rad + eyaw);
+                let (o, s) = objective(&cand);
+                if o > moved.map_or(obj, |m| m.0) {
+                    moved = Some((o, s, cand));
+                }
+            }
+            match moved {
+                Some((o, s, p)) => {
+                    obj = o;
+                    score = s;
+                    pose = p;
+                }
+                None => {
+                    step_xy *= 0.5;
+                    step_yaw *= 0.5;
+                    level += 1;
+                }
+            }
+        }
+        (pose, score)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn room_points() -> Vec<[f64; 2]> {
+        // An L-shaped room with a pillar: walls every 2 cm.
+        let mut pts = Vec::new();
+        for k in 0..=400 {
+            let t = f64::from(k) * 0.02;
+            pts.push([t - 4.0, -3.0]);
+            pts.push([t - 4.0, 3.0]);
+            if t <= 6.0 {
+                pts.push([-4.0, t - 3.0]);
+                pts.push([4.0, t - 3.0]);
+            }
+        }
+        for k in 0..60 {
+            let a = f64::from(k) * std::f64::consts::TAU / 60.0;
+            pts.push([1.5 + 0.3 * a.cos(), 1.0 + 0.3 * a.sin()]);
+        }
+        pts
+    }
+
+    #[test]
+    fn bnb_equals_exhaustive_on_the_cell_grid() {
+        let pts = room_points();
+        let f = PointField::build(&pts, [-6.0, -5.0], [6.0, 5.0], 0.05, 0.08, 4);
+        let truth = Pose2::new(0.3, -0.2, 0.1);
+        let body: Vec<[f64; 2]> = pts
+            .iter()
+            .step_by(7)
+            .map(|p| {
+                let q = truth.inverse().transform_point(p[0], p[1]);
+                [q.0, q.1]
+            })
+            .collect();
+        let win = SearchWindow {
+            xy_m: 0.6,
+            yaw_rad: 0.2,
+            yaw_step_rad: 0.01,
+        };
+        let centre = Pose2::new(0.0, 0.0, 0.05);
+        let (p, s) = f.search_bnb(&body, &centre, &win, 0.0, None).unwrap();
+        // Exhaustive reference with a flat prior.
+        let prior = Prior {
+            pose: centre,
+            sigma_xy_m: 1e9,
+            sigma_yaw_rad: 1e9,
+        };
+        let q = f.search_with_prior(&body, &prior, &win);
+        assert!(p.between(&q).translation_norm_m() < 1e-9, "{p:?} {q:?}");
+        assert!((p.yaw_rad - q.yaw_rad).abs() < 1e-9);
+        assert!(p.between(&truth).translation_norm_m() < 0.06, "{p:?}");
+        assert!(s > 0.8, "{s}");
+        let (r, rs) = f.refine(&body, &p, 0.01, 5, None);
+        // The walls lie on cell boundaries, where the bilinear field is flat between the two
+        // cell centres: sub-cell accuracy is about half a cell per axis there.
+        assert!(
+            r.between(&truth).translation_norm_m() < 0.75 * 0.05,
+            "{r:?}"
+        );
+        assert!(wrap_angle(r.yaw_rad - truth.yaw_rad).abs() < 0.004, "{r:?}");
+        assert!(rs >= f.score(&body, &p));
+    }
+}

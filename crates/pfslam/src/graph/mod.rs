@@ -1,0 +1,941 @@
+//! The back end (issue 7): loop closure by pose-graph optimisation after any filter mode.
+//!
+//! 1. Keyframes every `keyframe_distance_m` / `keyframe_angle_deg` of the front end's path.
+//! 2. Sequential edges: each keyframe's scan is matched against a submap of the preceding
+//!    `submap_keyframes` keyframes (at their current, already corrected estimates) around
+//!    the front end's relative motion, with a prior on the deviation from it; a poor front
+//!    end still gives good local edges.
+//! 3. Loop closures: earlier keyframes within `loop_search_radius_m` of the new keyframe's
+//!    estimate but at least `loop_min_path_m` back along the path are candidates; the scan
+//!    is matched by branch and bound over a window of `loop_window_m` / `loop_window_deg`
+//!    against the candidate's neighbourhood submap, refined below a cell, and accepted only
+//!    if the score is high, enough points fall on the submap, and no other pose outside
+//!    `loop_ambiguity_radius_m` scores nearly as well (a corridor is ambiguous along its
+//!    axis). Loop edges carry a Cauchy kernel; after the final optimisation edges with a large
+//!    error are dropped and the graph is optimised again.
+//! 4. The graph is optimised ([`optimize`]) whenever closures were accepted and at least
+//!    `optimize_every_keyframes` keyframes passed, so the next search starts from corrected
+//!    estimates, and once more at the end.
+//! 5. Every scan's corrected pose = its keyframe's corrected pose composed with the front
+//!    end's motion since that keyframe.
+
+pub mod matcher;
+pub mod optimize;
+
+use crate::geometry::{Pose2, StampedPose2};
+use crate::map::{MapError, PlanarScan, ScanOptions, ScanProjector};
+use crate::sensors::Recording;
+use matcher::{PointField, Prior, SearchWindow};
+use optimize::{Edge, OptimizeOptions, PoseGraph};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
+
+/// Errors of the back end.
+#[derive(Debug, thiserror::Error)]
+pub enum GraphError {
+    /// Invalid options (the message names the key).
+    #[error("invalid graph options: {0}")]
+    Options(String),
+    /// Scan preprocessing failed.
+    #[error(transparent)]
+    Map(#[from] MapError),
+}
+
+/// Options of the pose-graph back end (`[graph]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct GraphOptions {
+    /// Run the back end after the filter.
+    pub enabled: bool,
+    /// A new keyframe after this much travel along the front end's path (m).
+    pub keyframe_distance_m: f64,
+    /// ... or after this much rotation (deg).
+    pub keyframe_angle_deg: f64,
+    /// Cell size of the matching fields (m).
+    pub resolution_m: f64,
+    /// Standard deviation of the likelihood field around submap points (m).
+    pub field_sigma_m: f64,
+    /// Returns closer than this to the sensor are not matched (m).
+    pub range_min_m: f64,
+    /// Returns farther than this are not matched (m).
+    pub range_max_m: f64,
+    /// At most this many points of a scan are matched (evenly subsampled).
+    pub max_points: usize,
+    /// Keyframes before the new one that form the submap of a sequential edge.
+    pub submap_keyframes: usize,
+    /// Half-width of the sequential search in x and y (m).
+    pub sequential_window_m: f64,
+    /// Half-width of the sequential search in yaw (deg).
+    pub sequential_window_deg: f64,
+    /// Yaw step of the searches (deg; the sub-cell refinement goes below it).
+    pub yaw_step_deg: f64,
+    /// Prior on the deviation from the front end's relative motion: x/y (m).
+    pub sequential_prior_sigma_m: f64,
+    /// Prior on the deviation from the front end's relative motion: yaw (deg).
+    pub sequential_prior_sigma_deg: f64,
+    /// Smallest standard deviation of a matched sequential edge in x and y (m): its
+    /// information is the curvature of the match objective, capped at this.
+    pub sequential_sigma_m: f64,
+    /// Smallest standard deviation of a matched sequential edge in yaw (deg).
+    pub sequential_sigma_deg: f64,
+    /// A sequential match scoring below this (mean field value, 0..1) is replaced by the
+    /// front end's relative motion with the `fallback_sigma_*` uncertainty.
+    pub sequential_min_score: f64,
+    /// Standard deviation of the front-end edge (the front end's relative motion) beside
+    /// every match, and alone where the match failed, in x and y (m).
+    pub fallback_sigma_m: f64,
+    /// Standard deviation of the front-end edge in yaw (deg).
+    pub fallback_sigma_deg: f64,
+    /// Loop-closure candidates lie within this distance of the keyframe's estimate (m).
+    pub loop_search_radius_m: f64,
+    /// ... and at least this far back along the path (m).
+    pub loop_min_path_m: f64,
+    /// At most this many candidates are tried per keyframe (the nearest first).
+    pub loop_max_candidates: usize,
+    /// Loop closures are searched from every k-th keyframe.
+    pub loop_every_keyframes: usize,
+    /// Keyframes on each side of the candidate that form its submap.
+    pub loop_submap_keyframes: usize,
+    /// Half-width of the loop-closure search in x and y (m).
+    pub loop_window_m: f64,
+    /// Half-width of the loop-closure search in yaw (deg).
+    pub loop_window_deg: f64,
+    /// Minimum mean field value (0..1) of an accepted closure.
+    pub loop_min_score: f64,
+    /// A closure is ambiguous (rejected) if a pose farther than `loop_ambiguity_radius_m`
+    /// from the best scores at least this fraction of the best.
+    pub loop_ambiguity_ratio: f64,
+    /// See `loop_ambiguity_ratio` (m).
+    pub loop_ambiguity_radius_m: f64,
+    /// A scan needs at least this many matching points to be matched at all (sequential
+    /// edge, closure, refinement); fewer points fit anywhere.
+    pub min_points: usize,
+    /// Standard deviation of a loop-closure edge in x and y (m).
+    pub loop_sigma_m: f64,
+    /// Standard deviation of a loop-closure edge in yaw (deg).
+    pub loop_sigma_deg: f64,
+    /// Width of the Cauchy kernel of loop edges (whitened error units; 0 = no kernel).
+    pub loop_kernel_width: f64,
+    /// After the final optimisation, loop edges with a whitened squared error above this
+    /// are removed and the graph optimised again.
+    pub loop_outlier_chi2: f64,
+    /// Optimise after accepted closures at most every this many keyframes ...
+    pub optimize_every_keyframes: usize,
+    /// ... or at once when a new closure disagrees with the current estimates by more than
+    /// this whitened squared error (a loop closing after drift).
+    pub optimize_chi2: f64,
+    /// Levenberg-Marquardt iterations per optimisation.
+    pub max_iterations: usize,
+    /// After the optimisation, match every scan between keyframes against the corrected
+    /// keyframes around it (a small window around the pose composed from its keyframe), so
+    /// the scans between keyframes do not keep the front end's local errors.
+    pub refine_scans: bool,
+    /// Half-width of that refinement search in x and y (m).
+    pub refine_window_m: f64,
+    /// Half-width of that refinement search in yaw (deg).
+    pub refine_window_deg: f64,
+    /// When no loop closure survives, return the front end's trajectory unchanged: without
+    /// a closure the back end only re-matches scans, and on the simulated car (tilted
+    /// LiDAR, streets) its re-matching drifts where the filter does not (open problem).
+    pub keep_front_end_without_closures: bool,
+}
+
+impl Default for GraphOptions {
+    fn default() -> Self {
+        GraphOptions {
+            enabled: true,
+            keyframe_distance_m: 0.3,
+            keyframe_angle_deg: 10.0,
+            resolution_m: 0.05,
+            field_sigma_m: 0.07,
+            range_min_m: 0.1,
+            range_max_m: 30.0,
+            max_points: 200,
+            submap_keyframes: 10,
+            sequential_window_m: 0.15,
+            sequential_window_deg: 3.0,
+            yaw_step_deg: 0.3,
+            sequential_prior_sigma_m: 0.1,
+            sequential_prior_sigma_deg: 2.0,
+            sequential_sigma_m: 0.02,
+            sequential_sigma_deg: 0.5,
+            sequential_min_score: 0.3,
+            fallback_sigma_m: 0.1,
+            fallback_sigma_deg: 2.0,
+            loop_search_radius_m: 8.0,
+            loop_min_path_m: 10.0,
+            loop_max_candidates: 2,
+            loop_every_keyframes: 5,
+            loop_submap_keyframes: 20,
+            loop_window_m: 3.0,
+            loop_window_deg: 20.0,
+            loop_min_score: 0.55,
+            loop_ambiguity_ratio: 0.9,
+            loop_ambiguity_radius_m: 0.5,
+            min_points: 50,
+            loop_sigma_m: 0.05,
+            loop_sigma_deg: 1.0,
+            loop_kernel_width: 3.0,
+            loop_outlier_chi2: 100.0,
+            optimize_every_keyframes: 50,
+            optimize_chi2: 25.0,
+            max_iterations: 20,
+            refine_scans: true,
+            refine_window_m: 0.05,
+            refine_window_deg: 1.0,
+            keep_front_end_without_closures: true,
+        }
+    }
+}
+
+impl GraphOptions {
+    /// Checks ranges; the message names the bad key.
+    pub fn validate(&self) -> Result<(), String> {
+        let pos = |v: f64| v.is_finite() && v > 0.0;
+        for (k, v) in [
+            ("keyframe_distance_m", self.keyframe_distance_m),
+            ("keyframe_angle_deg", self.keyframe_angle_deg),
+            ("yaw_step_deg", self.yaw_step_deg),
+            ("resolution_m", self.resolution_m),
+            ("field_sigma_m", self.field_sigma_m),
+            ("range_max_m", self.range_max_m),
+            ("sequential_prior_sigma_m", self.sequential_prior_sigma_m),
+            (
+                "sequential_prior_sigma_deg",
+                self.sequential_prior_sigma_deg,
+            ),
+            ("sequential_sigma_m", self.sequential_sigma_m),
+            ("sequential_sigma_deg", self.sequential_sigma_deg),
+            ("fallback_sigma_m", self.fallback_sigma_m),
+            ("fallback_sigma_deg", self.fallback_sigma_deg),
+            ("loop_sigma_m", self.loop_sigma_m),
+            ("loop_sigma_deg", self.loop_sigma_deg),
+            ("loop_outlier_chi2", self.loop_outlier_chi2),
+            ("optimize_chi2", self.optimize_chi2),
+        ] {
+            if !pos(v) {
+                return Err(format!("graph.{k} must be positive and finite"));
+            }
+        }
+        for (k, v) in [
+            ("range_min_m", self.range_min_m),
+            ("sequential_window_m", self.sequential_window_m),
+            ("sequential_window_deg", self.sequential_window_deg),
+            ("loop_search_radius_m", self.loop_search_radius_m),
+            ("loop_min_path_m", self.loop_min_path_m),
+            ("loop_window_m", self.loop_window_m),
+            ("loop_window_deg", self.loop_window_deg),
+            ("loop_ambiguity_radius_m", self.loop_ambiguity_radius_m),
+            ("loop_kernel_width", self.loop_kernel_width),
+            ("refine_window_m", self.refine_window_m),
+            ("refine_window_deg", self.refine_window_deg),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!("graph.{k} must be finite and >= 0"));
+            }
+        }
+        for (k, v) in [
+            ("sequential_min_score", self.sequential_min_score),
+            ("loop_min_score", self.loop_min_score),
+            ("loop_ambiguity_ratio", self.loop_ambiguity_ratio),
+        ] {
+            if !(0.0..=1.0).contains(&v) {
+                return Err(format!("graph.{k} must lie in [0, 1]"));
+            }
+        }
+        if self.sequential_window_m > 2.0 || self.loop_window_m > 10.0 {
+            return Err("graph: sequential_window_m <= 2 and loop_window_m <= 10".into());
+        }
+        if self.loop_window_deg > 180.0 || self.sequential_window_deg > 45.0 {
+            return Err("graph: sequential_window_deg <= 45 and loop_window_deg <= 180".into());
+        }
+        for (k, v) in [
+            ("max_points", self.max_points),
+            ("submap_keyframes", self.submap_keyframes),
+            ("loop_every_keyframes", self.loop_every_keyframes),
+            ("optimize_every_keyframes", self.optimize_every_keyframes),
+        ] {
+            if v == 0 {
+                return Err(format!("graph.{k} must be at least 1"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Counts and timings of a back-end run.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct GraphStats {
+    /// Keyframes (nodes).
+    pub nodes: usize,
+    /// Edges in the final graph.
+    pub edges: usize,
+    /// Sequential edges from a scan match.
+    pub sequential_matched: usize,
+    /// Sequential edges from the front end (match too poor).
+    pub sequential_fallback: usize,
+    /// Loop-closure candidates tried.
+    pub loop_candidates: usize,
+    /// Closures accepted by the matcher.
+    pub loop_accepted: usize,
+    /// Candidates rejected: score too low or too few points.
+    pub loop_rejected_score: usize,
+    /// Candidates rejected as ambiguous.
+    pub loop_rejected_ambiguous: usize,
+    /// Accepted closures removed as outliers after optimisation.
+    pub loop_removed_outliers: usize,
+    /// Optimisations run.
+    pub optimizations: usize,
+    /// Levenberg-Marquardt iterations in all.
+    pub iterations: usize,
+    /// Robust cost after the final optimisation.
+    pub final_cost: f64,
+    /// Seconds in scan matching (sequential and loop).
+    pub matching_s: f64,
+    /// Seconds in optimisation.
+    pub optimize_s: f64,
+    /// Seconds in the final per-scan refinement.
+    pub refine_s: f64,
+    /// Seconds in all.
+    pub total_s: f64,
+}
+
+/// What the back end produced.
+#[derive(Debug, Clone)]
+pub struct GraphResult {
+    /// A corrected pose for every pose of the input trajectory (same stamps).
+    pub trajectory: Vec<StampedPose2>,
+    /// The corrected keyframe poses.
+    pub keyframes: Vec<StampedPose2>,
+    /// Index pairs `(from, to)` of the accepted loop closures (keyframe indices).
+    pub loop_edges: Vec<(usize, usize)>,
+    /// Counts and timings.
+    pub stats: GraphStats,
+}
+
+/// One keyframe: its input-trajectory index, front-end pose and matching points.
+struct Keyframe {
+    traj_index: usize,
+    front_pose: Pose2,
+    points_body: Vec<[f64; 2]>,
+    path_m: f64,
+}
+
+/// Runs the back end on `trajectory` (a pose at some scans of `recording`, e.g.
+/// [`crate::filter::slam::SlamResult::trajectory`]), using `scan_opts` for preprocessing.
+pub fn optimize_trajectory(
+    recording: &Recording,
+    scan_opts: &ScanOptions,
+    trajectory: &[StampedPose2],
+    opts: &GraphOptions,
+) -> Result<GraphResult, GraphError> {
+    opts.validate().map_err(GraphError::Options)?;
+    let t_start = Instant::now();
+    let mut stats = GraphStats::default();
+    let keyframes = select_keyframes(recording, scan_opts, trajectory, opts)?;
+    let mut graph = PoseGraph::default();
+    let mut loop_edges: Vec<usize> = Vec::new();
+    let opt_opts = OptimizeOptions {
+        max_iterations: opts.max_iterations,
+        ..OptimizeOptions::default()
+    };
+    let seq_win = SearchWindow {
+        xy_m: opts.sequential_window_m,
+        yaw_rad: opts.sequential_window_deg.to_radians(),
+        yaw_step_rad: opts.yaw_step_deg.to_radians(),
+    };
+    let loop_win = SearchWindow {
+        xy_m: opts.loop_window_m,
+        yaw_rad: opts.loop_window_deg.to_radians(),
+        yaw_step_rad: seq_win.yaw_step_rad,
+    };
+    let mut closures_pending = false;
+    let mut urgent = false;
+    let mut last_opt = 0usize;
+    let mut submap_pts: Vec<[f64; 2]> = Vec::new();
+    for k in 0..keyframes.len() {
+        let kf = &keyframes[k];
+        if k == 0 {
+            graph.poses.push(kf.front_pose);
+            continue;
+        }
+        let t = Instant::now();
+        let prev = &keyframes[k - 1];
+        let rel_front = prev.front_pose.between(&kf.front_pose);
+        let predicted = graph.poses[k - 1].compose(&rel_front);
+        // Sequential edge: match against the previous keyframes' submap.
+        let first = k.saturating_sub(opts.submap_keyframes);
+        gather_points(&keyframes, &graph.poses, first..k, &mut submap_pts);
+        let margin = opts.sequential_window_m + 3.0 * opts.field_sigma_m + opts.resolution_m;
+        let bounds = bounds_around(&kf.points_body, &predicted, margin)
+            .and_then(|b| clip_to_points(b, &submap_pts, 3.0 * opts.field_sigma_m));
+        let enough = kf.points_body.len() >= opts.min_points;
+        let matched = bounds.filter(|_| enough).and_then(|(lo, hi)| {
+            let field = PointField::build(
+                &submap_pts,
+                lo,
+                hi,
+                opts.resolution_m,
+                opts.field_sigma_m,
+                0,
+            );
+            let prior = Prior {
+                pose: predicted,
+                sigma_xy_m: opts.sequential_prior_sigma_m,
+                sigma_yaw_rad: opts.sequential_prior_sigma_deg.to_radians(),
+            };
+            let coarse = field.search_with_prior(&kf.points_body, &prior, &seq_win);
+            let (pose, score) = field.refine(
+                &kf.points_body,
+                &coarse,
+                seq_win.yaw_step_rad,
+                4,
+                Some(&prior),
+            );
+            (score >= opts.sequential_min_score).then(|| {
+                let curv = field.curvature(
+                    &kf.points_body,
+                    &pose,
+                    0.5 * opts.resolution_m,
+                    seq_win.yaw_step_rad,
+                );
+                (pose, curv)
+            })
+        });
+        // The front end's relative motion always constrains the pair (weakly): where the
+        // match pins nothing down (along a corridor) it decides.
+        let front_edge = Edge::with_sigmas(
+            k - 1,
+            k,
+            rel_front,
+            opts.fallback_sigma_m,
+            opts.fallback_sigma_deg.to_radians(),
+            None,
+        );
+        let (pose, edge) = match matched {
+            Some((pose, curv)) => {
+                stats.sequential_matched += 1;
+                let z = graph.poses[k - 1].between(&pose);
+                let e = Edge {
+                    from: k - 1,
+                    to: k,
+                    measurement: z,
+                    information: capped_information(
+                        &curv,
+                        pose.yaw_rad,
+                        opts.sequential_sigma_m,
+                        opts.sequential_sigma_deg.to_radians(),
+                    ),
+                    robust_width: None,
+                };
+                graph.edges.push(front_edge);
+                (pose, e)
+            }
+            None => {
+                stats.sequential_fallback += 1;
+                (predicted, front_edge)
+            }
+        };
+        graph.poses.push(pose);
+        graph.edges.push(edge);
+        // Loop closures.
+        if k % opts.loop_every_keyframes == 0 && kf.points_body.len() >= opts.min_points {
+            let mut cands: Vec<(f64, usize)> = (0..k)
+                .filter(|&j| kf.path_m - keyframes[j].path_m >= opts.loop_min_path_m)
+                .filter_map(|j| {
+                    let d = graph.poses[j].between(&pose).translation_norm_m();
+                    (d <= opts.loop_search_radius_m).then_some((d, j))
+                })
+                .collect();
+            cands.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let mut tried: Vec<usize> = Vec::new();
+            for &(_, j) in &cands {
+                if tried.len() >= opts.loop_max_candidates {
+                    break;
+                }
+                // Candidates next to one already tried would test the same submap.
+                if tried
+                    .iter()
+                    .any(|&t| t.abs_diff(j) <= opts.loop_submap_keyframes)
+                {
+                    continue;
+                }
+                tried.push(j);
+            }
+            stats.loop_candidates += tried.len();
+            // The candidates are independent: verify them in parallel, add them in order.
+            let poses = &graph.poses;
+            let verdicts: Vec<Verdict> = tried
+                .par_iter()
+                .map(|&j| {
+                    let lo = j.saturating_sub(opts.loop_submap_keyframes);
+                    let hi = (j + opts.loop_submap_keyframes + 1).min(k);
+                    let mut submap = Vec::new();
+                    gather_points(&keyframes, poses, lo..hi, &mut submap);
+                    let margin = opts.loop_window_m + 3.0 * opts.field_sigma_m + opts.resolution_m;
+                    let Some((blo, bhi)) = bounds_around(&kf.points_body, &pose, margin)
+                        .and_then(|b| clip_to_points(b, &submap, 3.0 * opts.field_sigma_m))
+                    else {
+                        return Verdict::LowScore;
+                    };
+                    let field = PointField::build(
+                        &submap,
+                        blo,
+                        bhi,
+                        opts.resolution_m,
+                        opts.field_sigma_m,
+                        levels_for(opts.loop_window_m, opts.resolution_m),
+                    );
+                    verify_closure(&field, &kf.points_body, &pose, &loop_win, opts)
+                })
+                .collect();
+            for (&j, verdict) in tried.iter().zip(verdicts) {
+                match verdict {
+                    Verdict::Accepted(found) => {
+                        stats.loop_accepted += 1;
+                        let z = graph.poses[j].between(&found);
+                        let width =
+                            (opts.loop_kernel_width > 0.0).then_some(opts.loop_kernel_width);
+                        graph.edges.push(Edge::with_sigmas(
+                            j,
+                            k,
+                            z,
+                            opts.loop_sigma_m,
+                            opts.loop_sigma_deg.to_radians(),
+                            width,
+                        ));
+                        loop_edges.push(graph.edges.len() - 1);
+                        closures_pending = true;
+                        if graph.edge_chi2(graph.edges.len() - 1) > opts.optimize_chi2 {
+                            urgent = true;
+                        }
+                    }
+                    Verdict::LowScore => stats.loop_rejected_score += 1,
+                    Verdict::Ambiguous => stats.loop_rejected_ambiguous += 1,
+                }
+            }
+        }
+        stats.matching_s += t.elapsed().as_secs_f64();
+        if urgent || (closures_pending && k - last_opt >= opts.optimize_every_keyframes) {
+            let t = Instant::now();
+            let r = graph.optimize(&opt_opts);
+            stats.optimizations += 1;
+            stats.iterations += r.iterations;
+            stats.optimize_s += t.elapsed().as_secs_f64();
+            closures_pending = false;
+            urgent = false;
+            last_opt = k;
+        }
+    }
+    // Final optimisation, outlier removal, again.
+    let t = Instant::now();
+    let r = graph.optimize(&opt_opts);
+    stats.optimizations += 1;
+    stats.iterations += r.iterations;
+    let outliers: Vec<usize> = loop_edges
+        .iter()
+        .copied()
+        .filter(|&e| graph.edge_chi2(e) > opts.loop_outlier_chi2)
+        .collect();
+    if !outliers.is_empty() {
+        stats.loop_removed_outliers = outliers.len();
+        let mut keep = vec![true; graph.edges.len()];
+        for &e in &outliers {
+            keep[e] = false;
+        }
+        let mut idx = 0;
+        graph.edges.retain(|_| {
+            idx += 1;
+            keep[idx - 1]
+        });
+        let r = graph.optimize(&opt_opts);
+        stats.optimizations += 1;
+        stats.iterations += r.iterations;
+    }
+    stats.final_cost = graph.cost();
+    stats.optimize_s += t.elapsed().as_secs_f64();
+    stats.nodes = graph.poses.len();
+    stats.edges = graph.edges.len();
+    let loop_pairs = graph
+        .edges
+        .iter()
+        .filter(|e| e.to != e.from + 1)
+        .map(|e| (e.from, e.to))
+        .collect();
+    let t = Instant::now();
+    let closed = stats.loop_accepted > stats.loop_removed_outliers;
+    if !closed && opts.keep_front_end_without_closures {
+        graph.poses = keyframes.iter().map(|kf| kf.front_pose).collect();
+    }
+    let mut out = correct_trajectory(trajectory, &keyframes, &graph.poses);
+    if opts.refine_scans && (closed || !opts.keep_front_end_without_closures) {
+        refine_scans(
+            recording,
+            scan_opts,
+            trajectory,
+            &keyframes,
+            &graph.poses,
+            opts,
+            &mut out,
+        )?;
+    }
+    stats.refine_s = t.elapsed().as_secs_f64();
+    let kf_out = keyframes
+        .iter()
+        .zip(&graph.poses)
+        .map(|(kf, p)| StampedPose2 {
+            stamp_ns: trajectory[kf.traj_index].stamp_ns,
+            pose: *p,
+        })
+        .collect();
+    stats.total_s = t_start.elapsed().as_secs_f64();
+    Ok(GraphResult {
+        trajectory: out,
+        keyframes: kf_out,
+        loop_edges: loop_pairs,
+        stats,
+    })
+}
+
+/// The outcome of a loop-closure verification.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Verdict {
+    /// The matched pose of the scan (world frame of the submap).
+    Accepted(Pose2),
+    /// Best score below `loop_min_score` (or too few points).
+    LowScore,
+    /// Another pose scores nearly as well.
+    Ambiguous,
+}
+
+/// Matches `points_body` in `field` over `win` around `centre` and applies the acceptance
+/// tests of `opts` (score, ambiguity); refines an accepted match below a cell.
+pub fn verify_closure(
+    field: &PointField,
+    points_body: &[[f64; 2]],
+    centre: &Pose2,
+    win: &SearchWindow,
+    opts: &GraphOptions,
+) -> Verdict {
+    if points_body.len() < opts.min_points {
+        return Verdict::LowScore;
+    }
+    let Some((best, score)) = field.search_bnb(points_body, centre, win, opts.loop_min_score, None)
+    else {
+        return Verdict::LowScore;
+    };
+    let exclusion = (best, opts.loop_ambiguity_radius_m, win.yaw_rad * 2.0 + 1.0);
+    if field
+        .search_bnb(
+            points_body,
+            centre,
+            win,
+            opts.loop_ambiguity_ratio * score,
+            Some(exclusion),
+        )
+        .is_some()
+    {
+        return Verdict::Ambiguous;
+    }
+    let (pose, _) = field.refine(points_body, &best, win.yaw_step_rad, 4, None);
+    Verdict::Accepted(pose)
+}
+
+/// The information of a match edge: the match's curvature (world x, y, yaw) in the edge's
+/// error frame (rotated into the matched pose's frame), its eigenvalues capped, after
+/// whitening by `sigma_xy_m` / `sigma_yaw_rad`, at 1 (no direction more certain than those
+/// standard deviations) and floored at 0.
+fn capped_information(
+    curvature_world: &nalgebra::Matrix3<f64>,
+    yaw_rad: f64,
+    sigma_xy_m: f64,
+    sigma_yaw_rad: f64,
+) -> nalgebra::Matrix3<f64> {
+    let (s, c) = yaw_rad.sin_cos();
+    let r = nalgebra::Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0);
+    let local = r.transpose() * curvature_world * r;
+    let w = nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(
+        sigma_xy_m,
+        sigma_xy_m,
+        sigma_yaw_rad,
+    ));
+    let m = w * local * w;
+    let m = (m + m.transpose()) * 0.5;
+    let eig = m.symmetric_eigen();
+    let capped = eig.eigenvalues.map(|v| v.clamp(0.0, 1.0));
+    let m =
+        eig.eigenvectors * nalgebra::Matrix3::from_diagonal(&capped) * eig.eigenvectors.transpose();
+    let winv = w.try_inverse().unwrap_or_else(nalgebra::Matrix3::identity);
+    winv * m * winv
+}
+
+/// Pooled levels so that the top level spans about an eighth of the window.
+fn levels_for(window_m: f64, resolution_m: f64) -> usize {
+    let cells = (window_m / resolution_m).max(1.0);
+    ((cells / 4.0).log2().ceil().max(0.0) as usize).min(6)
+}
+
+/// The world-frame bounding box of `points_body` seen from `pose`, grown by `margin_m`.
+fn bounds_around(
+    points_body: &[[f64; 2]],
+    pose: &Pose2,
+    margin_m: f64,
+) -> Option<([f64; 2], [f64; 2])> {
+    if points_body.is_empty() {
+        return None;
+    }
+    let mut lo = [f64::INFINITY; 2];
+    let mut hi = [f64::NEG_INFINITY; 2];
+    for p in points_body {
+        let (x, y) = pose.transform_point(p[0], p[1]);
+        lo = [lo[0].min(x), lo[1].min(y)];
+        hi = [hi[0].max(x), hi[1].max(y)];
+    }
+    Some((
+        [lo[0] - margin_m, lo[1] - margin_m],
+        [hi[0] + margin_m, hi[1] + margin_m],
+    ))
+}
+
+/// `bounds` cut to the bounding box of `points` grown by `margin_m`; `None` if they do not
+/// overlap.
+fn clip_to_points(
+    bounds: ([f64; 2], [f64; 2]),
+    points: &[[f64; 2]],
+    margin_m: f64,
+) -> Option<([f64; 2], [f64; 2])> {
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for p in points {
+        lo = [lo[0].min(p[0]), lo[1].min(p[1])];
+        hi = [hi[0].max(p[0]), hi[1].max(p[1])];
+    }
+    let lo = [
+        bounds.0[0].max(lo[0] - margin_m),
+        bounds.0[1].max(lo[1] - margin_m),
+    ];
+    let hi = [
+        bounds.1[0].min(hi[0] + margin_m),
+        bounds.1[1].min(hi[1] + margin_m),
+    ];
+    (lo[0] < hi[0] && lo[1] < hi[1]).then_some((lo, hi))
+}
+
+/// World-frame points of keyframes `range` at `poses` into `out`.
+fn gather_points(
+    keyframes: &[Keyframe],
+    poses: &[Pose2],
+    range: std::ops::Range<usize>,
+    out: &mut Vec<[f64; 2]>,
+) {
+    out.clear();
+    for j in range {
+        let p = &poses[j];
+        out.extend(keyframes[j].points_body.iter().map(|q| {
+            let (x, y) = p.transform_point(q[0], q[1]);
+            [x, y]
+        }));
+    }
+}
+
+/// Keyframes along `trajectory` with their matching points.
+fn select_keyframes(
+    recording: &Recording,
+    scan_opts: &ScanOptions,
+    trajectory: &[StampedPose2],
+    opts: &GraphOptions,
+) -> Result<Vec<Keyframe>, GraphError> {
+    let mut pts = ScanPoints::new(recording, scan_opts, opts)?;
+    let mut out: Vec<Keyframe> = Vec::new();
+    let mut path_m = 0.0;
+    let mut last_pose: Option<Pose2> = None;
+    let mut last_kf: Option<Pose2> = None;
+    for (t, sp) in trajectory.iter().enumerate() {
+        if let Some(lp) = last_pose {
+            path_m += lp.between(&sp.pose).translation_norm_m();
+        }
+        last_pose = Some(sp.pose);
+        let due = match last_kf {
+            None => true,
+            Some(kp) => {
+                let d = kp.between(&sp.pose);
+                d.translation_norm_m() >= opts.keyframe_distance_m
+                    || d.yaw_rad.abs() >= opts.keyframe_angle_deg.to_radians()
+            }
+        };
+        // The last pose is always a keyframe, so every pose has one before it.
+        if !due && t + 1 != trajectory.len() {
+            continue;
+        }
+        let points_body = pts.at_stamp(sp.stamp_ns)?;
+        if out.is_empty() || due || t + 1 == trajectory.len() {
+            out.push(Keyframe {
+                traj_index: t,
+                front_pose: sp.pose,
+                points_body,
+                path_m,
+            });
+            last_kf = Some(sp.pose);
+        }
+    }
+    Ok(out)
+}
+
+/// The matching points of a recording's scans, looked up by stamp.
+#[derive(Clone)]
+struct ScanPoints<'a> {
+    recording: &'a Recording,
+    projector: ScanProjector,
+    body: PlanarScan,
+    range_max_m: f64,
+    max_points: usize,
+}
+
+impl<'a> ScanPoints<'a> {
+    fn new(
+        recording: &'a Recording,
+        scan_opts: &ScanOptions,
+        opts: &GraphOptions,
+    ) -> Result<Self, GraphError> {
+        // Matching takes every return in the range window; densification would only add
+        // correlated points.
+        let proj_opts = ScanOptions {
+            range_min_m: opts.range_min_m as f32,
+            range_max_m: scan_opts.range_max_m.max(opts.range_max_m as f32),
+            densify_max_gap_m: None,
+            ..*scan_opts
+        };
+        let projector =
+            ScanProjector::new(&recording.lidar, &recording.body_from_lidar, &proj_opts)?;
+        Ok(ScanPoints {
+            recording,
+            projector,
+            body: PlanarScan::default(),
+            range_max_m: opts.range_max_m,
+            max_points: opts.max_points,
+        })
+    }
+
+    /// Returns of the scan stamped `stamp_ns` within `range_max_m` of the sensor, evenly
+    /// thinned to `max_points` (empty when no scan has that stamp).
+    fn at_stamp(&mut self, stamp_ns: i64) -> Result<Vec<[f64; 2]>, GraphError> {
+        let rec = self.recording;
+        let stamps = &rec.scans.stamps_ns;
+        let i = stamps.partition_point(|&s| s < stamp_ns);
+        if i >= stamps.len() || stamps[i] != stamp_ns {
+            return Ok(Vec::new());
+        }
+        if rec.body_from_lidar_per_scan.is_some() {
+            self.projector
+                .set_mount(&rec.lidar, rec.body_from_lidar_at(i));
+        }
+        self.projector
+            .to_body(rec.scans.ranges(i), &mut self.body)?;
+        let mut pts = Vec::new();
+        crate::filter::scanmatch::match_points(&self.body, self.range_max_m, 1, &mut pts);
+        if pts.len() > self.max_points {
+            let n = pts.len();
+            pts = (0..self.max_points)
+                .map(|k| pts[k * n / self.max_points])
+                .collect();
+        }
+        Ok(pts)
+    }
+}
+
+/// Matches every non-keyframe pose of `out` (already moved with its keyframe) against the
+/// corrected keyframes around its keyframe (see `GraphOptions::refine_scans`).
+fn refine_scans(
+    recording: &Recording,
+    scan_opts: &ScanOptions,
+    trajectory: &[StampedPose2],
+    keyframes: &[Keyframe],
+    corrected: &[Pose2],
+    opts: &GraphOptions,
+    out: &mut [StampedPose2],
+) -> Result<(), GraphError> {
+    let pts = ScanPoints::new(recording, scan_opts, opts)?;
+    let half = opts.submap_keyframes.div_ceil(2);
+    let win = SearchWindow {
+        xy_m: opts.refine_window_m,
+        yaw_rad: opts.refine_window_deg.to_radians(),
+        yaw_step_rad: opts.yaw_step_deg.to_radians(),
+    };
+    let current: &[StampedPose2] = out;
+    // Keyframes are independent here: in parallel, each worker with its own projector.
+    let moved: Vec<Result<Vec<(usize, Pose2)>, GraphError>> = (0..keyframes.len())
+        .into_par_iter()
+        .map_init(
+            || (pts.clone(), Vec::new()),
+            |(pts, submap), k| {
+                let kf = &keyframes[k];
+                let end = keyframes
+                    .get(k + 1)
+                    .map_or(trajectory.len(), |n| n.traj_index);
+                let mut found = Vec::new();
+                if end <= kf.traj_index + 1 {
+                    return Ok(found);
+                }
+                let range = k.saturating_sub(half)..(k + half + 1).min(keyframes.len());
+                gather_points(keyframes, corrected, range, submap);
+                // The scans until the next keyframe stay within a keyframe step of this one.
+                let margin = opts.keyframe_distance_m + win.xy_m + 3.0 * opts.field_sigma_m + 0.5;
+                let Some((lo, hi)) = bounds_around(&kf.points_body, &corrected[k], margin)
+                    .and_then(|b| clip_to_points(b, submap, 3.0 * opts.field_sigma_m))
+                else {
+                    return Ok(found);
+                };
+                let field =
+                    PointField::build(submap, lo, hi, opts.resolution_m, opts.field_sigma_m, 0);
+                for t in kf.traj_index + 1..end {
+                    let body = pts.at_stamp(trajectory[t].stamp_ns)?;
+                    if body.len() < opts.min_points {
+                        continue;
+                    }
+                    let prior = Prior {
+                        pose: current[t].pose,
+                        sigma_xy_m: opts.sequential_prior_sigma_m,
+                        sigma_yaw_rad: opts.sequential_prior_sigma_deg.to_radians(),
+                    };
+                    let coarse = field.search_with_prior(&body, &prior, &win);
+                    let (pose, score) =
+                        field.refine(&body, &coarse, win.yaw_step_rad, 4, Some(&prior));
+                    if score >= opts.sequential_min_score {
+                        found.push((t, pose));
+                    }
+                }
+                Ok(found)
+            },
+        )
+        .collect();
+    for m in moved {
+        for (t, pose) in m? {
+            out[t].pose = pose;
+        }
+    }
+    Ok(())
+}
+
+/// Every input pose moved with its keyframe: `corrected(kf) * front(kf)^-1 * front(t)`.
+fn correct_trajectory(
+    trajectory: &[StampedPose2],
+    keyframes: &[Keyframe],
+    corrected: &[Pose2],
+) -> Vec<StampedPose2> {
+    let mut out = Vec::with_capacity(trajectory.len());
+    let mut k = 0;
+    for (t, sp) in trajectory.iter().enumerate() {
+        while k + 1 < keyframes.len() && keyframes[k + 1].traj_index <= t {
+            k += 1;
+        }
+        let pose = match (keyframes.get(k), corrected.get(k)) {
+            (Some(kf), Some(c)) => c.compose(&kf.front_pose.between(&sp.pose)),
+            _ => sp.pose,
+        };
+        out.push(StampedPose2 {
+            stamp_ns: sp.stamp_ns,
+            pose,
+        });
+    }
+    out
+}
