@@ -14,6 +14,7 @@ pub mod correlate;
 pub mod odometry;
 pub mod particles;
 pub mod prediction;
+pub mod rbpf;
 pub mod resample;
 pub mod rng;
 pub mod scanmatch;
@@ -41,6 +42,9 @@ pub enum FilterMode {
     /// Likelihood-field scan matching with an odometry prior (`[filter.scan_match]`).
     #[default]
     ScanMatch,
+    /// Rao-Blackwellised: per-particle maps, scan matching against each particle's own map,
+    /// output the final best particle's ancestral path (`[filter.rbpf]`).
+    Rbpf,
 }
 
 /// Options of the filter component (`[filter]` in the configuration).
@@ -88,6 +92,8 @@ pub struct FilterOptions {
     pub odometry_model: OdometryModelOptions,
     /// The scan-matching mode's options.
     pub scan_match: scanmatch::ScanMatchOptions,
+    /// The Rao-Blackwellised mode's options.
+    pub rbpf: rbpf::RbpfOptions,
 }
 
 impl Default for FilterOptions {
@@ -109,6 +115,7 @@ impl Default for FilterOptions {
             odometry_model: OdometryModelOptions::ese650(),
             mode: FilterMode::default(),
             scan_match: scanmatch::ScanMatchOptions::default(),
+            rbpf: rbpf::RbpfOptions::default(),
         }
     }
 }
@@ -165,6 +172,12 @@ impl FilterOptions {
             .validate()
             .map_err(|message| FilterError::InvalidOption {
                 name: "scan_match",
+                message,
+            })?;
+        self.rbpf
+            .validate()
+            .map_err(|message| FilterError::InvalidOption {
+                name: "rbpf",
                 message,
             })?;
         Ok(())

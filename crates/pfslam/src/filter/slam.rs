@@ -185,6 +185,8 @@ pub struct SlamStats {
     pub best_score_mean: f64,
     /// Time per stage.
     pub timings: StageTimings,
+    /// Tiles held by the particles' maps at the end (`rbpf` mode only).
+    pub map_memory: Option<super::rbpf::MapMemory>,
 }
 
 /// What a run produced.
@@ -230,6 +232,9 @@ pub fn run_slam(
     seed: u64,
     observer: &mut dyn FnMut(SlamEvent<'_>),
 ) -> Result<SlamResult, SlamError> {
+    if config.filter.mode == FilterMode::Rbpf {
+        return super::rbpf::run_rbpf(recording, config, seed, observer);
+    }
     let motion = super::motion_model(config, recording)?;
     let grid = OccupancyGrid::new(&config.map)?;
     let mut policy = BestParticleMap::new(grid);
@@ -305,7 +310,7 @@ pub fn run_slam_with<P: MapPolicy>(
     let match_params = opts.scan_match.params(config.map.resolution_m);
     let resample_threshold = match opts.mode {
         FilterMode::Seed => opts.resample_threshold,
-        FilterMode::ScanMatch => opts.scan_match.resample_threshold,
+        FilterMode::ScanMatch | FilterMode::Rbpf => opts.scan_match.resample_threshold,
     };
     let mut neff_sum = 0.0;
     let mut score_sum = 0.0;
@@ -324,7 +329,9 @@ pub fn run_slam_with<P: MapPolicy>(
                 FilterMode::Seed => pf.predict_steps(&steps, motion),
                 // The scan match is the proposal: odometry without noise here, the spread
                 // comes from sampling around each match.
-                FilterMode::ScanMatch => pf.predict_steps(&steps, &ExactOdometry),
+                FilterMode::ScanMatch | FilterMode::Rbpf => {
+                    pf.predict_steps(&steps, &ExactOdometry)
+                }
             }
         }
         stats.timings.predict_s += t.elapsed().as_secs_f64();
@@ -350,7 +357,7 @@ pub fn run_slam_with<P: MapPolicy>(
                         opts.temperature,
                         opts.move_to_best_offset,
                     ),
-                    FilterMode::ScanMatch => {
+                    FilterMode::ScanMatch | FilterMode::Rbpf => {
                         let sm = &opts.scan_match;
                         scanmatch::match_points(
                             &body,
