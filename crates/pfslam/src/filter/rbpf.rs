@@ -27,6 +27,8 @@ use super::slam::{SlamError, SlamEvent, SlamResult, SlamStats};
 use super::weights;
 use crate::config::Config;
 use crate::geometry::{Pose2, StampedPose2, wrap_angle};
+use crate::map::TILE_SIZE;
+use crate::map::grid::TILE_SHIFT;
 use crate::map::{
     Cell, InsertScratch, MapError, OccupancyGrid, PlanarScan, ScanProjector, to_world,
 };
@@ -63,6 +65,12 @@ pub struct RbpfOptions {
     pub beam_decimation: usize,
     /// Returns farther than this are neither matched nor mapped (m; GMapping `maxUrange`).
     pub range_max_m: f64,
+    /// Returns nearer than this are dropped; replaces `[map.scan] range_min_m` in this mode
+    /// (whose 2 m default is the car seed's; indoor robots see walls closer than that).
+    pub range_min_m: f64,
+    /// Keep `[map.scan]`'s densification of walls (joining returns); off matches and maps
+    /// the real beams only.
+    pub densify: bool,
     /// Standard deviation of the observation model: a point at distance d from the nearest
     /// occupied cell centre scores `-d^2 / (2 sigma^2)` (m).
     pub sigma_m: f64,
@@ -103,6 +111,8 @@ impl Default for RbpfOptions {
             stt: 0.2,
             beam_decimation: 1,
             range_max_m: 30.0,
+            range_min_m: 0.1,
+            densify: false,
             sigma_m: 0.05,
             kernel_cells: 1,
             no_hit_log_likelihood: -2.0,
@@ -128,6 +138,7 @@ impl RbpfOptions {
             return Err("filter.rbpf.resolution_m must lie in [0, 10]".into());
         }
         for (k, v) in [
+            ("range_min_m", self.range_min_m),
             ("linear_update_m", self.linear_update_m),
             ("angular_update_deg", self.angular_update_deg),
             ("srr", self.srr),
@@ -210,6 +221,9 @@ pub struct ObservationModel {
     pub no_hit: f64,
 }
 
+const TS: i32 = TILE_SIZE as i32;
+const MASK: i32 = TS - 1;
+
 /// Log-likelihood of the body-frame `points` seen from `pose` in `grid` (sum over points).
 pub fn scan_log_likelihood(
     grid: &OccupancyGrid,
@@ -227,12 +241,33 @@ pub fn scan_log_likelihood(
         let (u, v) = limits.cell_coords(x, y);
         let (i, j) = (u.floor() as i32, v.floor() as i32);
         let mut best = f64::INFINITY;
-        for dj in -k..=k {
-            let dv = v - (f64::from(j + dj) + 0.5);
-            for di in -k..=k {
-                if grid.logodds_fixed(Cell::new(i + di, j + dj)) > model.occupied_fixed {
-                    let du = u - (f64::from(i + di) + 0.5);
-                    best = best.min(du * du + dv * dv);
+        let (li, lj) = (i & MASK, j & MASK);
+        if li >= k && lj >= k && li < TS - k && lj < TS - k {
+            // The whole kernel lies in one tile: one directory lookup.
+            if let Some(cells) = grid.tile_cells(i >> TILE_SHIFT, j >> TILE_SHIFT) {
+                for dj in -k..=k {
+                    let row = ((lj + dj) as usize) << TILE_SHIFT;
+                    let dv = v - (f64::from(j + dj) + 0.5);
+                    for di in -k..=k {
+                        if cells[row + (li + di) as usize] > model.occupied_fixed {
+                            let du = u - (f64::from(i + di) + 0.5);
+                            best = best.min(du * du + dv * dv);
+                        }
+                    }
+                }
+            } else if model.occupied_fixed < 0 {
+                // An unwritten tile is all log-odds 0.
+                let (du, dv) = (u - (f64::from(i) + 0.5), v - (f64::from(j) + 0.5));
+                best = du * du + dv * dv;
+            }
+        } else {
+            for dj in -k..=k {
+                let dv = v - (f64::from(j + dj) + 0.5);
+                for di in -k..=k {
+                    if grid.logodds_fixed(Cell::new(i + di, j + dj)) > model.occupied_fixed {
+                        let du = u - (f64::from(i + di) + 0.5);
+                        best = best.min(du * du + dv * dv);
+                    }
                 }
             }
         }
@@ -500,6 +535,10 @@ pub struct RbpfUpdate {
     pub resampled: bool,
     /// Mean per-point log-likelihood of the best particle's match.
     pub best_ll_per_point: f64,
+    /// Wall time of motion sampling and matching (s).
+    pub match_s: f64,
+    /// Wall time of the map updates (s).
+    pub map_s: f64,
 }
 
 impl Rbpf {
@@ -577,19 +616,30 @@ impl Rbpf {
         let noise = self.options.noise();
         let (model, search) = (&self.model, &self.search);
         let n = self.particles.len();
-        let results: Vec<Result<(), MapError>> = self
-            .particles
-            .par_chunks_mut(CHUNK_PARTICLES)
-            .zip(self.lls.par_chunks_mut(CHUNK_PARTICLES))
-            .zip(self.chunks.par_iter_mut())
-            .map(|((parts, lls), st)| {
-                for (p, ll) in parts.iter_mut().zip(lls.iter_mut()) {
-                    if !first {
+        let t = Instant::now();
+        if !first {
+            self.particles
+                .par_chunks_mut(CHUNK_PARTICLES)
+                .zip(self.lls.par_chunks_mut(CHUNK_PARTICLES))
+                .zip(self.chunks.par_iter_mut())
+                .for_each(|((parts, lls), st)| {
+                    for (p, ll) in parts.iter_mut().zip(lls.iter_mut()) {
                         let sampled = sample_motion(&p.pose, delta, noise, &mut st.rng);
                         let (pose, l) = match_in_own_map(&p.map, model, points, &sampled, search);
                         p.pose = pose;
                         *ll = l;
                     }
+                });
+        }
+        let match_s = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        // Mapped before resampling, so copies share the tiles this update wrote.
+        let results: Vec<Result<(), MapError>> = self
+            .particles
+            .par_chunks_mut(CHUNK_PARTICLES)
+            .zip(self.chunks.par_iter_mut())
+            .map(|(parts, st)| {
+                for p in parts.iter_mut() {
                     to_world(body, &p.pose, &mut st.world);
                     p.map.insert_scan(&st.world, &mut st.insert)?;
                     p.node = Arc::new(PathNode {
@@ -605,11 +655,14 @@ impl Rbpf {
         for r in results {
             r?;
         }
+        let map_s = t.elapsed().as_secs_f64();
         if first {
             return Ok(RbpfUpdate {
                 neff: n as f64,
                 resampled: false,
                 best_ll_per_point: 0.0,
+                match_s,
+                map_s,
             });
         }
         weights::update_log_space(
@@ -631,6 +684,8 @@ impl Rbpf {
             neff,
             resampled,
             best_ll_per_point,
+            match_s,
+            map_s,
         })
     }
 
@@ -684,11 +739,14 @@ pub fn run_rbpf(
         map_opts.resolution_m = ro.resolution_m;
     }
     let grid = OccupancyGrid::new(&map_opts)?;
-    let mut projector = ScanProjector::new(
-        &recording.lidar,
-        &recording.body_from_lidar,
-        &config.map.scan,
-    )?;
+    let mut scan_opts = config.map.scan;
+    scan_opts.range_min_m = ro.range_min_m as f32;
+    if !ro.densify {
+        scan_opts.densify_max_gap_m = None;
+    }
+    scan_opts.validate().map_err(MapError::Options)?;
+    let mut projector =
+        ScanProjector::new(&recording.lidar, &recording.body_from_lidar, &scan_opts)?;
     let mut stats = SlamStats {
         particles: opts.particles,
         seed,
@@ -737,7 +795,9 @@ pub fn run_rbpf(
                 !have_first,
                 opts.resample_method,
             )?;
-            stats.timings.correlate_s += t.elapsed().as_secs_f64();
+            stats.timings.correlate_s += report.match_s;
+            stats.timings.map_update_s += report.map_s;
+            stats.timings.resample_s += t.elapsed().as_secs_f64() - report.match_s - report.map_s;
             if have_first {
                 stats.updates += 1;
                 neff_sum += report.neff;

@@ -274,6 +274,14 @@ impl OccupancyGrid {
         }
     }
 
+    /// The row-major fixed-point cells (`TILE_SIZE` x `TILE_SIZE`) of the tile holding
+    /// tile coordinates `(ti, tj)` = cell coordinates shifted right by `TILE_SHIFT`; `None`
+    /// when never written. For kernels that read many neighbouring cells.
+    #[inline(always)]
+    pub fn tile_cells(&self, ti: i32, tj: i32) -> Option<&[i16]> {
+        self.dir.get(ti, tj).map(|t| &t.cells[..])
+    }
+
     /// Log-odds of a cell.
     #[inline]
     pub fn logodds(&self, cell: Cell) -> f64 {
