@@ -6,6 +6,7 @@ mod eval;
 mod filter;
 mod map;
 mod motion;
+mod rbpf;
 mod readers;
 mod sim;
 mod sim_stereo;

@@ -109,7 +109,7 @@ impl Default for RbpfOptions {
             str_m_per_rad: 0.1,
             srt_rad_per_m: 0.2,
             stt: 0.2,
-            beam_decimation: 1,
+            beam_decimation: 2,
             range_max_m: 30.0,
             range_min_m: 0.1,
             densify: false,
@@ -122,7 +122,7 @@ impl Default for RbpfOptions {
             coarse_xy_cells: 0,
             step_xy_m: 0.05,
             step_yaw_deg: 2.865,
-            refine_levels: 5,
+            refine_levels: 4,
             weight_temperature: 30.0,
             resample_threshold: 0.5,
         }
