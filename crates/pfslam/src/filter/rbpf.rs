@@ -859,3 +859,111 @@ fn clip_scan(scan: &mut PlanarScan, range_max_m: f64) {
         !p.hit || dx * dx + dy * dy <= r2
     });
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn node(pose: Pose2, odom: Pose2, scan: usize, parent: &Arc<PathNode>) -> Arc<PathNode> {
+        Arc::new(PathNode {
+            pose,
+            odom,
+            scan,
+            parent: Some(parent.clone()),
+        })
+    }
+
+    #[test]
+    fn output_path_is_the_survivors_history_with_odometry_between_nodes() {
+        let o = |x: f64| Pose2::new(x, 0.0, 0.0);
+        let root = Arc::new(PathNode {
+            pose: o(0.0),
+            odom: o(0.0),
+            scan: 0,
+            parent: None,
+        });
+        // Two particles branch at scan 2: A thinks it is at y = +1, B at y = -1.
+        let a = node(Pose2::new(2.0, 1.0, 0.0), o(2.0), 2, &root);
+        let b = node(Pose2::new(2.0, -1.0, 0.0), o(2.0), 2, &root);
+        // Resampling keeps only B (two copies); they extend B's history.
+        let b1 = node(Pose2::new(4.0, -1.0, 0.0), o(4.0), 4, &b);
+        let b2 = node(Pose2::new(4.0, -1.2, 0.0), o(4.0), 4, &b);
+        drop(a);
+        let odometry: Vec<StampedPose2> = (0..6)
+            .map(|k| StampedPose2 {
+                stamp_ns: k as i64,
+                pose: o(k as f64),
+            })
+            .collect();
+        let path = path_poses(&b2, &odometry);
+        let ys: Vec<f64> = path.iter().map(|p| p.pose.y_m).collect();
+        let xs: Vec<f64> = path.iter().map(|p| p.pose.x_m).collect();
+        assert_eq!(ys, vec![0.0, 0.0, -1.0, -1.0, -1.2, -1.2]);
+        assert_eq!(xs, vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0]);
+        assert_eq!(path_poses(&b1, &odometry)[5].pose.y_m, -1.0);
+        assert_eq!(ancestry(&b2).len(), 3);
+    }
+
+    #[test]
+    fn dropping_a_long_path_does_not_recurse() {
+        let mut leaf = Arc::new(PathNode {
+            pose: Pose2::IDENTITY,
+            odom: Pose2::IDENTITY,
+            scan: 0,
+            parent: None,
+        });
+        for k in 1..1_000_000 {
+            leaf = node(Pose2::IDENTITY, Pose2::IDENTITY, k, &leaf);
+        }
+        drop(leaf);
+    }
+
+    #[test]
+    fn likelihood_peaks_at_the_true_pose_and_the_matcher_finds_it() {
+        use crate::map::{MapOptions, ScanPoint};
+        let mut grid = OccupancyGrid::new(&MapOptions {
+            resolution_m: 0.05,
+            ..MapOptions::default()
+        })
+        .unwrap();
+        // An L-shaped room corner (walls through cell centres) plus a pillar.
+        let mut points = Vec::new();
+        for k in 0..200 {
+            let t = f64::from(k) * 0.05 - 5.0;
+            points.push([t, 3.025]);
+            points.push([4.025, t]);
+        }
+        for k in 0..36 {
+            let a = f64::from(k) * 10f64.to_radians();
+            points.push([1.5 + 0.3 * a.cos(), -1.0 + 0.3 * a.sin()]);
+        }
+        let scan = PlanarScan {
+            sensor_x_m: 0.0,
+            sensor_y_m: 0.0,
+            points: points
+                .iter()
+                .map(|p| ScanPoint {
+                    x_m: p[0],
+                    y_m: p[1],
+                    hit: true,
+                    free_to: 1.0,
+                })
+                .collect(),
+        };
+        grid.insert_scan(&scan, &mut InsertScratch::new()).unwrap();
+        let o = RbpfOptions::default();
+        let model = o.observation(0.05);
+        let search = SearchParams::new(&o, 0.05);
+        let at_truth = scan_log_likelihood(&grid, &model, &points, &Pose2::IDENTITY);
+        let off = scan_log_likelihood(&grid, &model, &points, &Pose2::new(0.1, 0.0, 0.0));
+        assert!(at_truth > off, "{at_truth} {off}");
+        for start in [
+            Pose2::new(0.04, -0.03, 2f64.to_radians()),
+            Pose2::new(-0.05, 0.04, -2.5f64.to_radians()),
+        ] {
+            let (pose, _) = match_in_own_map(&grid, &model, &points, &start, &search);
+            assert!(pose.translation_norm_m() < 0.02, "{pose:?} from {start:?}");
+            assert!(pose.yaw_rad.abs() < 0.3f64.to_radians(), "{pose:?}");
+        }
+    }
+}
