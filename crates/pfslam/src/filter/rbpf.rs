@@ -97,6 +97,14 @@ pub struct RbpfOptions {
     pub weight_temperature: f64,
     /// Resample when Neff < this fraction of the particle count.
     pub resample_threshold: f64,
+    /// The matcher's prior on the deviation from each particle's sampled pose: a Gaussian
+    /// with the motion model's sigmas for this update times this factor (0 = no prior, the
+    /// match may go anywhere the search reaches). Keeps matches from sliding along corridors.
+    pub prior_scale: f64,
+    /// Smallest x/y sigma of that prior (m).
+    pub prior_min_xy_m: f64,
+    /// Smallest yaw sigma of that prior (deg).
+    pub prior_min_yaw_deg: f64,
 }
 
 impl Default for RbpfOptions {
@@ -125,6 +133,9 @@ impl Default for RbpfOptions {
             refine_levels: 4,
             weight_temperature: 30.0,
             resample_threshold: 0.5,
+            prior_scale: 1.0,
+            prior_min_xy_m: 0.02,
+            prior_min_yaw_deg: 1.0,
         }
     }
 }
@@ -148,6 +159,7 @@ impl RbpfOptions {
             ("coarse_yaw_deg", self.coarse_yaw_deg),
             ("step_xy_m", self.step_xy_m),
             ("step_yaw_deg", self.step_yaw_deg),
+            ("prior_scale", self.prior_scale),
         ] {
             if !nonneg(v) {
                 return Err(format!("filter.rbpf.{k} must be finite and >= 0"));
@@ -158,6 +170,8 @@ impl RbpfOptions {
             ("sigma_m", self.sigma_m),
             ("coarse_yaw_step_deg", self.coarse_yaw_step_deg),
             ("weight_temperature", self.weight_temperature),
+            ("prior_min_xy_m", self.prior_min_xy_m),
+            ("prior_min_yaw_deg", self.prior_min_yaw_deg),
         ] {
             if !pos(v) {
                 return Err(format!("filter.rbpf.{k} must be positive and finite"));
@@ -295,6 +309,8 @@ pub struct SearchParams {
     pub step_yaw_rad: f64,
     /// Step halvings.
     pub refine_levels: u32,
+    /// Prior on the deviation from the sampled pose (set per update from the motion).
+    pub prior: Option<MatchPrior>,
 }
 
 impl SearchParams {
@@ -314,6 +330,7 @@ impl SearchParams {
             step_xy_m: o.step_xy_m,
             step_yaw_rad: o.step_yaw_deg.to_radians(),
             refine_levels: o.refine_levels,
+            prior: None,
         }
     }
 }
@@ -328,7 +345,18 @@ pub fn match_in_own_map(
     start: &Pose2,
     search: &SearchParams,
 ) -> (Pose2, f64) {
-    let eval = |p: &Pose2| scan_log_likelihood(grid, model, points, p);
+    let prior = search.prior;
+    let eval = |p: &Pose2| {
+        let ll = scan_log_likelihood(grid, model, points, p);
+        match prior {
+            Some(pr) => {
+                let (dx, dy) = (p.x_m - start.x_m, p.y_m - start.y_m);
+                let da = wrap_angle(p.yaw_rad - start.yaw_rad);
+                ll - 0.5 * ((dx * dx + dy * dy) * pr.inv_var_xy + da * da * pr.inv_var_yaw)
+            }
+            None => ll,
+        }
+    };
     let mut best = *start;
     let mut best_ll = eval(&best);
     let r = search.xy_cells;
@@ -384,7 +412,22 @@ pub fn match_in_own_map(
         }
     }
     best.yaw_rad = wrap_angle(best.yaw_rad);
-    (best, best_ll)
+    // The weight is the observation's likelihood, without the prior.
+    let ll = if prior.is_some() {
+        scan_log_likelihood(grid, model, points, &best)
+    } else {
+        best_ll
+    };
+    (best, ll)
+}
+
+/// Gaussian prior of the matcher on the deviation from the sampled pose.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MatchPrior {
+    /// `1 / sigma_xy^2` (1/m^2).
+    pub inv_var_xy: f64,
+    /// `1 / sigma_yaw^2` (1/rad^2).
+    pub inv_var_yaw: f64,
 }
 
 /// GMapping's odometry noise: the increment `delta` (in the old body frame) gets Gaussian
@@ -614,6 +657,17 @@ impl Rbpf {
         method: resample::ResampleMethod,
     ) -> Result<RbpfUpdate, MapError> {
         let noise = self.options.noise();
+        let o = &self.options;
+        self.search.prior = (o.prior_scale > 0.0).then(|| {
+            let [srr, str_, srt, stt] = noise;
+            let (d, a) = (delta.translation_norm_m(), delta.yaw_rad.abs());
+            let sxy = (o.prior_scale * (srr * d + str_ * a)).max(o.prior_min_xy_m);
+            let syaw = (o.prior_scale * (stt * a + srt * d)).max(o.prior_min_yaw_deg.to_radians());
+            MatchPrior {
+                inv_var_xy: 1.0 / (sxy * sxy),
+                inv_var_yaw: 1.0 / (syaw * syaw),
+            }
+        });
         let (model, search) = (&self.model, &self.search);
         let n = self.particles.len();
         let t = Instant::now();
