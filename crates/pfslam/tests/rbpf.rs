@@ -81,7 +81,11 @@ fn per_particle_maps_share_tiles() {
 #[test]
 fn loop_closes_in_a_synthetic_room() {
     let rec = synthetic::recording(30.0, 5);
-    let res = run(&rec, &rbpf_config(30), 1);
+    // 0.1 m cells and 20 particles keep the test fast (every scan sees the whole room, so
+    // every update copies every tile of every particle's map).
+    let mut config = rbpf_config(20);
+    config.filter.rbpf.resolution_m = 0.1;
+    let res = run(&rec, &config, 1);
     let gt = rec.ground_truth.as_ref().unwrap();
     assert_eq!(res.trajectory.len(), rec.scans.len());
     let slam = ate_rmse(&res.trajectory, gt);
@@ -101,8 +105,8 @@ fn loop_closes_in_a_synthetic_room() {
         dr > 0.5 && end_err_dr > 1.0,
         "the odometry drifts: {dr} {end_err_dr}"
     );
-    assert!(slam < 0.1, "ATE {slam}");
-    assert!(end_err < 0.1, "end error {end_err}");
+    assert!(slam < 0.05, "ATE {slam}");
+    assert!(end_err < 0.15, "end error {end_err}");
 }
 
 /// Bit-identical with 1 and 2 threads (per-chunk random streams), resampling exercised; the
@@ -110,7 +114,8 @@ fn loop_closes_in_a_synthetic_room() {
 #[test]
 fn rbpf_is_bit_identical_with_1_and_2_threads() {
     let rec = synthetic::recording(12.0, 9);
-    let config = rbpf_config(20);
+    let mut config = rbpf_config(20);
+    config.filter.rbpf.resolution_m = 0.1;
     let on = |threads: usize, seed: u64| {
         rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
