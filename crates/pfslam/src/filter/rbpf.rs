@@ -105,6 +105,13 @@ pub struct RbpfOptions {
     pub prior_min_xy_m: f64,
     /// Smallest yaw sigma of that prior (deg).
     pub prior_min_yaw_deg: f64,
+    /// After the run, re-match every output pose against the final best particle's map
+    /// (hill climb from the path's pose): corrects the odometry composed between updates.
+    pub final_refine: bool,
+    /// x/y sigma of that re-match's prior around the path's pose (m).
+    pub refine_sigma_xy_m: f64,
+    /// Yaw sigma of that re-match's prior (deg).
+    pub refine_sigma_yaw_deg: f64,
 }
 
 impl Default for RbpfOptions {
@@ -136,6 +143,9 @@ impl Default for RbpfOptions {
             prior_scale: 1.0,
             prior_min_xy_m: 0.02,
             prior_min_yaw_deg: 1.0,
+            final_refine: true,
+            refine_sigma_xy_m: 0.1,
+            refine_sigma_yaw_deg: 3.0,
         }
     }
 }
@@ -172,6 +182,8 @@ impl RbpfOptions {
             ("weight_temperature", self.weight_temperature),
             ("prior_min_xy_m", self.prior_min_xy_m),
             ("prior_min_yaw_deg", self.prior_min_yaw_deg),
+            ("refine_sigma_xy_m", self.refine_sigma_xy_m),
+            ("refine_sigma_yaw_deg", self.refine_sigma_yaw_deg),
         ] {
             if !pos(v) {
                 return Err(format!("filter.rbpf.{k} must be positive and finite"));
@@ -811,6 +823,7 @@ pub fn run_rbpf(
     };
     let mut pf = Rbpf::new(opts.particles, start, start, grid, ro, seed);
     let mut dead_reckoning: Vec<StampedPose2> = Vec::with_capacity(total - first);
+    let mut scan_index: Vec<usize> = Vec::with_capacity(total - first);
     let mut body = PlanarScan::default();
     let mut pts: Vec<[f64; 2]> = Vec::new();
     let mut last_update_odom = start;
@@ -826,6 +839,7 @@ pub fn run_rbpf(
         };
         let k = dead_reckoning.len();
         dead_reckoning.push(odom);
+        scan_index.push(i);
         let delta = last_update_odom.between(&odom.pose);
         let due = !have_first
             || delta.translation_norm_m() >= ro.linear_update_m
@@ -892,7 +906,19 @@ pub fn run_rbpf(
         stats.neff_last = opts.particles as f64;
     }
     let best = &pf.particles[pf.best()];
-    let trajectory = path_poses(&best.node, &dead_reckoning);
+    let mut trajectory = path_poses(&best.node, &dead_reckoning);
+    if ro.final_refine && recording.body_from_lidar_per_scan.is_none() {
+        let t = Instant::now();
+        refine_in_final_map(
+            &mut trajectory,
+            &scan_index,
+            recording,
+            &projector,
+            &best.map,
+            ro,
+        )?;
+        stats.timings.correlate_s += t.elapsed().as_secs_f64();
+    }
     stats.timings.total_s = t_start.elapsed().as_secs_f64();
     stats.map_memory = Some(pf.map_memory());
     Ok(SlamResult {
@@ -901,6 +927,46 @@ pub fn run_rbpf(
         map: best.map.clone(),
         stats,
     })
+}
+
+/// Re-matches every output pose against the final best map (hill climb only, with a tight
+/// prior around the path's pose): the poses between updates come from odometry composed onto
+/// the last node, and the odometry's yaw errs most while turning. In parallel over scans;
+/// each result depends only on its scan, so any thread count gives the same output.
+fn refine_in_final_map(
+    trajectory: &mut [StampedPose2],
+    scan_index: &[usize],
+    recording: &Recording,
+    projector: &ScanProjector,
+    map: &OccupancyGrid,
+    ro: &RbpfOptions,
+) -> Result<(), MapError> {
+    let res = map.limits().resolution_m();
+    let model = ro.observation(res);
+    let mut search = SearchParams::new(ro, res);
+    search.yaw_offsets_rad = vec![0.0];
+    search.xy_cells = 0;
+    search.step_xy_m = 0.5 * ro.step_xy_m;
+    search.step_yaw_rad = 0.5 * ro.step_yaw_deg.to_radians();
+    search.prior = Some(MatchPrior {
+        inv_var_xy: 1.0 / ro.refine_sigma_xy_m.powi(2),
+        inv_var_yaw: 1.0 / ro.refine_sigma_yaw_deg.to_radians().powi(2),
+    });
+    trajectory
+        .par_iter_mut()
+        .zip(scan_index.par_iter())
+        .try_for_each_init(
+            || (PlanarScan::default(), Vec::new()),
+            |(body, pts), (sp, &i)| {
+                projector.to_body(recording.scans.ranges(i), body)?;
+                clip_scan(body, ro.range_max_m);
+                match_points(body, ro.range_max_m, ro.beam_decimation, pts);
+                if pts.len() >= 10 {
+                    sp.pose = match_in_own_map(map, &model, pts, &sp.pose, &search).0;
+                }
+                Ok(())
+            },
+        )
 }
 
 /// Turns returns beyond `range_max_m` from the sensor into no-returns (they are neither
