@@ -52,8 +52,9 @@ pub enum FilterMode {
 #[serde(default, deny_unknown_fields)]
 pub struct FilterOptions {
     /// "scan_match" (default: likelihood field + scan-matching proposal, see
-    /// `[filter.scan_match]`) or "seed" (the seeds' map correlation; the keys below up to
-    /// `temperature` and `resample_threshold` apply to it).
+    /// `[filter.scan_match]`), "seed" (the seeds' map correlation; the keys below up to
+    /// `temperature` and `resample_threshold` apply to it) or "rbpf" (Rao-Blackwellised:
+    /// per-particle maps, see `[filter.rbpf]`; uses `particles` and `resample_method`).
     pub mode: FilterMode,
     /// Number of particles (the UCSD seed's best runs use 40, the ESE650 seed 100).
     pub particles: usize,

@@ -19,7 +19,6 @@
 //! - Randomness: one `jump()`ed stream per fixed chunk of particles (`filter::rng`), the
 //!   master stream for resampling: results do not depend on the thread count.
 
-use super::odometry::OdometryCursor;
 use super::resample;
 use super::rng::{CHUNK_PARTICLES, FilterRng};
 use super::scanmatch::match_points;
@@ -774,31 +773,11 @@ pub fn run_rbpf(
     observer: &mut dyn FnMut(SlamEvent<'_>),
 ) -> Result<SlamResult, SlamError> {
     let opts = &config.filter;
-    opts.validate()?;
-    config.map.validate().map_err(MapError::Options)?;
     let ro = &opts.rbpf;
     let t_start = Instant::now();
+    let (first, mut cursor) = super::slam::check_and_start(recording, config)?;
     let scans = &recording.scans;
     let total = scans.len();
-    let input_err = |message: &str| SlamError::Input {
-        name: recording.name.clone(),
-        message: message.to_string(),
-    };
-    if recording.odometry.is_empty() {
-        return Err(input_err("no odometry"));
-    }
-    if let Some(per_scan) = &recording.body_from_lidar_per_scan
-        && per_scan.len() != total
-    {
-        return Err(input_err("per-scan LiDAR mounts do not match the scans"));
-    }
-    let Some(first) =
-        (0..total).find(|&i| recording.odometry.pose_at(scans.stamps_ns[i]).is_some())
-    else {
-        return Err(input_err("no scan lies within the odometry's time span"));
-    };
-    let mut cursor = OdometryCursor::new(&recording.odometry, scans.stamps_ns[first])
-        .ok_or_else(|| input_err("no odometry at the first scan"))?;
     let start = cursor.current().pose;
     let mut map_opts = config.map.clone();
     if ro.resolution_m > 0.0 {

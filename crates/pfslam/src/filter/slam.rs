@@ -258,30 +258,10 @@ pub fn run_slam_with<P: MapPolicy>(
     observer: &mut dyn FnMut(SlamEvent<'_>),
 ) -> Result<SlamResult, SlamError> {
     let opts = &config.filter;
-    opts.validate()?;
-    config.map.validate().map_err(MapError::Options)?;
     let t_start = Instant::now();
+    let (first, mut cursor) = check_and_start(recording, config)?;
     let scans = &recording.scans;
     let total = scans.len();
-    let input_err = |message: &str| SlamError::Input {
-        name: recording.name.clone(),
-        message: message.to_string(),
-    };
-    if recording.odometry.is_empty() {
-        return Err(input_err("no odometry"));
-    }
-    if let Some(per_scan) = &recording.body_from_lidar_per_scan
-        && per_scan.len() != total
-    {
-        return Err(input_err("per-scan LiDAR mounts do not match the scans"));
-    }
-    let Some(first) =
-        (0..total).find(|&i| recording.odometry.pose_at(scans.stamps_ns[i]).is_some())
-    else {
-        return Err(input_err("no scan lies within the odometry's time span"));
-    };
-    let mut cursor = OdometryCursor::new(&recording.odometry, scans.stamps_ns[first])
-        .ok_or_else(|| input_err("no odometry at the first scan"))?;
     let start = cursor.current().pose;
     let mut projector = ScanProjector::new(
         &recording.lidar,
@@ -469,6 +449,38 @@ pub fn run_slam_with<P: MapPolicy>(
         map,
         stats,
     })
+}
+
+/// Validates the options and the recording, and finds the first scan inside the odometry's
+/// time span: its index and an odometry cursor standing on it (shared by every mode's loop).
+pub(crate) fn check_and_start<'a>(
+    recording: &'a Recording,
+    config: &Config,
+) -> Result<(usize, OdometryCursor<'a>), SlamError> {
+    config.filter.validate()?;
+    config.map.validate().map_err(MapError::Options)?;
+    let scans = &recording.scans;
+    let total = scans.len();
+    let input_err = |message: &str| SlamError::Input {
+        name: recording.name.clone(),
+        message: message.to_string(),
+    };
+    if recording.odometry.is_empty() {
+        return Err(input_err("no odometry"));
+    }
+    if let Some(per_scan) = &recording.body_from_lidar_per_scan
+        && per_scan.len() != total
+    {
+        return Err(input_err("per-scan LiDAR mounts do not match the scans"));
+    }
+    let Some(first) =
+        (0..total).find(|&i| recording.odometry.pose_at(scans.stamps_ns[i]).is_some())
+    else {
+        return Err(input_err("no scan lies within the odometry's time span"));
+    };
+    let cursor = OdometryCursor::new(&recording.odometry, scans.stamps_ns[first])
+        .ok_or_else(|| input_err("no odometry at the first scan"))?;
+    Ok((first, cursor))
 }
 
 /// Odometry composed without noise.
