@@ -143,7 +143,7 @@ impl Default for RbpfOptions {
             prior_min_xy_m: 0.02,
             prior_min_yaw_deg: 1.0,
             final_refine: true,
-            refine_sigma_xy_m: 0.1,
+            refine_sigma_xy_m: 0.03,
             refine_sigma_yaw_deg: 3.0,
         }
     }
