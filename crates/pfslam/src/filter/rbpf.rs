@@ -876,14 +876,7 @@ pub fn run_rbpf(
         }
     }
     stats.odometry_steps = dead_reckoning.len();
-    if stats.updates > 0 {
-        stats.neff_mean = neff_sum / stats.updates as f64;
-        stats.best_score_mean = ll_sum / stats.updates as f64;
-    } else {
-        stats.neff_min = opts.particles as f64;
-        stats.neff_mean = opts.particles as f64;
-        stats.neff_last = opts.particles as f64;
-    }
+    stats.finish_means(neff_sum, ll_sum);
     let best = &pf.particles[pf.best()];
     let mut trajectory = path_poses(&best.node, &dead_reckoning);
     if ro.final_refine && recording.body_from_lidar_per_scan.is_none() {

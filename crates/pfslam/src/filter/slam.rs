@@ -189,6 +189,19 @@ pub struct SlamStats {
     pub map_memory: Option<super::rbpf::MapMemory>,
 }
 
+impl SlamStats {
+    /// Turns the sums over updates into means (Neff = the particle count without updates).
+    pub(crate) fn finish_means(&mut self, neff_sum: f64, score_sum: f64) {
+        if self.updates > 0 {
+            self.neff_mean = neff_sum / self.updates as f64;
+            self.best_score_mean = score_sum / self.updates as f64;
+        } else {
+            let n = self.particles as f64;
+            (self.neff_min, self.neff_mean, self.neff_last) = (n, n, n);
+        }
+    }
+}
+
 /// What a run produced.
 #[derive(Debug, Clone)]
 pub struct SlamResult {
@@ -433,14 +446,7 @@ pub fn run_slam_with<P: MapPolicy>(
             });
         }
     }
-    if stats.updates > 0 {
-        stats.neff_mean = neff_sum / stats.updates as f64;
-        stats.best_score_mean = score_sum / stats.updates as f64;
-    } else {
-        stats.neff_min = opts.particles as f64;
-        stats.neff_mean = opts.particles as f64;
-        stats.neff_last = opts.particles as f64;
-    }
+    stats.finish_means(neff_sum, score_sum);
     stats.timings.total_s = t_start.elapsed().as_secs_f64();
     let map = policy.map_for_output(pf.particles.best_index()).clone();
     Ok(SlamResult {
