@@ -157,7 +157,7 @@ fn prediction_is_thread_count_independent() {
 // A synthetic world: a walled room with boxes, a car-like drive, noisy odometry.
 // ---------------------------------------------------------------------------------------
 
-mod synthetic {
+pub(crate) mod synthetic {
     use pfslam::geometry::{Pose2, Rigid3, StampedPose2, Trajectory};
     use pfslam::sensors::{LidarGeometry, Recording, ScanSet};
     use rand::SeedableRng;
@@ -278,7 +278,10 @@ mod synthetic {
     }
 }
 
-fn ate_rmse(est: &[pfslam::geometry::StampedPose2], gt: &[pfslam::geometry::StampedPose2]) -> f64 {
+pub(crate) fn ate_rmse(
+    est: &[pfslam::geometry::StampedPose2],
+    gt: &[pfslam::geometry::StampedPose2],
+) -> f64 {
     use pfslam::eval::{Association, ate::ate};
     use pfslam::geometry::Trajectory;
     ate(

@@ -7,6 +7,7 @@ mod filter;
 mod graph;
 mod map;
 mod motion;
+mod rbpf;
 mod readers;
 mod sim;
 mod sim_stereo;

@@ -14,6 +14,7 @@ pub mod correlate;
 pub mod odometry;
 pub mod particles;
 pub mod prediction;
+pub mod rbpf;
 pub mod resample;
 pub mod rng;
 pub mod scanmatch;
@@ -45,6 +46,9 @@ pub enum FilterMode {
     /// Likelihood-field scan matching with an odometry prior (`[filter.scan_match]`).
     #[default]
     ScanMatch,
+    /// Rao-Blackwellised: per-particle maps, scan matching against each particle's own map,
+    /// output the final best particle's ancestral path (`[filter.rbpf]`).
+    Rbpf,
 }
 
 /// Options of the filter component (`[filter]` in the configuration).
@@ -52,8 +56,9 @@ pub enum FilterMode {
 #[serde(default, deny_unknown_fields)]
 pub struct FilterOptions {
     /// "scan_match" (default: likelihood field + scan-matching proposal, see
-    /// `[filter.scan_match]`) or "seed" (the seeds' map correlation; the keys below up to
-    /// `temperature` and `resample_threshold` apply to it).
+    /// `[filter.scan_match]`), "seed" (the seeds' map correlation; the keys below up to
+    /// `temperature` and `resample_threshold` apply to it) or "rbpf" (Rao-Blackwellised:
+    /// per-particle maps, see `[filter.rbpf]`; uses `particles` and `resample_method`).
     pub mode: FilterMode,
     /// Number of particles (the UCSD seed's best runs use 40, the ESE650 seed 100).
     pub particles: usize,
@@ -92,6 +97,8 @@ pub struct FilterOptions {
     pub odometry_model: OdometryModelOptions,
     /// The scan-matching mode's options.
     pub scan_match: scanmatch::ScanMatchOptions,
+    /// The Rao-Blackwellised mode's options.
+    pub rbpf: rbpf::RbpfOptions,
 }
 
 impl Default for FilterOptions {
@@ -113,6 +120,7 @@ impl Default for FilterOptions {
             odometry_model: OdometryModelOptions::ese650(),
             mode: FilterMode::default(),
             scan_match: scanmatch::ScanMatchOptions::default(),
+            rbpf: rbpf::RbpfOptions::default(),
         }
     }
 }
@@ -169,6 +177,12 @@ impl FilterOptions {
             .validate()
             .map_err(|message| FilterError::InvalidOption {
                 name: "scan_match",
+                message,
+            })?;
+        self.rbpf
+            .validate()
+            .map_err(|message| FilterError::InvalidOption {
+                name: "rbpf",
                 message,
             })?;
         Ok(())

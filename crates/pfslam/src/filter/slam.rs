@@ -185,6 +185,21 @@ pub struct SlamStats {
     pub best_score_mean: f64,
     /// Time per stage.
     pub timings: StageTimings,
+    /// Tiles held by the particles' maps at the end (`rbpf` mode only).
+    pub map_memory: Option<super::rbpf::MapMemory>,
+}
+
+impl SlamStats {
+    /// Turns the sums over updates into means (Neff = the particle count without updates).
+    pub(crate) fn finish_means(&mut self, neff_sum: f64, score_sum: f64) {
+        if self.updates > 0 {
+            self.neff_mean = neff_sum / self.updates as f64;
+            self.best_score_mean = score_sum / self.updates as f64;
+        } else {
+            let n = self.particles as f64;
+            (self.neff_min, self.neff_mean, self.neff_last) = (n, n, n);
+        }
+    }
 }
 
 /// What a run produced.
@@ -230,6 +245,9 @@ pub fn run_slam(
     seed: u64,
     observer: &mut dyn FnMut(SlamEvent<'_>),
 ) -> Result<SlamResult, SlamError> {
+    if config.filter.mode == FilterMode::Rbpf {
+        return super::rbpf::run_rbpf(recording, config, seed, observer);
+    }
     let motion = super::motion_model(config, recording)?;
     let grid = OccupancyGrid::new(&config.map)?;
     let mut policy = BestParticleMap::new(grid);
@@ -253,30 +271,10 @@ pub fn run_slam_with<P: MapPolicy>(
     observer: &mut dyn FnMut(SlamEvent<'_>),
 ) -> Result<SlamResult, SlamError> {
     let opts = &config.filter;
-    opts.validate()?;
-    config.map.validate().map_err(MapError::Options)?;
     let t_start = Instant::now();
+    let (first, mut cursor) = check_and_start(recording, config)?;
     let scans = &recording.scans;
     let total = scans.len();
-    let input_err = |message: &str| SlamError::Input {
-        name: recording.name.clone(),
-        message: message.to_string(),
-    };
-    if recording.odometry.is_empty() {
-        return Err(input_err("no odometry"));
-    }
-    if let Some(per_scan) = &recording.body_from_lidar_per_scan
-        && per_scan.len() != total
-    {
-        return Err(input_err("per-scan LiDAR mounts do not match the scans"));
-    }
-    let Some(first) =
-        (0..total).find(|&i| recording.odometry.pose_at(scans.stamps_ns[i]).is_some())
-    else {
-        return Err(input_err("no scan lies within the odometry's time span"));
-    };
-    let mut cursor = OdometryCursor::new(&recording.odometry, scans.stamps_ns[first])
-        .ok_or_else(|| input_err("no odometry at the first scan"))?;
     let start = cursor.current().pose;
     let mut projector = ScanProjector::new(
         &recording.lidar,
@@ -306,7 +304,7 @@ pub fn run_slam_with<P: MapPolicy>(
     let match_params = opts.scan_match.params(config.map.resolution_m);
     let resample_threshold = match opts.mode {
         FilterMode::Seed => opts.resample_threshold,
-        FilterMode::ScanMatch => opts.scan_match.resample_threshold,
+        FilterMode::ScanMatch | FilterMode::Rbpf => opts.scan_match.resample_threshold,
     };
     let mut neff_sum = 0.0;
     let mut score_sum = 0.0;
@@ -325,7 +323,9 @@ pub fn run_slam_with<P: MapPolicy>(
                 FilterMode::Seed => pf.predict_steps(&steps, motion),
                 // The scan match is the proposal: odometry without noise here, the spread
                 // comes from sampling around each match.
-                FilterMode::ScanMatch => pf.predict_steps(&steps, &ExactOdometry),
+                FilterMode::ScanMatch | FilterMode::Rbpf => {
+                    pf.predict_steps(&steps, &ExactOdometry)
+                }
             }
         }
         stats.timings.predict_s += t.elapsed().as_secs_f64();
@@ -357,7 +357,7 @@ pub fn run_slam_with<P: MapPolicy>(
                         opts.temperature,
                         opts.move_to_best_offset,
                     ),
-                    FilterMode::ScanMatch => {
+                    FilterMode::ScanMatch | FilterMode::Rbpf => {
                         let sm = &opts.scan_match;
                         scanmatch::match_points(
                             &body,
@@ -453,14 +453,7 @@ pub fn run_slam_with<P: MapPolicy>(
             });
         }
     }
-    if stats.updates > 0 {
-        stats.neff_mean = neff_sum / stats.updates as f64;
-        stats.best_score_mean = score_sum / stats.updates as f64;
-    } else {
-        stats.neff_min = opts.particles as f64;
-        stats.neff_mean = opts.particles as f64;
-        stats.neff_last = opts.particles as f64;
-    }
+    stats.finish_means(neff_sum, score_sum);
     stats.timings.total_s = t_start.elapsed().as_secs_f64();
     let map = policy.map_for_output(pf.particles.best_index()).clone();
     Ok(SlamResult {
@@ -469,6 +462,38 @@ pub fn run_slam_with<P: MapPolicy>(
         map,
         stats,
     })
+}
+
+/// Validates the options and the recording, and finds the first scan inside the odometry's
+/// time span: its index and an odometry cursor standing on it (shared by every mode's loop).
+pub(crate) fn check_and_start<'a>(
+    recording: &'a Recording,
+    config: &Config,
+) -> Result<(usize, OdometryCursor<'a>), SlamError> {
+    config.filter.validate()?;
+    config.map.validate().map_err(MapError::Options)?;
+    let scans = &recording.scans;
+    let total = scans.len();
+    let input_err = |message: &str| SlamError::Input {
+        name: recording.name.clone(),
+        message: message.to_string(),
+    };
+    if recording.odometry.is_empty() {
+        return Err(input_err("no odometry"));
+    }
+    if let Some(per_scan) = &recording.body_from_lidar_per_scan
+        && per_scan.len() != total
+    {
+        return Err(input_err("per-scan LiDAR mounts do not match the scans"));
+    }
+    let Some(first) =
+        (0..total).find(|&i| recording.odometry.pose_at(scans.stamps_ns[i]).is_some())
+    else {
+        return Err(input_err("no scan lies within the odometry's time span"));
+    };
+    let cursor = OdometryCursor::new(&recording.odometry, scans.stamps_ns[first])
+        .ok_or_else(|| input_err("no odometry at the first scan"))?;
+    Ok((first, cursor))
 }
 
 /// Odometry composed without noise.

@@ -32,6 +32,9 @@ pub const MAX_CELL_INDEX: i32 = 1 << 24;
 /// scratch mask to 16,385^2 bytes (268 MB); 75 m at 0.05 m is 1,500 cells.
 pub const MAX_RAY_CELLS: i32 = 8192;
 
+/// Bytes of one tile's cells.
+pub const TILE_BYTES: usize = std::mem::size_of::<Tile>();
+
 /// One tile: `TILE_SIZE^2` cells, row-major (`local_j * TILE_SIZE + local_i`).
 #[derive(Clone)]
 pub struct Tile {
@@ -312,6 +315,14 @@ impl OccupancyGrid {
         }
     }
 
+    /// The row-major fixed-point cells (`TILE_SIZE` x `TILE_SIZE`) of the tile holding
+    /// tile coordinates `(ti, tj)` = cell coordinates shifted right by `TILE_SHIFT`; `None`
+    /// when never written. For kernels that read many neighbouring cells.
+    #[inline(always)]
+    pub fn tile_cells(&self, ti: i32, tj: i32) -> Option<&[i16]> {
+        self.dir.get(ti, tj).map(|t| &t.cells[..])
+    }
+
     /// Log-odds of a cell.
     #[inline]
     pub fn logodds(&self, cell: Cell) -> f64 {
@@ -565,6 +576,17 @@ impl OccupancyGrid {
     pub fn memory_bytes(&self) -> usize {
         self.tile_count() * std::mem::size_of::<Tile>()
             + self.dir.tiles.len() * std::mem::size_of::<Option<Arc<Tile>>>()
+    }
+
+    /// The identity (address) of every allocated tile: equal ids in two grids mean one
+    /// shared tile. For memory reports (distinct tiles over many per-particle maps).
+    pub fn tile_ids(&self) -> Vec<usize> {
+        self.dir
+            .tiles
+            .iter()
+            .flatten()
+            .map(|t| Arc::as_ptr(t) as usize)
+            .collect()
     }
 
     /// Number of tiles this grid shares with another grid (same allocation); for tests of

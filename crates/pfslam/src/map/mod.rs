@@ -17,7 +17,7 @@ pub mod scan;
 
 pub use binary::BinaryMap;
 pub use compare::{MapComparison, compare_maps, compare_maps_visible};
-pub use grid::{InsertScratch, InsertStats, OccupancyGrid, TILE_SIZE};
+pub use grid::{InsertScratch, InsertStats, OccupancyGrid, TILE_BYTES, TILE_SIZE};
 pub use limits::{Cell, CellRect, MapLimits};
 pub use logodds::{CellState, FixedLogOdds, LogOddsParams, LogOddsPreset, logit, sigmoid};
 pub use ray::{bresenham, bresenham_cells};

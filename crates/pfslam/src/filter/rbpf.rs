@@ -1,0 +1,1061 @@
+//! The Rao-Blackwellised particle filter (`[filter] mode = "rbpf"`, issue 7), after GMapping
+//! (Grisetti, Stachniss, Burgard 2007).
+//!
+//! - Every particle carries its own [`OccupancyGrid`]. Grids are tiled with `Arc` tiles and
+//!   copy-on-write, so a resampled copy shares all tiles with its ancestor and memory grows
+//!   with the tiles particles actually changed, not with the particle count.
+//! - Updates happen only once the odometry moved `linear_update_m` or turned
+//!   `angular_update_deg` since the last one. At an update each particle draws its motion from
+//!   the odometry increment (GMapping's four-parameter noise), then scan-matches against its
+//!   OWN map (coarse yaw/x/y search, then a hill climb with step halving on a smooth
+//!   observation model, see [`scan_log_likelihood`]), takes the matched pose, and its
+//!   log-weight grows by the match log-likelihood / `weight_temperature`. Maps are updated
+//!   with the particle's pose; resampling is selective (Neff below a fraction of N).
+//! - Each particle's trajectory is a chain of [`PathNode`]s with `Arc` parent links, one per
+//!   update, so resampled copies share their history. The output is the FINAL best
+//!   particle's whole ancestral path: loop closures found late correct the whole past. Scans
+//!   between updates get the previous node's pose composed with the odometry increment, so
+//!   every scan has a pose.
+//! - Randomness: one `jump()`ed stream per fixed chunk of particles (`filter::rng`), the
+//!   master stream for resampling: results do not depend on the thread count.
+
+use super::resample;
+use super::rng::{CHUNK_PARTICLES, FilterRng};
+use super::scanmatch::match_points;
+use super::slam::{SlamError, SlamEvent, SlamResult, SlamStats};
+use super::weights;
+use crate::config::Config;
+use crate::geometry::{Pose2, StampedPose2, wrap_angle};
+use crate::map::TILE_SIZE;
+use crate::map::grid::TILE_SHIFT;
+use crate::map::{
+    Cell, InsertScratch, MapError, OccupancyGrid, PlanarScan, ScanProjector, to_world,
+};
+use crate::sensors::Recording;
+use rand::RngExt;
+use rand_distr::StandardNormal;
+use rand_xoshiro::Xoshiro256PlusPlus;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::sync::Arc;
+use std::time::Instant;
+
+/// Options of the Rao-Blackwellised mode (`[filter.rbpf]`). The particle count is
+/// `[filter] particles`, the resampling scheme `[filter] resample_method`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RbpfOptions {
+    /// Cell side of the particles' maps (m); 0 = `[map] resolution_m`.
+    pub resolution_m: f64,
+    /// Update (match, reweight, map) once the odometry moved this far since the last
+    /// update (m; GMapping: 0.5-1).
+    pub linear_update_m: f64,
+    /// ... or turned this much (deg; GMapping: 0.5 rad).
+    pub angular_update_deg: f64,
+    /// Odometry noise: translation sigma per metre travelled (GMapping `srr`).
+    pub srr: f64,
+    /// Translation sigma per radian turned (m/rad; GMapping `str`).
+    pub str_m_per_rad: f64,
+    /// Rotation sigma per metre travelled (rad/m; GMapping `srt`).
+    pub srt_rad_per_m: f64,
+    /// Rotation sigma per radian turned (GMapping `stt`).
+    pub stt: f64,
+    /// Use every k-th return for matching and weighting (1 = all; mapping uses all).
+    pub beam_decimation: usize,
+    /// Returns farther than this are neither matched nor mapped (m; GMapping `maxUrange`).
+    pub range_max_m: f64,
+    /// Returns nearer than this are dropped; replaces `[map.scan] range_min_m` in this mode
+    /// (whose 2 m default is the car seed's; indoor robots see walls closer than that).
+    pub range_min_m: f64,
+    /// Keep `[map.scan]`'s densification of walls (joining returns); off matches and maps
+    /// the real beams only.
+    pub densify: bool,
+    /// Standard deviation of the observation model: a point at distance d from the nearest
+    /// occupied cell centre scores `-d^2 / (2 sigma^2)` (m).
+    pub sigma_m: f64,
+    /// Occupied cells are looked for within this many cells of a point (Chebyshev).
+    pub kernel_cells: u32,
+    /// Log-likelihood of a point with no occupied cell within the kernel (a floor; negative).
+    pub no_hit_log_likelihood: f64,
+    /// A cell counts as occupied for matching above this log-odds (0 = p > 0.5, one hit).
+    pub occupied_logodds: f64,
+    /// Half-width of the coarse yaw search around each particle's sampled pose (deg).
+    pub coarse_yaw_deg: f64,
+    /// Step of the coarse yaw search (deg).
+    pub coarse_yaw_step_deg: f64,
+    /// Half-width of the coarse x/y search (cells of the particles' maps).
+    pub coarse_xy_cells: u32,
+    /// Initial x/y step of the hill climb (m; GMapping `lstep`).
+    pub step_xy_m: f64,
+    /// Initial yaw step of the hill climb (deg; GMapping `astep` = 0.05 rad).
+    pub step_yaw_deg: f64,
+    /// Step halvings of the hill climb (GMapping `iterations`).
+    pub refine_levels: u32,
+    /// Divisor of the match log-likelihood in the log-weight update (GMapping: `ogain` times
+    /// the particle count).
+    pub weight_temperature: f64,
+    /// Resample when Neff < this fraction of the particle count.
+    pub resample_threshold: f64,
+    /// The matcher's prior on the deviation from each particle's sampled pose: a Gaussian
+    /// with the motion model's sigmas for this update times this factor (0 = no prior, the
+    /// match may go anywhere the search reaches). Keeps matches from sliding along corridors.
+    pub prior_scale: f64,
+    /// Smallest x/y sigma of that prior (m).
+    pub prior_min_xy_m: f64,
+    /// Smallest yaw sigma of that prior (deg).
+    pub prior_min_yaw_deg: f64,
+    /// After the run, re-match every output pose against the final best particle's map
+    /// (hill climb from the path's pose): corrects the odometry composed between updates.
+    pub final_refine: bool,
+    /// x/y sigma of that re-match's prior around the path's pose (m).
+    pub refine_sigma_xy_m: f64,
+    /// Yaw sigma of that re-match's prior (deg).
+    pub refine_sigma_yaw_deg: f64,
+}
+
+impl Default for RbpfOptions {
+    fn default() -> Self {
+        RbpfOptions {
+            resolution_m: 0.05,
+            linear_update_m: 0.3,
+            angular_update_deg: 15.0,
+            srr: 0.1,
+            str_m_per_rad: 0.1,
+            srt_rad_per_m: 0.2,
+            stt: 0.2,
+            beam_decimation: 2,
+            range_max_m: 30.0,
+            range_min_m: 0.1,
+            densify: false,
+            sigma_m: 0.05,
+            kernel_cells: 1,
+            no_hit_log_likelihood: -2.0,
+            occupied_logodds: 0.0,
+            coarse_yaw_deg: 3.0,
+            coarse_yaw_step_deg: 1.0,
+            coarse_xy_cells: 0,
+            step_xy_m: 0.05,
+            step_yaw_deg: 2.865,
+            refine_levels: 4,
+            weight_temperature: 30.0,
+            resample_threshold: 0.5,
+            prior_scale: 1.0,
+            prior_min_xy_m: 0.02,
+            prior_min_yaw_deg: 1.0,
+            final_refine: true,
+            refine_sigma_xy_m: 0.03,
+            refine_sigma_yaw_deg: 3.0,
+        }
+    }
+}
+
+impl RbpfOptions {
+    /// Checks ranges; the message names the bad key.
+    pub fn validate(&self) -> Result<(), String> {
+        let pos = |v: f64| v.is_finite() && v > 0.0;
+        let nonneg = |v: f64| v.is_finite() && v >= 0.0;
+        if !(nonneg(self.resolution_m) && self.resolution_m <= 10.0) {
+            return Err("filter.rbpf.resolution_m must lie in [0, 10]".into());
+        }
+        for (k, v) in [
+            ("range_min_m", self.range_min_m),
+            ("linear_update_m", self.linear_update_m),
+            ("angular_update_deg", self.angular_update_deg),
+            ("srr", self.srr),
+            ("str_m_per_rad", self.str_m_per_rad),
+            ("srt_rad_per_m", self.srt_rad_per_m),
+            ("stt", self.stt),
+            ("coarse_yaw_deg", self.coarse_yaw_deg),
+            ("step_xy_m", self.step_xy_m),
+            ("step_yaw_deg", self.step_yaw_deg),
+            ("prior_scale", self.prior_scale),
+        ] {
+            if !nonneg(v) {
+                return Err(format!("filter.rbpf.{k} must be finite and >= 0"));
+            }
+        }
+        for (k, v) in [
+            ("range_max_m", self.range_max_m),
+            ("sigma_m", self.sigma_m),
+            ("coarse_yaw_step_deg", self.coarse_yaw_step_deg),
+            ("weight_temperature", self.weight_temperature),
+            ("prior_min_xy_m", self.prior_min_xy_m),
+            ("prior_min_yaw_deg", self.prior_min_yaw_deg),
+            ("refine_sigma_xy_m", self.refine_sigma_xy_m),
+            ("refine_sigma_yaw_deg", self.refine_sigma_yaw_deg),
+        ] {
+            if !pos(v) {
+                return Err(format!("filter.rbpf.{k} must be positive and finite"));
+            }
+        }
+        if self.beam_decimation == 0 {
+            return Err("filter.rbpf.beam_decimation must be at least 1".into());
+        }
+        if self.kernel_cells > 8 {
+            return Err("filter.rbpf.kernel_cells must be at most 8".into());
+        }
+        if self.coarse_xy_cells > 16 {
+            return Err("filter.rbpf.coarse_xy_cells must be at most 16".into());
+        }
+        if self.coarse_yaw_deg > 45.0 || self.coarse_yaw_deg / self.coarse_yaw_step_deg > 200.0 {
+            return Err("filter.rbpf.coarse_yaw_deg must be at most 45 and 200 steps".into());
+        }
+        if self.refine_levels > 12 {
+            return Err("filter.rbpf.refine_levels must be at most 12".into());
+        }
+        if !(self.no_hit_log_likelihood.is_finite() && self.no_hit_log_likelihood <= 0.0) {
+            return Err("filter.rbpf.no_hit_log_likelihood must be finite and <= 0".into());
+        }
+        if !(self.occupied_logodds.is_finite() && self.occupied_logodds.abs() <= 100.0) {
+            return Err("filter.rbpf.occupied_logodds must lie in [-100, 100]".into());
+        }
+        if !(0.0..=1.0).contains(&self.resample_threshold) {
+            return Err("filter.rbpf.resample_threshold must lie in [0, 1]".into());
+        }
+        Ok(())
+    }
+
+    /// The observation model these options describe, for maps of `resolution_m`.
+    pub fn observation(&self, resolution_m: f64) -> ObservationModel {
+        ObservationModel {
+            kernel: self.kernel_cells as i32,
+            occupied_fixed: (self.occupied_logodds * 256.0).round() as i16,
+            res2_over_2s2: resolution_m * resolution_m / (2.0 * self.sigma_m * self.sigma_m),
+            no_hit: self.no_hit_log_likelihood,
+        }
+    }
+
+    /// Odometry noise sigmas `[srr, str, srt, stt]`.
+    fn noise(&self) -> [f64; 4] {
+        [self.srr, self.str_m_per_rad, self.srt_rad_per_m, self.stt]
+    }
+}
+
+/// The smooth observation model on a log-odds grid, per point: `-d^2 / (2 sigma^2)` with `d`
+/// the distance from the point to the centre of the nearest occupied cell within `kernel`
+/// cells, floored at `no_hit` (also the value when none is found).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObservationModel {
+    /// Search half-width (cells).
+    pub kernel: i32,
+    /// Fixed-point log-odds above which a cell is occupied.
+    pub occupied_fixed: i16,
+    /// `resolution^2 / (2 sigma^2)`: converts squared cell distances to log-likelihood.
+    pub res2_over_2s2: f64,
+    /// Floor of a point's log-likelihood.
+    pub no_hit: f64,
+}
+
+const TS: i32 = TILE_SIZE as i32;
+const MASK: i32 = TS - 1;
+
+/// Log-likelihood of the body-frame `points` seen from `pose` in `grid` (sum over points).
+pub fn scan_log_likelihood(
+    grid: &OccupancyGrid,
+    model: &ObservationModel,
+    points: &[[f64; 2]],
+    pose: &Pose2,
+) -> f64 {
+    let limits = grid.limits();
+    let (s, c) = pose.yaw_rad.sin_cos();
+    let k = model.kernel;
+    let mut total = 0.0;
+    for p in points {
+        let x = pose.x_m + c * p[0] - s * p[1];
+        let y = pose.y_m + s * p[0] + c * p[1];
+        let (u, v) = limits.cell_coords(x, y);
+        let (i, j) = (u.floor() as i32, v.floor() as i32);
+        let mut best = f64::INFINITY;
+        let (li, lj) = (i & MASK, j & MASK);
+        if li >= k && lj >= k && li < TS - k && lj < TS - k {
+            // The whole kernel lies in one tile: one directory lookup.
+            if let Some(cells) = grid.tile_cells(i >> TILE_SHIFT, j >> TILE_SHIFT) {
+                for dj in -k..=k {
+                    let row = ((lj + dj) as usize) << TILE_SHIFT;
+                    let dv = v - (f64::from(j + dj) + 0.5);
+                    for di in -k..=k {
+                        if cells[row + (li + di) as usize] > model.occupied_fixed {
+                            let du = u - (f64::from(i + di) + 0.5);
+                            best = best.min(du * du + dv * dv);
+                        }
+                    }
+                }
+            } else if model.occupied_fixed < 0 {
+                // An unwritten tile is all log-odds 0.
+                let (du, dv) = (u - (f64::from(i) + 0.5), v - (f64::from(j) + 0.5));
+                best = du * du + dv * dv;
+            }
+        } else {
+            for dj in -k..=k {
+                let dv = v - (f64::from(j + dj) + 0.5);
+                for di in -k..=k {
+                    if grid.logodds_fixed(Cell::new(i + di, j + dj)) > model.occupied_fixed {
+                        let du = u - (f64::from(i + di) + 0.5);
+                        best = best.min(du * du + dv * dv);
+                    }
+                }
+            }
+        }
+        total += if best.is_finite() {
+            (-best * model.res2_over_2s2).max(model.no_hit)
+        } else {
+            model.no_hit
+        };
+    }
+    total
+}
+
+/// Search parameters of [`match_in_own_map`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct SearchParams {
+    /// Coarse yaw offsets (rad), 0 first.
+    pub yaw_offsets_rad: Vec<f64>,
+    /// Coarse x/y half-width (cells).
+    pub xy_cells: i32,
+    /// Cell side (m).
+    pub resolution_m: f64,
+    /// Initial hill-climb steps (m, rad).
+    pub step_xy_m: f64,
+    /// Initial hill-climb yaw step (rad).
+    pub step_yaw_rad: f64,
+    /// Step halvings.
+    pub refine_levels: u32,
+    /// Prior on the deviation from the sampled pose (set per update from the motion).
+    pub prior: Option<MatchPrior>,
+}
+
+impl SearchParams {
+    /// From the options, for maps of `resolution_m`.
+    pub fn new(o: &RbpfOptions, resolution_m: f64) -> Self {
+        let steps = (o.coarse_yaw_deg / o.coarse_yaw_step_deg).floor() as i32;
+        let mut yaw_offsets_rad = vec![0.0];
+        for k in 1..=steps {
+            let d = (f64::from(k) * o.coarse_yaw_step_deg).to_radians();
+            yaw_offsets_rad.push(-d);
+            yaw_offsets_rad.push(d);
+        }
+        SearchParams {
+            yaw_offsets_rad,
+            xy_cells: o.coarse_xy_cells as i32,
+            resolution_m,
+            step_xy_m: o.step_xy_m,
+            step_yaw_rad: o.step_yaw_deg.to_radians(),
+            refine_levels: o.refine_levels,
+            prior: None,
+        }
+    }
+}
+
+/// Scan-matches `points` against `grid` around `start`: coarse search over the yaw offsets
+/// and x/y cells, then a hill climb (six moves, step halving). Returns the pose and its
+/// log-likelihood. Deterministic: fixed order, strict improvements only.
+pub fn match_in_own_map(
+    grid: &OccupancyGrid,
+    model: &ObservationModel,
+    points: &[[f64; 2]],
+    start: &Pose2,
+    search: &SearchParams,
+) -> (Pose2, f64) {
+    let prior = search.prior;
+    let eval = |p: &Pose2| {
+        let ll = scan_log_likelihood(grid, model, points, p);
+        match prior {
+            Some(pr) => {
+                let (dx, dy) = (p.x_m - start.x_m, p.y_m - start.y_m);
+                let da = wrap_angle(p.yaw_rad - start.yaw_rad);
+                ll - 0.5 * ((dx * dx + dy * dy) * pr.inv_var_xy + da * da * pr.inv_var_yaw)
+            }
+            None => ll,
+        }
+    };
+    let mut best = *start;
+    let mut best_ll = eval(&best);
+    let r = search.xy_cells;
+    for &dyaw in &search.yaw_offsets_rad {
+        for oy in -r..=r {
+            for ox in -r..=r {
+                if dyaw == 0.0 && ox == 0 && oy == 0 {
+                    continue;
+                }
+                let cand = Pose2::new(
+                    start.x_m + f64::from(ox) * search.resolution_m,
+                    start.y_m + f64::from(oy) * search.resolution_m,
+                    start.yaw_rad + dyaw,
+                );
+                let ll = eval(&cand);
+                if ll > best_ll {
+                    best_ll = ll;
+                    best = cand;
+                }
+            }
+        }
+    }
+    let (mut sxy, mut syaw) = (search.step_xy_m, search.step_yaw_rad);
+    let mut level = 0;
+    let mut iterations = 0;
+    while level < search.refine_levels && iterations < 200 {
+        iterations += 1;
+        let mut moved: Option<(Pose2, f64)> = None;
+        for (ex, ey, ea) in [
+            (sxy, 0.0, 0.0),
+            (-sxy, 0.0, 0.0),
+            (0.0, sxy, 0.0),
+            (0.0, -sxy, 0.0),
+            (0.0, 0.0, syaw),
+            (0.0, 0.0, -syaw),
+        ] {
+            let cand = Pose2::new(best.x_m + ex, best.y_m + ey, best.yaw_rad + ea);
+            let ll = eval(&cand);
+            if ll > moved.map_or(best_ll, |m| m.1) {
+                moved = Some((cand, ll));
+            }
+        }
+        match moved {
+            Some((p, ll)) => {
+                best = p;
+                best_ll = ll;
+            }
+            None => {
+                sxy *= 0.5;
+                syaw *= 0.5;
+                level += 1;
+            }
+        }
+    }
+    best.yaw_rad = wrap_angle(best.yaw_rad);
+    // The weight is the observation's likelihood, without the prior.
+    let ll = if prior.is_some() {
+        scan_log_likelihood(grid, model, points, &best)
+    } else {
+        best_ll
+    };
+    (best, ll)
+}
+
+/// Gaussian prior of the matcher on the deviation from the sampled pose.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MatchPrior {
+    /// `1 / sigma_xy^2` (1/m^2).
+    pub inv_var_xy: f64,
+    /// `1 / sigma_yaw^2` (1/rad^2).
+    pub inv_var_yaw: f64,
+}
+
+/// GMapping's odometry noise: the increment `delta` (in the old body frame) gets Gaussian
+/// noise whose sigmas grow with the distance and angle travelled; returns `pose ⊕ noisy`.
+fn sample_motion(
+    pose: &Pose2,
+    delta: &Pose2,
+    noise: [f64; 4],
+    rng: &mut Xoshiro256PlusPlus,
+) -> Pose2 {
+    let [srr, str_, srt, stt] = noise;
+    let sxy = 0.3 * srr;
+    let (dx, dy, dt) = (delta.x_m.abs(), delta.y_m.abs(), delta.yaw_rad.abs());
+    let (a, b, c): (f64, f64, f64) = (
+        rng.sample(StandardNormal),
+        rng.sample(StandardNormal),
+        rng.sample(StandardNormal),
+    );
+    let noisy = Pose2::new(
+        delta.x_m + a * (srr * dx + str_ * dt + sxy * dy),
+        delta.y_m + b * (srr * dy + str_ * dt + sxy * dx),
+        delta.yaw_rad + c * (stt * dt + srt * dx.hypot(dy)),
+    );
+    let mut out = pose.compose(&noisy);
+    out.yaw_rad = wrap_angle(out.yaw_rad);
+    out
+}
+
+/// One node of a particle's trajectory tree: its pose at an update, the odometry pose there,
+/// and the node of the previous update. Resampled copies share their parents.
+#[derive(Debug)]
+pub struct PathNode {
+    /// The particle's pose at this update.
+    pub pose: Pose2,
+    /// The odometry pose at this update (the increments to later scans start here).
+    pub odom: Pose2,
+    /// Index of the update's scan among the processed scans.
+    pub scan: usize,
+    /// The previous update's node (`None` at the start).
+    pub parent: Option<Arc<PathNode>>,
+}
+
+impl Drop for PathNode {
+    /// Iterative: a long chain must not recurse once per node (stack overflow).
+    fn drop(&mut self) {
+        let mut next = self.parent.take();
+        while let Some(node) = next {
+            match Arc::try_unwrap(node) {
+                Ok(mut n) => next = n.parent.take(),
+                Err(_) => break,
+            }
+        }
+    }
+}
+
+/// The nodes from the root to `leaf`, in time order.
+pub fn ancestry(leaf: &Arc<PathNode>) -> Vec<&PathNode> {
+    let mut out = Vec::new();
+    let mut cur: Option<&PathNode> = Some(leaf);
+    while let Some(n) = cur {
+        out.push(n);
+        cur = n.parent.as_deref();
+    }
+    out.reverse();
+    out
+}
+
+/// Poses of every processed scan along the path ending at `leaf`: each scan takes the last
+/// node at or before it, composed with the odometry increment from that node to the scan.
+/// `odometry[k]` is the odometry pose of processed scan `k`.
+pub fn path_poses(leaf: &Arc<PathNode>, odometry: &[StampedPose2]) -> Vec<StampedPose2> {
+    let nodes = ancestry(leaf);
+    let mut out = Vec::with_capacity(odometry.len());
+    let mut n = 0;
+    for (k, o) in odometry.iter().enumerate() {
+        while n + 1 < nodes.len() && nodes[n + 1].scan <= k {
+            n += 1;
+        }
+        let node = nodes[n];
+        out.push(StampedPose2 {
+            stamp_ns: o.stamp_ns,
+            pose: node.pose.compose(&node.odom.between(&o.pose)),
+        });
+    }
+    out
+}
+
+/// One particle: pose, own map and trajectory node.
+#[derive(Debug, Clone)]
+pub struct RbParticle {
+    /// Current pose (at the last update, before the odometry since).
+    pub pose: Pose2,
+    /// The particle's own map.
+    pub map: OccupancyGrid,
+    /// The last node of its trajectory.
+    pub node: Arc<PathNode>,
+}
+
+/// Per-chunk state: the chunk's random stream and reusable buffers.
+#[derive(Debug, Clone)]
+struct ChunkState {
+    rng: Xoshiro256PlusPlus,
+    insert: InsertScratch,
+    world: PlanarScan,
+}
+
+/// Number of distinct tiles held by `maps` (shared tiles counted once).
+pub fn distinct_tiles<'a, I: IntoIterator<Item = &'a OccupancyGrid>>(maps: I) -> usize {
+    let mut ids: Vec<usize> = maps.into_iter().flat_map(|m| m.tile_ids()).collect();
+    ids.sort_unstable();
+    ids.dedup();
+    ids.len()
+}
+
+/// Memory figures of the particles' maps at the end of a run.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct MapMemory {
+    /// Distinct tiles over all particles.
+    pub distinct_tiles: usize,
+    /// Sum of every particle's tile count (what unshared maps would hold).
+    pub total_tiles: usize,
+    /// Bytes of the distinct tiles.
+    pub distinct_bytes: usize,
+}
+
+/// The filter's state, exposed for tests: particles, weights, random streams.
+#[derive(Debug, Clone)]
+pub struct Rbpf {
+    /// The particles.
+    pub particles: Vec<RbParticle>,
+    /// Normalised weights.
+    pub weights: Vec<f64>,
+    chunks: Vec<ChunkState>,
+    master: Xoshiro256PlusPlus,
+    options: RbpfOptions,
+    model: ObservationModel,
+    search: SearchParams,
+    ancestors: Vec<usize>,
+    lls: Vec<f64>,
+}
+
+/// What one update did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RbpfUpdate {
+    /// Neff after reweighting.
+    pub neff: f64,
+    /// Whether the particles were resampled.
+    pub resampled: bool,
+    /// Mean per-point log-likelihood of the best particle's match.
+    pub best_ll_per_point: f64,
+    /// Wall time of motion sampling and matching (s).
+    pub match_s: f64,
+    /// Wall time of the map updates (s).
+    pub map_s: f64,
+}
+
+impl Rbpf {
+    /// `n` particles at `start`, each with a clone of `map` (sharing its tiles), the first
+    /// node at processed scan 0 with odometry pose `odom`.
+    pub fn new(
+        n: usize,
+        start: Pose2,
+        odom: Pose2,
+        map: OccupancyGrid,
+        options: &RbpfOptions,
+        seed: u64,
+    ) -> Self {
+        let res = map.limits().resolution_m();
+        let root = Arc::new(PathNode {
+            pose: start,
+            odom,
+            scan: 0,
+            parent: None,
+        });
+        let rng = FilterRng::new(seed, n);
+        Rbpf {
+            particles: (0..n)
+                .map(|_| RbParticle {
+                    pose: start,
+                    map: map.clone(),
+                    node: root.clone(),
+                })
+                .collect(),
+            weights: vec![1.0 / n.max(1) as f64; n],
+            chunks: rng
+                .chunks
+                .into_iter()
+                .map(|rng| ChunkState {
+                    rng,
+                    insert: InsertScratch::new(),
+                    world: PlanarScan::default(),
+                })
+                .collect(),
+            master: rng.master,
+            model: options.observation(res),
+            search: SearchParams::new(options, res),
+            options: options.clone(),
+            ancestors: Vec::with_capacity(n),
+            lls: vec![0.0; n],
+        }
+    }
+
+    /// Index of the heaviest particle (lowest index on ties).
+    pub fn best(&self) -> usize {
+        let mut best = 0;
+        for (i, w) in self.weights.iter().enumerate() {
+            if *w > self.weights[best] {
+                best = i;
+            }
+        }
+        best
+    }
+
+    /// One update at processed scan `scan` with odometry pose `odom`: motion `delta` (odometry
+    /// increment since the last update, old body frame), matching `points` (body frame),
+    /// reweighting, mapping `body` into every particle's map, new path nodes, selective
+    /// resampling. With `first`, the scan is only mapped (nothing to match against yet).
+    #[allow(clippy::too_many_arguments)]
+    pub fn update(
+        &mut self,
+        scan: usize,
+        odom: Pose2,
+        delta: &Pose2,
+        points: &[[f64; 2]],
+        body: &PlanarScan,
+        first: bool,
+        method: resample::ResampleMethod,
+    ) -> Result<RbpfUpdate, MapError> {
+        let noise = self.options.noise();
+        let o = &self.options;
+        self.search.prior = (o.prior_scale > 0.0).then(|| {
+            let [srr, str_, srt, stt] = noise;
+            let (d, a) = (delta.translation_norm_m(), delta.yaw_rad.abs());
+            let sxy = (o.prior_scale * (srr * d + str_ * a)).max(o.prior_min_xy_m);
+            let syaw = (o.prior_scale * (stt * a + srt * d)).max(o.prior_min_yaw_deg.to_radians());
+            MatchPrior {
+                inv_var_xy: 1.0 / (sxy * sxy),
+                inv_var_yaw: 1.0 / (syaw * syaw),
+            }
+        });
+        let (model, search) = (&self.model, &self.search);
+        let n = self.particles.len();
+        let t = Instant::now();
+        if !first {
+            self.particles
+                .par_chunks_mut(CHUNK_PARTICLES)
+                .zip(self.lls.par_chunks_mut(CHUNK_PARTICLES))
+                .zip(self.chunks.par_iter_mut())
+                .for_each(|((parts, lls), st)| {
+                    for (p, ll) in parts.iter_mut().zip(lls.iter_mut()) {
+                        let sampled = sample_motion(&p.pose, delta, noise, &mut st.rng);
+                        let (pose, l) = match_in_own_map(&p.map, model, points, &sampled, search);
+                        p.pose = pose;
+                        *ll = l;
+                    }
+                });
+        }
+        let match_s = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        // Mapped before resampling, so copies share the tiles this update wrote.
+        let results: Vec<Result<(), MapError>> = self
+            .particles
+            .par_chunks_mut(CHUNK_PARTICLES)
+            .zip(self.chunks.par_iter_mut())
+            .map(|(parts, st)| {
+                for p in parts.iter_mut() {
+                    to_world(body, &p.pose, &mut st.world);
+                    p.map.insert_scan(&st.world, &mut st.insert)?;
+                    p.node = Arc::new(PathNode {
+                        pose: p.pose,
+                        odom,
+                        scan,
+                        parent: Some(p.node.clone()),
+                    });
+                }
+                Ok(())
+            })
+            .collect();
+        for r in results {
+            r?;
+        }
+        let map_s = t.elapsed().as_secs_f64();
+        if first {
+            return Ok(RbpfUpdate {
+                neff: n as f64,
+                resampled: false,
+                best_ll_per_point: 0.0,
+                match_s,
+                map_s,
+            });
+        }
+        weights::update_log_space(
+            &mut self.weights,
+            &self.lls,
+            self.options.weight_temperature,
+        );
+        let neff = weights::neff(&self.weights);
+        let best = self.best();
+        let best_ll_per_point = self.lls[best] / points.len().max(1) as f64;
+        let resampled = neff < self.options.resample_threshold * n as f64;
+        if resampled {
+            resample::resample(&self.weights, method, &mut self.master, &mut self.ancestors);
+            let old = std::mem::take(&mut self.particles);
+            self.particles = self.ancestors.iter().map(|&a| old[a].clone()).collect();
+            self.weights.iter_mut().for_each(|w| *w = 1.0 / n as f64);
+        }
+        Ok(RbpfUpdate {
+            neff,
+            resampled,
+            best_ll_per_point,
+            match_s,
+            map_s,
+        })
+    }
+
+    /// Memory held by the particles' maps.
+    pub fn map_memory(&self) -> MapMemory {
+        let distinct = distinct_tiles(self.particles.iter().map(|p| &p.map));
+        MapMemory {
+            distinct_tiles: distinct,
+            total_tiles: self.particles.iter().map(|p| p.map.tile_count()).sum(),
+            distinct_bytes: distinct * crate::map::TILE_BYTES,
+        }
+    }
+}
+
+/// Runs the Rao-Blackwellised filter on `recording` (see the module docs).
+pub fn run_rbpf(
+    recording: &Recording,
+    config: &Config,
+    seed: u64,
+    observer: &mut dyn FnMut(SlamEvent<'_>),
+) -> Result<SlamResult, SlamError> {
+    let opts = &config.filter;
+    let ro = &opts.rbpf;
+    let t_start = Instant::now();
+    let (first, mut cursor) = super::slam::check_and_start(recording, config)?;
+    let scans = &recording.scans;
+    let total = scans.len();
+    let start = cursor.current().pose;
+    let mut map_opts = config.map.clone();
+    if ro.resolution_m > 0.0 {
+        map_opts.resolution_m = ro.resolution_m;
+    }
+    let grid = OccupancyGrid::new(&map_opts)?;
+    let mut scan_opts = config.map.scan;
+    scan_opts.range_min_m = ro.range_min_m as f32;
+    if !ro.densify {
+        scan_opts.densify_max_gap_m = None;
+    }
+    scan_opts.validate().map_err(MapError::Options)?;
+    let mut projector =
+        ScanProjector::new(&recording.lidar, &recording.body_from_lidar, &scan_opts)?;
+    let mut stats = SlamStats {
+        particles: opts.particles,
+        seed,
+        scans_total: total,
+        scans_skipped: first,
+        neff_min: f64::INFINITY,
+        ..SlamStats::default()
+    };
+    let mut pf = Rbpf::new(opts.particles, start, start, grid, ro, seed);
+    let mut dead_reckoning: Vec<StampedPose2> = Vec::with_capacity(total - first);
+    let mut scan_index: Vec<usize> = Vec::with_capacity(total - first);
+    let mut body = PlanarScan::default();
+    let mut pts: Vec<[f64; 2]> = Vec::new();
+    let mut last_update_odom = start;
+    let (mut neff_sum, mut ll_sum) = (0.0, 0.0);
+    let progress_every = (total / 200).max(1);
+    let angular = ro.angular_update_deg.to_radians();
+    let mut have_first = false;
+    for i in first..total {
+        let stamp_ns = scans.stamps_ns[i];
+        let Some(odom) = cursor.advance_to(stamp_ns, |_, _| {}) else {
+            stats.scans_skipped += 1;
+            continue;
+        };
+        let k = dead_reckoning.len();
+        dead_reckoning.push(odom);
+        scan_index.push(i);
+        let delta = last_update_odom.between(&odom.pose);
+        let due = !have_first
+            || delta.translation_norm_m() >= ro.linear_update_m
+            || delta.yaw_rad.abs() >= angular;
+        if due {
+            let t = Instant::now();
+            if recording.body_from_lidar_per_scan.is_some() {
+                projector.set_mount(&recording.lidar, recording.body_from_lidar_at(i));
+            }
+            projector.to_body(scans.ranges(i), &mut body)?;
+            clip_scan(&mut body, ro.range_max_m);
+            match_points(&body, ro.range_max_m, ro.beam_decimation, &mut pts);
+            stats.timings.preprocess_s += t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            let report = pf.update(
+                k,
+                odom.pose,
+                &delta,
+                &pts,
+                &body,
+                !have_first,
+                opts.resample_method,
+            )?;
+            stats.timings.correlate_s += report.match_s;
+            stats.timings.map_update_s += report.map_s;
+            stats.timings.resample_s += t.elapsed().as_secs_f64() - report.match_s - report.map_s;
+            if have_first {
+                stats.updates += 1;
+                neff_sum += report.neff;
+                ll_sum += report.best_ll_per_point;
+                stats.neff_min = stats.neff_min.min(report.neff);
+                stats.neff_last = report.neff;
+                stats.resamples += usize::from(report.resampled);
+            }
+            have_first = true;
+            last_update_odom = odom.pose;
+        }
+        stats.scans_processed += 1;
+        let done = i + 1;
+        if done.is_multiple_of(progress_every) || done == total {
+            observer(SlamEvent::Progress { done, total });
+        }
+        if opts.snapshot_every_scans > 0
+            && stats
+                .scans_processed
+                .is_multiple_of(opts.snapshot_every_scans)
+        {
+            let best = &pf.particles[pf.best()];
+            let trajectory = path_poses(&best.node, &dead_reckoning);
+            observer(SlamEvent::Snapshot {
+                scans_done: done,
+                map: &best.map,
+                trajectory: &trajectory,
+            });
+        }
+    }
+    stats.odometry_steps = dead_reckoning.len();
+    stats.finish_means(neff_sum, ll_sum);
+    let best = &pf.particles[pf.best()];
+    let mut trajectory = path_poses(&best.node, &dead_reckoning);
+    if ro.final_refine && recording.body_from_lidar_per_scan.is_none() {
+        let t = Instant::now();
+        refine_in_final_map(
+            &mut trajectory,
+            &scan_index,
+            recording,
+            &projector,
+            &best.map,
+            ro,
+        )?;
+        stats.timings.correlate_s += t.elapsed().as_secs_f64();
+    }
+    stats.timings.total_s = t_start.elapsed().as_secs_f64();
+    stats.map_memory = Some(pf.map_memory());
+    Ok(SlamResult {
+        trajectory,
+        dead_reckoning,
+        map: best.map.clone(),
+        stats,
+    })
+}
+
+/// Re-matches every output pose against the final best map (hill climb only, with a tight
+/// prior around the path's pose): the poses between updates come from odometry composed onto
+/// the last node, and the odometry's yaw errs most while turning. In parallel over scans;
+/// each result depends only on its scan, so any thread count gives the same output.
+fn refine_in_final_map(
+    trajectory: &mut [StampedPose2],
+    scan_index: &[usize],
+    recording: &Recording,
+    projector: &ScanProjector,
+    map: &OccupancyGrid,
+    ro: &RbpfOptions,
+) -> Result<(), MapError> {
+    let res = map.limits().resolution_m();
+    let model = ro.observation(res);
+    let mut search = SearchParams::new(ro, res);
+    search.yaw_offsets_rad = vec![0.0];
+    search.xy_cells = 0;
+    search.step_xy_m = 0.5 * ro.step_xy_m;
+    search.step_yaw_rad = 0.5 * ro.step_yaw_deg.to_radians();
+    search.prior = Some(MatchPrior {
+        inv_var_xy: 1.0 / ro.refine_sigma_xy_m.powi(2),
+        inv_var_yaw: 1.0 / ro.refine_sigma_yaw_deg.to_radians().powi(2),
+    });
+    trajectory
+        .par_iter_mut()
+        .zip(scan_index.par_iter())
+        .try_for_each_init(
+            || (PlanarScan::default(), Vec::new()),
+            |(body, pts), (sp, &i)| {
+                projector.to_body(recording.scans.ranges(i), body)?;
+                clip_scan(body, ro.range_max_m);
+                match_points(body, ro.range_max_m, ro.beam_decimation, pts);
+                if pts.len() >= 10 {
+                    sp.pose = match_in_own_map(map, &model, pts, &sp.pose, &search).0;
+                }
+                Ok(())
+            },
+        )
+}
+
+/// Turns returns beyond `range_max_m` from the sensor into no-returns (they are neither
+/// matched nor mapped: far returns carry more angular error than they help).
+fn clip_scan(scan: &mut PlanarScan, range_max_m: f64) {
+    let r2 = range_max_m * range_max_m;
+    let (sx, sy) = (scan.sensor_x_m, scan.sensor_y_m);
+    scan.points.retain(|p| {
+        let (dx, dy) = (p.x_m - sx, p.y_m - sy);
+        !p.hit || dx * dx + dy * dy <= r2
+    });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn node(pose: Pose2, odom: Pose2, scan: usize, parent: &Arc<PathNode>) -> Arc<PathNode> {
+        Arc::new(PathNode {
+            pose,
+            odom,
+            scan,
+            parent: Some(parent.clone()),
+        })
+    }
+
+    #[test]
+    fn output_path_is_the_survivors_history_with_odometry_between_nodes() {
+        let o = |x: f64| Pose2::new(x, 0.0, 0.0);
+        let root = Arc::new(PathNode {
+            pose: o(0.0),
+            odom: o(0.0),
+            scan: 0,
+            parent: None,
+        });
+        // Two particles branch at scan 2: A thinks it is at y = +1, B at y = -1.
+        let a = node(Pose2::new(2.0, 1.0, 0.0), o(2.0), 2, &root);
+        let b = node(Pose2::new(2.0, -1.0, 0.0), o(2.0), 2, &root);
+        // Resampling keeps only B (two copies); they extend B's history.
+        let b1 = node(Pose2::new(4.0, -1.0, 0.0), o(4.0), 4, &b);
+        let b2 = node(Pose2::new(4.0, -1.2, 0.0), o(4.0), 4, &b);
+        drop(a);
+        let odometry: Vec<StampedPose2> = (0..6)
+            .map(|k| StampedPose2 {
+                stamp_ns: k as i64,
+                pose: o(k as f64),
+            })
+            .collect();
+        let path = path_poses(&b2, &odometry);
+        let ys: Vec<f64> = path.iter().map(|p| p.pose.y_m).collect();
+        let xs: Vec<f64> = path.iter().map(|p| p.pose.x_m).collect();
+        assert_eq!(ys, vec![0.0, 0.0, -1.0, -1.0, -1.2, -1.2]);
+        assert_eq!(xs, vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0]);
+        assert_eq!(path_poses(&b1, &odometry)[5].pose.y_m, -1.0);
+        assert_eq!(ancestry(&b2).len(), 3);
+    }
+
+    #[test]
+    fn dropping_a_long_path_does_not_recurse() {
+        let mut leaf = Arc::new(PathNode {
+            pose: Pose2::IDENTITY,
+            odom: Pose2::IDENTITY,
+            scan: 0,
+            parent: None,
+        });
+        for k in 1..1_000_000 {
+            leaf = node(Pose2::IDENTITY, Pose2::IDENTITY, k, &leaf);
+        }
+        drop(leaf);
+    }
+
+    #[test]
+    fn likelihood_peaks_at_the_true_pose_and_the_matcher_finds_it() {
+        use crate::map::{MapOptions, ScanPoint};
+        let mut grid = OccupancyGrid::new(&MapOptions {
+            resolution_m: 0.05,
+            ..MapOptions::default()
+        })
+        .unwrap();
+        // An L-shaped room corner (walls through cell centres) plus a pillar.
+        let mut points = Vec::new();
+        for k in 0..200 {
+            let t = f64::from(k) * 0.05 - 5.0;
+            points.push([t, 3.025]);
+            points.push([4.025, t]);
+        }
+        for k in 0..36 {
+            let a = f64::from(k) * 10f64.to_radians();
+            points.push([1.5 + 0.3 * a.cos(), -1.0 + 0.3 * a.sin()]);
+        }
+        let scan = PlanarScan {
+            sensor_x_m: 0.0,
+            sensor_y_m: 0.0,
+            points: points
+                .iter()
+                .map(|p| ScanPoint {
+                    x_m: p[0],
+                    y_m: p[1],
+                    hit: true,
+                    free_to: 1.0,
+                })
+                .collect(),
+        };
+        grid.insert_scan(&scan, &mut InsertScratch::new()).unwrap();
+        let o = RbpfOptions::default();
+        let model = o.observation(0.05);
+        let search = SearchParams::new(&o, 0.05);
+        let at_truth = scan_log_likelihood(&grid, &model, &points, &Pose2::IDENTITY);
+        let off = scan_log_likelihood(&grid, &model, &points, &Pose2::new(0.1, 0.0, 0.0));
+        assert!(at_truth > off, "{at_truth} {off}");
+        for start in [
+            Pose2::new(0.04, -0.03, 2f64.to_radians()),
+            Pose2::new(-0.05, 0.04, -2.5f64.to_radians()),
+        ] {
+            let (pose, _) = match_in_own_map(&grid, &model, &points, &start, &search);
+            assert!(pose.translation_norm_m() < 0.02, "{pose:?} from {start:?}");
+            assert!(pose.yaw_rad.abs() < 0.3f64.to_radians(), "{pose:?}");
+        }
+    }
+}
