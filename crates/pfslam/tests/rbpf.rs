@@ -181,3 +181,26 @@ fn freiburg_intel_and_aces_meet_issue_6() {
         assert!(t <= 0.06, "aces {t}");
     }
 }
+
+#[test]
+fn auto_mode_picks_rbpf_for_a_level_lidar_and_scan_match_for_the_car() {
+    use pfslam::filter::FilterMode;
+    use pfslam::geometry::Rigid3;
+    let mut rec = synthetic::recording(5.0, 5);
+    rec.body_from_lidar = Rigid3::IDENTITY;
+    assert_eq!(FilterMode::Auto.resolve(&rec), FilterMode::Rbpf);
+    // An explicit mode is kept.
+    assert_eq!(FilterMode::ScanMatch.resolve(&rec), FilterMode::ScanMatch);
+    assert_eq!(FilterMode::Seed.resolve(&rec), FilterMode::Seed);
+    // The car's LMS511 mount (tilted, equation 8 of the UCSD report).
+    rec.body_from_lidar = pfslam::sensors::CarCalibration::ucsd().body_from_lidar;
+    assert_eq!(FilterMode::Auto.resolve(&rec), FilterMode::ScanMatch);
+    // A level mount that moves on the body (a humanoid's head).
+    rec.body_from_lidar = Rigid3::IDENTITY;
+    rec.body_from_lidar_per_scan = Some(vec![Rigid3::IDENTITY; rec.scans.len()]);
+    assert_eq!(FilterMode::Auto.resolve(&rec), FilterMode::ScanMatch);
+    // 2 degrees of pitch is not level.
+    rec.body_from_lidar_per_scan = None;
+    rec.body_from_lidar = Rigid3::from_rpy(0.0, 2f64.to_radians(), 0.0, [0.0; 3]);
+    assert_eq!(FilterMode::Auto.resolve(&rec), FilterMode::ScanMatch);
+}

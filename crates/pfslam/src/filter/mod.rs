@@ -44,18 +44,48 @@ pub enum FilterMode {
     /// The seeds: hit-count correlation over a small offset grid, best offset taken.
     Seed,
     /// Likelihood-field scan matching with an odometry prior (`[filter.scan_match]`).
-    #[default]
     ScanMatch,
     /// Rao-Blackwellised: per-particle maps, scan matching against each particle's own map,
     /// output the final best particle's ancestral path (`[filter.rbpf]`).
     Rbpf,
+    /// Chosen from the recording by [`FilterMode::resolve`]: `rbpf` for a level LiDAR
+    /// (a planar indoor robot: its scans see walls, its wheel odometry needs the
+    /// per-particle maps' freedom), `scan_match` for a tilted or moving LiDAR (the car, the
+    /// humanoid: the scan surface changes height with range, so walls are seen at different
+    /// spots from pose to pose, and the tight odometry prior of `scan_match` holds it).
+    #[default]
+    Auto,
+}
+
+/// A LiDAR whose scan axis is within this angle of the body's vertical counts as level.
+const LEVEL_LIDAR_MAX_TILT_RAD: f64 = 1.0 * std::f64::consts::PI / 180.0;
+
+impl FilterMode {
+    /// The mode that runs on `recording`: `self`, or for [`FilterMode::Auto`] the choice
+    /// described there.
+    pub fn resolve(self, recording: &crate::sensors::Recording) -> FilterMode {
+        if self != FilterMode::Auto {
+            return self;
+        }
+        // Tilt of the scan plane: angle between the LiDAR's z axis and the body's.
+        let lidar_z_in_body = recording.body_from_lidar.rotation.column(2).into_owned();
+        let cos_tilt = lidar_z_in_body.z / lidar_z_in_body.norm().max(f64::MIN_POSITIVE);
+        let level = cos_tilt.clamp(-1.0, 1.0).abs().acos() <= LEVEL_LIDAR_MAX_TILT_RAD;
+        if level && recording.body_from_lidar_per_scan.is_none() {
+            FilterMode::Rbpf
+        } else {
+            FilterMode::ScanMatch
+        }
+    }
 }
 
 /// Options of the filter component (`[filter]` in the configuration).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct FilterOptions {
-    /// "scan_match" (default: likelihood field + scan-matching proposal, see
+    /// "auto" (default: "rbpf" when the LiDAR is mounted level, "scan_match" when it is
+    /// tilted or moves on the body, as the car's and the humanoid's), "scan_match"
+    /// (likelihood field + scan-matching proposal with a tight odometry prior, see
     /// `[filter.scan_match]`), "seed" (the seeds' map correlation; the keys below up to
     /// `temperature` and `resample_threshold` apply to it) or "rbpf" (Rao-Blackwellised:
     /// per-particle maps, see `[filter.rbpf]`; uses `particles` and `resample_method`).

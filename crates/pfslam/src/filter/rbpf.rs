@@ -794,6 +794,7 @@ pub fn run_rbpf(
         ScanProjector::new(&recording.lidar, &recording.body_from_lidar, &scan_opts)?;
     let mut stats = SlamStats {
         particles: opts.particles,
+        mode: super::FilterMode::Rbpf,
         seed,
         scans_total: total,
         scans_skipped: first,

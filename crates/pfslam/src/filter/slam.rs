@@ -161,6 +161,8 @@ pub struct StageTimings {
 pub struct SlamStats {
     /// Particles.
     pub particles: usize,
+    /// The filter mode that ran (`auto` resolved).
+    pub mode: FilterMode,
     /// Seed of the random streams.
     pub seed: u64,
     /// Scans in the recording.
@@ -245,7 +247,7 @@ pub fn run_slam(
     seed: u64,
     observer: &mut dyn FnMut(SlamEvent<'_>),
 ) -> Result<SlamResult, SlamError> {
-    if config.filter.mode == FilterMode::Rbpf {
+    if config.filter.mode.resolve(recording) == FilterMode::Rbpf {
         return super::rbpf::run_rbpf(recording, config, seed, observer);
     }
     let motion = super::motion_model(config, recording)?;
@@ -271,6 +273,9 @@ pub fn run_slam_with<P: MapPolicy>(
     observer: &mut dyn FnMut(SlamEvent<'_>),
 ) -> Result<SlamResult, SlamError> {
     let opts = &config.filter;
+    // `rbpf` (from `auto` too) reaches here only through this explicit-policy entry point;
+    // it then runs the scan-matching loop with the given policy.
+    let mode = opts.mode.resolve(recording);
     let t_start = Instant::now();
     let (first, mut cursor) = check_and_start(recording, config)?;
     let scans = &recording.scans;
@@ -285,6 +290,7 @@ pub fn run_slam_with<P: MapPolicy>(
     let mut pf = ParticleFilter::new(opts.particles, start, seed);
     let mut stats = SlamStats {
         particles: opts.particles,
+        mode,
         seed,
         scans_total: total,
         scans_skipped: first,
@@ -302,9 +308,11 @@ pub fn run_slam_with<P: MapPolicy>(
     let mut field = scanmatch::LikelihoodField::new();
     field.set_source_threshold(opts.scan_match.field_source_threshold());
     let match_params = opts.scan_match.params(config.map.resolution_m);
-    let resample_threshold = match opts.mode {
+    let resample_threshold = match mode {
         FilterMode::Seed => opts.resample_threshold,
-        FilterMode::ScanMatch | FilterMode::Rbpf => opts.scan_match.resample_threshold,
+        FilterMode::ScanMatch | FilterMode::Rbpf | FilterMode::Auto => {
+            opts.scan_match.resample_threshold
+        }
     };
     let mut neff_sum = 0.0;
     let mut score_sum = 0.0;
@@ -319,11 +327,11 @@ pub fn run_slam_with<P: MapPolicy>(
         };
         stats.odometry_steps += steps.len();
         if !steps.is_empty() {
-            match opts.mode {
+            match mode {
                 FilterMode::Seed => pf.predict_steps(&steps, motion),
                 // The scan match is the proposal: odometry without noise here, the spread
                 // comes from sampling around each match.
-                FilterMode::ScanMatch | FilterMode::Rbpf => {
+                FilterMode::ScanMatch | FilterMode::Rbpf | FilterMode::Auto => {
                     pf.predict_steps(&steps, &ExactOdometry)
                 }
             }
@@ -332,7 +340,7 @@ pub fn run_slam_with<P: MapPolicy>(
         let k = i - first;
         let due = k.is_multiple_of(opts.update_every_scans)
             && (k == 0
-                || opts.mode != FilterMode::ScanMatch
+                || mode != FilterMode::ScanMatch
                 || opts
                     .scan_match
                     .moved_enough(&last_update_odom.between(&odom.pose)));
@@ -349,7 +357,7 @@ pub fn run_slam_with<P: MapPolicy>(
                 0
             } else {
                 let t = Instant::now();
-                let report = match opts.mode {
+                let report = match mode {
                     FilterMode::Seed => pf.reweight(
                         &*policy,
                         &hits,
@@ -357,7 +365,7 @@ pub fn run_slam_with<P: MapPolicy>(
                         opts.temperature,
                         opts.move_to_best_offset,
                     ),
-                    FilterMode::ScanMatch | FilterMode::Rbpf => {
+                    FilterMode::ScanMatch | FilterMode::Rbpf | FilterMode::Auto => {
                         let sm = &opts.scan_match;
                         scanmatch::match_points(
                             &body,
@@ -416,7 +424,7 @@ pub fn run_slam_with<P: MapPolicy>(
             estimate
         } else {
             let estimate = last_estimate.compose(&last_update_odom.between(&odom.pose));
-            if opts.map_between_updates || opts.mode == FilterMode::ScanMatch {
+            if opts.map_between_updates || mode == FilterMode::ScanMatch {
                 // Insert this scan at the composed pose: the map then reaches up to the
                 // latest scan when the next update correlates against it.
                 let t = Instant::now();
