@@ -168,8 +168,11 @@ impl Default for GraphOptions {
             loop_max_candidates: 2,
             loop_every_keyframes: 5,
             loop_submap_keyframes: 20,
-            loop_window_m: 3.0,
-            loop_window_deg: 20.0,
+            // +-1.5 m / 10 deg: the default front end (`rbpf` on level LiDARs) drifts
+            // centimetres, not metres; half the window halves Intel's matching at the same
+            // error (measured; the 3 m / 20 deg window was sized for `scan_match` on Intel).
+            loop_window_m: 1.5,
+            loop_window_deg: 10.0,
             loop_min_score: 0.55,
             loop_ambiguity_ratio: 0.9,
             loop_ambiguity_radius_m: 0.5,
@@ -178,8 +181,9 @@ impl Default for GraphOptions {
             loop_sigma_deg: 1.0,
             loop_kernel_width: 3.0,
             loop_outlier_chi2: 100.0,
-            optimize_every_keyframes: 50,
-            optimize_chi2: 25.0,
+            // Fewer intermediate optimisations: Intel 71 -> 24 of them, the error unchanged.
+            optimize_every_keyframes: 200,
+            optimize_chi2: 100.0,
             max_iterations: 20,
             refine_scans: true,
             refine_window_m: 0.05,
