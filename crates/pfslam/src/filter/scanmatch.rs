@@ -506,6 +506,65 @@ fn coarse_sums_any(values: &[u8], w: usize, side: usize, base: &[usize], sums: &
     }
 }
 
+/// Pattern search with step halving (the sub-cell refinement of the matchers): from `start`
+/// (x, y, yaw; `first` = its objective and score), try +-`step_xy` in x and y and
+/// +-`step_yaw` in yaw, move to the best strict improvement, halve the steps when none
+/// improves, `levels` times (at most `max_iterations` moves or halvings). `eval(at,
+/// same_yaw)` returns (objective, score); `same_yaw` says the candidate keeps the current
+/// yaw (so rotated points can be reused). Returns the final position with its objective and
+/// score.
+pub fn pattern_search(
+    start: [f64; 3],
+    first: (f64, f64),
+    step_xy: f64,
+    step_yaw: f64,
+    levels: u32,
+    max_iterations: u32,
+    mut eval: impl FnMut([f64; 3], bool) -> (f64, f64),
+) -> ([f64; 3], (f64, f64)) {
+    let (mut at, mut best) = (start, first);
+    let (mut step_xy, mut step_yaw) = (step_xy, step_yaw);
+    let mut level = 0;
+    let mut iterations = 0;
+    // The position the last move came from: its objective is below the current one, so a
+    // candidate that lands exactly (bit for bit) on it cannot win and is not evaluated.
+    let mut previous: Option<[u64; 3]> = None;
+    while level < levels && iterations < max_iterations {
+        iterations += 1;
+        let mut moved: Option<([f64; 3], (f64, f64))> = None;
+        for (ex, ey, eyaw) in [
+            (step_xy, 0.0, 0.0),
+            (-step_xy, 0.0, 0.0),
+            (0.0, step_xy, 0.0),
+            (0.0, -step_xy, 0.0),
+            (0.0, 0.0, step_yaw),
+            (0.0, 0.0, -step_yaw),
+        ] {
+            let cand = [at[0] + ex, at[1] + ey, at[2] + eyaw];
+            if previous == Some(cand.map(f64::to_bits)) {
+                continue;
+            }
+            let value = eval(cand, eyaw == 0.0);
+            if value.0 > moved.map_or(best.0, |m| m.1.0) {
+                moved = Some((cand, value));
+            }
+        }
+        match moved {
+            Some((cand, value)) => {
+                previous = Some(at.map(f64::to_bits));
+                at = cand;
+                best = value;
+            }
+            None => {
+                step_xy *= 0.5;
+                step_yaw *= 0.5;
+                level += 1;
+            }
+        }
+    }
+    (at, best)
+}
+
 /// Matches `points_body` (body-frame returns, m) against `field` around `predicted` (see the
 /// module docs). Deterministic: fixed search order, strict improvements only.
 pub fn match_scan(
@@ -571,9 +630,9 @@ pub fn match_scan(
             }
         }
     }
-    let mut dx = f64::from(best.1) * res;
-    let mut dy = f64::from(best.2) * res;
-    let mut dyaw = best.3;
+    let dx = f64::from(best.1) * res;
+    let dy = f64::from(best.2) * res;
+    let dyaw = best.3;
     let mut rot = RotatedPoints::take(&mut scratch.rotated);
     let mut eval = |dx: f64, dy: f64, dyaw: f64, keep: bool| {
         let pose = Pose2::new(
@@ -587,51 +646,17 @@ pub fn match_scan(
             sum,
         )
     };
-    let (mut obj, mut sum) = eval(dx, dy, dyaw, true);
+    let first = eval(dx, dy, dyaw, true);
     // Refinement: pattern search with step halving on the interpolated field.
-    let mut step_xy = 0.5 * res;
-    let mut step_yaw = 0.5 * params.yaw_step_rad;
-    let mut level = 0;
-    let mut iterations = 0;
-    // The position the last move came from: its objective is below the current one, so a
-    // candidate that lands exactly (bit for bit) on it cannot win and is not evaluated.
-    let mut previous: Option<[u64; 3]> = None;
-    while level < params.refine_levels && iterations < 64 {
-        iterations += 1;
-        let mut moved = None;
-        for (ex, ey, eyaw) in [
-            (step_xy, 0.0, 0.0),
-            (-step_xy, 0.0, 0.0),
-            (0.0, step_xy, 0.0),
-            (0.0, -step_xy, 0.0),
-            (0.0, 0.0, step_yaw),
-            (0.0, 0.0, -step_yaw),
-        ] {
-            let at = [dx + ex, dy + ey, dyaw + eyaw];
-            if previous == Some(at.map(f64::to_bits)) {
-                continue;
-            }
-            let cand = eval(at[0], at[1], at[2], eyaw == 0.0);
-            if cand.0 > moved.map_or(obj, |m: (f64, f64, f64, f64, f64)| m.0) {
-                moved = Some((cand.0, cand.1, at[0], at[1], at[2]));
-            }
-        }
-        match moved {
-            Some((o, s, x, y, a)) => {
-                previous = Some([dx, dy, dyaw].map(f64::to_bits));
-                obj = o;
-                sum = s;
-                dx = x;
-                dy = y;
-                dyaw = a;
-            }
-            None => {
-                step_xy *= 0.5;
-                step_yaw *= 0.5;
-                level += 1;
-            }
-        }
-    }
+    let ([dx, dy, dyaw], (obj, sum)) = pattern_search(
+        [dx, dy, dyaw],
+        first,
+        0.5 * res,
+        0.5 * params.yaw_step_rad,
+        params.refine_levels,
+        64,
+        |at, same_yaw| eval(at[0], at[1], at[2], same_yaw),
+    );
     scratch.rotated = rot.points;
     MatchResult {
         pose: Pose2::new(

@@ -430,43 +430,16 @@ impl PointField {
             let s = self.score(points_body, p);
             (s * n_pts - prior.map_or(0.0, |q| q.penalty(p)), s)
         };
-        let mut pose = *start;
-        let (mut obj, mut score) = objective(&pose);
-        let mut step_xy = 0.5 * self.resolution_m;
-        let mut step_yaw = 0.5 * yaw_step_rad;
-        let mut level = 0;
-        let mut iterations = 0;
-        while level < levels && iterations < 100 {
-            iterations += 1;
-            let mut moved: Option<(f64, f64, Pose2)> = None;
-            for (ex, ey, eyaw) in [
-                (step_xy, 0.0, 0.0),
-                (-step_xy, 0.0, 0.0),
-                (0.0, step_xy, 0.0),
-                (0.0, -step_xy, 0.0),
-                (0.0, 0.0, step_yaw),
-                (0.0, 0.0, -step_yaw),
-            ] {
-                let cand = Pose2::new(pose.x_m + ex, pose.y_m + ey, pose.yaw_rad + eyaw);
-                let (o, s) = objective(&cand);
-                if o > moved.map_or(obj, |m| m.0) {
-                    moved = Some((o, s, cand));
-                }
-            }
-            match moved {
-                Some((o, s, p)) => {
-                    obj = o;
-                    score = s;
-                    pose = p;
-                }
-                None => {
-                    step_xy *= 0.5;
-                    step_yaw *= 0.5;
-                    level += 1;
-                }
-            }
-        }
-        (pose, score)
+        let ([x_m, y_m, yaw_rad], (_, score)) = crate::filter::scanmatch::pattern_search(
+            [start.x_m, start.y_m, start.yaw_rad],
+            objective(start),
+            0.5 * self.resolution_m,
+            0.5 * yaw_step_rad,
+            levels,
+            100,
+            |at, _| objective(&Pose2::new(at[0], at[1], at[2])),
+        );
+        (Pose2::new(x_m, y_m, yaw_rad), score)
     }
 }
 
