@@ -3,7 +3,7 @@
 //! Simulates the car once (by default the full-size recording: 1160.5 s, 116k LiDAR scans,
 //! 1.16M FOG rows) into a scratch directory, or takes `--dataset`, then times `--runs` times
 //! the whole job as `pfslam run` does it: read the files (CSV parsing, dead reckoning), SLAM,
-//! write the maps (map.png, binary_map.png, map.pgm/.yaml) and the trajectory. Reports per run
+//! the `[graph]` back end when enabled (with the map rebuilt along its trajectory), write the maps (map.png, binary_map.png, map.pgm/.yaml) and the trajectory. Reports per run
 //! and as medians: wall time and CPU time (user + system, all threads) per stage, the SLAM
 //! loop's own stage timings, scans per second, the real-time factor and the peak resident
 //! memory of the run (VmHWM, reset before each run through /proc/self/clear_refs).
@@ -12,9 +12,11 @@ use super::dataset::{Dataset, load_dataset};
 use anyhow::Context;
 use pfslam::config::Config;
 use pfslam::filter::slam::{StageTimings, anchor_odometry_to_ground_truth, run_slam};
-use pfslam::geometry::Pose2;
+use pfslam::geometry::{Pose2, Trajectory};
+use pfslam::graph::optimize_trajectory;
 use pfslam::io::map_files::write_map_server;
 use pfslam::io::tum::write_tum;
+use pfslam::map::map_with_poses;
 use pfslam::sim::{SimOptions, World};
 use pfslam::viz::map_image::{MapImageOptions, TrajectoryOverlay, write_binary_png, write_map_png};
 use std::path::{Path, PathBuf};
@@ -65,6 +67,9 @@ struct Cost {
 struct RunFigures {
     load: Cost,
     slam: Cost,
+    /// The `[graph]` back end and the map rebuilt along its trajectory (zero when disabled),
+    /// as `pfslam run` does.
+    back_end: Cost,
     write: Cost,
     total: Cost,
     slam_stages: StageTimings,
@@ -129,7 +134,21 @@ fn one_run(dataset: &Path, config: &Config, seed: u64, out: &Path) -> anyhow::Re
         Ok(recording)
     })?;
     anchor_odometry_to_ground_truth(&mut recording);
-    let (result, slam) = timed(|| Ok(run_slam(&recording, config, seed, &mut |_| {})?))?;
+    let (mut result, slam) = timed(|| Ok(run_slam(&recording, config, seed, &mut |_| {})?))?;
+    let ((), back_end) = timed(|| {
+        if config.graph.enabled {
+            let g = optimize_trajectory(
+                &recording,
+                &config.map.scan,
+                &result.trajectory,
+                &config.graph,
+            )?;
+            let poses = Trajectory::new(g.trajectory.clone());
+            result.map = map_with_poses(&recording, &poses, &config.map)?.0;
+            result.trajectory = g.trajectory;
+        }
+        Ok(())
+    })?;
     let ((), write) = timed(|| {
         std::fs::create_dir_all(out)?;
         write_tum(&out.join("trajectory.tum"), &result.trajectory)?;
@@ -159,6 +178,7 @@ fn one_run(dataset: &Path, config: &Config, seed: u64, out: &Path) -> anyhow::Re
     Ok(RunFigures {
         load,
         slam,
+        back_end,
         write,
         total,
         slam_stages: result.stats.timings,
@@ -243,7 +263,8 @@ fn bench(args: &Args, config: &Config, work: &Path) -> anyhow::Result<()> {
         }
         println!(
             "run {}: total {:.2} s wall / {:.2} s CPU; load {:.2} / {:.2}, SLAM {:.2} / {:.2} \
-             (match {:.2}, map {:.2}, predict {:.2}), write {:.2} / {:.2}; peak RSS {}",
+             (match {:.2}, map {:.2}, predict {:.2}), back end {:.2} / {:.2}, write {:.2} / {:.2}; \
+             peak RSS {}",
             k + 1,
             r.total.wall_s,
             r.total.cpu_s,
@@ -254,6 +275,8 @@ fn bench(args: &Args, config: &Config, work: &Path) -> anyhow::Result<()> {
             r.slam_stages.correlate_s,
             r.slam_stages.map_update_s,
             r.slam_stages.predict_s,
+            r.back_end.wall_s,
+            r.back_end.cpu_s,
             r.write.wall_s,
             r.write.cpu_s,
             r.peak_rss_mb
@@ -284,6 +307,8 @@ fn bench(args: &Args, config: &Config, work: &Path) -> anyhow::Result<()> {
             "match_wall_s": med(&|r| r.slam_stages.correlate_s),
             "map_update_wall_s": med(&|r| r.slam_stages.map_update_s),
             "predict_wall_s": med(&|r| r.slam_stages.predict_s),
+            "back_end_wall_s": med(&|r| r.back_end.wall_s),
+            "back_end_cpu_s": med(&|r| r.back_end.cpu_s),
             "write_wall_s": med(&|r| r.write.wall_s),
             "peak_rss_mb": med(&|r| r.peak_rss_mb.unwrap_or(f64::NAN)),
             "scans_per_s": scans as f64 / slam_wall,
