@@ -808,7 +808,6 @@ pub fn run_rbpf(
     let mut pts: Vec<[f64; 2]> = Vec::new();
     let mut last_update_odom = start;
     let (mut neff_sum, mut ll_sum) = (0.0, 0.0);
-    let progress_every = (total / 200).max(1);
     let angular = ro.angular_update_deg.to_radians();
     let mut have_first = false;
     for i in first..total {
@@ -859,14 +858,7 @@ pub fn run_rbpf(
         }
         stats.scans_processed += 1;
         let done = i + 1;
-        if done.is_multiple_of(progress_every) || done == total {
-            observer(SlamEvent::Progress { done, total });
-        }
-        if opts.snapshot_every_scans > 0
-            && stats
-                .scans_processed
-                .is_multiple_of(opts.snapshot_every_scans)
-        {
+        if super::slam::report_progress(observer, done, total, &stats, opts.snapshot_every_scans) {
             let best = &pf.particles[pf.best()];
             let trajectory = path_poses(&best.node, &dead_reckoning);
             observer(SlamEvent::Snapshot {

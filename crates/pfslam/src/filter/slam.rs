@@ -239,6 +239,23 @@ pub enum SlamEvent<'a> {
     },
 }
 
+/// After scan `done` of `total`: reports progress about every 0.5 % (and at the end) to
+/// `observer`, and says whether a map snapshot is due (every `snapshot_every_scans`
+/// processed scans; 0 = never). Shared by the filter loops.
+pub(crate) fn report_progress(
+    observer: &mut dyn FnMut(SlamEvent<'_>),
+    done: usize,
+    total: usize,
+    stats: &SlamStats,
+    snapshot_every_scans: usize,
+) -> bool {
+    let progress_every = (total / 200).max(1);
+    if done.is_multiple_of(progress_every) || done == total {
+        observer(SlamEvent::Progress { done, total });
+    }
+    snapshot_every_scans > 0 && stats.scans_processed.is_multiple_of(snapshot_every_scans)
+}
+
 /// Runs the seeds' particle-filter SLAM on `recording` with `config` and random `seed`,
 /// reporting progress and snapshots to `observer`.
 pub fn run_slam(
@@ -316,7 +333,6 @@ pub fn run_slam_with<P: MapPolicy>(
     };
     let mut neff_sum = 0.0;
     let mut score_sum = 0.0;
-    let progress_every = (total / 200).max(1);
     for i in first..total {
         let stamp_ns = scans.stamps_ns[i];
         let t = Instant::now();
@@ -446,14 +462,7 @@ pub fn run_slam_with<P: MapPolicy>(
         dead_reckoning.push(odom);
         stats.scans_processed += 1;
         let done = i + 1;
-        if done.is_multiple_of(progress_every) || done == total {
-            observer(SlamEvent::Progress { done, total });
-        }
-        if opts.snapshot_every_scans > 0
-            && stats
-                .scans_processed
-                .is_multiple_of(opts.snapshot_every_scans)
-        {
+        if report_progress(observer, done, total, &stats, opts.snapshot_every_scans) {
             observer(SlamEvent::Snapshot {
                 scans_done: done,
                 map: policy.map_for_output(pf.particles.best_index()),
