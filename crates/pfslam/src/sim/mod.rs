@@ -24,7 +24,7 @@ pub mod world;
 pub use car::{CarSimOutput, simulate_car, write_car_sim};
 pub use humanoid::{HumanoidSimOutput, simulate_humanoid, write_humanoid_sim};
 pub use raycast::{Hit, HitKind, RayCaster};
-pub use scan_truth::{ScanSurfaceTruth, ScanTruthOptions};
+pub use scan_truth::{ScanSurfaceTruth, ScanTruthOptions, TruthRays};
 pub use truth::TrueMap;
 pub use world::{Prism, World};
 

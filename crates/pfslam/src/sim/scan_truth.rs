@@ -12,8 +12,9 @@
 //! ways: beams pass under tree canopies and over vans the band contains, and hit car roofs
 //! and canopy bottoms it may exclude. Instead, for every `pose_step`-th true pose:
 //!
-//! 1. the scan surface is traced as fine rays (every `angle_step_deg` over the sensor's fan,
-//!    in the LiDAR's own plane placed by the true pose and the mount) on the truth raster. In
+//! 1. the scan surface is traced as rays (by default the sensor's own beam directions;
+//!    `rays = "uniform"`: every `angle_step_deg` over the fan), in the LiDAR's own plane
+//!    placed by the true pose and the mount, on the truth raster. In
 //!    each cell a ray crosses, its height spans `[z_in, z_out]` (exact: the ray's height is
 //!    linear in its horizontal distance);
 //! 2. the first cell where that height span meets the vertical extent `[z_min, z_max]` of a
@@ -42,10 +43,12 @@
 //! Why it is fair: it asks the map for exactly what the sensor geometry allows — surfaces a
 //! beam can reach first and space a beam can cross — at the heights the beams really have,
 //! with 1-cell tolerance; it never looks at a simulated range, so a wrong mount, a projection
-//! or insertion bug, bad log-odds or thresholds still show. Rays are traced every
-//! 0.1 deg, finer than the real 0.666 deg beams, from poses 10 scans (~0.9 m) apart: a
-//! surface counts as visible even when no real beam happened to hit it from that pose (the
-//! real beams sweep across as the car moves at 100 scans/s).
+//! or insertion bug, bad log-odds or thresholds still show. The rays are the real beams
+//! (0.666 deg apart on the LMS511): finer uniform rays (the first rule, 0.1 deg) also count
+//! surfaces between the beams, and those are not swept as the car moves. A beam at a fixed
+//! angle traces one line along a surface parallel to the drive (a parked car, a canopy's
+//! underside), so on the default drive ~2,800 such cells were reached by no real beam from
+//! any pose; with uniform rays recall was capped by the sampling, not by the map.
 
 use super::truth::for_each_footprint_cell;
 use super::world::World;
@@ -66,16 +69,33 @@ use std::path::Path;
 pub struct ScanTruthOptions {
     /// Trace from every k-th true pose (10 = 10 Hz for the car's 100 Hz LiDAR).
     pub pose_step: usize,
-    /// Angle between traced rays (deg); the real LMS511 beams are 0.666 deg apart.
+    /// Which rays are traced: "sensor_beams" (the LiDAR's own beam directions: surfaces a
+    /// real beam can reach) or "uniform" (every `angle_step_deg` over the fan: also surfaces
+    /// between the beams, which a beam at a fixed angle never reaches while the car drives
+    /// parallel to them).
+    pub rays: TruthRays,
+    /// Angle between traced rays (deg) when `rays = "uniform"`; the real LMS511 beams are
+    /// 0.666 deg apart.
     pub angle_step_deg: f64,
     /// Beams reach this far (m, 3-D range): the mapping's `[map.scan] range_max_m`.
     pub range_max_m: f64,
+}
+
+/// The rays the scan-surface truth traces from each sampled pose.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TruthRays {
+    /// The sensor's own beam directions (`LidarGeometry`), as the LiDAR fires them.
+    SensorBeams,
+    /// Rays every `angle_step_deg` over the sensor's fan.
+    Uniform,
 }
 
 impl Default for ScanTruthOptions {
     fn default() -> Self {
         ScanTruthOptions {
             pose_step: 10,
+            rays: TruthRays::SensorBeams,
             angle_step_deg: 0.1,
             range_max_m: 75.0,
         }
@@ -224,14 +244,23 @@ impl ScanSurfaceTruth {
             .map(|p| [p.z_min_m, p.z_max_m])
             .collect();
         let top_z = z_range.iter().map(|z| z[1]).fold(0.0, f64::max);
-        // Beam directions in the body frame, every angle_step over the sensor's fan.
-        let a0 = geometry.angle_min_rad;
-        let a1 = geometry.beam_angle_rad(geometry.beam_count.saturating_sub(1));
-        let step = opts.angle_step_deg.to_radians();
-        let n_rays = ((a1 - a0) / step).floor().max(0.0) as usize + 1;
-        let dirs: Vec<[f64; 3]> = (0..n_rays)
-            .map(|k| {
-                let a = a0 + k as f64 * step;
+        // Ray directions in the body frame: the sensor's beams, or every angle_step over
+        // its fan.
+        let angles: Vec<f64> = match opts.rays {
+            TruthRays::SensorBeams => (0..geometry.beam_count)
+                .map(|k| geometry.beam_angle_rad(k))
+                .collect(),
+            TruthRays::Uniform => {
+                let a0 = geometry.angle_min_rad;
+                let a1 = geometry.beam_angle_rad(geometry.beam_count.saturating_sub(1));
+                let step = opts.angle_step_deg.to_radians();
+                let n_rays = ((a1 - a0) / step).floor().max(0.0) as usize + 1;
+                (0..n_rays).map(|k| a0 + k as f64 * step).collect()
+            }
+        };
+        let dirs: Vec<[f64; 3]> = angles
+            .iter()
+            .map(|&a| {
                 let d = body_from_lidar.rotation * nalgebra::Vector3::new(a.cos(), a.sin(), 0.0);
                 [d.x, d.y, d.z]
             })
@@ -527,6 +556,7 @@ mod tests {
     fn from_origin(w: &World, geometry: &LidarGeometry, mount: &Rigid3) -> ScanSurfaceTruth {
         let opts = ScanTruthOptions {
             pose_step: 1,
+            rays: TruthRays::Uniform,
             angle_step_deg: 0.1,
             range_max_m: 20.0,
         };
