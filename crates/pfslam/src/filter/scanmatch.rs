@@ -38,6 +38,9 @@ pub struct ScanMatchOptions {
     pub prior_sigma_xy_m: f64,
     /// Standard deviation of the prior on the yaw deviation from the predicted pose (deg).
     pub prior_sigma_yaw_deg: f64,
+    /// Standard deviation of the prior along the predicted heading (m; 0 = `prior_sigma_xy_m`,
+    /// which then holds across it too).
+    pub prior_sigma_along_m: f64,
     /// Field value (0..1) of never-observed cells: a point that lands there neither fits nor
     /// contradicts the map. Matters at the frontier: the far end of a wall seen by the
     /// previous scan ends just short of this scan's, and scoring the unknown beyond it as
@@ -73,6 +76,17 @@ pub struct ScanMatchOptions {
     /// against 0.183 / 0.223 / 0.304 / 0.316 / 0.258 m without (noise-dominated), and the
     /// Freiburg figures moved by < 1 %.
     pub min_update_travel_m: f64,
+    /// Match only the returns that land, seen from the best particle's predicted pose, on
+    /// cells the map has observed (their whole `observed_margin_cells` neighbourhood): the
+    /// selection is fixed before the search, so returns in new territory neither pull the
+    /// pose into the unknown beyond the frontier nor back onto the frontier's walls.
+    pub observed_only: bool,
+    /// With `observed_only`: the (2 m + 1)^2 cells around the return must all be observed.
+    pub observed_margin_cells: u32,
+    /// Gain of the online odometry scale calibration (0 = off): after each update the
+    /// odometry's translation scale moves by this fraction of the best match's along-track
+    /// correction relative to the travel since the previous update.
+    pub odometry_scale_gain: f64,
 }
 
 impl Default for ScanMatchOptions {
@@ -86,6 +100,7 @@ impl Default for ScanMatchOptions {
             yaw_step_deg: 0.25,
             prior_sigma_xy_m: 0.02,
             prior_sigma_yaw_deg: 0.05,
+            prior_sigma_along_m: 0.0,
             unknown_value: 0.5,
             point_gain: 1.0,
             weight_temperature: 10.0,
@@ -95,6 +110,9 @@ impl Default for ScanMatchOptions {
             proposal_sigma_yaw_deg: 0.02,
             field_occupied_prob: 0.0,
             min_update_travel_m: 0.0,
+            observed_only: false,
+            observed_margin_cells: 0,
+            odometry_scale_gain: 0.0,
         }
     }
 }
@@ -124,6 +142,15 @@ impl ScanMatchOptions {
         }
         if self.xy_search_radius_cells > 32 {
             return Err("filter.scan_match.xy_search_radius_cells must be at most 32".into());
+        }
+        if !(self.prior_sigma_along_m.is_finite() && self.prior_sigma_along_m >= 0.0) {
+            return Err("filter.scan_match.prior_sigma_along_m must be finite and >= 0".into());
+        }
+        if !(0.0..=1.0).contains(&self.odometry_scale_gain) {
+            return Err("filter.scan_match.odometry_scale_gain must lie in [0, 1]".into());
+        }
+        if self.observed_margin_cells > 8 {
+            return Err("filter.scan_match.observed_margin_cells must be at most 8".into());
         }
         if self.refine_levels > 8 {
             return Err("filter.scan_match.refine_levels must be at most 8".into());
@@ -169,6 +196,8 @@ impl ScanMatchOptions {
             yaw_offsets_rad,
             yaw_step_rad: self.yaw_step_deg.to_radians(),
             inv_var_xy: 1.0 / (self.prior_sigma_xy_m * self.prior_sigma_xy_m),
+            inv_var_along: (self.prior_sigma_along_m > 0.0)
+                .then(|| 1.0 / (self.prior_sigma_along_m * self.prior_sigma_along_m)),
             inv_var_yaw: 1.0 / self.prior_sigma_yaw_deg.to_radians().powi(2),
             gain_per_unit: self.point_gain / 255.0,
             refine_levels: self.refine_levels,
@@ -189,6 +218,8 @@ pub struct MatchParams {
     pub yaw_step_rad: f64,
     /// `1 / sigma_xy^2` of the prior (1/m^2).
     pub inv_var_xy: f64,
+    /// `1 / sigma_along^2` of the prior along the predicted heading (`None`: `inv_var_xy`).
+    pub inv_var_along: Option<f64>,
     /// `1 / sigma_yaw^2` of the prior (1/rad^2).
     pub inv_var_yaw: f64,
     /// Log-likelihood per unit of field value (field values run 0..=255).
@@ -378,8 +409,20 @@ pub struct MatchResult {
     pub fit: f64,
 }
 
-fn prior_penalty(p: &MatchParams, dx: f64, dy: f64, dyaw: f64) -> f64 {
-    0.5 * ((dx * dx + dy * dy) * p.inv_var_xy + dyaw * dyaw * p.inv_var_yaw)
+/// The prior's penalty for a deviation `(dx, dy, dyaw)` from a prediction heading along
+/// `(sin, cos)` of its yaw.
+fn prior_penalty(p: &MatchParams, heading: (f64, f64), dx: f64, dy: f64, dyaw: f64) -> f64 {
+    match p.inv_var_along {
+        None => 0.5 * ((dx * dx + dy * dy) * p.inv_var_xy + dyaw * dyaw * p.inv_var_yaw),
+        Some(inv_along) => {
+            let (s, c) = heading;
+            let along = c * dx + s * dy;
+            let across = c * dy - s * dx;
+            0.5 * (along * along * inv_along
+                + across * across * p.inv_var_xy
+                + dyaw * dyaw * p.inv_var_yaw)
+        }
+    }
 }
 
 /// The body-frame points rotated by one yaw, `(c x, s y, s x, c y)` per point, kept while the
@@ -582,6 +625,7 @@ pub fn match_scan(
             fit: 0.0,
         };
     };
+    let heading = predicted.yaw_rad.sin_cos();
     let res = params.resolution_m;
     let r = params.xy_radius_cells.max(0);
     let (w, h) = (field.w as i32, field.h as i32);
@@ -623,7 +667,13 @@ pub fn match_scan(
                 let sum = scratch.sums[oy * side + ox];
                 let (dx, dy) = (ox as i32 - r, oy as i32 - r);
                 let obj = params.gain_per_unit * f64::from(sum)
-                    - prior_penalty(params, f64::from(dx) * res, f64::from(dy) * res, dyaw);
+                    - prior_penalty(
+                        params,
+                        heading,
+                        f64::from(dx) * res,
+                        f64::from(dy) * res,
+                        dyaw,
+                    );
                 if obj > best.0 {
                     best = (obj, dx, dy, dyaw);
                 }
@@ -642,7 +692,7 @@ pub fn match_scan(
         );
         let sum = rot.field_sum(field, &limits, points_body, &pose, keep);
         (
-            params.gain_per_unit * sum - prior_penalty(params, dx, dy, dyaw),
+            params.gain_per_unit * sum - prior_penalty(params, heading, dx, dy, dyaw),
             sum,
         )
     };
@@ -691,6 +741,22 @@ pub fn match_points(
             .step_by(decimation.max(1))
             .map(|p| [p.x_m, p.y_m]),
     );
+}
+
+/// Keeps the points of `points_body` that land, seen from `world_from_body`, in a cell of
+/// `grid` whose `(2 margin + 1)^2` neighbourhood is all observed (non-zero log-odds).
+pub fn retain_observed(
+    grid: &OccupancyGrid,
+    world_from_body: &Pose2,
+    margin_cells: u32,
+    points_body: &mut Vec<[f64; 2]>,
+) {
+    let m = margin_cells as i32;
+    points_body.retain(|p| {
+        let (x, y) = world_from_body.transform_point(p[0], p[1]);
+        let c = grid.cell_of(x, y);
+        (-m..=m).all(|dj| (-m..=m).all(|di| grid.logodds_fixed(Cell::new(c.i + di, c.j + dj)) != 0))
+    });
 }
 
 #[cfg(test)]
@@ -848,6 +914,7 @@ mod tests {
     ) -> MatchResult {
         let n = points_body.len().max(1) as f64;
         let limits = field.limits.unwrap();
+        let heading = predicted.yaw_rad.sin_cos();
         let res = params.resolution_m;
         let r = params.xy_radius_cells.max(0);
         let (w, h) = (field.w as i32, field.h as i32);
@@ -872,7 +939,13 @@ mod tests {
                     let sum: u32 = base.iter().map(|&b| u32::from(field.values[b + off])).sum();
                     let (dx, dy) = (ox as i32 - r, oy as i32 - r);
                     let obj = params.gain_per_unit * f64::from(sum)
-                        - prior_penalty(params, f64::from(dx) * res, f64::from(dy) * res, dyaw);
+                        - prior_penalty(
+                            params,
+                            heading,
+                            f64::from(dx) * res,
+                            f64::from(dy) * res,
+                            dyaw,
+                        );
                     if obj > best.0 {
                         best = (obj, dx, dy, dyaw);
                     }
@@ -899,7 +972,7 @@ mod tests {
                 })
                 .sum();
             (
-                params.gain_per_unit * sum - prior_penalty(params, dx, dy, dyaw),
+                params.gain_per_unit * sum - prior_penalty(params, heading, dx, dy, dyaw),
                 sum,
             )
         };

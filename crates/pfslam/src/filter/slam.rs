@@ -333,6 +333,9 @@ pub fn run_slam_with<P: MapPolicy>(
     };
     let mut neff_sum = 0.0;
     let mut score_sum = 0.0;
+    // Translation scale of the odometry, calibrated online (`odometry_scale_gain`).
+    let mut odometry_scale = 1.0;
+    let mut predicted: Vec<Pose2> = Vec::new();
     for i in first..total {
         let stamp_ns = scans.stamps_ns[i];
         let t = Instant::now();
@@ -347,9 +350,12 @@ pub fn run_slam_with<P: MapPolicy>(
                 FilterMode::Seed => pf.predict_steps(&steps, motion),
                 // The scan match is the proposal: odometry without noise here, the spread
                 // comes from sampling around each match.
-                FilterMode::ScanMatch | FilterMode::Rbpf | FilterMode::Auto => {
-                    pf.predict_steps(&steps, &ExactOdometry)
-                }
+                FilterMode::ScanMatch | FilterMode::Rbpf | FilterMode::Auto => pf.predict_steps(
+                    &steps,
+                    &ScaledOdometry {
+                        scale: odometry_scale,
+                    },
+                ),
             }
         }
         stats.timings.predict_s += t.elapsed().as_secs_f64();
@@ -390,6 +396,14 @@ pub fn run_slam_with<P: MapPolicy>(
                             &mut match_pts,
                         );
                         let grid = policy.map_for_output(pf.particles.best_index());
+                        if sm.observed_only {
+                            scanmatch::retain_observed(
+                                grid,
+                                &pf.best_pose(),
+                                sm.observed_margin_cells,
+                                &mut match_pts,
+                            );
+                        }
                         let rect = field_window(
                             grid.limits(),
                             &pf.particles.poses,
@@ -398,6 +412,7 @@ pub fn run_slam_with<P: MapPolicy>(
                             match_params.xy_radius_cells + 2,
                         );
                         field.build(grid, &rect, sm.field_sigma_m, sm.unknown_value);
+                        predicted.clone_from(&pf.particles.poses);
                         let report = pf.scan_match_update(
                             &field,
                             &match_pts,
@@ -405,6 +420,15 @@ pub fn run_slam_with<P: MapPolicy>(
                             sm.weight_temperature,
                         );
                         let best = pf.particles.poses[report.best];
+                        if sm.odometry_scale_gain > 0.0 {
+                            odometry_scale = calibrated_scale(
+                                odometry_scale,
+                                sm.odometry_scale_gain,
+                                &predicted[report.best],
+                                &best,
+                                last_update_odom.between(&odom.pose).translation_norm_m(),
+                            );
+                        }
                         pf.jitter(
                             sm.proposal_sigma_xy_m,
                             sm.proposal_sigma_yaw_deg.to_radians(),
@@ -513,10 +537,12 @@ pub(crate) fn check_and_start<'a>(
     Ok((first, cursor))
 }
 
-/// Odometry composed without noise.
-struct ExactOdometry;
+/// Odometry composed without noise, its translation times `scale`.
+struct ScaledOdometry {
+    scale: f64,
+}
 
-impl MotionModel for ExactOdometry {
+impl MotionModel for ScaledOdometry {
     fn sample(
         &self,
         pose: &Pose2,
@@ -524,8 +550,35 @@ impl MotionModel for ExactOdometry {
         to: &StampedPose2,
         _rng: &mut Xoshiro256PlusPlus,
     ) -> Pose2 {
-        pose.compose(&from.pose.between(&to.pose))
+        let step = from.pose.between(&to.pose);
+        if self.scale == 1.0 {
+            return pose.compose(&step);
+        }
+        pose.compose(&Pose2::new(
+            step.x_m * self.scale,
+            step.y_m * self.scale,
+            step.yaw_rad,
+        ))
     }
+}
+
+/// The odometry scale after one update: the match moved the prediction by `matched -
+/// predicted`; its component along the predicted heading, relative to the (scaled) travel
+/// `odometry_travel_m * scale`, corrects the scale by `gain` of it (clamped to +-5 %).
+fn calibrated_scale(
+    scale: f64,
+    gain: f64,
+    predicted: &Pose2,
+    matched: &Pose2,
+    odometry_travel_m: f64,
+) -> f64 {
+    let travel_m = odometry_travel_m * scale;
+    if travel_m < 0.1 {
+        return scale;
+    }
+    let (s, c) = predicted.yaw_rad.sin_cos();
+    let along_m = c * (matched.x_m - predicted.x_m) + s * (matched.y_m - predicted.y_m);
+    (scale * (1.0 + gain * along_m / travel_m)).clamp(0.95, 1.05)
 }
 
 /// The window of the likelihood field for one update: the matching points seen from `best`,
