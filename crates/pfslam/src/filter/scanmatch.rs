@@ -83,10 +83,22 @@ pub struct ScanMatchOptions {
     pub observed_only: bool,
     /// With `observed_only`: the (2 m + 1)^2 cells around the return must all be observed.
     pub observed_margin_cells: u32,
-    /// Gain of the online odometry scale calibration (0 = off): after each update the
-    /// odometry's translation scale moves by this fraction of the best match's along-track
-    /// correction relative to the travel since the previous update.
+    /// Gain of the online odometry scale calibration (0 = off; [`super::scale`]): per
+    /// calibration match, the odometry's translation scale moves by this fraction of the
+    /// match's along-track offset relative to the baseline.
     pub odometry_scale_gain: f64,
+    /// Scale calibration: a keyframe scan is kept every this much odometry travel (m).
+    pub scale_keyframe_spacing_m: f64,
+    /// Scale calibration: each new keyframe is matched against the one this far back (m).
+    pub scale_baseline_m: f64,
+    /// Scale calibration: prior on the x/y deviation of that match from the odometry (m).
+    pub scale_match_prior_m: f64,
+    /// Scale calibration: matches with a lower mean field value (0..1) are not used.
+    pub scale_min_fit: f64,
+    /// Each particle moves this fraction of the way from its prediction to its match (1 =
+    /// to the match). Below 1 the match's noise (whole refinement steps, a few mm) is
+    /// averaged over several updates instead of accumulating as a random walk.
+    pub match_gain: f64,
 }
 
 impl Default for ScanMatchOptions {
@@ -113,6 +125,11 @@ impl Default for ScanMatchOptions {
             observed_only: false,
             observed_margin_cells: 0,
             odometry_scale_gain: 0.0,
+            scale_keyframe_spacing_m: 2.0,
+            scale_baseline_m: 20.0,
+            scale_match_prior_m: 0.1,
+            scale_min_fit: 0.2,
+            match_gain: 1.0,
         }
     }
 }
@@ -132,6 +149,9 @@ impl ScanMatchOptions {
             ("prior_sigma_yaw_deg", self.prior_sigma_yaw_deg),
             ("point_gain", self.point_gain),
             ("weight_temperature", self.weight_temperature),
+            ("scale_keyframe_spacing_m", self.scale_keyframe_spacing_m),
+            ("scale_baseline_m", self.scale_baseline_m),
+            ("scale_match_prior_m", self.scale_match_prior_m),
         ] {
             if !pos(v) {
                 return Err(format!("filter.scan_match.{k} must be positive and finite"));
@@ -145,6 +165,12 @@ impl ScanMatchOptions {
         }
         if !(self.prior_sigma_along_m.is_finite() && self.prior_sigma_along_m >= 0.0) {
             return Err("filter.scan_match.prior_sigma_along_m must be finite and >= 0".into());
+        }
+        if !(self.match_gain > 0.0 && self.match_gain <= 1.0) {
+            return Err("filter.scan_match.match_gain must lie in (0, 1]".into());
+        }
+        if !(0.0..=1.0).contains(&self.scale_min_fit) {
+            return Err("filter.scan_match.scale_min_fit must lie in [0, 1]".into());
         }
         if !(0.0..=1.0).contains(&self.odometry_scale_gain) {
             return Err("filter.scan_match.odometry_scale_gain must lie in [0, 1]".into());

@@ -335,6 +335,10 @@ pub fn run_slam_with<P: MapPolicy>(
     let mut score_sum = 0.0;
     // Translation scale of the odometry, calibrated online (`odometry_scale_gain`).
     let mut odometry_scale = 1.0;
+    let mut calibrator = (mode == FilterMode::ScanMatch
+        && opts.scan_match.odometry_scale_gain > 0.0)
+        .then(|| super::scale::ScaleCalibrator::new(&opts.scan_match, &config.map));
+    let mut travel_m = 0.0;
     let mut predicted: Vec<Pose2> = Vec::new();
     for i in first..total {
         let stamp_ns = scans.stamps_ns[i];
@@ -419,16 +423,12 @@ pub fn run_slam_with<P: MapPolicy>(
                             &match_params,
                             sm.weight_temperature,
                         );
-                        let best = pf.particles.poses[report.best];
-                        if sm.odometry_scale_gain > 0.0 {
-                            odometry_scale = calibrated_scale(
-                                odometry_scale,
-                                sm.odometry_scale_gain,
-                                &predicted[report.best],
-                                &best,
-                                last_update_odom.between(&odom.pose).translation_norm_m(),
-                            );
+                        if sm.match_gain < 1.0 {
+                            for (p, q) in pf.particles.poses.iter_mut().zip(&predicted) {
+                                *p = blend(q, p, sm.match_gain);
+                            }
                         }
+                        let best = pf.particles.poses[report.best];
                         pf.jitter(
                             sm.proposal_sigma_xy_m,
                             sm.proposal_sigma_yaw_deg.to_radians(),
@@ -459,6 +459,11 @@ pub fn run_slam_with<P: MapPolicy>(
                 stats.resamples += 1;
             }
             stats.timings.resample_s += t.elapsed().as_secs_f64();
+            travel_m += last_update_odom.between(&odom.pose).translation_norm_m();
+            if let Some(cal) = &mut calibrator {
+                cal.observe(&odom.pose, travel_m, &body)?;
+                odometry_scale = cal.scale;
+            }
             last_estimate = estimate;
             last_update_odom = odom.pose;
             estimate
@@ -493,6 +498,13 @@ pub fn run_slam_with<P: MapPolicy>(
                 trajectory: &trajectory,
             });
         }
+    }
+    if let Some(cal) = &calibrator {
+        tracing::info!(
+            "odometry scale calibrated to {:.5} ({} matches)",
+            cal.scale,
+            cal.matches
+        );
     }
     stats.finish_means(neff_sum, score_sum);
     stats.timings.total_s = t_start.elapsed().as_secs_f64();
@@ -562,28 +574,20 @@ impl MotionModel for ScaledOdometry {
     }
 }
 
-/// The odometry scale after one update: the match moved the prediction by `matched -
-/// predicted`; its component along the predicted heading, relative to the (scaled) travel
-/// `odometry_travel_m * scale`, corrects the scale by `gain` of it (clamped to +-5 %).
-fn calibrated_scale(
-    scale: f64,
-    gain: f64,
-    predicted: &Pose2,
-    matched: &Pose2,
-    odometry_travel_m: f64,
-) -> f64 {
-    let travel_m = odometry_travel_m * scale;
-    if travel_m < 0.1 {
-        return scale;
-    }
-    let (s, c) = predicted.yaw_rad.sin_cos();
-    let along_m = c * (matched.x_m - predicted.x_m) + s * (matched.y_m - predicted.y_m);
-    (scale * (1.0 + gain * along_m / travel_m)).clamp(0.95, 1.05)
+/// `from` moved by `gain` of the way to `to` (yaw along the shorter arc).
+fn blend(from: &Pose2, to: &Pose2, gain: f64) -> Pose2 {
+    Pose2::new(
+        from.x_m + gain * (to.x_m - from.x_m),
+        from.y_m + gain * (to.y_m - from.y_m),
+        crate::geometry::wrap_angle(
+            from.yaw_rad + gain * crate::geometry::wrap_angle(to.yaw_rad - from.yaw_rad),
+        ),
+    )
 }
 
 /// The window of the likelihood field for one update: the matching points seen from `best`,
 /// grown by how far the other particles are from it (at most 5 m) and by `margin_cells`.
-fn field_window(
+pub(crate) fn field_window(
     limits: &crate::map::MapLimits,
     poses: &[Pose2],
     best: Pose2,
