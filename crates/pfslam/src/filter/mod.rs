@@ -17,7 +17,6 @@ pub mod prediction;
 pub mod rbpf;
 pub mod resample;
 pub mod rng;
-pub mod scale;
 pub mod scanmatch;
 pub mod slam;
 pub mod weights;

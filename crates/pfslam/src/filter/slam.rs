@@ -333,12 +333,6 @@ pub fn run_slam_with<P: MapPolicy>(
     };
     let mut neff_sum = 0.0;
     let mut score_sum = 0.0;
-    // Translation scale of the odometry, calibrated online (`odometry_scale_gain`).
-    let mut odometry_scale = 1.0;
-    let mut calibrator = (mode == FilterMode::ScanMatch
-        && opts.scan_match.odometry_scale_gain > 0.0)
-        .then(|| super::scale::ScaleCalibrator::new(&opts.scan_match, &config.map));
-    let mut travel_m = 0.0;
     let mut predicted: Vec<Pose2> = Vec::new();
     for i in first..total {
         let stamp_ns = scans.stamps_ns[i];
@@ -354,12 +348,9 @@ pub fn run_slam_with<P: MapPolicy>(
                 FilterMode::Seed => pf.predict_steps(&steps, motion),
                 // The scan match is the proposal: odometry without noise here, the spread
                 // comes from sampling around each match.
-                FilterMode::ScanMatch | FilterMode::Rbpf | FilterMode::Auto => pf.predict_steps(
-                    &steps,
-                    &ScaledOdometry {
-                        scale: odometry_scale,
-                    },
-                ),
+                FilterMode::ScanMatch | FilterMode::Rbpf | FilterMode::Auto => {
+                    pf.predict_steps(&steps, &ExactOdometry)
+                }
             }
         }
         stats.timings.predict_s += t.elapsed().as_secs_f64();
@@ -400,14 +391,6 @@ pub fn run_slam_with<P: MapPolicy>(
                             &mut match_pts,
                         );
                         let grid = policy.map_for_output(pf.particles.best_index());
-                        if sm.observed_only {
-                            scanmatch::retain_observed(
-                                grid,
-                                &pf.best_pose(),
-                                sm.observed_margin_cells,
-                                &mut match_pts,
-                            );
-                        }
                         let rect = field_window(
                             grid.limits(),
                             &pf.particles.poses,
@@ -416,7 +399,9 @@ pub fn run_slam_with<P: MapPolicy>(
                             match_params.xy_radius_cells + 2,
                         );
                         field.build(grid, &rect, sm.field_sigma_m, sm.unknown_value);
-                        predicted.clone_from(&pf.particles.poses);
+                        if sm.match_gain < 1.0 {
+                            predicted.clone_from(&pf.particles.poses);
+                        }
                         let report = pf.scan_match_update(
                             &field,
                             &match_pts,
@@ -459,11 +444,6 @@ pub fn run_slam_with<P: MapPolicy>(
                 stats.resamples += 1;
             }
             stats.timings.resample_s += t.elapsed().as_secs_f64();
-            travel_m += last_update_odom.between(&odom.pose).translation_norm_m();
-            if let Some(cal) = &mut calibrator {
-                cal.observe(&odom.pose, travel_m, &body)?;
-                odometry_scale = cal.scale;
-            }
             last_estimate = estimate;
             last_update_odom = odom.pose;
             estimate
@@ -498,13 +478,6 @@ pub fn run_slam_with<P: MapPolicy>(
                 trajectory: &trajectory,
             });
         }
-    }
-    if let Some(cal) = &calibrator {
-        tracing::info!(
-            "odometry scale calibrated to {:.5} ({} matches)",
-            cal.scale,
-            cal.matches
-        );
     }
     stats.finish_means(neff_sum, score_sum);
     stats.timings.total_s = t_start.elapsed().as_secs_f64();
@@ -549,12 +522,10 @@ pub(crate) fn check_and_start<'a>(
     Ok((first, cursor))
 }
 
-/// Odometry composed without noise, its translation times `scale`.
-struct ScaledOdometry {
-    scale: f64,
-}
+/// Odometry composed without noise.
+struct ExactOdometry;
 
-impl MotionModel for ScaledOdometry {
+impl MotionModel for ExactOdometry {
     fn sample(
         &self,
         pose: &Pose2,
@@ -562,15 +533,7 @@ impl MotionModel for ScaledOdometry {
         to: &StampedPose2,
         _rng: &mut Xoshiro256PlusPlus,
     ) -> Pose2 {
-        let step = from.pose.between(&to.pose);
-        if self.scale == 1.0 {
-            return pose.compose(&step);
-        }
-        pose.compose(&Pose2::new(
-            step.x_m * self.scale,
-            step.y_m * self.scale,
-            step.yaw_rad,
-        ))
+        pose.compose(&from.pose.between(&to.pose))
     }
 }
 
@@ -587,7 +550,7 @@ fn blend(from: &Pose2, to: &Pose2, gain: f64) -> Pose2 {
 
 /// The window of the likelihood field for one update: the matching points seen from `best`,
 /// grown by how far the other particles are from it (at most 5 m) and by `margin_cells`.
-pub(crate) fn field_window(
+fn field_window(
     limits: &crate::map::MapLimits,
     poses: &[Pose2],
     best: Pose2,
@@ -661,4 +624,21 @@ pub fn anchor_odometry_to_ground_truth(recording: &mut Recording) -> bool {
         p.pose = world_from_odom.compose(&p.pose);
     }
     true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn blend_moves_part_of_the_way_along_the_shorter_yaw_arc() {
+        let from = Pose2::new(1.0, 2.0, 3.1);
+        let to = Pose2::new(2.0, 0.0, -3.1);
+        let b = blend(&from, &to, 0.25);
+        assert!((b.x_m - 1.25).abs() < 1e-12 && (b.y_m - 1.5).abs() < 1e-12);
+        // -3.1 is 0.083 rad counter-clockwise of 3.1 across +-pi, not 6.2 rad clockwise.
+        let want = crate::geometry::wrap_angle(3.1 + 0.25 * (2.0 * std::f64::consts::PI - 6.2));
+        assert!((b.yaw_rad - want).abs() < 1e-12, "{b:?}");
+        assert_eq!(blend(&from, &to, 1.0).x_m, to.x_m);
+    }
 }
