@@ -3,6 +3,7 @@
 //!   +-9 m, a cross street, the far end at 75 m): every beam returns, ranges 2-75 m;
 //! - `campus_scan`: a scan of the simulated car (tilted mount, real calibration) on the
 //!   campus world, preprocessed as `pfslam map` does (2-75 m, no z window);
+//! - `campus_scan_heights`: the same scan into the default `[map.height]` bins;
 //! - `full_pipeline`: ranges -> body -> world -> insert for the street scan;
 //! - `clone_mapped_grid`: cloning a grid after 2,000 scans (what a particle's map copy costs).
 
@@ -107,6 +108,11 @@ fn bench(c: &mut Criterion) {
     eprintln!("campus scan: {} rays of 286 beams", world.points.len());
     let mut gr = grid();
     group.bench_function("campus_scan", |b| {
+        b.iter(|| gr.insert_scan(&world, &mut scratch).unwrap())
+    });
+    // The same scan into the default `[map.height]` bins (what `pfslam map` does for the car).
+    let mut gr = OccupancyGrid::new(&pfslam::map::MapOptions::default()).unwrap();
+    group.bench_function("campus_scan_heights", |b| {
         b.iter(|| gr.insert_scan(&world, &mut scratch).unwrap())
     });
     group.finish();

@@ -325,12 +325,13 @@ fn map_files_roundtrip_for_a_mapped_grid() {
 /// Issue 4 on the whole default drive (180 s, default simulated errors) with the true poses,
 /// judged by the simulator's scan-surface truth (`pfslam::sim::scan_truth`: what the tilted
 /// LiDAR can face with line of sight within 75 m, from the world's solids and the true poses,
-/// never from the simulated ranges). Measured (seed 1): precision 1.000, free agreement
-/// 1.000, recall 0.686 over the 46,026 visible surface cells. Not yet the issue's 0.95
-/// recall: nearly all misses are surfaces the LiDAR sees at one height and flies over or
-/// under at another (parked cars' roofs under the 3 deg dipping edge beams, canopy
-/// undersides above the level beams, vans), which the log-odds map votes free. The assertions
-/// hold the measured figures.
+/// never from the simulated ranges). Measured with the default `[map.height]` bins (seed 1):
+/// precision 0.9997, free agreement 1.000, recall 0.918 of the 46,026 visible surface cells
+/// (one log-odds value per cell, bins off: 1.000 / 1.000 / 0.681). Not the issue's 0.95: with
+/// the free updates all but removed (every hit kept), recall is 0.937 — about 1,500 visible
+/// car-roof cells, 700 building and 600 tree cells are never hit by the 0.666 deg beams, only
+/// by the truth's 0.1 deg rays (a beam at a fixed angle traces one line along a parked car as
+/// the car drives by). The assertions hold the measured figures.
 #[test]
 fn whole_default_drive_with_ground_truth_vs_scan_surface_truth() {
     use pfslam::sim::{SimOptions, World, simulate_car};
@@ -347,7 +348,7 @@ fn whole_default_drive_with_ground_truth_vs_scan_surface_truth() {
     eprintln!("whole drive vs scan-surface truth: {c}");
     eprintln!("whole drive vs fixed-band truth (1.7-4 m): {band}");
     assert!(c.true_occupied_observed > 30_000, "{c}");
-    assert!(c.precision() >= 0.95, "{c}");
+    assert!(c.precision() >= 0.995, "{c}");
     assert!(c.free_agreement() >= 0.99, "{c}");
-    assert!(c.recall() >= 0.65, "{c}");
+    assert!(c.recall() >= 0.91, "{c}");
 }

@@ -22,6 +22,7 @@ fn ring(radius_m: f64, n: usize) -> pfslam::map::PlanarScan {
     PlanarScan {
         sensor_x_m: 0.0,
         sensor_y_m: 0.0,
+        sensor_z_m: None,
         points: (0..n)
             .map(|k| {
                 let a = k as f64 * std::f64::consts::TAU / n as f64;
@@ -30,6 +31,7 @@ fn ring(radius_m: f64, n: usize) -> pfslam::map::PlanarScan {
                     y_m: radius_m * a.sin(),
                     hit: true,
                     free_to: 1.0,
+                    z_m: 0.0,
                 }
             })
             .collect(),

@@ -1025,6 +1025,7 @@ mod tests {
         let scan = PlanarScan {
             sensor_x_m: 0.0,
             sensor_y_m: 0.0,
+            sensor_z_m: None,
             points: points
                 .iter()
                 .map(|p| ScanPoint {
@@ -1032,6 +1033,7 @@ mod tests {
                     y_m: p[1],
                     hit: true,
                     free_to: 1.0,
+                    z_m: 0.0,
                 })
                 .collect(),
         };

@@ -804,11 +804,13 @@ mod tests {
                 y_m: s * t,
                 hit: true,
                 free_to: 1.0,
+                z_m: 0.0,
             });
         }
         PlanarScan {
             sensor_x_m: 0.0,
             sensor_y_m: 0.0,
+            sensor_z_m: None,
             points,
         }
     }
@@ -872,12 +874,14 @@ mod tests {
                         y_m: y,
                         hit: true,
                         free_to: 1.0,
+                        z_m: 0.0,
                     });
                 }
             }
             PlanarScan {
                 sensor_x_m: 0.0,
                 sensor_y_m: 0.0,
+                sensor_z_m: None,
                 points,
             }
         };

@@ -9,6 +9,13 @@
 //! and copy a tile only when they first change it.
 //!
 //! Cells never written read as log-odds 0 (p = 0.5, unknown).
+//!
+//! Height bins (`[map.height]`): a second directory of tiles, allocated on demand like the
+//! first and shared copy-on-write the same way, holds `bins` `i8` log-odds per cell (cell-major,
+//! one 16-byte column per cell at 16 bins). Scans with heights update them and rewrite the
+//! touched cells' 2-D values as their projection; scans without heights, and
+//! [`OccupancyGrid::add_fixed`] / [`OccupancyGrid::set_fixed`], write the 2-D cells only (do
+//! not mix both kinds of scan in one grid: the next scan with heights re-projects a cell).
 
 use super::limits::{Cell, CellRect, MapLimits};
 use super::logodds::{CellState, FixedLogOdds, LogOddsParams, from_fixed, probability_fixed};
@@ -71,17 +78,30 @@ fn local_index(cell: Cell) -> usize {
     (((cell.j & TILE_MASK) as usize) << TILE_SHIFT) | (cell.i & TILE_MASK) as usize
 }
 
-/// Dense directory of optional tiles over a rectangle of tile coordinates.
-#[derive(Clone, Debug, Default)]
-struct TileDir {
+/// Dense directory of optional tiles (of cells, or of height bins) over a rectangle of tile
+/// coordinates.
+#[derive(Clone, Debug)]
+struct TileDir<T> {
     ti0: i32,
     tj0: i32,
     w: i32,
     h: i32,
-    tiles: Vec<Option<Arc<Tile>>>,
+    tiles: Vec<Option<Arc<T>>>,
 }
 
-impl TileDir {
+impl<T> Default for TileDir<T> {
+    fn default() -> Self {
+        TileDir {
+            ti0: 0,
+            tj0: 0,
+            w: 0,
+            h: 0,
+            tiles: Vec::new(),
+        }
+    }
+}
+
+impl<T: Clone> TileDir<T> {
     #[inline(always)]
     fn slot(&self, ti: i32, tj: i32) -> Option<usize> {
         let di = ti.wrapping_sub(self.ti0);
@@ -94,7 +114,7 @@ impl TileDir {
     }
 
     #[inline(always)]
-    fn get(&self, ti: i32, tj: i32) -> Option<&Tile> {
+    fn get(&self, ti: i32, tj: i32) -> Option<&T> {
         self.slot(ti, tj).and_then(|s| self.tiles[s].as_deref())
     }
 
@@ -133,7 +153,7 @@ impl TileDir {
             j1 += 2;
         }
         let (w, h) = (i1 - i0 + 1, j1 - j0 + 1);
-        let mut tiles: Vec<Option<Arc<Tile>>> = vec![None; w as usize * h as usize];
+        let mut tiles: Vec<Option<Arc<T>>> = vec![None; w as usize * h as usize];
         for dj in 0..self.h {
             for di in 0..self.w {
                 let old = (dj * self.w + di) as usize;
@@ -150,8 +170,9 @@ impl TileDir {
         };
     }
 
+    /// The tile `(ti, tj)` for writing (created by `new` when absent; copied when shared).
     #[inline]
-    fn get_mut(&mut self, ti: i32, tj: i32) -> &mut Tile {
+    fn get_mut(&mut self, ti: i32, tj: i32, new: impl FnOnce() -> T) -> &mut T {
         let s = match self.slot(ti, tj) {
             Some(s) => s,
             None => {
@@ -160,7 +181,111 @@ impl TileDir {
                 self.slot(ti, tj).unwrap_or(0)
             }
         };
-        Arc::make_mut(self.tiles[s].get_or_insert_with(|| Arc::new(Tile::unknown())))
+        Arc::make_mut(self.tiles[s].get_or_insert_with(|| Arc::new(new())))
+    }
+
+    fn count(&self) -> usize {
+        self.tiles.iter().filter(|t| t.is_some()).count()
+    }
+}
+
+/// Fixed-point units per log-odds unit in a height bin (`i8`: |log-odds| <= 7.9, p within
+/// 0.0004 of 0 or 1; 1/16 resolution). Coarser than the 2-D cells' 1/256, so a column of bins
+/// costs one byte per bin; a bin only has to tell "hit at this height" from "passed free".
+pub const BIN_SCALE: f64 = 16.0;
+
+/// The log-odds model of a height bin in its fixed point (`i8`, see [`BIN_SCALE`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BinLogOdds {
+    /// Hit increment.
+    pub hit: i8,
+    /// Miss increment.
+    pub miss: i8,
+    /// Lower clamp bound.
+    pub min: i8,
+    /// Upper clamp bound.
+    pub max: i8,
+    /// A bin is occupied at this value.
+    pub occupied: i8,
+}
+
+impl BinLogOdds {
+    /// The bin model of `params`, a bin being occupied at probability `occupied_prob`.
+    /// Increments round to at least one unit; clamps and threshold saturate to the `i8` range.
+    pub fn new(params: &LogOddsParams, occupied_prob: f64) -> Self {
+        let q = |v: f64| (v * BIN_SCALE).round().clamp(-127.0, 127.0) as i8;
+        BinLogOdds {
+            hit: q(params.hit).max(1),
+            miss: q(params.miss).min(-1),
+            min: q(params.clamp_min),
+            max: q(params.clamp_max),
+            occupied: q(super::logodds::logit(occupied_prob)).max(1),
+        }
+    }
+
+    #[inline(always)]
+    fn apply(&self, v: i8, delta: i8) -> i8 {
+        (v as i16 + delta as i16).clamp(self.min as i16, self.max as i16) as i8
+    }
+}
+
+/// The height bins of one tile: `bins` fixed-point log-odds per cell, cell-major (cell `k`'s
+/// bins are `bins[k * n .. (k + 1) * n]`, same cell order as [`Tile`]).
+#[derive(Clone)]
+struct HeightTile {
+    bins: Vec<i8>,
+}
+
+impl std::fmt::Debug for HeightTile {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "HeightTile({} bins)", self.bins.len())
+    }
+}
+
+/// Per-cell height evidence ([`super::HeightOptions`]): bin `b` covers heights
+/// `[z_min + b * w, z_min + (b + 1) * w)`, the first bin extends down and the last up without
+/// bound. The cell's 2-D log-odds is the projection of its bins ([`project_bins`]).
+#[derive(Clone, Debug)]
+struct HeightLayer {
+    bins: usize,
+    model: BinLogOdds,
+    z_min_m: f32,
+    bins_per_m: f32,
+    dir: TileDir<HeightTile>,
+}
+
+impl HeightLayer {
+    /// The bit of the bin holding height `z_m`.
+    #[inline(always)]
+    fn bit(&self, z_m: f32) -> u32 {
+        // Truncation, not floor (a libm call here): both give bin 0 for everything below the
+        // window once clamped. The float -> int conversion saturates; NaN gives 0.
+        let b = (((z_m - self.z_min_m) * self.bins_per_m) as i32).clamp(0, self.bins as i32 - 1);
+        1 << b
+    }
+}
+
+/// The 2-D log-odds (fixed point, 1/256) of a cell from its height bins. When a bin is
+/// occupied (`>= model.occupied`) the value is the largest bin, raised to at least
+/// `occupied` (the 2-D occupied threshold): the cell is occupied. Otherwise it is the smallest
+/// observed (non-zero) bin — free when some height was passed free often enough — and 0
+/// (unknown) when no bin is observed. So a cell seen occupied at one height and passed free
+/// at another stays occupied, whatever the order of the scans.
+#[inline]
+pub fn project_bins(bins: &[i8], model: &BinLogOdds, occupied: i16) -> i16 {
+    let (mut lo, mut hi) = (i8::MAX, i8::MIN);
+    for &v in bins {
+        // Unobserved bins (0) must not count: as the low one they would hide free space.
+        lo = lo.min(if v == 0 { i8::MAX } else { v });
+        hi = hi.max(v);
+    }
+    let scale = (super::logodds::LOGODDS_SCALE / BIN_SCALE) as i16;
+    if hi >= model.occupied {
+        (hi as i16 * scale).max(occupied)
+    } else if lo == i8::MAX {
+        0
+    } else {
+        lo as i16 * scale
     }
 }
 
@@ -189,6 +314,9 @@ pub struct InsertScratch {
     shift: u32,
     /// Touched cells (mask indices); only the first `len` of an insertion are meaningful.
     touched: Vec<u32>,
+    /// Height insertion's mask (same layout as `mask`): bits 0-15 = bins passed free, bits
+    /// 16-31 = bins hit. Allocated on the first scan with heights; left zeroed.
+    hmask: Vec<u32>,
 }
 
 impl InsertScratch {
@@ -262,8 +390,10 @@ pub struct OccupancyGrid {
     limits: MapLimits,
     params: LogOddsParams,
     fixed: FixedLogOdds,
-    dir: TileDir,
+    dir: TileDir<Tile>,
     free_margin_cells: i32,
+    /// Height bins (`[map.height]` enabled); used by scans that carry heights.
+    height: Option<HeightLayer>,
 }
 
 impl OccupancyGrid {
@@ -272,6 +402,19 @@ impl OccupancyGrid {
         opts.validate().map_err(MapError::Options)?;
         let mut grid = OccupancyGrid::with_params(opts.limits(), opts.log_odds);
         grid.free_margin_cells = (opts.free_margin_m / opts.resolution_m).round() as i32;
+        let h = &opts.height;
+        if h.enabled {
+            grid.height = Some(HeightLayer {
+                bins: h.bins,
+                model: BinLogOdds::new(
+                    &opts.log_odds,
+                    h.occupied_prob.unwrap_or(opts.log_odds.occupied_prob),
+                ),
+                z_min_m: h.z_min_m as f32,
+                bins_per_m: (h.bins as f64 / (h.z_max_m - h.z_min_m)) as f32,
+                dir: TileDir::default(),
+            });
+        }
         Ok(grid)
     }
 
@@ -284,6 +427,7 @@ impl OccupancyGrid {
             fixed: params.to_fixed(),
             dir: TileDir::default(),
             free_margin_cells: 0,
+            height: None,
         }
     }
 
@@ -368,7 +512,7 @@ impl OccupancyGrid {
         Self::check_cell(cell)?;
         let f = self.fixed;
         let (ti, tj) = tile_of(cell);
-        let v = &mut self.dir.get_mut(ti, tj).cells[local_index(cell)];
+        let v = &mut self.dir.get_mut(ti, tj, Tile::unknown).cells[local_index(cell)];
         *v = f.apply(*v, delta);
         Ok(())
     }
@@ -388,7 +532,8 @@ impl OccupancyGrid {
         Self::check_cell(cell)?;
         let f = self.fixed;
         let (ti, tj) = tile_of(cell);
-        self.dir.get_mut(ti, tj).cells[local_index(cell)] = value.clamp(f.min, f.max);
+        self.dir.get_mut(ti, tj, Tile::unknown).cells[local_index(cell)] =
+            value.clamp(f.min, f.max);
         Ok(())
     }
 
@@ -406,22 +551,12 @@ impl OccupancyGrid {
         world_scan: &PlanarScan,
         scratch: &mut InsertScratch,
     ) -> Result<InsertStats, MapError> {
-        let origin = self.cell_of(world_scan.sensor_x_m, world_scan.sensor_y_m);
-        Self::check_cell(origin)?;
-        // Mask half-size: the farthest end cell (Chebyshev), so every ray fits.
-        let mut half = 0i32;
-        for p in &world_scan.points {
-            let c = self.cell_of(p.x_m, p.y_m);
-            Self::check_cell(c)?;
-            half = half.max((c.i - origin.i).abs()).max((c.j - origin.j).abs());
+        if let Some(sensor_z_m) = world_scan.sensor_z_m
+            && self.height.is_some()
+        {
+            return self.insert_scan_heights(world_scan, sensor_z_m, scratch);
         }
-        if half > MAX_RAY_CELLS {
-            return Err(MapError::RayTooLong {
-                cells: half,
-                max: MAX_RAY_CELLS,
-            });
-        }
-        scratch.ensure_half(half);
+        let origin = self.scan_origin(world_scan, scratch)?;
         let (sh, shift) = (scratch.half, scratch.shift);
         // Tile coordinates of the mask's first tile, and its first cell.
         let (t0i, t0j) = ((origin.i - sh) >> TILE_SHIFT, (origin.j - sh) >> TILE_SHIFT);
@@ -500,7 +635,7 @@ impl OccupancyGrid {
                 end += 1;
             }
             let (bi, bj) = ((block & 0xffff) as i32, (block >> 16) as i32);
-            let tile = self.dir.get_mut(t0i + bi, t0j + bj);
+            let tile = self.dir.get_mut(t0i + bi, t0j + bj, Tile::unknown);
             for &k in &touched[start..end] {
                 let k = k as usize;
                 let m = std::mem::replace(&mut mask[k], MARK_NONE);
@@ -515,6 +650,179 @@ impl OccupancyGrid {
                     (((k >> shift) & TILE_MASK as usize) << TILE_SHIFT) | (k & TILE_MASK as usize);
                 let v = &mut tile.cells[local];
                 *v = f.apply(*v, delta);
+            }
+            start = end;
+        }
+        Ok(stats)
+    }
+
+    /// Checks a scan's cells and sizes the scratch mask for its longest ray; returns the
+    /// sensor's cell.
+    fn scan_origin(
+        &self,
+        world_scan: &PlanarScan,
+        scratch: &mut InsertScratch,
+    ) -> Result<Cell, MapError> {
+        let origin = self.cell_of(world_scan.sensor_x_m, world_scan.sensor_y_m);
+        Self::check_cell(origin)?;
+        // Mask half-size: the farthest end cell (Chebyshev), so every ray fits.
+        let mut half = 0i32;
+        for p in &world_scan.points {
+            let c = self.cell_of(p.x_m, p.y_m);
+            Self::check_cell(c)?;
+            half = half.max((c.i - origin.i).abs()).max((c.j - origin.j).abs());
+        }
+        if half > MAX_RAY_CELLS {
+            return Err(MapError::RayTooLong {
+                cells: half,
+                max: MAX_RAY_CELLS,
+            });
+        }
+        scratch.ensure_half(half);
+        Ok(origin)
+    }
+
+    /// [`Self::insert_scan`] for a scan with heights on a grid with height bins: the same
+    /// cells, rules and margins, but per (cell, height bin). A ray is the 3-D segment from the
+    /// sensor (`sensor_z_m`) to its end point (`z_m`); the cell `k` steps along its digital
+    /// line (of `n` to the end cell) is passed at the height `k / n` of the way, the end cell
+    /// hit at the return's height. Per scan each bin of a cell gets at most one update,
+    /// occupied winning; then the cell's 2-D log-odds is re-projected ([`project_bins`]).
+    fn insert_scan_heights(
+        &mut self,
+        world_scan: &PlanarScan,
+        sensor_z_m: f64,
+        scratch: &mut InsertScratch,
+    ) -> Result<InsertStats, MapError> {
+        let origin = self.scan_origin(world_scan, scratch)?;
+        let Some(layer) = self.height.as_mut() else {
+            return Ok(InsertStats::default());
+        };
+        let (sh, shift) = (scratch.half, scratch.shift);
+        let (t0i, t0j) = ((origin.i - sh) >> TILE_SHIFT, (origin.j - sh) >> TILE_SHIFT);
+        let (mi0, mj0) = (t0i << TILE_SHIFT, t0j << TILE_SHIFT);
+        let flat = |c: Cell| (((c.j - mj0) as usize) << shift) | (c.i - mi0) as usize;
+        let stride = 1isize << shift;
+        let InsertScratch {
+            hmask,
+            touched,
+            mask,
+            ..
+        } = scratch;
+        if hmask.len() != mask.len() {
+            // Zeroed: a previous insertion left it clear, a new one is clear.
+            *hmask = vec![0; mask.len()];
+        }
+        let mut len = 0usize;
+        let mark = |hmask: &mut [u32], touched: &mut [u32], len: &mut usize, k: usize, m: u32| {
+            let old = hmask[k];
+            hmask[k] = old | m;
+            touched[*len] = k as u32;
+            *len += usize::from(old == 0);
+        };
+        let limits = self.limits;
+        let cell_of = |x: f64, y: f64| limits.cell_of(x, y);
+        let z0 = sensor_z_m as f32;
+        let margin_cells = self.free_margin_cells;
+        for p in &world_scan.points {
+            let end = cell_of(p.x_m, p.y_m);
+            let margin = if p.hit { margin_cells } else { 0 };
+            let (clear_end, partial) = if p.free_to < 1.0 {
+                let t = f64::from(p.free_to.max(0.0));
+                let x = world_scan.sensor_x_m + t * (p.x_m - world_scan.sensor_x_m);
+                let y = world_scan.sensor_y_m + t * (p.y_m - world_scan.sensor_y_m);
+                (cell_of(x, y), true)
+            } else {
+                (end, false)
+            };
+            let n_full = (end.i - origin.i).abs().max((end.j - origin.j).abs());
+            // Height gained per step of the full ray's digital line.
+            let dz = if n_full > 0 {
+                (p.z_m - z0) / n_full as f32
+            } else {
+                0.0
+            };
+            let n = (clear_end.i - origin.i)
+                .abs()
+                .max((clear_end.j - origin.j).abs());
+            if touched.len() < len + n as usize + 2 {
+                touched.resize(len + n as usize + 2 + 4096, 0);
+            }
+            // Steps along the clearing line stand for the same distance as along the full
+            // ray's (both are the major-axis distance to the sensor's cell, up to rounding).
+            let mut step = 0i32;
+            if partial && margin > 0 {
+                bresenham(origin, clear_end, |c| {
+                    let z = z0 + step as f32 * dz;
+                    step += 1;
+                    if (c.i - end.i).abs().max((c.j - end.j).abs()) <= margin || c == clear_end {
+                        return;
+                    }
+                    mark(hmask, touched, &mut len, flat(c), layer.bit(z));
+                });
+            } else {
+                let count = if partial { n } else { (n - margin).max(0) };
+                walk_mask(origin, clear_end, count, flat(origin), stride, |k| {
+                    let z = z0 + step as f32 * dz;
+                    step += 1;
+                    mark(hmask, touched, &mut len, k, layer.bit(z));
+                });
+            }
+            let bit = layer.bit(p.z_m);
+            let want = if p.hit { bit << 16 } else { bit };
+            mark(hmask, touched, &mut len, flat(end), want);
+        }
+        let f = self.fixed;
+        let nb = layer.bins;
+        let model = layer.model;
+        let mut stats = InsertStats {
+            rays: world_scan.points.len(),
+            ..InsertStats::default()
+        };
+        let touched = &touched[..len];
+        let col_mask = (1usize << shift) - 1;
+        let block_of = |k: u32| {
+            let k = k as usize;
+            (((k >> shift) >> TILE_SHIFT) << 16) | ((k & col_mask) >> TILE_SHIFT)
+        };
+        let mut start = 0;
+        while start < touched.len() {
+            let block = block_of(touched[start]);
+            let mut end = start + 1;
+            while end < touched.len() && block_of(touched[end]) == block {
+                end += 1;
+            }
+            let (ti, tj) = (t0i + (block & 0xffff) as i32, t0j + (block >> 16) as i32);
+            let tile = self.dir.get_mut(ti, tj, Tile::unknown);
+            let htile = layer.dir.get_mut(ti, tj, || HeightTile {
+                bins: vec![0; TILE_CELLS * nb],
+            });
+            for &k in &touched[start..end] {
+                let k = k as usize;
+                let m = std::mem::replace(&mut hmask[k], 0);
+                let (occ, free) = (m >> 16, m & 0xffff);
+                if occ != 0 {
+                    stats.occupied_cells += 1;
+                } else {
+                    stats.free_cells += 1;
+                }
+                let local =
+                    (((k >> shift) & TILE_MASK as usize) << TILE_SHIFT) | (k & TILE_MASK as usize);
+                let bins = &mut htile.bins[local * nb..(local + 1) * nb];
+                // Occupied wins per bin: a bin both hit and passed gets the hit only.
+                let mut todo = occ | free;
+                while todo != 0 {
+                    let b = todo.trailing_zeros();
+                    todo &= todo - 1;
+                    let v = &mut bins[b as usize];
+                    let d = if occ >> b & 1 == 1 {
+                        model.hit
+                    } else {
+                        model.miss
+                    };
+                    *v = model.apply(*v, d);
+                }
+                tile.cells[local] = project_bins(bins, &model, f.occupied);
             }
             start = end;
         }
@@ -569,13 +877,32 @@ impl OccupancyGrid {
 
     /// Number of allocated tiles.
     pub fn tile_count(&self) -> usize {
-        self.dir.tiles.iter().filter(|t| t.is_some()).count()
+        self.dir.count()
     }
 
-    /// Bytes held by tiles and directory (shared tiles counted in full).
+    /// Bytes held by tiles and directory, height bins included (shared tiles counted in full).
     pub fn memory_bytes(&self) -> usize {
+        let height = self.height.as_ref().map_or(0, |h| {
+            h.dir.count() * (TILE_CELLS * h.bins + std::mem::size_of::<HeightTile>())
+                + h.dir.tiles.len() * std::mem::size_of::<Option<Arc<HeightTile>>>()
+        });
         self.tile_count() * std::mem::size_of::<Tile>()
             + self.dir.tiles.len() * std::mem::size_of::<Option<Arc<Tile>>>()
+            + height
+    }
+
+    /// Number of tiles holding height bins (0 without `[map.height]` or scans with heights).
+    pub fn height_tile_count(&self) -> usize {
+        self.height.as_ref().map_or(0, |h| h.dir.count())
+    }
+
+    /// The fixed-point log-odds ([`BIN_SCALE`]) of a cell's height bins, lowest first (`None` when the grid
+    /// keeps no bins or the cell's tile has none).
+    pub fn height_bins(&self, cell: Cell) -> Option<&[i8]> {
+        let h = self.height.as_ref()?;
+        let (ti, tj) = tile_of(cell);
+        let k = local_index(cell) * h.bins;
+        h.dir.get(ti, tj).map(|t| &t.bins[k..k + h.bins])
     }
 
     /// The identity (address) of every allocated tile: equal ids in two grids mean one
@@ -706,6 +1033,79 @@ mod reference_tests {
         stats
     }
 
+    /// The height-bin rule of [`OccupancyGrid::insert_scan`] written plainly: marks per
+    /// (cell, bin), bins kept in `bins`, the cell set to their projection.
+    fn insert_reference_heights(
+        g: &mut OccupancyGrid,
+        bins: &mut BTreeMap<Cell, Vec<i8>>,
+        scan: &PlanarScan,
+    ) -> InsertStats {
+        let layer = g.height.clone().unwrap();
+        let bin = |z: f32| layer.bit(z).trailing_zeros() as usize;
+        let z0 = scan.sensor_z_m.unwrap() as f32;
+        let origin = g.cell_of(scan.sensor_x_m, scan.sensor_y_m);
+        // (cell, bin) -> 1 free, 2 occupied
+        let mut marks: BTreeMap<(Cell, usize), u8> = BTreeMap::new();
+        for p in &scan.points {
+            let end = g.cell_of(p.x_m, p.y_m);
+            let margin = if p.hit { g.free_margin_cells } else { 0 };
+            let (clear_end, partial) = if p.free_to < 1.0 {
+                let t = f64::from(p.free_to.max(0.0));
+                let x = scan.sensor_x_m + t * (p.x_m - scan.sensor_x_m);
+                let y = scan.sensor_y_m + t * (p.y_m - scan.sensor_y_m);
+                (g.cell_of(x, y), true)
+            } else {
+                (end, false)
+            };
+            let n_full = (end.i - origin.i).abs().max((end.j - origin.j).abs());
+            let dz = if n_full > 0 {
+                (p.z_m - z0) / n_full as f32
+            } else {
+                0.0
+            };
+            let mut step = 0;
+            bresenham(origin, clear_end, |c| {
+                let z = z0 + step as f32 * dz;
+                step += 1;
+                if (c.i - end.i).abs().max((c.j - end.j).abs()) <= margin
+                    || (partial && c == clear_end)
+                {
+                    return;
+                }
+                let m = marks.entry((c, bin(z))).or_insert(1);
+                *m = (*m).max(1);
+            });
+            let m = marks.entry((end, bin(p.z_m))).or_insert(0);
+            *m = (*m).max(if p.hit { 2 } else { 1 });
+        }
+        let mut stats = InsertStats {
+            rays: scan.points.len(),
+            ..InsertStats::default()
+        };
+        let mut cells: BTreeMap<Cell, bool> = BTreeMap::new();
+        for ((c, b), m) in marks {
+            let col = bins.entry(c).or_insert_with(|| vec![0; layer.bins]);
+            let d = if m == 2 {
+                layer.model.hit
+            } else {
+                layer.model.miss
+            };
+            col[b] = (col[b] as i32 + d as i32)
+                .clamp(layer.model.min as i32, layer.model.max as i32) as i8;
+            *cells.entry(c).or_insert(false) |= m == 2;
+        }
+        for (c, occ) in cells {
+            if occ {
+                stats.occupied_cells += 1;
+            } else {
+                stats.free_cells += 1;
+            }
+            let v = project_bins(&bins[&c], &layer.model, g.fixed.occupied);
+            g.set_fixed(c, v).unwrap();
+        }
+        stats
+    }
+
     #[test]
     fn optimised_insertion_equals_the_plain_rule() {
         let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(11);
@@ -719,6 +1119,7 @@ mod reference_tests {
             let mut fast = OccupancyGrid::new(&opts).unwrap();
             let mut slow = OccupancyGrid::new(&opts).unwrap();
             let mut scratch = InsertScratch::new();
+            let mut slow_bins = BTreeMap::new();
             for _ in 0..4 {
                 let (sx, sy) = (rng.random_range(-30.0..30.0), rng.random_range(-30.0..30.0));
                 let range_max = rng.random_range(0.5..40.0);
@@ -735,17 +1136,27 @@ mod reference_tests {
                             } else {
                                 1.0
                             },
+                            z_m: rng.random_range(-1.0..5.0),
                         }
                     })
                     .collect();
+                // Cases 16-31 carry heights (a tilted scanner): the height-bin insertion.
                 let scan = PlanarScan {
                     sensor_x_m: sx,
                     sensor_y_m: sy,
+                    sensor_z_m: ((case / 16) % 2 == 1).then_some(1.76),
                     points,
                 };
                 let a = fast.insert_scan(&scan, &mut scratch).unwrap();
-                let b = insert_reference(&mut slow, &scan);
+                let b = if scan.sensor_z_m.is_some() {
+                    insert_reference_heights(&mut slow, &mut slow_bins, &scan)
+                } else {
+                    insert_reference(&mut slow, &scan)
+                };
                 assert_eq!(a, b, "case {case}");
+            }
+            for (c, bins) in &slow_bins {
+                assert_eq!(fast.height_bins(*c), Some(&bins[..]), "case {case}");
             }
             let (ra, rb) = (fast.observed_bounds(), slow.observed_bounds());
             assert_eq!(ra, rb, "case {case}");

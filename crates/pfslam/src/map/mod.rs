@@ -7,6 +7,14 @@
 //! (centre at `+0.5`), `i` along world x, `j` along world y, both unbounded (negative indices
 //! are fine). Log-odds are stored in fixed point (`i16`, 1/256 units); a never-written cell is
 //! 0 (p = 0.5, unknown). Occupied when `p >= occupied_prob`, free when `p <= free_prob`.
+//!
+//! Height bins ([`HeightOptions`], `[map.height]`, on by default): a scan from a tilted
+//! mount carries the height of its sensor and returns, and is inserted per (cell, height bin)
+//! — each free cell of a ray at the height the ray crosses it, each return at its own — with
+//! `i8` log-odds per bin. The cell's 2-D log-odds, which every 2-D output (map.png,
+//! pgm/yaml, logodds.npy, the binary map) and the SLAM matchers read, is the projection
+//! ([`project_bins`]): occupied when any bin is occupied, else the most free observed bin,
+//! unknown when none is observed. Level LiDARs produce no heights and keep the 2-D insertion.
 pub mod binary;
 pub mod compare;
 pub mod grid;
@@ -17,7 +25,10 @@ pub mod scan;
 
 pub use binary::BinaryMap;
 pub use compare::{MapComparison, compare_maps, compare_maps_visible};
-pub use grid::{InsertScratch, InsertStats, OccupancyGrid, TILE_BYTES, TILE_SIZE};
+pub use grid::{
+    BIN_SCALE, BinLogOdds, InsertScratch, InsertStats, OccupancyGrid, TILE_BYTES, TILE_SIZE,
+    project_bins,
+};
 pub use limits::{Cell, CellRect, MapLimits};
 pub use logodds::{CellState, FixedLogOdds, LogOddsParams, LogOddsPreset, logit, sigmoid};
 pub use ray::{bresenham, bresenham_cells};
@@ -85,6 +96,73 @@ pub struct MapOptions {
     /// end point; without a margin they erase the wall behind the vehicle between passes, so
     /// only the latest scan's hit spots stay occupied (0 = the seeds).
     pub free_margin_m: f64,
+    /// Height-aware insertion for tilted mounts (`[map.height]`).
+    pub height: HeightOptions,
+}
+
+/// Height-aware insertion (`[map.height]`). A tilted scanner (the car's LMS511: level
+/// sideways, rising 37 deg forwards, dipping 3 deg at the fan's ends) sees the same cell at
+/// different heights from different poses: a parked car's roof under the dipping beams and
+/// free space above it under the level ones, a canopy's underside under the rising beams and
+/// free space below it. One log-odds value per cell votes such cells free. With this on, each
+/// cell touched by a scan that carries heights (a tilted mount, see
+/// [`ScanProjector::to_body`]) keeps one log-odds value per height bin, updated by the rays
+/// at the height they cross it; its 2-D value (every 2-D output, and what SLAM matches
+/// against) is the projection: the largest observed bin ([`grid::project_bins`]), i.e.
+/// occupied when any bin is, free when observed and no bin is. Level scanners produce no
+/// heights and never use bins (their maps are unchanged).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct HeightOptions {
+    /// Use height bins for scans that carry heights (tilted mounts); false = one log-odds
+    /// value per cell for every scan (as before).
+    pub enabled: bool,
+    /// Number of height bins per cell (2-16); each costs 1 byte per cell of the visited area.
+    pub bins: usize,
+    /// Lower edge of the binned window (m, world z): the bins split `[z_min_m, z_max_m)`
+    /// evenly; the first also takes everything below, the last everything above. Default
+    /// 0.64-3.04 m in 0.15 m bins: the car LiDAR's height (1.76 m) is the middle of a bin, so
+    /// its near-level beams share one bin and a roof 0.1-0.2 m below them gets its own
+    /// (chosen by measurement among 6 layouts, see the README).
+    pub z_min_m: f64,
+    /// Upper edge of the binned window (m, world z).
+    pub z_max_m: f64,
+    /// A bin is occupied at this probability (`None` = `[map.log_odds] occupied_prob`).
+    /// Default 0.7 = one net hit: a bin sees only the beams at its height, so its evidence is
+    /// sparse (a parked car's roof is hit by one or two scans of the dipping edge beams) and
+    /// no longer diluted by passes at other heights.
+    pub occupied_prob: Option<f64>,
+}
+
+impl Default for HeightOptions {
+    fn default() -> Self {
+        HeightOptions {
+            enabled: true,
+            bins: 16,
+            z_min_m: 0.64,
+            z_max_m: 3.04,
+            occupied_prob: Some(0.7),
+        }
+    }
+}
+
+impl HeightOptions {
+    /// Checks every field; the message names the bad key.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(2..=16).contains(&self.bins) {
+            return Err("map.height.bins must lie in [2, 16]".into());
+        }
+        if !(self.z_min_m.is_finite() && self.z_max_m.is_finite() && self.z_min_m < self.z_max_m) {
+            return Err("map.height: need finite z_min_m < z_max_m".into());
+        }
+        if self
+            .occupied_prob
+            .is_some_and(|p| !(p.is_finite() && (0.5..1.0).contains(&p)))
+        {
+            return Err("map.height.occupied_prob must lie in [0.5, 1)".into());
+        }
+        Ok(())
+    }
 }
 
 impl Default for MapOptions {
@@ -97,6 +175,7 @@ impl Default for MapOptions {
             log_odds: LogOddsParams::ese650(),
             scan: ScanOptions::default(),
             free_margin_m: 0.0,
+            height: HeightOptions::default(),
         }
     }
 }
@@ -129,6 +208,7 @@ impl MapOptions {
         }
         self.log_odds.validate()?;
         self.scan.validate()?;
+        self.height.validate()?;
         let ray_cells = self.scan.max_ray_m() as f64 / self.resolution_m;
         if ray_cells > grid::MAX_RAY_CELLS as f64 {
             return Err(format!(

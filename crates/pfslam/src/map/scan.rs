@@ -145,6 +145,9 @@ pub struct ScanPoint {
     /// for a tilted beam that climbs above `free_z_max_m`: beyond that it flies over
     /// whatever is lower, so the plane below says nothing about those cells.
     pub free_to: f32,
+    /// Height of the end point (m, body frame = world frame for a planar pose); meaningful
+    /// only when the scan's `sensor_z_m` is set.
+    pub z_m: f32,
 }
 
 /// A scan as 2-D rays from one sensor position, in one frame (body or world: the variable
@@ -155,6 +158,9 @@ pub struct PlanarScan {
     pub sensor_x_m: f64,
     /// Sensor y (m).
     pub sensor_y_m: f64,
+    /// Sensor height (m) when the rays vary in height (a tilted mount): each point's `z_m` is
+    /// then its height and the ray a 3-D segment; `None` for a level scanner (a planar scan).
+    pub sensor_z_m: Option<f64>,
     /// Ray end points, in beam order.
     pub points: Vec<ScanPoint>,
 }
@@ -178,13 +184,19 @@ pub struct ScanProjector {
     dirs_body: Vec<Vector3<f64>>,
     /// The ground-removal height in force for this mount (`None` for a level scan plane).
     ground_z_m: Option<f64>,
+    /// The scan plane is tilted: scans carry heights (`PlanarScan::sensor_z_m`).
+    tilted: bool,
+}
+
+/// True when the scan plane is tilted by more than 1 deg (its rays vary in height).
+fn is_tilted(body_from_lidar: &Rigid3) -> bool {
+    let normal = body_from_lidar.rotation * Vector3::new(0.0, 0.0, 1.0);
+    normal.z.abs() < 1f64.to_radians().cos()
 }
 
 /// The ground-removal height for a mount: `clearance` when the scan plane is tilted.
 fn ground_z(body_from_lidar: &Rigid3, clearance: Option<f64>) -> Option<f64> {
-    let normal = body_from_lidar.rotation * Vector3::new(0.0, 0.0, 1.0);
-    let tilted = normal.z.abs() < 1f64.to_radians().cos();
-    clearance.filter(|_| tilted)
+    clearance.filter(|_| is_tilted(body_from_lidar))
 }
 
 impl ScanProjector {
@@ -203,6 +215,7 @@ impl ScanProjector {
             .collect();
         Ok(ScanProjector {
             ground_z_m: ground_z(body_from_lidar, opts.ground_clearance_m),
+            tilted: is_tilted(body_from_lidar),
             opts: *opts,
             sensor_range_max_m: geometry.range_max_m,
             origin_body: body_from_lidar.translation,
@@ -214,6 +227,7 @@ impl ScanProjector {
     pub fn set_mount(&mut self, geometry: &LidarGeometry, body_from_lidar: &Rigid3) {
         self.origin_body = body_from_lidar.translation;
         self.ground_z_m = ground_z(body_from_lidar, self.opts.ground_clearance_m);
+        self.tilted = is_tilted(body_from_lidar);
         for (k, d) in self.dirs_body.iter_mut().enumerate() {
             let (s, c) = geometry.beam_angle_rad(k).sin_cos();
             *d = body_from_lidar.rotation * Vector3::new(c, s, 0.0);
@@ -230,7 +244,9 @@ impl ScanProjector {
         &self.opts
     }
 
-    /// Preprocesses one scan into `out` (body frame, cleared first).
+    /// Preprocesses one scan into `out` (body frame, cleared first). For a tilted mount the
+    /// scan carries heights (`sensor_z_m` and every point's `z_m`; a joining point of the
+    /// densification gets the height interpolated between its two returns).
     pub fn to_body(&self, ranges_m: &[f32], out: &mut PlanarScan) -> Result<(), MapError> {
         if ranges_m.len() != self.dirs_body.len() {
             return Err(MapError::BeamCount {
@@ -241,6 +257,7 @@ impl ScanProjector {
         let o = &self.opts;
         out.sensor_x_m = self.origin_body.x;
         out.sensor_y_m = self.origin_body.y;
+        out.sensor_z_m = self.tilted.then_some(self.origin_body.z);
         out.points.clear();
         for (&r, d) in ranges_m.iter().zip(&self.dirs_body) {
             let no_return =
@@ -268,6 +285,7 @@ impl ScanProjector {
                 && prev.hit
             {
                 let (dx, dy) = (p.x - prev.x_m, p.y - prev.y_m);
+                let dz = p.z as f32 - prev.z_m;
                 let d = dx.hypot(dy);
                 if d <= gap && d > o.densify_step_m {
                     let n = (d / o.densify_step_m).ceil() as usize;
@@ -278,6 +296,7 @@ impl ScanProjector {
                             y_m: prev.y_m + t * dy,
                             hit: true,
                             free_to: 1.0,
+                            z_m: prev.z_m + t as f32 * dz,
                         });
                     }
                 }
@@ -294,6 +313,7 @@ impl ScanProjector {
                 y_m: p.y,
                 hit,
                 free_to,
+                z_m: p.z as f32,
             });
         }
         Ok(())
@@ -308,12 +328,14 @@ pub fn to_world(body: &PlanarScan, world_from_body: &Pose2, out: &mut PlanarScan
     let (tx, ty) = (world_from_body.x_m, world_from_body.y_m);
     out.sensor_x_m = tx + c * body.sensor_x_m - s * body.sensor_y_m;
     out.sensor_y_m = ty + s * body.sensor_x_m + c * body.sensor_y_m;
+    out.sensor_z_m = body.sensor_z_m;
     out.points.clear();
     out.points.extend(body.points.iter().map(|p| ScanPoint {
         x_m: tx + c * p.x_m - s * p.y_m,
         y_m: ty + s * p.x_m + c * p.y_m,
         hit: p.hit,
         free_to: p.free_to,
+        z_m: p.z_m,
     }));
 }
 

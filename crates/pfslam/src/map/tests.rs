@@ -11,6 +11,7 @@ fn scan_at(sx: f64, sy: f64, pts: &[(f64, f64, bool)]) -> PlanarScan {
     PlanarScan {
         sensor_x_m: sx,
         sensor_y_m: sy,
+        sensor_z_m: None,
         points: pts
             .iter()
             .map(|&(x_m, y_m, hit)| ScanPoint {
@@ -18,6 +19,7 @@ fn scan_at(sx: f64, sy: f64, pts: &[(f64, f64, bool)]) -> PlanarScan {
                 y_m,
                 hit,
                 free_to: 1.0,
+                z_m: 0.0,
             })
             .collect(),
     }
@@ -247,4 +249,125 @@ proptest! {
             prop_assert_eq!(a.state(a.cell_of(p.x_m, p.y_m)), CellState::Occupied);
         }
     }
+}
+
+/// A one-ray scan from a sensor at 1.76 m to `(x, 0)` at height `z_m`.
+fn ray3(x: f64, z_m: f32, hit: bool) -> PlanarScan {
+    PlanarScan {
+        sensor_x_m: 0.05,
+        sensor_y_m: 0.05,
+        sensor_z_m: Some(1.76),
+        points: vec![ScanPoint {
+            x_m: x,
+            y_m: 0.05,
+            hit,
+            free_to: 1.0,
+            z_m,
+        }],
+    }
+}
+
+#[test]
+fn height_bins_keep_a_roof_under_level_passes_in_any_order() {
+    // A parked car's roof at 1.5 m, 5 m away, hit once by a dipping beam; level beams (1.76 m)
+    // pass over it ten times on their way to a wall at 10 m.
+    let roof = ray3(5.05, 1.5, true);
+    let over = ray3(10.05, 1.76, true);
+    let roof_cell = Cell::new(50, 0);
+    let run = |opts: &MapOptions, roof_first: bool| {
+        let mut g = OccupancyGrid::new(opts).unwrap();
+        let mut s = InsertScratch::new();
+        if roof_first {
+            g.insert_scan(&roof, &mut s).unwrap();
+        }
+        for _ in 0..10 {
+            g.insert_scan(&over, &mut s).unwrap();
+        }
+        if !roof_first {
+            g.insert_scan(&roof, &mut s).unwrap();
+        }
+        g
+    };
+    let opts = MapOptions::default();
+    let (a, b) = (run(&opts, true), run(&opts, false));
+    assert_eq!(a.state(roof_cell), CellState::Occupied);
+    // Order-independent: the same bins and 2-D values.
+    let r = a.observed_bounds().unwrap();
+    assert_eq!(Some(r), b.observed_bounds());
+    let (mut va, mut vb) = (Vec::new(), Vec::new());
+    a.copy_rect_fixed(&r, &mut va);
+    b.copy_rect_fixed(&r, &mut vb);
+    assert_eq!(va, vb);
+    assert_eq!(a.height_bins(roof_cell), b.height_bins(roof_cell));
+    let bins = a.height_bins(roof_cell).unwrap();
+    assert_eq!(bins.iter().filter(|&&v| v > 0).count(), 1, "{bins:?}");
+    assert_eq!(bins.iter().filter(|&&v| v < 0).count(), 1, "{bins:?}");
+    // The cells passed only at 1.76 m are free, the wall occupied.
+    assert_eq!(a.state(Cell::new(30, 0)), CellState::Free);
+    assert_eq!(a.state(Cell::new(100, 0)), CellState::Occupied);
+    // One log-odds value per cell (bins off): the passes vote the roof free.
+    let mut flat = MapOptions::default();
+    flat.height.enabled = false;
+    let c = run(&flat, true);
+    assert_eq!(c.state(roof_cell), CellState::Free);
+    assert_eq!(c.height_tile_count(), 0);
+    assert!(a.memory_bytes() > c.memory_bytes());
+}
+
+#[test]
+fn level_scanners_never_use_height_bins() {
+    // A level mount produces scans without heights: the grid takes the 2-D path, so maps of
+    // level LiDARs are the same with and without `[map.height]`.
+    let g = crate::sensors::LidarGeometry::ucsd_lms511();
+    let level = crate::geometry::Rigid3::from_rpy(0.0, 0.0, 1.0, [0.3, 0.0, 0.4]);
+    let p = ScanProjector::new(&g, &level, &ScanOptions::default()).unwrap();
+    let ranges: Vec<f32> = (0..g.beam_count).map(|k| 3.0 + (k % 7) as f32).collect();
+    let mut body = PlanarScan::default();
+    p.to_body(&ranges, &mut body).unwrap();
+    assert_eq!(body.sensor_z_m, None);
+    let mut on = OccupancyGrid::new(&MapOptions::default()).unwrap();
+    let mut off_opts = MapOptions::default();
+    off_opts.height.enabled = false;
+    let mut off = OccupancyGrid::new(&off_opts).unwrap();
+    let mut world = PlanarScan::default();
+    to_world(&body, &Pose2::new(3.0, -2.0, 0.4), &mut world);
+    on.insert_scan(&world, &mut InsertScratch::new()).unwrap();
+    off.insert_scan(&world, &mut InsertScratch::new()).unwrap();
+    assert_eq!(on.height_tile_count(), 0);
+    let r = on.observed_bounds().unwrap();
+    let (mut va, mut vb) = (Vec::new(), Vec::new());
+    on.copy_rect_fixed(&r, &mut va);
+    off.copy_rect_fixed(&r, &mut vb);
+    assert_eq!(va, vb);
+    // The car's tilted mount does carry heights.
+    let cal = crate::sensors::CarCalibration::ucsd();
+    let p = ScanProjector::new(&cal.lidar, &cal.body_from_lidar, &ScanOptions::default()).unwrap();
+    p.to_body(&ranges, &mut body).unwrap();
+    assert!((body.sensor_z_m.unwrap() - 1.764).abs() < 1e-3);
+}
+
+#[test]
+fn project_bins_rule() {
+    let m = BinLogOdds::new(&LogOddsParams::ese650(), 0.7);
+    let occ = LogOddsParams::ese650().to_fixed().occupied;
+    assert_eq!((m.hit, m.miss, m.occupied), (14, -7, 14));
+    assert_eq!(project_bins(&[0; 4], &m, occ), 0);
+    // Any occupied bin: occupied, whatever the others.
+    assert!(project_bins(&[-120, 14, 0, -7], &m, occ) >= occ);
+    // None occupied: the most free observed bin.
+    assert_eq!(project_bins(&[0, 7, -70, 0], &m, occ), -70 * 16);
+    assert_eq!(project_bins(&[0, 7, 0, 0], &m, occ), 7 * 16);
+}
+
+#[test]
+fn height_options_are_validated() {
+    let mut o = MapOptions::default();
+    o.height.bins = 17;
+    assert!(o.validate().unwrap_err().contains("map.height.bins"));
+    o.height.bins = 8;
+    o.height.z_max_m = o.height.z_min_m;
+    assert!(o.validate().is_err());
+    o.height.z_max_m = 3.0;
+    o.height.occupied_prob = Some(0.3);
+    assert!(o.validate().is_err());
 }

@@ -438,12 +438,14 @@ mod tests {
                     y_m: 5.0 * a.sin(),
                     hit: true,
                     free_to: 1.0,
+                    z_m: 0.0,
                 }
             })
             .collect();
         let s = PlanarScan {
             sensor_x_m: 0.0,
             sensor_y_m: 0.0,
+            sensor_z_m: None,
             points,
         };
         g.insert_scan(&s, &mut InsertScratch::new()).unwrap();
