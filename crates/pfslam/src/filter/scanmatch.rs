@@ -89,6 +89,13 @@ pub struct ScanMatchOptions {
     /// log-odds / this. A cell hit many times (the consensus of many scans) then attracts
     /// more than the leading end of a surface the last scans smeared along the street.
     pub field_saturation_logodds: f64,
+    /// The map this mode matches against uses `[map.height]` bins when they are enabled
+    /// (false, the default: one log-odds value per cell). The bins' projection marks a cell
+    /// occupied when any height hit it — canopy undersides, car roofs — and those returns
+    /// move with the car: on the default drive (seed 1) ATE RMSE 0.57 m with the bins
+    /// against 0.18 m without, at twice the CPU. The output map of `pfslam run` is rebuilt
+    /// along the final trajectory with `[map]` as configured (bins included).
+    pub map_height_bins: bool,
 }
 
 impl Default for ScanMatchOptions {
@@ -113,6 +120,7 @@ impl Default for ScanMatchOptions {
             min_update_travel_m: 0.0,
             match_gain: 1.0,
             field_saturation_logodds: 0.0,
+            map_height_bins: false,
         }
     }
 }

@@ -264,11 +264,18 @@ pub fn run_slam(
     seed: u64,
     observer: &mut dyn FnMut(SlamEvent<'_>),
 ) -> Result<SlamResult, SlamError> {
-    if config.filter.mode.resolve(recording) == FilterMode::Rbpf {
+    let mode = config.filter.mode.resolve(recording);
+    if mode == FilterMode::Rbpf {
         return super::rbpf::run_rbpf(recording, config, seed, observer);
     }
     let motion = super::motion_model(config, recording)?;
-    let grid = OccupancyGrid::new(&config.map)?;
+    let grid = if mode == FilterMode::ScanMatch && !config.filter.scan_match.map_height_bins {
+        let mut map = config.map.clone();
+        map.height.enabled = false;
+        OccupancyGrid::new(&map)?
+    } else {
+        OccupancyGrid::new(&config.map)?
+    };
     let mut policy = BestParticleMap::new(grid);
     run_slam_with(
         recording,
