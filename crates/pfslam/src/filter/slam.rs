@@ -545,15 +545,11 @@ impl MotionModel for ExactOdometry {
     }
 }
 
-/// `from` moved by `gain` of the way to `to` (yaw along the shorter arc).
+/// `from` moved by `gain` of the way to `to` (yaw along the shorter arc, wrapped).
 fn blend(from: &Pose2, to: &Pose2, gain: f64) -> Pose2 {
-    Pose2::new(
-        from.x_m + gain * (to.x_m - from.x_m),
-        from.y_m + gain * (to.y_m - from.y_m),
-        crate::geometry::wrap_angle(
-            from.yaw_rad + gain * crate::geometry::wrap_angle(to.yaw_rad - from.yaw_rad),
-        ),
-    )
+    let mut p = from.interpolate(to, gain);
+    p.yaw_rad = crate::geometry::wrap_angle(p.yaw_rad);
+    p
 }
 
 /// The window of the likelihood field for one update: the matching points seen from `best`,
