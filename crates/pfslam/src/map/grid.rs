@@ -20,7 +20,7 @@
 use super::limits::{Cell, CellRect, MapLimits};
 use super::logodds::{CellState, FixedLogOdds, LogOddsParams, from_fixed, probability_fixed};
 use super::ray::bresenham;
-use super::scan::PlanarScan;
+use super::scan::{PlanarScan, ScanPoint};
 use super::{MapError, MapOptions};
 use std::sync::Arc;
 
@@ -229,11 +229,15 @@ impl BinLogOdds {
     }
 }
 
-/// The height bins of one tile: `bins` fixed-point log-odds per cell, cell-major (cell `k`'s
-/// bins are `bins[k * n .. (k + 1) * n]`, same cell order as [`Tile`]).
+/// Most height bins per cell ([`super::HeightOptions::bins`]).
+pub const MAX_BINS: usize = 16;
+
+/// The height bins of one tile: one column of [`MAX_BINS`] fixed-point log-odds per cell (same
+/// cell order as [`Tile`]; bins beyond the configured count stay 0). A fixed 16-byte column
+/// lets the projection run on whole vectors and puts each column in one cache line.
 #[derive(Clone)]
 struct HeightTile {
-    bins: Vec<i8>,
+    bins: Vec<[i8; MAX_BINS]>,
 }
 
 impl std::fmt::Debug for HeightTile {
@@ -370,6 +374,48 @@ fn walk_mask<F: FnMut(usize)>(
         }
         err += 2 * d_minor;
         idx += major;
+    }
+}
+
+/// A ray's end cell, the cell its free updates stop at, and whether they stop short of the
+/// end (a ray cleared only part of the way, `ScanPoint::free_to < 1`, clears free cells only).
+#[inline(always)]
+fn ray_cells(limits: &MapLimits, scan: &PlanarScan, p: &ScanPoint) -> (Cell, Cell, bool) {
+    let end = limits.cell_of(p.x_m, p.y_m);
+    if p.free_to < 1.0 {
+        let t = f64::from(p.free_to.max(0.0));
+        let x = scan.sensor_x_m + t * (p.x_m - scan.sensor_x_m);
+        let y = scan.sensor_y_m + t * (p.y_m - scan.sensor_y_m);
+        (end, limits.cell_of(x, y), true)
+    } else {
+        (end, end, false)
+    }
+}
+
+/// Splits the touched mask indices (in touch order: ray order, so consecutive cells share
+/// tiles) into runs within one tile, and calls `apply(tile column, tile row, run)` with the
+/// tile's position in the mask: one directory lookup per run.
+#[inline(always)]
+fn for_each_tile_run(touched: &[u32], shift: u32, mut apply: impl FnMut(i32, i32, &[u32])) {
+    let col_mask = (1usize << shift) - 1;
+    // Mask index -> (tile column, tile row) of the mask, packed.
+    let block_of = |k: u32| {
+        let k = k as usize;
+        (((k >> shift) >> TILE_SHIFT) << 16) | ((k & col_mask) >> TILE_SHIFT)
+    };
+    let mut start = 0;
+    while start < touched.len() {
+        let block = block_of(touched[start]);
+        let mut end = start + 1;
+        while end < touched.len() && block_of(touched[end]) == block {
+            end += 1;
+        }
+        apply(
+            (block & 0xffff) as i32,
+            (block >> 16) as i32,
+            &touched[start..end],
+        );
+        start = end;
     }
 }
 
@@ -574,17 +620,8 @@ impl OccupancyGrid {
             *len += usize::from(old == MARK_NONE);
         };
         for p in &world_scan.points {
-            let end = self.cell_of(p.x_m, p.y_m);
+            let (end, clear_end, partial) = ray_cells(&self.limits, world_scan, p);
             let margin = if p.hit { self.free_margin_cells } else { 0 };
-            // A ray cleared only part of the way stops at that point, free cells only.
-            let (clear_end, partial) = if p.free_to < 1.0 {
-                let t = f64::from(p.free_to.max(0.0));
-                let x = world_scan.sensor_x_m + t * (p.x_m - world_scan.sensor_x_m);
-                let y = world_scan.sensor_y_m + t * (p.y_m - world_scan.sensor_y_m);
-                (self.cell_of(x, y), true)
-            } else {
-                (end, false)
-            };
             let n = (clear_end.i - origin.i)
                 .abs()
                 .max((clear_end.j - origin.j).abs());
@@ -619,24 +656,10 @@ impl OccupancyGrid {
             rays: world_scan.points.len(),
             ..InsertStats::default()
         };
-        let touched = &touched[..len];
-        let col_mask = (1usize << shift) - 1;
-        // Mask index -> (tile column, tile row) of the mask, packed.
-        let block_of = |k: u32| {
-            let k = k as usize;
-            (((k >> shift) >> TILE_SHIFT) << 16) | ((k & col_mask) >> TILE_SHIFT)
-        };
-        // Runs of consecutive cells in one tile get one directory lookup.
-        let mut start = 0;
-        while start < touched.len() {
-            let block = block_of(touched[start]);
-            let mut end = start + 1;
-            while end < touched.len() && block_of(touched[end]) == block {
-                end += 1;
-            }
-            let (bi, bj) = ((block & 0xffff) as i32, (block >> 16) as i32);
-            let tile = self.dir.get_mut(t0i + bi, t0j + bj, Tile::unknown);
-            for &k in &touched[start..end] {
+        let dir = &mut self.dir;
+        for_each_tile_run(&touched[..len], shift, |bi, bj, run| {
+            let tile = dir.get_mut(t0i + bi, t0j + bj, Tile::unknown);
+            for &k in run {
                 let k = k as usize;
                 let m = std::mem::replace(&mut mask[k], MARK_NONE);
                 let delta = if m == MARK_OCCUPIED {
@@ -651,8 +674,7 @@ impl OccupancyGrid {
                 let v = &mut tile.cells[local];
                 *v = f.apply(*v, delta);
             }
-            start = end;
-        }
+        });
         Ok(stats)
     }
 
@@ -721,20 +743,11 @@ impl OccupancyGrid {
             *len += usize::from(old == 0);
         };
         let limits = self.limits;
-        let cell_of = |x: f64, y: f64| limits.cell_of(x, y);
         let z0 = sensor_z_m as f32;
         let margin_cells = self.free_margin_cells;
         for p in &world_scan.points {
-            let end = cell_of(p.x_m, p.y_m);
+            let (end, clear_end, partial) = ray_cells(&limits, world_scan, p);
             let margin = if p.hit { margin_cells } else { 0 };
-            let (clear_end, partial) = if p.free_to < 1.0 {
-                let t = f64::from(p.free_to.max(0.0));
-                let x = world_scan.sensor_x_m + t * (p.x_m - world_scan.sensor_x_m);
-                let y = world_scan.sensor_y_m + t * (p.y_m - world_scan.sensor_y_m);
-                (cell_of(x, y), true)
-            } else {
-                (end, false)
-            };
             let n_full = (end.i - origin.i).abs().max((end.j - origin.j).abs());
             // Height gained per step of the full ray's digital line.
             let dz = if n_full > 0 {
@@ -773,31 +786,19 @@ impl OccupancyGrid {
             mark(hmask, touched, &mut len, flat(end), want);
         }
         let f = self.fixed;
-        let nb = layer.bins;
         let model = layer.model;
         let mut stats = InsertStats {
             rays: world_scan.points.len(),
             ..InsertStats::default()
         };
-        let touched = &touched[..len];
-        let col_mask = (1usize << shift) - 1;
-        let block_of = |k: u32| {
-            let k = k as usize;
-            (((k >> shift) >> TILE_SHIFT) << 16) | ((k & col_mask) >> TILE_SHIFT)
-        };
-        let mut start = 0;
-        while start < touched.len() {
-            let block = block_of(touched[start]);
-            let mut end = start + 1;
-            while end < touched.len() && block_of(touched[end]) == block {
-                end += 1;
-            }
-            let (ti, tj) = (t0i + (block & 0xffff) as i32, t0j + (block >> 16) as i32);
-            let tile = self.dir.get_mut(ti, tj, Tile::unknown);
+        let dir = &mut self.dir;
+        for_each_tile_run(&touched[..len], shift, |bi, bj, run| {
+            let (ti, tj) = (t0i + bi, t0j + bj);
+            let tile = dir.get_mut(ti, tj, Tile::unknown);
             let htile = layer.dir.get_mut(ti, tj, || HeightTile {
-                bins: vec![0; TILE_CELLS * nb],
+                bins: vec![[0; MAX_BINS]; TILE_CELLS],
             });
-            for &k in &touched[start..end] {
+            for &k in run {
                 let k = k as usize;
                 let m = std::mem::replace(&mut hmask[k], 0);
                 let (occ, free) = (m >> 16, m & 0xffff);
@@ -808,7 +809,7 @@ impl OccupancyGrid {
                 }
                 let local =
                     (((k >> shift) & TILE_MASK as usize) << TILE_SHIFT) | (k & TILE_MASK as usize);
-                let bins = &mut htile.bins[local * nb..(local + 1) * nb];
+                let bins = &mut htile.bins[local];
                 // Occupied wins per bin: a bin both hit and passed gets the hit only.
                 let mut todo = occ | free;
                 while todo != 0 {
@@ -822,10 +823,9 @@ impl OccupancyGrid {
                     };
                     *v = model.apply(*v, d);
                 }
-                tile.cells[local] = project_bins(bins, &model, f.occupied);
+                tile.cells[local] = project_bins(&bins[..], &model, f.occupied);
             }
-            start = end;
-        }
+        });
         Ok(stats)
     }
 
@@ -883,7 +883,7 @@ impl OccupancyGrid {
     /// Bytes held by tiles and directory, height bins included (shared tiles counted in full).
     pub fn memory_bytes(&self) -> usize {
         let height = self.height.as_ref().map_or(0, |h| {
-            h.dir.count() * (TILE_CELLS * h.bins + std::mem::size_of::<HeightTile>())
+            h.dir.count() * (TILE_CELLS * MAX_BINS + std::mem::size_of::<HeightTile>())
                 + h.dir.tiles.len() * std::mem::size_of::<Option<Arc<HeightTile>>>()
         });
         self.tile_count() * std::mem::size_of::<Tile>()
@@ -901,8 +901,9 @@ impl OccupancyGrid {
     pub fn height_bins(&self, cell: Cell) -> Option<&[i8]> {
         let h = self.height.as_ref()?;
         let (ti, tj) = tile_of(cell);
-        let k = local_index(cell) * h.bins;
-        h.dir.get(ti, tj).map(|t| &t.bins[k..k + h.bins])
+        h.dir
+            .get(ti, tj)
+            .map(|t| &t.bins[local_index(cell)][..h.bins])
     }
 
     /// The identity (address) of every allocated tile: equal ids in two grids mean one

@@ -117,7 +117,8 @@ pub struct HeightOptions {
     /// Use height bins for scans that carry heights (tilted mounts); false = one log-odds
     /// value per cell for every scan (as before).
     pub enabled: bool,
-    /// Number of height bins per cell (2-16); each costs 1 byte per cell of the visited area.
+    /// Number of height bins per cell (2-16). Storage is 16 bytes per visited cell whatever
+    /// the count (one fixed column per cell; see `pfslam::map::grid`).
     pub bins: usize,
     /// Lower edge of the binned window (m, world z): the bins split `[z_min_m, z_max_m)`
     /// evenly; the first also takes everything below, the last everything above. Default
@@ -149,7 +150,7 @@ impl Default for HeightOptions {
 impl HeightOptions {
     /// Checks every field; the message names the bad key.
     pub fn validate(&self) -> Result<(), String> {
-        if !(2..=16).contains(&self.bins) {
+        if !(2..=grid::MAX_BINS).contains(&self.bins) {
             return Err("map.height.bins must lie in [2, 16]".into());
         }
         if !(self.z_min_m.is_finite() && self.z_max_m.is_finite() && self.z_min_m < self.z_max_m) {
