@@ -264,11 +264,18 @@ pub fn run_slam(
     seed: u64,
     observer: &mut dyn FnMut(SlamEvent<'_>),
 ) -> Result<SlamResult, SlamError> {
-    if config.filter.mode.resolve(recording) == FilterMode::Rbpf {
+    let mode = config.filter.mode.resolve(recording);
+    if mode == FilterMode::Rbpf {
         return super::rbpf::run_rbpf(recording, config, seed, observer);
     }
     let motion = super::motion_model(config, recording)?;
-    let grid = OccupancyGrid::new(&config.map)?;
+    let grid = if mode == FilterMode::ScanMatch && !config.filter.scan_match.map_height_bins {
+        let mut map = config.map.clone();
+        map.height.enabled = false;
+        OccupancyGrid::new(&map)?
+    } else {
+        OccupancyGrid::new(&config.map)?
+    };
     let mut policy = BestParticleMap::new(grid);
     run_slam_with(
         recording,
@@ -324,6 +331,7 @@ pub fn run_slam_with<P: MapPolicy>(
     let mut match_pts: Vec<[f64; 2]> = Vec::new();
     let mut field = scanmatch::LikelihoodField::new();
     field.set_source_threshold(opts.scan_match.field_source_threshold());
+    field.set_saturation(opts.scan_match.field_saturation());
     let match_params = opts.scan_match.params(config.map.resolution_m);
     let resample_threshold = match mode {
         FilterMode::Seed => opts.resample_threshold,
@@ -333,6 +341,7 @@ pub fn run_slam_with<P: MapPolicy>(
     };
     let mut neff_sum = 0.0;
     let mut score_sum = 0.0;
+    let mut predicted: Vec<Pose2> = Vec::new();
     for i in first..total {
         let stamp_ns = scans.stamps_ns[i];
         let t = Instant::now();
@@ -398,12 +407,20 @@ pub fn run_slam_with<P: MapPolicy>(
                             match_params.xy_radius_cells + 2,
                         );
                         field.build(grid, &rect, sm.field_sigma_m, sm.unknown_value);
+                        if sm.match_gain < 1.0 {
+                            predicted.clone_from(&pf.particles.poses);
+                        }
                         let report = pf.scan_match_update(
                             &field,
                             &match_pts,
                             &match_params,
                             sm.weight_temperature,
                         );
+                        if sm.match_gain < 1.0 {
+                            for (p, q) in pf.particles.poses.iter_mut().zip(&predicted) {
+                                *p = blend(q, p, sm.match_gain);
+                            }
+                        }
                         let best = pf.particles.poses[report.best];
                         pf.jitter(
                             sm.proposal_sigma_xy_m,
@@ -528,6 +545,13 @@ impl MotionModel for ExactOdometry {
     }
 }
 
+/// `from` moved by `gain` of the way to `to` (yaw along the shorter arc, wrapped).
+fn blend(from: &Pose2, to: &Pose2, gain: f64) -> Pose2 {
+    let mut p = from.interpolate(to, gain);
+    p.yaw_rad = crate::geometry::wrap_angle(p.yaw_rad);
+    p
+}
+
 /// The window of the likelihood field for one update: the matching points seen from `best`,
 /// grown by how far the other particles are from it (at most 5 m) and by `margin_cells`.
 fn field_window(
@@ -604,4 +628,21 @@ pub fn anchor_odometry_to_ground_truth(recording: &mut Recording) -> bool {
         p.pose = world_from_odom.compose(&p.pose);
     }
     true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn blend_moves_part_of_the_way_along_the_shorter_yaw_arc() {
+        let from = Pose2::new(1.0, 2.0, 3.1);
+        let to = Pose2::new(2.0, 0.0, -3.1);
+        let b = blend(&from, &to, 0.25);
+        assert!((b.x_m - 1.25).abs() < 1e-12 && (b.y_m - 1.5).abs() < 1e-12);
+        // -3.1 is 0.083 rad counter-clockwise of 3.1 across +-pi, not 6.2 rad clockwise.
+        let want = crate::geometry::wrap_angle(3.1 + 0.25 * (2.0 * std::f64::consts::PI - 6.2));
+        assert!((b.yaw_rad - want).abs() < 1e-12, "{b:?}");
+        assert_eq!(blend(&from, &to, 1.0).x_m, to.x_m);
+    }
 }
