@@ -11,6 +11,7 @@
 //! - [`PointField::refine`]: sub-cell pattern search on the bilinearly interpolated field.
 
 use crate::geometry::{Pose2, wrap_angle};
+use rayon::prelude::*;
 
 /// A likelihood-field window with max-pooled levels.
 #[derive(Debug, Clone)]
@@ -63,6 +64,29 @@ struct Candidate {
     dy: i64,
     level: usize,
     score: f64,
+}
+
+/// `floor(v)` as `i64` without the libm call (`f64::floor` on baseline x86-64); the same
+/// value as `v.floor() as i64` for every finite `v` within +-2^53 (cells always are).
+#[inline(always)]
+fn floor_to_i64(v: f64) -> i64 {
+    let t = v as i64;
+    if (t as f64) > v {
+        t.saturating_sub(1)
+    } else {
+        t
+    }
+}
+
+/// The prepared top level of a branch-and-bound search ([`PointField::bnb_start`]).
+#[derive(Debug, Clone)]
+pub struct BnbStart {
+    centre: Pose2,
+    yaws: Vec<f64>,
+    cells: Vec<Vec<(i64, i64)>>,
+    cands: Vec<Candidate>,
+    n: i64,
+    n_pts: f64,
 }
 
 impl PointField {
@@ -159,9 +183,9 @@ impl PointField {
     fn bilinear(&self, x_m: f64, y_m: f64) -> f64 {
         let u = (x_m - self.origin_x_m) / self.resolution_m - 0.5;
         let v = (y_m - self.origin_y_m) / self.resolution_m - 0.5;
-        let (fu, fv) = (u.floor(), v.floor());
-        let (au, av) = (u - fu, v - fv);
-        let (i, j) = (fu as i64, fv as i64);
+        // `f64::floor` is a libm call on baseline x86-64; the integer floor is the same value.
+        let (i, j) = (floor_to_i64(u), floor_to_i64(v));
+        let (au, av) = (u - i as f64, v - j as f64);
         let f = |di, dj| f64::from(self.at(0, i + di, j + dj));
         let bottom = f(0, 0) * (1.0 - au) + f(1, 0) * au;
         let top = f(0, 1) * (1.0 - au) + f(1, 1) * au;
@@ -235,19 +259,22 @@ impl PointField {
         yaws: &[f64],
     ) -> Vec<Vec<(i64, i64)>> {
         yaws.iter()
-            .map(|&yaw| {
-                let (s, c) = yaw.sin_cos();
-                points_body
-                    .iter()
-                    .map(|p| {
-                        let x = centre.x_m + c * p[0] - s * p[1];
-                        let y = centre.y_m + s * p[0] + c * p[1];
-                        (
-                            ((x - self.origin_x_m) / self.resolution_m).floor() as i64,
-                            ((y - self.origin_y_m) / self.resolution_m).floor() as i64,
-                        )
-                    })
-                    .collect()
+            .map(|&yaw| self.cells_at(points_body, centre, yaw))
+            .collect()
+    }
+
+    /// Cells of the points seen from `centre`'s position with heading `yaw`.
+    fn cells_at(&self, points_body: &[[f64; 2]], centre: &Pose2, yaw: f64) -> Vec<(i64, i64)> {
+        let (s, c) = yaw.sin_cos();
+        points_body
+            .iter()
+            .map(|p| {
+                let x = centre.x_m + c * p[0] - s * p[1];
+                let y = centre.y_m + s * p[0] + c * p[1];
+                (
+                    floor_to_i64((x - self.origin_x_m) / self.resolution_m),
+                    floor_to_i64((y - self.origin_y_m) / self.resolution_m),
+                )
             })
             .collect()
     }
@@ -259,10 +286,21 @@ impl PointField {
             .collect()
     }
 
+    /// Sum of level `level` over `cells` shifted by `(dx, dy)` (0 outside), in point order.
     fn cell_sum(&self, cells: &[(i64, i64)], level: usize, dx: i64, dy: i64) -> f64 {
+        let lv = &self.levels[level][..];
+        let (w, h) = (self.w as u64, self.h as u64);
         cells
             .iter()
-            .map(|&(i, j)| f64::from(self.at(level, i + dx, j + dy)))
+            .map(|&(i, j)| {
+                // One unsigned comparison per axis also rejects negatives.
+                let (x, y) = ((i + dx) as u64, (j + dy) as u64);
+                if x < w && y < h {
+                    f64::from(lv.get((y * w + x) as usize).copied().unwrap_or(0.0))
+                } else {
+                    0.0
+                }
+            })
             .sum()
     }
 
@@ -278,33 +316,83 @@ impl PointField {
         min_score: f64,
         exclude: Option<(Pose2, f64, f64)>,
     ) -> Option<(Pose2, f64)> {
+        let start = self.bnb_start(points_body, centre, win)?;
+        self.search_bnb_from(&start, min_score, exclude)
+    }
+
+    /// The top level of [`Self::search_bnb`] (yaws, cells of the points per yaw, scored
+    /// top-level candidates), to share between searches of one scan in one window (the best
+    /// pose, then the ambiguity test). Scored in parallel over yaws, collected in yaw order:
+    /// the same candidates whatever the thread count. `None` without points.
+    pub fn bnb_start(
+        &self,
+        points_body: &[[f64; 2]],
+        centre: &Pose2,
+        win: &SearchWindow,
+    ) -> Option<BnbStart> {
         if points_body.is_empty() {
             return None;
         }
         let n_pts = points_body.len() as f64;
         let yaws = Self::window_yaws(centre, win);
-        let cells = self.rotated_cells(points_body, centre, &yaws);
         let n = (win.xy_m / self.resolution_m).ceil() as i64;
         let top = self.pooled_levels();
         let step = 1i64 << top;
-        let mut cands = Vec::new();
-        for (a, c) in cells.iter().enumerate() {
-            let mut dy = -n;
-            while dy <= n {
-                let mut dx = -n;
-                while dx <= n {
-                    cands.push(Candidate {
-                        yaw_index: a,
-                        dx,
-                        dy,
-                        level: top,
-                        score: self.cell_sum(c, top, dx, dy) / n_pts,
-                    });
-                    dx += step;
+        let per_yaw: Vec<(Vec<(i64, i64)>, Vec<Candidate>)> = yaws
+            .par_iter()
+            .enumerate()
+            .map(|(a, &yaw)| {
+                let c = self.cells_at(points_body, centre, yaw);
+                let mut cands = Vec::new();
+                let mut dy = -n;
+                while dy <= n {
+                    let mut dx = -n;
+                    while dx <= n {
+                        cands.push(Candidate {
+                            yaw_index: a,
+                            dx,
+                            dy,
+                            level: top,
+                            score: self.cell_sum(&c, top, dx, dy) / n_pts,
+                        });
+                        dx += step;
+                    }
+                    dy += step;
                 }
-                dy += step;
-            }
+                (c, cands)
+            })
+            .collect();
+        let mut cells = Vec::with_capacity(per_yaw.len());
+        let mut cands = Vec::new();
+        for (c, k) in per_yaw {
+            cells.push(c);
+            cands.extend(k);
         }
+        Some(BnbStart {
+            centre: *centre,
+            yaws,
+            cells,
+            cands,
+            n,
+            n_pts,
+        })
+    }
+
+    /// [`Self::search_bnb`] from a prepared top level.
+    pub fn search_bnb_from(
+        &self,
+        start: &BnbStart,
+        min_score: f64,
+        exclude: Option<(Pose2, f64, f64)>,
+    ) -> Option<(Pose2, f64)> {
+        let BnbStart {
+            centre,
+            yaws,
+            cells,
+            cands,
+            n,
+            n_pts,
+        } = start;
         let mut best: Option<Candidate> = None;
         let mut best_score = min_score;
         let pose_of = |c: &Candidate| {
@@ -315,10 +403,10 @@ impl PointField {
             )
         };
         self.branch(
-            cands,
-            &cells,
-            n,
-            n_pts,
+            cands.clone(),
+            cells,
+            *n,
+            *n_pts,
             &mut best,
             &mut best_score,
             // A node is excluded when every offset it covers is: its four corners are.
@@ -464,6 +552,60 @@ mod tests {
             pts.push([1.5 + 0.3 * a.cos(), 1.0 + 0.3 * a.sin()]);
         }
         pts
+    }
+
+    /// The interpolated score written plainly (libm floor, bounds-checked lookups).
+    fn score_plain(f: &PointField, points_body: &[[f64; 2]], pose: &Pose2) -> f64 {
+        let (s, c) = pose.yaw_rad.sin_cos();
+        let sum: f64 = points_body
+            .iter()
+            .map(|p| {
+                let x = pose.x_m + c * p[0] - s * p[1];
+                let y = pose.y_m + s * p[0] + c * p[1];
+                let u = (x - f.origin_x_m) / f.resolution_m - 0.5;
+                let v = (y - f.origin_y_m) / f.resolution_m - 0.5;
+                let (fu, fv) = (u.floor(), v.floor());
+                let (au, av) = (u - fu, v - fv);
+                let (i, j) = (fu as i64, fv as i64);
+                let g = |di, dj| f64::from(f.at(0, i + di, j + dj));
+                let bottom = g(0, 0) * (1.0 - au) + g(1, 0) * au;
+                let top = g(0, 1) * (1.0 - au) + g(1, 1) * au;
+                bottom * (1.0 - av) + top * av
+            })
+            .sum();
+        sum / points_body.len() as f64
+    }
+
+    #[test]
+    fn fast_score_and_shared_bnb_start_give_the_plain_bits() {
+        let pts = room_points();
+        let f = PointField::build(&pts, [-6.0, -5.0], [6.0, 5.0], 0.05, 0.08, 3);
+        let body: Vec<[f64; 2]> = pts.iter().step_by(5).copied().collect();
+        for k in 0..200 {
+            let t = f64::from(k);
+            // Poses that push points across the field's edges (outside cells count 0).
+            let pose = Pose2::new((t * 0.37).sin() * 3.0, (t * 0.23).cos() * 2.5, t * 0.05);
+            let (fast, plain) = (f.score(&body, &pose), score_plain(&f, &body, &pose));
+            assert_eq!(fast.to_bits(), plain.to_bits(), "{pose:?}");
+        }
+        for v in [
+            -3.5, -3.0, -0.0, 0.0, 1e-300, -1e-300, 2.999_999, 1e12, -1e12,
+        ] {
+            assert_eq!(floor_to_i64(v), v.floor() as i64, "{v}");
+        }
+        let win = SearchWindow {
+            xy_m: 0.4,
+            yaw_rad: 0.1,
+            yaw_step_rad: 0.02,
+        };
+        let centre = Pose2::new(0.1, -0.1, 0.03);
+        let start = f.bnb_start(&body, &centre, &win).unwrap();
+        for (min, ex) in [(0.0, None), (0.3, Some((centre, 0.2, 0.05)))] {
+            let a = f.search_bnb(&body, &centre, &win, min, ex);
+            let b = f.search_bnb_from(&start, min, ex);
+            assert_eq!(a, b);
+            assert!(a.is_some());
+        }
     }
 
     #[test]
