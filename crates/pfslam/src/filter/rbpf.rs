@@ -348,7 +348,9 @@ fn nearest_3x3(cells: &[i16], li: i32, lj: i32, u: f64, v: f64, i: i32, j: i32, 
             } else {
                 f64::INFINITY
             };
-            best = best.min(d);
+            // `d` is never NaN where `best` could be replaced (finite inputs; a NaN point
+            // compares false and keeps infinity, as `f64::min` would): a plain compare-select.
+            best = if d < best { d } else { best };
         }
     }
     best
@@ -595,12 +597,21 @@ pub struct RbParticle {
     pub node: Arc<PathNode>,
 }
 
-/// Per-chunk state: the chunk's random stream and reusable buffers.
+/// Per-chunk state: the chunk's random stream.
 #[derive(Debug, Clone)]
 struct ChunkState {
     rng: Xoshiro256PlusPlus,
-    insert: InsertScratch,
-    world: PlanarScan,
+}
+
+/// Map-insertion buffers, one per worker thread (filled on first use). A clone starts empty:
+/// buffers hold no state that matters.
+#[derive(Debug, Default)]
+struct InsertBuffers(Vec<std::sync::Mutex<(PlanarScan, InsertScratch)>>);
+
+impl Clone for InsertBuffers {
+    fn clone(&self) -> Self {
+        InsertBuffers::default()
+    }
 }
 
 /// Number of distinct tiles held by `maps` (shared tiles counted once).
@@ -630,6 +641,7 @@ pub struct Rbpf {
     /// Normalised weights.
     pub weights: Vec<f64>,
     chunks: Vec<ChunkState>,
+    scratch: InsertBuffers,
     master: Xoshiro256PlusPlus,
     options: RbpfOptions,
     model: ObservationModel,
@@ -684,12 +696,9 @@ impl Rbpf {
             chunks: rng
                 .chunks
                 .into_iter()
-                .map(|rng| ChunkState {
-                    rng,
-                    insert: InsertScratch::new(),
-                    world: PlanarScan::default(),
-                })
+                .map(|rng| ChunkState { rng })
                 .collect(),
+            scratch: InsertBuffers::default(),
             master: rng.master,
             model: options.observation(res),
             search: SearchParams::new(options, res),
@@ -741,40 +750,60 @@ impl Rbpf {
         let n = self.particles.len();
         let t = Instant::now();
         if !first {
+            // Motion draws per chunk, from the chunk's stream in particle order (cheap);
+            // then every particle matches on its own, so the threads balance whatever the
+            // particle count (5 chunks of 40 particles would split 3:2 over two threads).
+            for (parts, st) in self
+                .particles
+                .chunks_mut(CHUNK_PARTICLES)
+                .zip(self.chunks.iter_mut())
+            {
+                for p in parts.iter_mut() {
+                    p.pose = sample_motion(&p.pose, delta, noise, &mut st.rng);
+                }
+            }
             self.particles
-                .par_chunks_mut(CHUNK_PARTICLES)
-                .zip(self.lls.par_chunks_mut(CHUNK_PARTICLES))
-                .zip(self.chunks.par_iter_mut())
-                .for_each(|((parts, lls), st)| {
-                    for (p, ll) in parts.iter_mut().zip(lls.iter_mut()) {
-                        let sampled = sample_motion(&p.pose, delta, noise, &mut st.rng);
-                        let (pose, l) = match_in_own_map(&p.map, model, points, &sampled, search);
-                        p.pose = pose;
-                        *ll = l;
-                    }
+                .par_iter_mut()
+                .zip(self.lls.par_iter_mut())
+                .with_max_len(1)
+                .for_each(|(p, ll)| {
+                    let (pose, l) = match_in_own_map(&p.map, model, points, &p.pose, search);
+                    p.pose = pose;
+                    *ll = l;
                 });
         }
         let match_s = t.elapsed().as_secs_f64();
         let t = Instant::now();
         // Mapped before resampling, so copies share the tiles this update wrote.
+        // Per particle too, each worker thread with its own scratch (a mask of megabytes:
+        // never per particle); the scratch does not affect results.
+        let threads = rayon::current_num_threads().max(1);
+        if self.scratch.0.len() < threads {
+            self.scratch.0.resize_with(threads, Default::default);
+        }
+        let scratch = &self.scratch.0;
         let results: Vec<Result<(), MapError>> = self
             .particles
-            .par_chunks_mut(CHUNK_PARTICLES)
-            .zip(self.chunks.par_iter_mut())
-            .map(|(parts, st)| {
-                for p in parts.iter_mut() {
-                    to_world(body, &p.pose, &mut st.world);
-                    p.map.insert_scan(&st.world, &mut st.insert)?;
-                    p.node = Arc::new(PathNode {
-                        pose: p.pose,
-                        odom,
-                        scan,
-                        parent: Some(p.node.clone()),
-                    });
-                }
+            .par_iter_mut()
+            .with_max_len(1)
+            .map(|p| {
+                let slot = rayon::current_thread_index().unwrap_or(0) % scratch.len();
+                let mut guard = scratch[slot]
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner);
+                let (world, insert) = &mut *guard;
+                to_world(body, &p.pose, world);
+                p.map.insert_scan(world, insert)?;
+                p.node = Arc::new(PathNode {
+                    pose: p.pose,
+                    odom,
+                    scan,
+                    parent: Some(p.node.clone()),
+                });
                 Ok(())
             })
             .collect();
+        // The first error in particle order.
         for r in results {
             r?;
         }

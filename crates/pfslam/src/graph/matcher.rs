@@ -186,9 +186,23 @@ impl PointField {
         // `f64::floor` is a libm call on baseline x86-64; the integer floor is the same value.
         let (i, j) = (floor_to_i64(u), floor_to_i64(v));
         let (au, av) = (u - i as f64, v - j as f64);
-        let f = |di, dj| f64::from(self.at(0, i + di, j + dj));
-        let bottom = f(0, 0) * (1.0 - au) + f(1, 0) * au;
-        let top = f(0, 1) * (1.0 - au) + f(1, 1) * au;
+        let (w, h) = (self.w as i64, self.h as i64);
+        // The 2x2 block with one bounds check when it lies inside (nearly always).
+        let block = (i >= 0 && j >= 0 && i + 1 < w && j + 1 < h)
+            .then(|| {
+                let k = (j * w + i) as usize;
+                let lv = &self.levels[0];
+                let row0 = lv.get(k..k + 2)?;
+                let row1 = lv.get(k + w as usize..k + w as usize + 2)?;
+                Some([row0[0], row0[1], row1[0], row1[1]])
+            })
+            .flatten();
+        let [f00, f10, f01, f11] = block.unwrap_or_else(|| {
+            [(0, 0), (1, 0), (0, 1), (1, 1)].map(|(di, dj)| self.at(0, i + di, j + dj))
+        });
+        let f = |x: f32| f64::from(x);
+        let bottom = f(f00) * (1.0 - au) + f(f10) * au;
+        let top = f(f01) * (1.0 - au) + f(f11) * au;
         bottom * (1.0 - av) + top * av
     }
 
