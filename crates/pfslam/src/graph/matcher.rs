@@ -117,29 +117,48 @@ impl PointField {
             }
         }
         let (wi, hi) = (w as i64, h as i64);
-        for p in points {
-            let ci = ((p[0] - min[0]) / resolution_m).floor() as i64;
-            let cj = ((p[1] - min[1]) / resolution_m).floor() as i64;
-            if ci < -r || cj < -r || ci >= wi + r || cj >= hi + r {
-                continue;
-            }
-            for &(di, dj, v) in &kernel {
-                let (x, y) = (ci + di, cj + dj);
-                if x >= 0 && y >= 0 && x < wi && y < hi {
-                    let slot = &mut field[(y * wi + x) as usize];
-                    if v > *slot {
-                        *slot = v;
+        let cells: Vec<(i64, i64)> = points
+            .iter()
+            .map(|p| {
+                (
+                    floor_to_i64((p[0] - min[0]) / resolution_m),
+                    floor_to_i64((p[1] - min[1]) / resolution_m),
+                )
+            })
+            .filter(|&(ci, cj)| !(ci < -r || cj < -r || ci >= wi + r || cj >= hi + r))
+            .collect();
+        // Bands of rows in parallel, each taking the kernel cells of every point that fall
+        // in it: a cell's value is the maximum over the same values in any order.
+        const BAND_ROWS: usize = 32;
+        field
+            .par_chunks_mut(w * BAND_ROWS)
+            .enumerate()
+            .for_each(|(b, band)| {
+                let y0 = (b * BAND_ROWS) as i64;
+                let y1 = y0 + (band.len() / w) as i64;
+                for &(ci, cj) in &cells {
+                    if cj + r < y0 || cj - r >= y1 {
+                        continue;
+                    }
+                    for &(di, dj, v) in &kernel {
+                        let (x, y) = (ci + di, cj + dj);
+                        if x >= 0 && y >= y0 && x < wi && y < y1 {
+                            if let Some(slot) = band.get_mut(((y - y0) * wi + x) as usize) {
+                                if v > *slot {
+                                    *slot = v;
+                                }
+                            }
+                        }
                     }
                 }
-            }
-        }
+            });
         let mut all = vec![field];
         for k in 1..=levels {
             let prev = &all[k - 1];
             let s = 1usize << (k - 1);
             let mut next = prev.clone();
-            for y in 0..h {
-                for x in 0..w {
+            next.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+                for (x, out) in row.iter_mut().enumerate() {
                     let mut m = prev[y * w + x];
                     if x + s < w {
                         m = m.max(prev[y * w + x + s]);
@@ -150,9 +169,9 @@ impl PointField {
                             m = m.max(prev[(y + s) * w + x + s]);
                         }
                     }
-                    next[y * w + x] = m;
+                    *out = m;
                 }
-            }
+            });
             all.push(next);
         }
         PointField {
@@ -236,45 +255,47 @@ impl PointField {
     ) -> nalgebra::Matrix3<f64> {
         let n = points_body.len() as f64;
         let h = [h_xy_m, h_xy_m, h_yaw_rad];
-        let f = |d: [f64; 3]| {
-            let p = Pose2::new(pose.x_m + d[0], pose.y_m + d[1], pose.yaw_rad + d[2]);
-            n * self.score(points_body, &p)
-        };
-        let f0 = f([0.0; 3]);
-        let mut m = nalgebra::Matrix3::zeros();
+        // The 19 displacements of the central differences, scored in parallel (each score
+        // is computed alone, so the same bits as one after the other).
+        let mut steps: Vec<[f64; 3]> = vec![[0.0; 3]];
         for i in 0..3 {
-            let mut d = [0.0; 3];
-            d[i] = h[i];
-            let fp = f(d);
-            d[i] = -h[i];
-            let fm = f(d);
-            m[(i, i)] = -(fp - 2.0 * f0 + fm) / (h[i] * h[i]);
+            for si in [1.0, -1.0] {
+                let mut d = [0.0; 3];
+                d[i] = si * h[i];
+                steps.push(d);
+            }
             for j in 0..i {
-                let g = |si: f64, sj: f64| {
+                for (si, sj) in [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)] {
                     let mut d = [0.0; 3];
                     d[i] = si * h[i];
                     d[j] = sj * h[j];
-                    f(d)
-                };
-                let v = -(g(1.0, 1.0) - g(1.0, -1.0) - g(-1.0, 1.0) + g(-1.0, -1.0))
-                    / (4.0 * h[i] * h[j]);
+                    steps.push(d);
+                }
+            }
+        }
+        let values: Vec<f64> = steps
+            .par_iter()
+            .map(|d| {
+                let p = Pose2::new(pose.x_m + d[0], pose.y_m + d[1], pose.yaw_rad + d[2]);
+                n * self.score(points_body, &p)
+            })
+            .collect();
+        let mut next = values[1..].iter();
+        let mut take = || next.next().copied().unwrap_or(f64::NAN);
+        let f0 = values[0];
+        let mut m = nalgebra::Matrix3::zeros();
+        for i in 0..3 {
+            let fp = take();
+            let fm = take();
+            m[(i, i)] = -(fp - 2.0 * f0 + fm) / (h[i] * h[i]);
+            for j in 0..i {
+                let (pp, pm, mp, mm) = (take(), take(), take(), take());
+                let v = -(pp - pm - mp + mm) / (4.0 * h[i] * h[j]);
                 m[(i, j)] = v;
                 m[(j, i)] = v;
             }
         }
         m
-    }
-
-    /// Cells of the points for each yaw of the window (translation of `centre` applied).
-    fn rotated_cells(
-        &self,
-        points_body: &[[f64; 2]],
-        centre: &Pose2,
-        yaws: &[f64],
-    ) -> Vec<Vec<(i64, i64)>> {
-        yaws.iter()
-            .map(|&yaw| self.cells_at(points_body, centre, yaw))
-            .collect()
     }
 
     /// Cells of the points seen from `centre`'s position with heading `yaw`.
@@ -495,22 +516,34 @@ impl PointField {
     ) -> Pose2 {
         let centre = prior.pose;
         let yaws = Self::window_yaws(&centre, win);
-        let cells = self.rotated_cells(points_body, &centre, &yaws);
         let n = (win.xy_m / self.resolution_m).ceil() as i64;
-        let mut best = (f64::NEG_INFINITY, centre);
-        for (a, c) in cells.iter().enumerate() {
-            for dy in -n..=n {
-                for dx in -n..=n {
-                    let pose = Pose2::new(
-                        centre.x_m + dx as f64 * self.resolution_m,
-                        centre.y_m + dy as f64 * self.resolution_m,
-                        yaws[a],
-                    );
-                    let obj = self.cell_sum(c, 0, dx, dy) - prior.penalty(&pose);
-                    if obj > best.0 {
-                        best = (obj, pose);
+        // Each yaw's first best in (dy, dx) order, in parallel; then the first strictly
+        // better over yaws in order: the sequential scan's answer for any thread count.
+        let per_yaw: Vec<(f64, Pose2)> = yaws
+            .par_iter()
+            .map(|&yaw| {
+                let c = self.cells_at(points_body, &centre, yaw);
+                let mut best = (f64::NEG_INFINITY, centre);
+                for dy in -n..=n {
+                    for dx in -n..=n {
+                        let pose = Pose2::new(
+                            centre.x_m + dx as f64 * self.resolution_m,
+                            centre.y_m + dy as f64 * self.resolution_m,
+                            yaw,
+                        );
+                        let obj = self.cell_sum(&c, 0, dx, dy) - prior.penalty(&pose);
+                        if obj > best.0 {
+                            best = (obj, pose);
+                        }
                     }
                 }
+                best
+            })
+            .collect();
+        let mut best = (f64::NEG_INFINITY, centre);
+        for b in per_yaw {
+            if b.0 > best.0 {
+                best = b;
             }
         }
         best.1
@@ -619,6 +652,54 @@ mod tests {
             let b = f.search_bnb_from(&start, min, ex);
             assert_eq!(a, b);
             assert!(a.is_some());
+        }
+    }
+
+    #[test]
+    fn banded_build_equals_the_plain_splat() {
+        let pts: Vec<[f64; 2]> = room_points().iter().step_by(3).copied().collect();
+        for (min, max, levels) in [
+            ([-6.0, -5.0], [6.0, 5.0], 3),
+            ([-1.3, -4.1], [2.2, 0.4], 1),
+            ([3.9, -3.2], [4.4, 9.0], 0),
+        ] {
+            let (res, sigma) = (0.05, 0.07);
+            let f = PointField::build(&pts, min, max, res, sigma, levels);
+            // Plain: every point splats the truncated Gaussian, cells keep the maximum.
+            let sc: f64 = sigma / res;
+            let r = (3.0 * sc).ceil() as i64;
+            let mut plain = vec![0f32; f.w * f.h];
+            for p in &pts {
+                let ci = ((p[0] - min[0]) / res).floor() as i64;
+                let cj = ((p[1] - min[1]) / res).floor() as i64;
+                for dj in -r..=r {
+                    for di in -r..=r {
+                        let v = (-0.5 * (di * di + dj * dj) as f64 / (sc * sc)).exp() as f32;
+                        let (x, y) = (ci + di, cj + dj);
+                        let inside = x >= 0 && y >= 0 && x < f.w as i64 && y < f.h as i64;
+                        if v > 0.01 && inside {
+                            let slot = &mut plain[y as usize * f.w + x as usize];
+                            *slot = slot.max(v);
+                        }
+                    }
+                }
+            }
+            assert!(plain.iter().any(|&v| v > 0.5));
+            assert_eq!(f.levels[0], plain);
+            for k in 1..=levels {
+                let s = 1usize << k;
+                for y in 0..f.h {
+                    for x in 0..f.w {
+                        let mut m = 0f32;
+                        for yy in y..(y + s).min(f.h) {
+                            for xx in x..(x + s).min(f.w) {
+                                m = m.max(plain[yy * f.w + xx]);
+                            }
+                        }
+                        assert_eq!(f.levels[k][y * f.w + x], m, "level {k} ({x}, {y})");
+                    }
+                }
+            }
         }
     }
 
