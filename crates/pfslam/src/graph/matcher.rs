@@ -142,12 +142,14 @@ impl PointField {
                     }
                     for &(di, dj, v) in &kernel {
                         let (x, y) = (ci + di, cj + dj);
-                        if x >= 0 && y >= y0 && x < wi && y < y1 {
-                            if let Some(slot) = band.get_mut(((y - y0) * wi + x) as usize) {
-                                if v > *slot {
-                                    *slot = v;
-                                }
-                            }
+                        if x >= 0
+                            && y >= y0
+                            && x < wi
+                            && y < y1
+                            && let Some(slot) = band.get_mut(((y - y0) * wi + x) as usize)
+                            && v > *slot
+                        {
+                            *slot = v;
                         }
                     }
                 }
@@ -373,7 +375,8 @@ impl PointField {
         let n = (win.xy_m / self.resolution_m).ceil() as i64;
         let top = self.pooled_levels();
         let step = 1i64 << top;
-        let per_yaw: Vec<(Vec<(i64, i64)>, Vec<Candidate>)> = yaws
+        type YawCells = (Vec<(i64, i64)>, Vec<Candidate>);
+        let per_yaw: Vec<YawCells> = yaws
             .par_iter()
             .enumerate()
             .map(|(a, &yaw)| {
