@@ -40,6 +40,7 @@ pub mod graph;
 pub mod io;
 pub mod map;
 pub mod motion;
+pub mod pipeline;
 pub mod sensors;
 pub mod sim;
 pub mod stereo;

@@ -316,4 +316,15 @@ fn car_recording_has_odometry_scans_and_mount() {
     let (poses, clamped) =
         pfslam::sensors::sync::poses_at_stamps(&rec.odometry, &rec.scans.stamps_ns);
     assert_eq!((poses.len(), clamped), (10, 0));
+    // Moving the scans instead of copying them gives the same recording.
+    let mut moved = ds.clone();
+    let rec2 = pfslam::motion::car_recording_taking_scans(
+        &mut moved,
+        &opts(StepModel::ExactArc),
+        "circle",
+    )
+    .unwrap();
+    assert_eq!(rec2.scans, rec.scans);
+    assert_eq!(rec2.odometry.poses, rec.odometry.poses);
+    assert!(moved.lidar.is_empty());
 }

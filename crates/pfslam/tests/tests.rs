@@ -7,6 +7,7 @@ mod filter;
 mod graph;
 mod map;
 mod motion;
+mod pipeline;
 mod rbpf;
 mod readers;
 mod sim;

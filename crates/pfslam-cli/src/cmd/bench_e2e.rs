@@ -11,12 +11,11 @@
 use super::dataset::{Dataset, load_dataset};
 use anyhow::Context;
 use pfslam::config::Config;
-use pfslam::filter::slam::{StageTimings, anchor_odometry_to_ground_truth, run_slam};
-use pfslam::geometry::{Pose2, Trajectory};
-use pfslam::graph::optimize_trajectory;
+use pfslam::filter::slam::{StageTimings, anchor_odometry_to_ground_truth};
+use pfslam::geometry::Pose2;
 use pfslam::io::map_files::write_map_server;
 use pfslam::io::tum::write_tum;
-use pfslam::map::map_with_poses;
+use pfslam::pipeline::{PipelineOptions, process_cpu_s, run_pipeline};
 use pfslam::sim::{SimOptions, World};
 use pfslam::viz::map_image::{MapImageOptions, TrajectoryOverlay, write_binary_png, write_map_png};
 use std::path::{Path, PathBuf};
@@ -76,18 +75,6 @@ struct RunFigures {
     peak_rss_mb: Option<f64>,
 }
 
-/// CPU seconds (user + system, all threads) of this process so far; `None` off Linux.
-fn process_cpu_s() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
-    // Fields after the command name (which may contain spaces) start at state (field 3);
-    // utime and stime are fields 14 and 15, in clock ticks (100 per second on Linux).
-    let rest = &stat[stat.rfind(')')? + 2..];
-    let fields: Vec<&str> = rest.split_whitespace().collect();
-    let utime: f64 = fields.get(11)?.parse().ok()?;
-    let stime: f64 = fields.get(12)?.parse().ok()?;
-    Some((utime + stime) / 100.0)
-}
-
 /// Peak resident set size (MB) since the last reset; `None` off Linux.
 fn peak_rss_mb() -> Option<f64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;
@@ -134,21 +121,23 @@ fn one_run(dataset: &Path, config: &Config, seed: u64, out: &Path) -> anyhow::Re
         Ok(recording)
     })?;
     anchor_odometry_to_ground_truth(&mut recording);
-    let (mut result, slam) = timed(|| Ok(run_slam(&recording, config, seed, &mut |_| {})?))?;
-    let ((), back_end) = timed(|| {
-        if config.graph.enabled {
-            let g = optimize_trajectory(
-                &recording,
-                &config.map.scan,
-                &result.trajectory,
-                &config.graph,
-            )?;
-            let poses = Trajectory::new(g.trajectory.clone());
-            result.map = map_with_poses(&recording, &poses, &config.map)?.0;
-            result.trajectory = g.trajectory;
-        }
-        Ok(())
+    // Exactly the default pipeline of `pfslam run`: filter, back end, map rebuilt.
+    let (pipeline, _) = timed(|| {
+        Ok(run_pipeline(
+            &recording,
+            config,
+            seed,
+            &PipelineOptions::default(),
+            &mut |_| {},
+        )?)
     })?;
+    let cost = |wall_s: f64, cpu_s: Option<f64>| Cost {
+        wall_s,
+        cpu_s: cpu_s.unwrap_or(f64::NAN),
+    };
+    let slam = cost(pipeline.filter_s, pipeline.filter_cpu_s);
+    let back_end = cost(pipeline.back_end_s, pipeline.back_end_cpu_s);
+    let result = pipeline.result;
     let ((), write) = timed(|| {
         std::fs::create_dir_all(out)?;
         write_tum(&out.join("trajectory.tum"), &result.trajectory)?;

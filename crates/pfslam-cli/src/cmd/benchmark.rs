@@ -8,9 +8,8 @@
 use anyhow::Context;
 use pfslam::config::Config;
 use pfslam::eval::relations::{RelationsOptions, evaluate_relations, read_relations};
-use pfslam::filter::slam::run_slam;
 use pfslam::geometry::Trajectory;
-use pfslam::graph::optimize_trajectory;
+use pfslam::pipeline::{BackEndInput, PipelineOptions, PipelineResult, run_pipeline};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -163,25 +162,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let recording = pfslam::io::recording::read_recording(rec_path, &Default::default())
             .with_context(|| rec_path.display().to_string())?;
         let t = Instant::now();
-        let mut result = run_slam(&recording, &config, args.seed, &mut |_| {})
+        let options = PipelineOptions {
+            back_end_input: match args.graph_on_odometry {
+                true => BackEndInput::Odometry,
+                false => BackEndInput::FrontEnd,
+            },
+            // The metric needs the trajectory only.
+            rebuild_map: false,
+        };
+        let PipelineResult {
+            result,
+            front_end,
+            graph,
+            ..
+        } = run_pipeline(&recording, &config, args.seed, &options, &mut |_| {})
             .with_context(|| format!("SLAM on {}", rec_path.display()))?;
-        let opts = RelationsOptions::default();
-        let front = evaluate_relations(
-            &Trajectory::new(result.trajectory.clone()),
-            &relations,
-            &opts,
-        )?;
-        let mut graph = None;
-        if config.graph.enabled {
-            let input = match args.graph_on_odometry {
-                true => &result.dead_reckoning,
-                false => &result.trajectory,
-            };
-            let g = optimize_trajectory(&recording, &config.map.scan, input, &config.graph)?;
-            result.trajectory = g.trajectory;
-            graph = Some(g.stats);
-        }
         let wall_s = t.elapsed().as_secs_f64();
+        let opts = RelationsOptions::default();
+        let front = evaluate_relations(&Trajectory::new(front_end), &relations, &opts)?;
         let est = Trajectory::new(result.trajectory.clone());
         let r = evaluate_relations(&est, &relations, &opts)?;
         let odo = evaluate_relations(

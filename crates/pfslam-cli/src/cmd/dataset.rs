@@ -21,7 +21,8 @@ pub struct Dataset {
     pub recording: Recording,
     /// The true occupancy map, when the dataset has one.
     pub true_map: Option<TrueMaps>,
-    /// The raw car streams, for a car-layout dataset.
+    /// The raw car streams, for a car-layout dataset (without the LiDAR scans, which moved
+    /// into `recording`).
     pub car: Option<CarDataset>,
 }
 
@@ -53,8 +54,9 @@ pub fn load_dataset(
                 },
                 ..ReadOptions::default()
             };
-            let ds = read_car_dataset(path, &opts)?;
-            let rec = pfslam::motion::car_recording(&ds, &config.motion, &name)?;
+            let mut ds = read_car_dataset(path, &opts)?;
+            // The scans move into the recording (`car.lidar` is left empty): no second copy.
+            let rec = pfslam::motion::car_recording_taking_scans(&mut ds, &config.motion, &name)?;
             (rec, Some(ds))
         };
         let gt_path = path.join("ground_truth.tum");

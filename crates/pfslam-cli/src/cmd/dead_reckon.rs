@@ -79,7 +79,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "rows: {} encoder, {} FOG, {} LiDAR scans",
             car.encoder.len(),
             car.fog.len(),
-            car.lidar.len()
+            ds.recording.scans.len()
         ),
         None => println!(
             "odometry poses: {}, scans: {}",

@@ -8,12 +8,12 @@
 use anyhow::Context;
 use pfslam::config::Config;
 use pfslam::eval::{Association, ate::ate, rpe::RpeDelta, rpe::rpe};
-use pfslam::filter::slam::{SlamEvent, SlamResult, anchor_odometry_to_ground_truth, run_slam};
+use pfslam::filter::slam::{SlamEvent, SlamResult, anchor_odometry_to_ground_truth};
 use pfslam::geometry::{Pose2, StampedPose2, Trajectory};
-use pfslam::graph::{GraphStats, optimize_trajectory};
+use pfslam::graph::GraphStats;
 use pfslam::io::map_files::write_map_server;
 use pfslam::io::tum::write_tum;
-use pfslam::map::map_with_poses;
+use pfslam::pipeline::{PipelineOptions, run_pipeline};
 use pfslam::sensors::Recording;
 use pfslam::viz::map_image::{MapImageOptions, TrajectoryOverlay, write_binary_png, write_map_png};
 use std::io::IsTerminal;
@@ -94,67 +94,70 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut last_logged = 0usize;
     let mut snapshot_error: Option<anyhow::Error> = None;
     let t_slam = Instant::now();
-    let result = run_slam(&recording, &config, args.seed, &mut |ev| match ev {
-        SlamEvent::Progress { done, total } => {
-            if let Some(b) = &bar {
-                b.set_position(done as u64);
-            } else if done * 10 / total.max(1) > last_logged * 10 / total.max(1) || done == total {
-                last_logged = done;
-                let s = t_slam.elapsed().as_secs_f64();
-                tracing::info!(
-                    "{done}/{total} scans ({:.0} scans/s)",
-                    done as f64 / s.max(1e-9)
-                );
+    let pipeline = run_pipeline(
+        &recording,
+        &config,
+        args.seed,
+        &PipelineOptions::default(),
+        &mut |ev| match ev {
+            SlamEvent::Progress { done, total } => {
+                if let Some(b) = &bar {
+                    b.set_position(done as u64);
+                } else if done * 10 / total.max(1) > last_logged * 10 / total.max(1)
+                    || done == total
+                {
+                    last_logged = done;
+                    let s = t_slam.elapsed().as_secs_f64();
+                    tracing::info!(
+                        "{done}/{total} scans ({:.0} scans/s)",
+                        done as f64 / s.max(1e-9)
+                    );
+                }
             }
-        }
-        SlamEvent::Snapshot {
-            scans_done,
-            map,
-            trajectory,
-        } => {
-            if snapshot_error.is_some() {
-                return;
-            }
-            let poses: Vec<Pose2> = trajectory.iter().map(|p| p.pose).collect();
-            let res = std::fs::create_dir_all(&snapshots)
-                .map_err(anyhow::Error::from)
-                .and_then(|()| {
-                    write_map_png(
-                        &snapshots.join(format!("map_{scans_done:07}.png")),
-                        map,
-                        &[TrajectoryOverlay {
-                            label: "SLAM",
-                            poses: &poses,
-                        }],
-                        None,
-                        &MapImageOptions::default(),
-                    )
+            SlamEvent::Snapshot {
+                scans_done,
+                map,
+                trajectory,
+            } => {
+                if snapshot_error.is_some() {
+                    return;
+                }
+                let poses: Vec<Pose2> = trajectory.iter().map(|p| p.pose).collect();
+                let res = std::fs::create_dir_all(&snapshots)
                     .map_err(anyhow::Error::from)
-                });
-            if let Err(e) = res {
-                snapshot_error = Some(e.context("writing a snapshot"));
+                    .and_then(|()| {
+                        write_map_png(
+                            &snapshots.join(format!("map_{scans_done:07}.png")),
+                            map,
+                            &[TrajectoryOverlay {
+                                label: "SLAM",
+                                poses: &poses,
+                            }],
+                            None,
+                            &MapImageOptions::default(),
+                        )
+                        .map_err(anyhow::Error::from)
+                    });
+                if let Err(e) = res {
+                    snapshot_error = Some(e.context("writing a snapshot"));
+                }
             }
-        }
-    })?;
+        },
+    )?;
     if let Some(b) = &bar {
         b.finish_and_clear();
     }
     if let Some(e) = snapshot_error {
         return Err(e);
     }
-    let mut result = result;
-    let front_end = result.trajectory.clone();
-    let graph = if config.graph.enabled {
-        // Loop closure: correct the trajectory, then rebuild the map along it.
-        let g = optimize_trajectory(&recording, &config.map.scan, &front_end, &config.graph)?;
-        let t = Instant::now();
-        let poses = Trajectory::new(g.trajectory.clone());
-        result.map = map_with_poses(&recording, &poses, &config.map)?.0;
-        result.trajectory = g.trajectory;
-        Some((g.stats, t.elapsed().as_secs_f64(), front_end))
-    } else {
-        None
-    };
+    // The back end's figures: its statistics, the wall time of the map rebuilt along its
+    // trajectory, and the filter's own trajectory.
+    let result = pipeline.result;
+    let (back_end_s, front_end) = (pipeline.back_end_s, pipeline.front_end);
+    let graph = pipeline
+        .graph
+        .map(|g| ((back_end_s - g.total_s).max(0.0), g))
+        .map(|(remap_s, g)| (g, remap_s, front_end));
     write_outputs(
         &args,
         &config,

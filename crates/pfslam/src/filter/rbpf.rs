@@ -28,6 +28,7 @@ use crate::config::Config;
 use crate::geometry::{Pose2, StampedPose2, wrap_angle};
 use crate::map::TILE_SIZE;
 use crate::map::grid::TILE_SHIFT;
+use crate::map::limits::floor_to_i32;
 use crate::map::{
     Cell, InsertScratch, MapError, OccupancyGrid, PlanarScan, ScanProjector, to_world,
 };
@@ -250,6 +251,12 @@ const TS: i32 = TILE_SIZE as i32;
 const MASK: i32 = TS - 1;
 
 /// Log-likelihood of the body-frame `points` seen from `pose` in `grid` (sum over points).
+///
+/// Per point, the same arithmetic as the plain rule (`tests::scan_log_likelihood_plain`), so
+/// the same bits: squared distances `du^2 + dv^2` from the same products (the per-row and
+/// per-column squares are computed once), the minimum taken exactly, the sum in point order.
+/// Faster: an integer floor (`f64::floor` is a libm call on baseline x86-64), the tile of the
+/// previous point reused, and for the default 3x3 kernel a branch-free minimum.
 pub fn scan_log_likelihood(
     grid: &OccupancyGrid,
     model: &ObservationModel,
@@ -259,28 +266,41 @@ pub fn scan_log_likelihood(
     let limits = grid.limits();
     let (s, c) = pose.yaw_rad.sin_cos();
     let k = model.kernel;
+    let occ = model.occupied_fixed;
     let mut total = 0.0;
+    // The tile of the last point (most points fall in the same tile as their predecessor).
+    let mut tile_key = (i32::MIN, i32::MIN);
+    let mut tile: Option<&[i16]> = None;
     for p in points {
         let x = pose.x_m + c * p[0] - s * p[1];
         let y = pose.y_m + s * p[0] + c * p[1];
         let (u, v) = limits.cell_coords(x, y);
-        let (i, j) = (u.floor() as i32, v.floor() as i32);
+        let (i, j) = (floor_to_i32(u), floor_to_i32(v));
         let mut best = f64::INFINITY;
         let (li, lj) = (i & MASK, j & MASK);
         if li >= k && lj >= k && li < TS - k && lj < TS - k {
             // The whole kernel lies in one tile: one directory lookup.
-            if let Some(cells) = grid.tile_cells(i >> TILE_SHIFT, j >> TILE_SHIFT) {
-                for dj in -k..=k {
-                    let row = ((lj + dj) as usize) << TILE_SHIFT;
-                    let dv = v - (f64::from(j + dj) + 0.5);
-                    for di in -k..=k {
-                        if cells[row + (li + di) as usize] > model.occupied_fixed {
-                            let du = u - (f64::from(i + di) + 0.5);
-                            best = best.min(du * du + dv * dv);
+            let key = (i >> TILE_SHIFT, j >> TILE_SHIFT);
+            if key != tile_key {
+                tile_key = key;
+                tile = grid.tile_cells(key.0, key.1);
+            }
+            if let Some(cells) = tile {
+                if k == 1 {
+                    best = nearest_3x3(cells, li, lj, u, v, i, j, occ);
+                } else {
+                    for dj in -k..=k {
+                        let row = ((lj + dj) as usize) << TILE_SHIFT;
+                        let dv = v - (f64::from(j + dj) + 0.5);
+                        for di in -k..=k {
+                            if cells[row + (li + di) as usize] > occ {
+                                let du = u - (f64::from(i + di) + 0.5);
+                                best = best.min(du * du + dv * dv);
+                            }
                         }
                     }
                 }
-            } else if model.occupied_fixed < 0 {
+            } else if occ < 0 {
                 // An unwritten tile is all log-odds 0.
                 let (du, dv) = (u - (f64::from(i) + 0.5), v - (f64::from(j) + 0.5));
                 best = du * du + dv * dv;
@@ -289,7 +309,7 @@ pub fn scan_log_likelihood(
             for dj in -k..=k {
                 let dv = v - (f64::from(j + dj) + 0.5);
                 for di in -k..=k {
-                    if grid.logodds_fixed(Cell::new(i + di, j + dj)) > model.occupied_fixed {
+                    if grid.logodds_fixed(Cell::new(i + di, j + dj)) > occ {
                         let du = u - (f64::from(i + di) + 0.5);
                         best = best.min(du * du + dv * dv);
                     }
@@ -303,6 +323,37 @@ pub fn scan_log_likelihood(
         };
     }
     total
+}
+
+/// The smallest squared distance (cells) from `(u, v)` to the centre of an occupied cell of
+/// the 3x3 block around local cell `(li, lj)` (global `(i, j)`) of one tile; infinity if none.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn nearest_3x3(cells: &[i16], li: i32, lj: i32, u: f64, v: f64, i: i32, j: i32, occ: i16) -> f64 {
+    let du2 = [-1, 0, 1].map(|d| {
+        let du = u - (f64::from(i + d) + 0.5);
+        du * du
+    });
+    let mut best = f64::INFINITY;
+    for dj in -1..=1 {
+        let dv = v - (f64::from(j + dj) + 0.5);
+        let dv2 = dv * dv;
+        let start = (((lj + dj) as usize) << TILE_SHIFT) + (li - 1) as usize;
+        let Some(row) = cells.get(start..start + 3) else {
+            continue;
+        };
+        for (cell, du2) in row.iter().zip(du2) {
+            let d = if *cell > occ {
+                du2 + dv2
+            } else {
+                f64::INFINITY
+            };
+            // `d` is never NaN where `best` could be replaced (finite inputs; a NaN point
+            // compares false and keeps infinity, as `f64::min` would): a plain compare-select.
+            best = if d < best { d } else { best };
+        }
+    }
+    best
 }
 
 /// Search parameters of [`match_in_own_map`].
@@ -393,6 +444,11 @@ pub fn match_in_own_map(
     let (mut sxy, mut syaw) = (search.step_xy_m, search.step_yaw_rad);
     let mut level = 0;
     let mut iterations = 0;
+    // The pose the last move came from: its objective is below the current one, so a
+    // candidate equal to it bit for bit cannot win and is not evaluated again. (Not
+    // `scanmatch::pattern_search`: this climb wraps the yaw at every step.)
+    let mut previous: Option<[u64; 3]> = None;
+    let bits = |p: &Pose2| [p.x_m, p.y_m, p.yaw_rad].map(f64::to_bits);
     while level < search.refine_levels && iterations < 200 {
         iterations += 1;
         let mut moved: Option<(Pose2, f64)> = None;
@@ -405,6 +461,9 @@ pub fn match_in_own_map(
             (0.0, 0.0, -syaw),
         ] {
             let cand = Pose2::new(best.x_m + ex, best.y_m + ey, best.yaw_rad + ea);
+            if previous == Some(bits(&cand)) {
+                continue;
+            }
             let ll = eval(&cand);
             if ll > moved.map_or(best_ll, |m| m.1) {
                 moved = Some((cand, ll));
@@ -412,6 +471,7 @@ pub fn match_in_own_map(
         }
         match moved {
             Some((p, ll)) => {
+                previous = Some(bits(&best));
                 best = p;
                 best_ll = ll;
             }
@@ -537,12 +597,21 @@ pub struct RbParticle {
     pub node: Arc<PathNode>,
 }
 
-/// Per-chunk state: the chunk's random stream and reusable buffers.
+/// Per-chunk state: the chunk's random stream.
 #[derive(Debug, Clone)]
 struct ChunkState {
     rng: Xoshiro256PlusPlus,
-    insert: InsertScratch,
-    world: PlanarScan,
+}
+
+/// Map-insertion buffers, one per worker thread (filled on first use). A clone starts empty:
+/// buffers hold no state that matters.
+#[derive(Debug, Default)]
+struct InsertBuffers(Vec<std::sync::Mutex<(PlanarScan, InsertScratch)>>);
+
+impl Clone for InsertBuffers {
+    fn clone(&self) -> Self {
+        InsertBuffers::default()
+    }
 }
 
 /// Number of distinct tiles held by `maps` (shared tiles counted once).
@@ -572,6 +641,7 @@ pub struct Rbpf {
     /// Normalised weights.
     pub weights: Vec<f64>,
     chunks: Vec<ChunkState>,
+    scratch: InsertBuffers,
     master: Xoshiro256PlusPlus,
     options: RbpfOptions,
     model: ObservationModel,
@@ -626,12 +696,9 @@ impl Rbpf {
             chunks: rng
                 .chunks
                 .into_iter()
-                .map(|rng| ChunkState {
-                    rng,
-                    insert: InsertScratch::new(),
-                    world: PlanarScan::default(),
-                })
+                .map(|rng| ChunkState { rng })
                 .collect(),
+            scratch: InsertBuffers::default(),
             master: rng.master,
             model: options.observation(res),
             search: SearchParams::new(options, res),
@@ -683,40 +750,60 @@ impl Rbpf {
         let n = self.particles.len();
         let t = Instant::now();
         if !first {
+            // Motion draws per chunk, from the chunk's stream in particle order (cheap);
+            // then every particle matches on its own, so the threads balance whatever the
+            // particle count (5 chunks of 40 particles would split 3:2 over two threads).
+            for (parts, st) in self
+                .particles
+                .chunks_mut(CHUNK_PARTICLES)
+                .zip(self.chunks.iter_mut())
+            {
+                for p in parts.iter_mut() {
+                    p.pose = sample_motion(&p.pose, delta, noise, &mut st.rng);
+                }
+            }
             self.particles
-                .par_chunks_mut(CHUNK_PARTICLES)
-                .zip(self.lls.par_chunks_mut(CHUNK_PARTICLES))
-                .zip(self.chunks.par_iter_mut())
-                .for_each(|((parts, lls), st)| {
-                    for (p, ll) in parts.iter_mut().zip(lls.iter_mut()) {
-                        let sampled = sample_motion(&p.pose, delta, noise, &mut st.rng);
-                        let (pose, l) = match_in_own_map(&p.map, model, points, &sampled, search);
-                        p.pose = pose;
-                        *ll = l;
-                    }
+                .par_iter_mut()
+                .zip(self.lls.par_iter_mut())
+                .with_max_len(1)
+                .for_each(|(p, ll)| {
+                    let (pose, l) = match_in_own_map(&p.map, model, points, &p.pose, search);
+                    p.pose = pose;
+                    *ll = l;
                 });
         }
         let match_s = t.elapsed().as_secs_f64();
         let t = Instant::now();
         // Mapped before resampling, so copies share the tiles this update wrote.
+        // Per particle too, each worker thread with its own scratch (a mask of megabytes:
+        // never per particle); the scratch does not affect results.
+        let threads = rayon::current_num_threads().max(1);
+        if self.scratch.0.len() < threads {
+            self.scratch.0.resize_with(threads, Default::default);
+        }
+        let scratch = &self.scratch.0;
         let results: Vec<Result<(), MapError>> = self
             .particles
-            .par_chunks_mut(CHUNK_PARTICLES)
-            .zip(self.chunks.par_iter_mut())
-            .map(|(parts, st)| {
-                for p in parts.iter_mut() {
-                    to_world(body, &p.pose, &mut st.world);
-                    p.map.insert_scan(&st.world, &mut st.insert)?;
-                    p.node = Arc::new(PathNode {
-                        pose: p.pose,
-                        odom,
-                        scan,
-                        parent: Some(p.node.clone()),
-                    });
-                }
+            .par_iter_mut()
+            .with_max_len(1)
+            .map(|p| {
+                let slot = rayon::current_thread_index().unwrap_or(0) % scratch.len();
+                let mut guard = scratch[slot]
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner);
+                let (world, insert) = &mut *guard;
+                to_world(body, &p.pose, world);
+                p.map.insert_scan(world, insert)?;
+                p.node = Arc::new(PathNode {
+                    pose: p.pose,
+                    odom,
+                    scan,
+                    parent: Some(p.node.clone()),
+                });
                 Ok(())
             })
             .collect();
+        // The first error in particle order.
         for r in results {
             r?;
         }
@@ -1001,6 +1088,96 @@ mod tests {
             leaf = node(Pose2::IDENTITY, Pose2::IDENTITY, k, &leaf);
         }
         drop(leaf);
+    }
+
+    /// The observation model written plainly (the kernel before it was optimised).
+    fn scan_log_likelihood_plain(
+        grid: &OccupancyGrid,
+        model: &ObservationModel,
+        points: &[[f64; 2]],
+        pose: &Pose2,
+    ) -> f64 {
+        let (s, c) = pose.yaw_rad.sin_cos();
+        let k = model.kernel;
+        let mut total = 0.0;
+        for p in points {
+            let x = pose.x_m + c * p[0] - s * p[1];
+            let y = pose.y_m + s * p[0] + c * p[1];
+            let (u, v) = grid.limits().cell_coords(x, y);
+            let (i, j) = (u.floor() as i32, v.floor() as i32);
+            let mut best = f64::INFINITY;
+            for dj in -k..=k {
+                let dv = v - (f64::from(j + dj) + 0.5);
+                for di in -k..=k {
+                    if grid.logodds_fixed(Cell::new(i + di, j + dj)) > model.occupied_fixed {
+                        let du = u - (f64::from(i + di) + 0.5);
+                        best = best.min(du * du + dv * dv);
+                    }
+                }
+            }
+            total += if best.is_finite() {
+                (-best * model.res2_over_2s2).max(model.no_hit)
+            } else {
+                model.no_hit
+            };
+        }
+        total
+    }
+
+    #[test]
+    fn optimised_likelihood_equals_the_plain_rule_bit_for_bit() {
+        use crate::map::{MapOptions, ScanPoint};
+        use rand::SeedableRng;
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(7);
+        let mut uni = |a: f64, b: f64| a + (b - a) * rng.random::<f64>();
+        for trial in 0..12 {
+            let res = [0.05, 0.1, 0.03][trial % 3];
+            let mut grid = OccupancyGrid::new(&MapOptions {
+                resolution_m: res,
+                ..MapOptions::default()
+            })
+            .unwrap();
+            // Random walls seen from a few poses: occupied, free and unwritten cells, tile
+            // borders crossed everywhere.
+            let mut scratch = InsertScratch::new();
+            for _ in 0..4 {
+                let (sx, sy) = (uni(-2.0, 2.0), uni(-2.0, 2.0));
+                let points = (0..120)
+                    .map(|_| {
+                        let (a, r) = (uni(-3.2, 3.2), uni(0.5, 6.0));
+                        ScanPoint {
+                            x_m: sx + r * a.cos(),
+                            y_m: sy + r * a.sin(),
+                            hit: uni(0.0, 1.0) < 0.9,
+                            free_to: 1.0,
+                        }
+                    })
+                    .collect();
+                let scan = PlanarScan {
+                    sensor_x_m: sx,
+                    sensor_y_m: sy,
+                    points,
+                };
+                grid.insert_scan(&scan, &mut scratch).unwrap();
+            }
+            let body: Vec<[f64; 2]> = (0..200).map(|_| [uni(-7.0, 7.0), uni(-7.0, 7.0)]).collect();
+            for kernel in [0, 1, 2] {
+                for occupied_logodds in [0.0, -0.5, 0.7] {
+                    let o = RbpfOptions {
+                        kernel_cells: kernel,
+                        occupied_logodds,
+                        ..RbpfOptions::default()
+                    };
+                    let model = o.observation(res);
+                    for _ in 0..10 {
+                        let pose = Pose2::new(uni(-1.0, 1.0), uni(-1.0, 1.0), uni(-3.2, 3.2));
+                        let fast = scan_log_likelihood(&grid, &model, &body, &pose);
+                        let plain = scan_log_likelihood_plain(&grid, &model, &body, &pose);
+                        assert_eq!(fast.to_bits(), plain.to_bits(), "{trial} {kernel} {pose:?}");
+                    }
+                }
+            }
+        }
     }
 
     #[test]

@@ -11,6 +11,7 @@
 //! - [`PointField::refine`]: sub-cell pattern search on the bilinearly interpolated field.
 
 use crate::geometry::{Pose2, wrap_angle};
+use rayon::prelude::*;
 
 /// A likelihood-field window with max-pooled levels.
 #[derive(Debug, Clone)]
@@ -65,6 +66,29 @@ struct Candidate {
     score: f64,
 }
 
+/// `floor(v)` as `i64` without the libm call (`f64::floor` on baseline x86-64); the same
+/// value as `v.floor() as i64` for every finite `v` within +-2^53 (cells always are).
+#[inline(always)]
+fn floor_to_i64(v: f64) -> i64 {
+    let t = v as i64;
+    if (t as f64) > v {
+        t.saturating_sub(1)
+    } else {
+        t
+    }
+}
+
+/// The prepared top level of a branch-and-bound search ([`PointField::bnb_start`]).
+#[derive(Debug, Clone)]
+pub struct BnbStart {
+    centre: Pose2,
+    yaws: Vec<f64>,
+    cells: Vec<Vec<(i64, i64)>>,
+    cands: Vec<Candidate>,
+    n: i64,
+    n_pts: f64,
+}
+
 impl PointField {
     /// Builds the field over `[min, max]` (world, m) from `points` (world, m), with cells of
     /// `resolution_m`, Gaussian `sigma_m` (truncated at 3 sigma) and `levels` pooled levels
@@ -93,29 +117,50 @@ impl PointField {
             }
         }
         let (wi, hi) = (w as i64, h as i64);
-        for p in points {
-            let ci = ((p[0] - min[0]) / resolution_m).floor() as i64;
-            let cj = ((p[1] - min[1]) / resolution_m).floor() as i64;
-            if ci < -r || cj < -r || ci >= wi + r || cj >= hi + r {
-                continue;
-            }
-            for &(di, dj, v) in &kernel {
-                let (x, y) = (ci + di, cj + dj);
-                if x >= 0 && y >= 0 && x < wi && y < hi {
-                    let slot = &mut field[(y * wi + x) as usize];
-                    if v > *slot {
-                        *slot = v;
+        let cells: Vec<(i64, i64)> = points
+            .iter()
+            .map(|p| {
+                (
+                    floor_to_i64((p[0] - min[0]) / resolution_m),
+                    floor_to_i64((p[1] - min[1]) / resolution_m),
+                )
+            })
+            .filter(|&(ci, cj)| !(ci < -r || cj < -r || ci >= wi + r || cj >= hi + r))
+            .collect();
+        // Bands of rows in parallel, each taking the kernel cells of every point that fall
+        // in it: a cell's value is the maximum over the same values in any order.
+        const BAND_ROWS: usize = 32;
+        field
+            .par_chunks_mut(w * BAND_ROWS)
+            .enumerate()
+            .for_each(|(b, band)| {
+                let y0 = (b * BAND_ROWS) as i64;
+                let y1 = y0 + (band.len() / w) as i64;
+                for &(ci, cj) in &cells {
+                    if cj + r < y0 || cj - r >= y1 {
+                        continue;
+                    }
+                    for &(di, dj, v) in &kernel {
+                        let (x, y) = (ci + di, cj + dj);
+                        if x >= 0
+                            && y >= y0
+                            && x < wi
+                            && y < y1
+                            && let Some(slot) = band.get_mut(((y - y0) * wi + x) as usize)
+                            && v > *slot
+                        {
+                            *slot = v;
+                        }
                     }
                 }
-            }
-        }
+            });
         let mut all = vec![field];
         for k in 1..=levels {
             let prev = &all[k - 1];
             let s = 1usize << (k - 1);
             let mut next = prev.clone();
-            for y in 0..h {
-                for x in 0..w {
+            next.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+                for (x, out) in row.iter_mut().enumerate() {
                     let mut m = prev[y * w + x];
                     if x + s < w {
                         m = m.max(prev[y * w + x + s]);
@@ -126,9 +171,9 @@ impl PointField {
                             m = m.max(prev[(y + s) * w + x + s]);
                         }
                     }
-                    next[y * w + x] = m;
+                    *out = m;
                 }
-            }
+            });
             all.push(next);
         }
         PointField {
@@ -159,12 +204,26 @@ impl PointField {
     fn bilinear(&self, x_m: f64, y_m: f64) -> f64 {
         let u = (x_m - self.origin_x_m) / self.resolution_m - 0.5;
         let v = (y_m - self.origin_y_m) / self.resolution_m - 0.5;
-        let (fu, fv) = (u.floor(), v.floor());
-        let (au, av) = (u - fu, v - fv);
-        let (i, j) = (fu as i64, fv as i64);
-        let f = |di, dj| f64::from(self.at(0, i + di, j + dj));
-        let bottom = f(0, 0) * (1.0 - au) + f(1, 0) * au;
-        let top = f(0, 1) * (1.0 - au) + f(1, 1) * au;
+        // `f64::floor` is a libm call on baseline x86-64; the integer floor is the same value.
+        let (i, j) = (floor_to_i64(u), floor_to_i64(v));
+        let (au, av) = (u - i as f64, v - j as f64);
+        let (w, h) = (self.w as i64, self.h as i64);
+        // The 2x2 block with one bounds check when it lies inside (nearly always).
+        let block = (i >= 0 && j >= 0 && i + 1 < w && j + 1 < h)
+            .then(|| {
+                let k = (j * w + i) as usize;
+                let lv = &self.levels[0];
+                let row0 = lv.get(k..k + 2)?;
+                let row1 = lv.get(k + w as usize..k + w as usize + 2)?;
+                Some([row0[0], row0[1], row1[0], row1[1]])
+            })
+            .flatten();
+        let [f00, f10, f01, f11] = block.unwrap_or_else(|| {
+            [(0, 0), (1, 0), (0, 1), (1, 1)].map(|(di, dj)| self.at(0, i + di, j + dj))
+        });
+        let f = |x: f32| f64::from(x);
+        let bottom = f(f00) * (1.0 - au) + f(f10) * au;
+        let top = f(f01) * (1.0 - au) + f(f11) * au;
         bottom * (1.0 - av) + top * av
     }
 
@@ -198,28 +257,42 @@ impl PointField {
     ) -> nalgebra::Matrix3<f64> {
         let n = points_body.len() as f64;
         let h = [h_xy_m, h_xy_m, h_yaw_rad];
-        let f = |d: [f64; 3]| {
-            let p = Pose2::new(pose.x_m + d[0], pose.y_m + d[1], pose.yaw_rad + d[2]);
-            n * self.score(points_body, &p)
-        };
-        let f0 = f([0.0; 3]);
-        let mut m = nalgebra::Matrix3::zeros();
+        // The 19 displacements of the central differences, scored in parallel (each score
+        // is computed alone, so the same bits as one after the other).
+        let mut steps: Vec<[f64; 3]> = vec![[0.0; 3]];
         for i in 0..3 {
-            let mut d = [0.0; 3];
-            d[i] = h[i];
-            let fp = f(d);
-            d[i] = -h[i];
-            let fm = f(d);
-            m[(i, i)] = -(fp - 2.0 * f0 + fm) / (h[i] * h[i]);
+            for si in [1.0, -1.0] {
+                let mut d = [0.0; 3];
+                d[i] = si * h[i];
+                steps.push(d);
+            }
             for j in 0..i {
-                let g = |si: f64, sj: f64| {
+                for (si, sj) in [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)] {
                     let mut d = [0.0; 3];
                     d[i] = si * h[i];
                     d[j] = sj * h[j];
-                    f(d)
-                };
-                let v = -(g(1.0, 1.0) - g(1.0, -1.0) - g(-1.0, 1.0) + g(-1.0, -1.0))
-                    / (4.0 * h[i] * h[j]);
+                    steps.push(d);
+                }
+            }
+        }
+        let values: Vec<f64> = steps
+            .par_iter()
+            .map(|d| {
+                let p = Pose2::new(pose.x_m + d[0], pose.y_m + d[1], pose.yaw_rad + d[2]);
+                n * self.score(points_body, &p)
+            })
+            .collect();
+        let mut next = values[1..].iter();
+        let mut take = || next.next().copied().unwrap_or(f64::NAN);
+        let f0 = values[0];
+        let mut m = nalgebra::Matrix3::zeros();
+        for i in 0..3 {
+            let fp = take();
+            let fm = take();
+            m[(i, i)] = -(fp - 2.0 * f0 + fm) / (h[i] * h[i]);
+            for j in 0..i {
+                let (pp, pm, mp, mm) = (take(), take(), take(), take());
+                let v = -(pp - pm - mp + mm) / (4.0 * h[i] * h[j]);
                 m[(i, j)] = v;
                 m[(j, i)] = v;
             }
@@ -227,27 +300,18 @@ impl PointField {
         m
     }
 
-    /// Cells of the points for each yaw of the window (translation of `centre` applied).
-    fn rotated_cells(
-        &self,
-        points_body: &[[f64; 2]],
-        centre: &Pose2,
-        yaws: &[f64],
-    ) -> Vec<Vec<(i64, i64)>> {
-        yaws.iter()
-            .map(|&yaw| {
-                let (s, c) = yaw.sin_cos();
-                points_body
-                    .iter()
-                    .map(|p| {
-                        let x = centre.x_m + c * p[0] - s * p[1];
-                        let y = centre.y_m + s * p[0] + c * p[1];
-                        (
-                            ((x - self.origin_x_m) / self.resolution_m).floor() as i64,
-                            ((y - self.origin_y_m) / self.resolution_m).floor() as i64,
-                        )
-                    })
-                    .collect()
+    /// Cells of the points seen from `centre`'s position with heading `yaw`.
+    fn cells_at(&self, points_body: &[[f64; 2]], centre: &Pose2, yaw: f64) -> Vec<(i64, i64)> {
+        let (s, c) = yaw.sin_cos();
+        points_body
+            .iter()
+            .map(|p| {
+                let x = centre.x_m + c * p[0] - s * p[1];
+                let y = centre.y_m + s * p[0] + c * p[1];
+                (
+                    floor_to_i64((x - self.origin_x_m) / self.resolution_m),
+                    floor_to_i64((y - self.origin_y_m) / self.resolution_m),
+                )
             })
             .collect()
     }
@@ -259,10 +323,21 @@ impl PointField {
             .collect()
     }
 
+    /// Sum of level `level` over `cells` shifted by `(dx, dy)` (0 outside), in point order.
     fn cell_sum(&self, cells: &[(i64, i64)], level: usize, dx: i64, dy: i64) -> f64 {
+        let lv = &self.levels[level][..];
+        let (w, h) = (self.w as u64, self.h as u64);
         cells
             .iter()
-            .map(|&(i, j)| f64::from(self.at(level, i + dx, j + dy)))
+            .map(|&(i, j)| {
+                // One unsigned comparison per axis also rejects negatives.
+                let (x, y) = ((i + dx) as u64, (j + dy) as u64);
+                if x < w && y < h {
+                    f64::from(lv.get((y * w + x) as usize).copied().unwrap_or(0.0))
+                } else {
+                    0.0
+                }
+            })
             .sum()
     }
 
@@ -278,33 +353,84 @@ impl PointField {
         min_score: f64,
         exclude: Option<(Pose2, f64, f64)>,
     ) -> Option<(Pose2, f64)> {
+        let start = self.bnb_start(points_body, centre, win)?;
+        self.search_bnb_from(&start, min_score, exclude)
+    }
+
+    /// The top level of [`Self::search_bnb`] (yaws, cells of the points per yaw, scored
+    /// top-level candidates), to share between searches of one scan in one window (the best
+    /// pose, then the ambiguity test). Scored in parallel over yaws, collected in yaw order:
+    /// the same candidates whatever the thread count. `None` without points.
+    pub fn bnb_start(
+        &self,
+        points_body: &[[f64; 2]],
+        centre: &Pose2,
+        win: &SearchWindow,
+    ) -> Option<BnbStart> {
         if points_body.is_empty() {
             return None;
         }
         let n_pts = points_body.len() as f64;
         let yaws = Self::window_yaws(centre, win);
-        let cells = self.rotated_cells(points_body, centre, &yaws);
         let n = (win.xy_m / self.resolution_m).ceil() as i64;
         let top = self.pooled_levels();
         let step = 1i64 << top;
-        let mut cands = Vec::new();
-        for (a, c) in cells.iter().enumerate() {
-            let mut dy = -n;
-            while dy <= n {
-                let mut dx = -n;
-                while dx <= n {
-                    cands.push(Candidate {
-                        yaw_index: a,
-                        dx,
-                        dy,
-                        level: top,
-                        score: self.cell_sum(c, top, dx, dy) / n_pts,
-                    });
-                    dx += step;
+        type YawCells = (Vec<(i64, i64)>, Vec<Candidate>);
+        let per_yaw: Vec<YawCells> = yaws
+            .par_iter()
+            .enumerate()
+            .map(|(a, &yaw)| {
+                let c = self.cells_at(points_body, centre, yaw);
+                let mut cands = Vec::new();
+                let mut dy = -n;
+                while dy <= n {
+                    let mut dx = -n;
+                    while dx <= n {
+                        cands.push(Candidate {
+                            yaw_index: a,
+                            dx,
+                            dy,
+                            level: top,
+                            score: self.cell_sum(&c, top, dx, dy) / n_pts,
+                        });
+                        dx += step;
+                    }
+                    dy += step;
                 }
-                dy += step;
-            }
+                (c, cands)
+            })
+            .collect();
+        let mut cells = Vec::with_capacity(per_yaw.len());
+        let mut cands = Vec::new();
+        for (c, k) in per_yaw {
+            cells.push(c);
+            cands.extend(k);
         }
+        Some(BnbStart {
+            centre: *centre,
+            yaws,
+            cells,
+            cands,
+            n,
+            n_pts,
+        })
+    }
+
+    /// [`Self::search_bnb`] from a prepared top level.
+    pub fn search_bnb_from(
+        &self,
+        start: &BnbStart,
+        min_score: f64,
+        exclude: Option<(Pose2, f64, f64)>,
+    ) -> Option<(Pose2, f64)> {
+        let BnbStart {
+            centre,
+            yaws,
+            cells,
+            cands,
+            n,
+            n_pts,
+        } = start;
         let mut best: Option<Candidate> = None;
         let mut best_score = min_score;
         let pose_of = |c: &Candidate| {
@@ -315,10 +441,10 @@ impl PointField {
             )
         };
         self.branch(
-            cands,
-            &cells,
-            n,
-            n_pts,
+            cands.clone(),
+            cells,
+            *n,
+            *n_pts,
             &mut best,
             &mut best_score,
             // A node is excluded when every offset it covers is: its four corners are.
@@ -393,22 +519,34 @@ impl PointField {
     ) -> Pose2 {
         let centre = prior.pose;
         let yaws = Self::window_yaws(&centre, win);
-        let cells = self.rotated_cells(points_body, &centre, &yaws);
         let n = (win.xy_m / self.resolution_m).ceil() as i64;
-        let mut best = (f64::NEG_INFINITY, centre);
-        for (a, c) in cells.iter().enumerate() {
-            for dy in -n..=n {
-                for dx in -n..=n {
-                    let pose = Pose2::new(
-                        centre.x_m + dx as f64 * self.resolution_m,
-                        centre.y_m + dy as f64 * self.resolution_m,
-                        yaws[a],
-                    );
-                    let obj = self.cell_sum(c, 0, dx, dy) - prior.penalty(&pose);
-                    if obj > best.0 {
-                        best = (obj, pose);
+        // Each yaw's first best in (dy, dx) order, in parallel; then the first strictly
+        // better over yaws in order: the sequential scan's answer for any thread count.
+        let per_yaw: Vec<(f64, Pose2)> = yaws
+            .par_iter()
+            .map(|&yaw| {
+                let c = self.cells_at(points_body, &centre, yaw);
+                let mut best = (f64::NEG_INFINITY, centre);
+                for dy in -n..=n {
+                    for dx in -n..=n {
+                        let pose = Pose2::new(
+                            centre.x_m + dx as f64 * self.resolution_m,
+                            centre.y_m + dy as f64 * self.resolution_m,
+                            yaw,
+                        );
+                        let obj = self.cell_sum(&c, 0, dx, dy) - prior.penalty(&pose);
+                        if obj > best.0 {
+                            best = (obj, pose);
+                        }
                     }
                 }
+                best
+            })
+            .collect();
+        let mut best = (f64::NEG_INFINITY, centre);
+        for b in per_yaw {
+            if b.0 > best.0 {
+                best = b;
             }
         }
         best.1
@@ -464,6 +602,108 @@ mod tests {
             pts.push([1.5 + 0.3 * a.cos(), 1.0 + 0.3 * a.sin()]);
         }
         pts
+    }
+
+    /// The interpolated score written plainly (libm floor, bounds-checked lookups).
+    fn score_plain(f: &PointField, points_body: &[[f64; 2]], pose: &Pose2) -> f64 {
+        let (s, c) = pose.yaw_rad.sin_cos();
+        let sum: f64 = points_body
+            .iter()
+            .map(|p| {
+                let x = pose.x_m + c * p[0] - s * p[1];
+                let y = pose.y_m + s * p[0] + c * p[1];
+                let u = (x - f.origin_x_m) / f.resolution_m - 0.5;
+                let v = (y - f.origin_y_m) / f.resolution_m - 0.5;
+                let (fu, fv) = (u.floor(), v.floor());
+                let (au, av) = (u - fu, v - fv);
+                let (i, j) = (fu as i64, fv as i64);
+                let g = |di, dj| f64::from(f.at(0, i + di, j + dj));
+                let bottom = g(0, 0) * (1.0 - au) + g(1, 0) * au;
+                let top = g(0, 1) * (1.0 - au) + g(1, 1) * au;
+                bottom * (1.0 - av) + top * av
+            })
+            .sum();
+        sum / points_body.len() as f64
+    }
+
+    #[test]
+    fn fast_score_and_shared_bnb_start_give_the_plain_bits() {
+        let pts = room_points();
+        let f = PointField::build(&pts, [-6.0, -5.0], [6.0, 5.0], 0.05, 0.08, 3);
+        let body: Vec<[f64; 2]> = pts.iter().step_by(5).copied().collect();
+        for k in 0..200 {
+            let t = f64::from(k);
+            // Poses that push points across the field's edges (outside cells count 0).
+            let pose = Pose2::new((t * 0.37).sin() * 3.0, (t * 0.23).cos() * 2.5, t * 0.05);
+            let (fast, plain) = (f.score(&body, &pose), score_plain(&f, &body, &pose));
+            assert_eq!(fast.to_bits(), plain.to_bits(), "{pose:?}");
+        }
+        for v in [
+            -3.5, -3.0, -0.0, 0.0, 1e-300, -1e-300, 2.999_999, 1e12, -1e12,
+        ] {
+            assert_eq!(floor_to_i64(v), v.floor() as i64, "{v}");
+        }
+        let win = SearchWindow {
+            xy_m: 0.4,
+            yaw_rad: 0.1,
+            yaw_step_rad: 0.02,
+        };
+        let centre = Pose2::new(0.1, -0.1, 0.03);
+        let start = f.bnb_start(&body, &centre, &win).unwrap();
+        for (min, ex) in [(0.0, None), (0.3, Some((centre, 0.2, 0.05)))] {
+            let a = f.search_bnb(&body, &centre, &win, min, ex);
+            let b = f.search_bnb_from(&start, min, ex);
+            assert_eq!(a, b);
+            assert!(a.is_some());
+        }
+    }
+
+    #[test]
+    fn banded_build_equals_the_plain_splat() {
+        let pts: Vec<[f64; 2]> = room_points().iter().step_by(3).copied().collect();
+        for (min, max, levels) in [
+            ([-6.0, -5.0], [6.0, 5.0], 3),
+            ([-1.3, -4.1], [2.2, 0.4], 1),
+            ([3.9, -3.2], [4.4, 9.0], 0),
+        ] {
+            let (res, sigma) = (0.05, 0.07);
+            let f = PointField::build(&pts, min, max, res, sigma, levels);
+            // Plain: every point splats the truncated Gaussian, cells keep the maximum.
+            let sc: f64 = sigma / res;
+            let r = (3.0 * sc).ceil() as i64;
+            let mut plain = vec![0f32; f.w * f.h];
+            for p in &pts {
+                let ci = ((p[0] - min[0]) / res).floor() as i64;
+                let cj = ((p[1] - min[1]) / res).floor() as i64;
+                for dj in -r..=r {
+                    for di in -r..=r {
+                        let v = (-0.5 * (di * di + dj * dj) as f64 / (sc * sc)).exp() as f32;
+                        let (x, y) = (ci + di, cj + dj);
+                        let inside = x >= 0 && y >= 0 && x < f.w as i64 && y < f.h as i64;
+                        if v > 0.01 && inside {
+                            let slot = &mut plain[y as usize * f.w + x as usize];
+                            *slot = slot.max(v);
+                        }
+                    }
+                }
+            }
+            assert!(plain.iter().any(|&v| v > 0.5));
+            assert_eq!(f.levels[0], plain);
+            for k in 1..=levels {
+                let s = 1usize << k;
+                for y in 0..f.h {
+                    for x in 0..f.w {
+                        let mut m = 0f32;
+                        for yy in y..(y + s).min(f.h) {
+                            for xx in x..(x + s).min(f.w) {
+                                m = m.max(plain[yy * f.w + xx]);
+                            }
+                        }
+                        assert_eq!(f.levels[k][y * f.w + x], m, "level {k} ({x}, {y})");
+                    }
+                }
+            }
+        }
     }
 
     #[test]

@@ -627,19 +627,16 @@ pub fn verify_closure(
     if points_body.len() < opts.min_points {
         return Verdict::LowScore;
     }
-    let Some((best, score)) = field.search_bnb(points_body, centre, win, opts.loop_min_score, None)
-    else {
+    // Both searches start from the same top level: score it once.
+    let Some(start) = field.bnb_start(points_body, centre, win) else {
+        return Verdict::LowScore;
+    };
+    let Some((best, score)) = field.search_bnb_from(&start, opts.loop_min_score, None) else {
         return Verdict::LowScore;
     };
     let exclusion = (best, opts.loop_ambiguity_radius_m, win.yaw_rad * 2.0 + 1.0);
     if field
-        .search_bnb(
-            points_body,
-            centre,
-            win,
-            opts.loop_ambiguity_ratio * score,
-            Some(exclusion),
-        )
+        .search_bnb_from(&start, opts.loop_ambiguity_ratio * score, Some(exclusion))
         .is_some()
     {
         return Verdict::Ambiguous;

@@ -46,7 +46,11 @@ impl Default for MapLimits {
 #[inline(always)]
 pub fn floor_to_i32(v: f64) -> i32 {
     let t = v as i32;
-    if (t as f64) > v { t - 1 } else { t }
+    if (t as f64) > v {
+        t.saturating_sub(1)
+    } else {
+        t
+    }
 }
 
 impl MapLimits {

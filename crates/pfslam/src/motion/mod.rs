@@ -10,7 +10,9 @@
 pub mod dead_reckoning;
 pub mod odometry_model;
 
-pub use dead_reckoning::{OdometryStep, car_recording, dead_reckon, odometry_steps};
+pub use dead_reckoning::{
+    OdometryStep, car_recording, car_recording_taking_scans, dead_reckon, odometry_steps,
+};
 
 use crate::geometry::{Pose2, wrap_angle};
 use crate::sensors::EncoderParams;

@@ -1,0 +1,147 @@
+//! The default SLAM pipeline in one step: the filter ([`run_slam`]), then the `[graph]` back
+//! end when enabled, then the map rebuilt along the corrected trajectory. `pfslam run`,
+//! `pfslam benchmark` and `pfslam bench-e2e` all call [`run_pipeline`], so the benchmarks
+//! time exactly what `run` does.
+
+use crate::config::Config;
+use crate::filter::slam::{SlamError, SlamEvent, SlamResult, run_slam};
+use crate::geometry::{StampedPose2, Trajectory};
+use crate::graph::{GraphError, GraphStats, optimize_trajectory};
+use crate::map::{MapError, map_with_poses};
+use crate::sensors::Recording;
+use std::time::Instant;
+
+/// Errors of the pipeline: the failing stage's error.
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    /// The filter failed.
+    #[error(transparent)]
+    Slam(#[from] SlamError),
+    /// The back end failed.
+    #[error(transparent)]
+    Graph(#[from] GraphError),
+    /// Rebuilding the map failed.
+    #[error(transparent)]
+    Map(#[from] MapError),
+}
+
+/// What the back end is fed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum BackEndInput {
+    /// The filter's trajectory (the default pipeline).
+    #[default]
+    FrontEnd,
+    /// The raw odometry at every processed scan (to measure the back end alone).
+    Odometry,
+}
+
+/// Options of one pipeline run beyond the [`Config`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PipelineOptions {
+    /// What the back end is fed.
+    pub back_end_input: BackEndInput,
+    /// Rebuild the map along the back end's trajectory (off when only the trajectory is
+    /// wanted, e.g. for the relations metric; the map is then the filter's).
+    pub rebuild_map: bool,
+}
+
+impl Default for PipelineOptions {
+    fn default() -> Self {
+        PipelineOptions {
+            back_end_input: BackEndInput::FrontEnd,
+            rebuild_map: true,
+        }
+    }
+}
+
+/// What [`run_pipeline`] produced.
+#[derive(Debug, Clone)]
+pub struct PipelineResult {
+    /// The final trajectory and map (after the back end when it ran), dead reckoning and the
+    /// filter's statistics.
+    pub result: SlamResult,
+    /// The filter's own trajectory (before the back end).
+    pub front_end: Vec<StampedPose2>,
+    /// The back end's statistics, when it ran.
+    pub graph: Option<GraphStats>,
+    /// Wall seconds of the filter.
+    pub filter_s: f64,
+    /// Wall seconds of the back end and the map rebuild (0 when disabled).
+    pub back_end_s: f64,
+    /// CPU seconds (user + system, all threads) of the filter; `None` off Linux.
+    pub filter_cpu_s: Option<f64>,
+    /// CPU seconds of the back end and the map rebuild; `None` off Linux.
+    pub back_end_cpu_s: Option<f64>,
+}
+
+/// CPU seconds (user + system, all threads) of this process so far; `None` where
+/// `/proc/self/stat` is unavailable (off Linux).
+pub fn process_cpu_s() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which may contain spaces) start at state (field 3);
+    // utime and stime are fields 14 and 15, in clock ticks (100 per second on Linux).
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let mut fields = rest.split_whitespace().skip(11);
+    let utime: f64 = fields.next()?.parse().ok()?;
+    let stime: f64 = fields.next()?.parse().ok()?;
+    Some((utime + stime) / 100.0)
+}
+
+/// Wall clock and process CPU clock together.
+struct Clock(Instant, Option<f64>);
+
+impl Clock {
+    fn start() -> Clock {
+        Clock(Instant::now(), process_cpu_s())
+    }
+
+    /// (wall, CPU) seconds since `start`.
+    fn elapsed(&self) -> (f64, Option<f64>) {
+        let cpu = match (self.1, process_cpu_s()) {
+            (Some(a), Some(b)) => Some(b - a),
+            _ => None,
+        };
+        (self.0.elapsed().as_secs_f64(), cpu)
+    }
+}
+
+/// Runs the filter, then the `[graph]` back end when `config.graph.enabled` (and the map
+/// rebuilt along its trajectory when `options.rebuild_map`).
+pub fn run_pipeline(
+    recording: &Recording,
+    config: &Config,
+    seed: u64,
+    options: &PipelineOptions,
+    observer: &mut dyn FnMut(SlamEvent<'_>),
+) -> Result<PipelineResult, PipelineError> {
+    let t = Clock::start();
+    let mut result = run_slam(recording, config, seed, observer)?;
+    let (filter_s, filter_cpu_s) = t.elapsed();
+    let t = Clock::start();
+    let front_end = result.trajectory.clone();
+    let graph = if config.graph.enabled {
+        let input = match options.back_end_input {
+            BackEndInput::FrontEnd => &result.trajectory,
+            BackEndInput::Odometry => &result.dead_reckoning,
+        };
+        let g = optimize_trajectory(recording, &config.map.scan, input, &config.graph)?;
+        if options.rebuild_map {
+            let poses = Trajectory::new(g.trajectory.clone());
+            result.map = map_with_poses(recording, &poses, &config.map)?.0;
+        }
+        result.trajectory = g.trajectory;
+        Some(g.stats)
+    } else {
+        None
+    };
+    let (back_end_s, back_end_cpu_s) = t.elapsed();
+    Ok(PipelineResult {
+        result,
+        front_end,
+        graph,
+        filter_s,
+        back_end_s,
+        filter_cpu_s,
+        back_end_cpu_s,
+    })
+}

@@ -1,0 +1,63 @@
+//! The one-step pipeline (`pipeline::run_pipeline`: filter, `[graph]` back end, map rebuilt)
+//! that `pfslam run`, `benchmark` and `bench-e2e` share.
+
+use crate::filter::synthetic;
+use pfslam::config::Config;
+use pfslam::filter::FilterMode;
+use pfslam::pipeline::{PipelineOptions, PipelineResult, run_pipeline};
+
+fn config() -> Config {
+    let mut config = Config::default();
+    config.filter.mode = FilterMode::Rbpf;
+    config.filter.particles = 10;
+    config.filter.rbpf.resolution_m = 0.1;
+    config
+}
+
+fn pipeline(rec: &pfslam::sensors::Recording, config: &Config, threads: usize) -> PipelineResult {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap()
+        .install(|| run_pipeline(rec, config, 3, &PipelineOptions::default(), &mut |_| {}).unwrap())
+}
+
+/// The filter's output is the front end; the back end ran and rebuilt the map; everything is
+/// bit-identical with 1 and 2 threads (per-particle matching and the parallel back end).
+#[test]
+fn pipeline_is_filter_then_back_end_and_thread_count_independent() {
+    // 30 s at 3 m/s: more than one lap of the ellipse, so loops close.
+    let rec = synthetic::recording(30.0, 5);
+    let config = config();
+    let a = pipeline(&rec, &config, 1);
+    let b = pipeline(&rec, &config, 2);
+    let stats = a.graph.as_ref().expect("the back end ran");
+    assert!(stats.nodes > 10, "{stats:?}");
+    assert_eq!(a.result.trajectory.len(), a.front_end.len());
+    assert_eq!(a.result.trajectory, b.result.trajectory);
+    assert_eq!(a.front_end, b.front_end);
+    let (ga, gb) = (stats, b.graph.as_ref().unwrap());
+    assert_eq!(
+        (
+            ga.nodes,
+            ga.edges,
+            ga.loop_accepted,
+            ga.final_cost.to_bits()
+        ),
+        (
+            gb.nodes,
+            gb.edges,
+            gb.loop_accepted,
+            gb.final_cost.to_bits()
+        )
+    );
+    assert!(a.result.map.tile_count() > 0);
+    // Without the back end the pipeline is the filter alone, and its output is the front end
+    // the back end was fed.
+    let mut no_graph = config.clone();
+    no_graph.graph.enabled = false;
+    let c = pipeline(&rec, &no_graph, 2);
+    assert!(c.graph.is_none());
+    assert_eq!(c.result.trajectory, a.front_end);
+    assert_ne!(a.result.trajectory, a.front_end, "the back end moved poses");
+}
