@@ -1150,12 +1150,14 @@ mod tests {
                             y_m: sy + r * a.sin(),
                             hit: uni(0.0, 1.0) < 0.9,
                             free_to: 1.0,
+                            z_m: 0.0,
                         }
                     })
                     .collect();
                 let scan = PlanarScan {
                     sensor_x_m: sx,
                     sensor_y_m: sy,
+                    sensor_z_m: None,
                     points,
                 };
                 grid.insert_scan(&scan, &mut scratch).unwrap();
