@@ -42,6 +42,10 @@ pub struct Args {
     /// Sort car CSV rows whose timestamps go backwards instead of rejecting them.
     #[arg(long)]
     pub sort_timestamps: bool,
+    /// Feed the `[graph]` back end the dead reckoning instead of the filter's trajectory (to
+    /// measure the back end alone). With the back end, `front_end.tum` is its input.
+    #[arg(long)]
+    pub graph_on_odometry: bool,
 }
 
 use super::dataset::{Dataset, load_dataset};
@@ -143,7 +147,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         return Err(e);
     }
     let mut result = result;
-    let front_end = result.trajectory.clone();
+    let front_end = match args.graph_on_odometry {
+        true => result.dead_reckoning.clone(),
+        false => result.trajectory.clone(),
+    };
     let graph = if config.graph.enabled {
         // Loop closure: correct the trajectory, then rebuild the map along it.
         let g = optimize_trajectory(&recording, &config.map.scan, &front_end, &config.graph)?;
@@ -199,6 +206,9 @@ fn write_outputs(
     let out = &args.out;
     let t = Instant::now();
     write_tum(&out.join("trajectory.tum"), &result.trajectory)?;
+    if let Some((_, _, front)) = graph {
+        write_tum(&out.join("front_end.tum"), front)?;
+    }
     write_tum(&out.join("dead_reckoning.tum"), &result.dead_reckoning)?;
     let slam: Vec<Pose2> = result.trajectory.iter().map(|p| p.pose).collect();
     let dr: Vec<Pose2> = result.dead_reckoning.iter().map(|p| p.pose).collect();
