@@ -155,6 +155,11 @@ pub struct GraphOptions {
     pub front_end_sigma_m_per_sqrt_m: f64,
     /// ... and in yaw (deg per sqrt(m)).
     pub front_end_sigma_deg_per_sqrt_m: f64,
+    /// Without sequential matching: consecutive keyframes are also tied by the recording's
+    /// odometry yaw (the car's FOG: 0.09 deg off after 1.4 km), with this random-walk
+    /// uncertainty (deg per sqrt(m); 0 = no such edge), so the front end's local heading
+    /// errors do not survive the optimisation.
+    pub odometry_yaw_sigma_deg_per_sqrt_m: f64,
 }
 
 /// A three-way switch: decided from the recording, or forced.
@@ -223,6 +228,7 @@ impl Default for GraphOptions {
             sequential_matching: Switch::Auto,
             front_end_sigma_m_per_sqrt_m: 0.005,
             front_end_sigma_deg_per_sqrt_m: 0.004,
+            odometry_yaw_sigma_deg_per_sqrt_m: 0.002,
         }
     }
 }
@@ -276,6 +282,10 @@ impl GraphOptions {
             ("loop_kernel_width", self.loop_kernel_width),
             ("refine_window_m", self.refine_window_m),
             ("refine_window_deg", self.refine_window_deg),
+            (
+                "odometry_yaw_sigma_deg_per_sqrt_m",
+                self.odometry_yaw_sigma_deg_per_sqrt_m,
+            ),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!("graph.{k} must be finite and >= 0"));
@@ -323,6 +333,8 @@ pub struct GraphStats {
     pub sequential_fallback: usize,
     /// Sequential edges from the front end alone (`sequential_matching` off).
     pub sequential_front_end: usize,
+    /// Odometry-yaw edges (`odometry_yaw_sigma_deg_per_sqrt_m`).
+    pub odometry_yaw_edges: usize,
     /// Loop-closure candidates tried.
     pub loop_candidates: usize,
     /// Closures accepted by the matcher.
@@ -504,6 +516,25 @@ pub fn optimize_trajectory(
         };
         graph.poses.push(pose);
         graph.edges.push(edge);
+        if !seq_matching && opts.odometry_yaw_sigma_deg_per_sqrt_m > 0.0 {
+            let odo = &recording.odometry;
+            let stamp = |kf: &Keyframe| trajectory[kf.traj_index].stamp_ns;
+            if let (Some(a), Some(b)) = (odo.pose_at(stamp(prev)), odo.pose_at(stamp(kf))) {
+                // Yaw only: the x/y standard deviation is far beyond any error.
+                let z = a.between(&b);
+                let root = z.translation_norm_m().max(0.01).sqrt();
+                let sigma_yaw_deg = opts.odometry_yaw_sigma_deg_per_sqrt_m * root;
+                graph.edges.push(Edge::with_sigmas(
+                    k - 1,
+                    k,
+                    z,
+                    1e3,
+                    sigma_yaw_deg.to_radians(),
+                    None,
+                ));
+                stats.odometry_yaw_edges += 1;
+            }
+        }
         // Loop closures.
         if k % opts.loop_every_keyframes == 0 && kf.points_body.len() >= opts.min_points {
             let mut cands: Vec<(f64, usize)> = (0..k)
