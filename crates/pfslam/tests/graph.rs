@@ -292,3 +292,63 @@ fn mit_csail_back_end_beats_the_front_end() {
     );
     assert!(after.trans_m.abs.mean < 0.1 * before.trans_m.abs.mean);
 }
+
+/// The simulated car (tilted LiDAR) driving the example world's 330 m loop twice with a FOG
+/// bias 15x the default's (so the dead reckoning drifts by metres), the back end fed the
+/// dead reckoning: closures are accepted on the second lap, none is removed as an outlier,
+/// and the error falls to a quarter (measured: 0.627 -> 0.162 m).
+#[test]
+fn simulated_car_loop_closes_on_dead_reckoning() {
+    use pfslam::eval::{Association, ate::ate};
+    use pfslam::geometry::{StampedPose2, Trajectory};
+    use pfslam::sim::{SimOptions, World, simulate_car};
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("worlds/example.world");
+    let world = World::from_file(&path).unwrap();
+    let mut opts = SimOptions {
+        duration_s: 140.0,
+        ..SimOptions::default()
+    };
+    opts.car.fog_yaw_bias_rad_per_s = 3e-4;
+    opts.car.lidar_rate_hz = 50.0;
+    let sim = simulate_car(&world, &opts).unwrap();
+    let recording = sim
+        .recording(&pfslam::motion::MotionOptions::default())
+        .unwrap();
+    let mut config = pfslam::config::Config::default();
+    // The front end is the odometry itself, so an odometry-yaw edge would count its yaw
+    // twice, and this FOG's bias is far beyond that edge's default uncertainty.
+    config.graph.odometry_yaw_sigma_deg_per_sqrt_m = 0.0;
+    let front: Vec<StampedPose2> = recording
+        .scans
+        .stamps_ns
+        .iter()
+        .filter_map(|&s| {
+            recording
+                .odometry
+                .pose_at(s)
+                .map(|pose| StampedPose2 { stamp_ns: s, pose })
+        })
+        .collect();
+    let g = pfslam::graph::optimize_trajectory(&recording, &config.map.scan, &front, &config.graph)
+        .unwrap();
+    let gt = Trajectory::new(sim.ground_truth.clone());
+    let assoc = Association::Nearest { tolerance_ns: 0 };
+    let before = ate(&Trajectory::new(front), &gt, assoc).unwrap();
+    let after = ate(&Trajectory::new(g.trajectory), &gt, assoc).unwrap();
+    eprintln!(
+        "simulated loop, dead reckoning {:.3} m -> back end {:.3} m, {:?}",
+        before.aligned_m.rmse, after.aligned_m.rmse, g.stats
+    );
+    assert_eq!(
+        g.stats.sequential_matched, 0,
+        "tilted LiDAR: no sequential matching"
+    );
+    assert!(g.stats.loop_accepted >= 20, "{:?}", g.stats);
+    assert_eq!(g.stats.loop_removed_outliers, 0);
+    assert!(
+        after.aligned_m.rmse < 0.4 * before.aligned_m.rmse,
+        "{} vs {}",
+        after.aligned_m.rmse,
+        before.aligned_m.rmse
+    );
+}

@@ -124,6 +124,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         seed: args.seed,
         out: slam_dir.clone(),
         sort_timestamps: false,
+        graph_on_odometry: false,
     })
     .context("run")?;
 

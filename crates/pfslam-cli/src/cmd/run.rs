@@ -13,7 +13,7 @@ use pfslam::geometry::{Pose2, StampedPose2, Trajectory};
 use pfslam::graph::GraphStats;
 use pfslam::io::map_files::write_map_server;
 use pfslam::io::tum::write_tum;
-use pfslam::pipeline::{PipelineOptions, run_pipeline};
+use pfslam::pipeline::{BackEndInput, PipelineOptions, run_pipeline};
 use pfslam::sensors::Recording;
 use pfslam::viz::map_image::{MapImageOptions, TrajectoryOverlay, write_binary_png, write_map_png};
 use std::io::IsTerminal;
@@ -42,6 +42,10 @@ pub struct Args {
     /// Sort car CSV rows whose timestamps go backwards instead of rejecting them.
     #[arg(long)]
     pub sort_timestamps: bool,
+    /// Feed the `[graph]` back end the dead reckoning instead of the filter's trajectory (to
+    /// measure the back end alone). With the back end, `front_end.tum` is its input.
+    #[arg(long)]
+    pub graph_on_odometry: bool,
 }
 
 use super::dataset::{Dataset, load_dataset};
@@ -98,7 +102,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &recording,
         &config,
         args.seed,
-        &PipelineOptions::default(),
+        &PipelineOptions {
+            back_end_input: match args.graph_on_odometry {
+                true => BackEndInput::Odometry,
+                false => BackEndInput::FrontEnd,
+            },
+            ..PipelineOptions::default()
+        },
         &mut |ev| match ev {
             SlamEvent::Progress { done, total } => {
                 if let Some(b) = &bar {
@@ -151,9 +161,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         return Err(e);
     }
     // The back end's figures: its statistics, the wall time of the map rebuilt along its
-    // trajectory, and the filter's own trajectory.
+    // trajectory, and its input (the filter's trajectory, or the dead reckoning).
     let result = pipeline.result;
-    let (back_end_s, front_end) = (pipeline.back_end_s, pipeline.front_end);
+    let back_end_s = pipeline.back_end_s;
+    let front_end = match args.graph_on_odometry {
+        true => result.dead_reckoning.clone(),
+        false => pipeline.front_end,
+    };
     let graph = pipeline
         .graph
         .map(|g| ((back_end_s - g.total_s).max(0.0), g))
@@ -202,6 +216,9 @@ fn write_outputs(
     let out = &args.out;
     let t = Instant::now();
     write_tum(&out.join("trajectory.tum"), &result.trajectory)?;
+    if let Some((_, _, front)) = graph {
+        write_tum(&out.join("front_end.tum"), front)?;
+    }
     write_tum(&out.join("dead_reckoning.tum"), &result.dead_reckoning)?;
     let slam: Vec<Pose2> = result.trajectory.iter().map(|p| p.pose).collect();
     let dr: Vec<Pose2> = result.dead_reckoning.iter().map(|p| p.pose).collect();
