@@ -84,11 +84,6 @@ pub struct ScanMatchOptions {
     /// 0.3 %) is then corrected too slowly (the map the scan is matched against drifts with
     /// the poses).
     pub match_gain: f64,
-    /// Log-odds at which a wall of the likelihood field reaches full strength (0 = every
-    /// occupied cell at full strength, the default); below, its Gaussian is scaled by
-    /// log-odds / this. A cell hit many times (the consensus of many scans) then attracts
-    /// more than the leading end of a surface the last scans smeared along the street.
-    pub field_saturation_logodds: f64,
     /// The map this mode matches against uses `[map.height]` bins when they are enabled
     /// (false, the default: one log-odds value per cell). The bins' projection marks a cell
     /// occupied when any height hit it — canopy undersides, car roofs — and those returns
@@ -119,7 +114,6 @@ impl Default for ScanMatchOptions {
             field_occupied_prob: 0.0,
             min_update_travel_m: 0.0,
             match_gain: 1.0,
-            field_saturation_logodds: 0.0,
             map_height_bins: false,
         }
     }
@@ -151,11 +145,6 @@ impl ScanMatchOptions {
         if self.xy_search_radius_cells > 32 {
             return Err("filter.scan_match.xy_search_radius_cells must be at most 32".into());
         }
-        if !(self.field_saturation_logodds.is_finite() && self.field_saturation_logodds >= 0.0) {
-            return Err(
-                "filter.scan_match.field_saturation_logodds must be finite and >= 0".into(),
-            );
-        }
         if !(self.match_gain > 0.0 && self.match_gain <= 1.0) {
             return Err("filter.scan_match.match_gain must lie in (0, 1]".into());
         }
@@ -179,12 +168,6 @@ impl ScanMatchOptions {
     pub fn field_source_threshold(&self) -> Option<i16> {
         (self.field_occupied_prob > 0.0)
             .then(|| crate::map::logodds::to_fixed(crate::map::logit(self.field_occupied_prob)))
-    }
-
-    /// The fixed-point log-odds at which a wall reaches full strength (`None`: all full).
-    pub fn field_saturation(&self) -> Option<i16> {
-        (self.field_saturation_logodds > 0.0)
-            .then(|| crate::map::logodds::to_fixed(self.field_saturation_logodds).max(1))
     }
 
     /// True when the odometry moved enough since the last update for a new one.
@@ -252,10 +235,7 @@ pub struct LikelihoodField {
     kernel: Vec<(i32, i32, u8)>,
     kernel_radius: i32,
     occupied: Vec<(i32, i32)>,
-    /// Per occupied cell, its strength (256 = full), with a saturation only.
-    strength: Vec<u16>,
     source_threshold: Option<i16>,
-    saturation: Option<i16>,
 }
 
 impl LikelihoodField {
@@ -268,12 +248,6 @@ impl LikelihoodField {
     /// default: the grid's occupied threshold).
     pub fn set_source_threshold(&mut self, threshold: Option<i16>) {
         self.source_threshold = threshold;
-    }
-
-    /// Walls reach full strength at fixed-point log-odds `saturation`, below it their
-    /// Gaussian is scaled by log-odds / saturation (`None`, the default: all full).
-    pub fn set_saturation(&mut self, saturation: Option<i16>) {
-        self.saturation = saturation;
     }
 
     /// Rebuilds the field over `rect` from the occupied cells of `grid` (Gaussian of
@@ -316,11 +290,8 @@ impl LikelihoodField {
         // Pass 1: observed cells are 0 (free or not yet occupied); collect the occupied ones,
         // including those up to `r` outside the window (they still reach into it).
         self.occupied.clear();
-        self.strength.clear();
         let values = &mut self.values;
         let occupied = &mut self.occupied;
-        let strength = &mut self.strength;
-        let saturation = self.saturation;
         grid.for_each_observed_in(&rect.expanded(r), |c, v| {
             let (li, lj) = (c.i - i0, c.j - j0);
             if li >= 0 && lj >= 0 && li < w && lj < h {
@@ -328,17 +299,8 @@ impl LikelihoodField {
             }
             if v >= occupied_threshold {
                 occupied.push((li, lj));
-                if let Some(sat) = saturation {
-                    let f = (i32::from(v) * 256 / i32::from(sat)).clamp(1, 256);
-                    strength.push(f as u16);
-                }
             }
         });
-        if self.saturation.is_some() {
-            self.build_weighted();
-            self.values.extend_from_slice(&[0; FIELD_PAD]);
-            return;
-        }
         // Pass 2: the Gaussian around every occupied cell (maximum, so order does not matter).
         for &(li, lj) in &self.occupied {
             let inside = li >= r && lj >= r && li < w - r && lj < h - r;
@@ -355,25 +317,6 @@ impl LikelihoodField {
         }
         // Spare bytes after the last cell: the coarse search loads whole 8-byte rows.
         self.values.extend_from_slice(&[0; FIELD_PAD]);
-    }
-
-    /// Pass 2 of [`Self::build`] with wall strengths (`saturation` set).
-    fn build_weighted(&mut self) {
-        let (w, h, r) = (self.w as i32, self.h as i32, self.kernel_radius);
-        for (&(li, lj), &f) in self.occupied.iter().zip(&self.strength) {
-            let inside = li >= r && lj >= r && li < w - r && lj < h - r;
-            for &(di, dj, v) in &self.kernel {
-                let (x, y) = (li + di, lj + dj);
-                if !inside && (x < 0 || y < 0 || x >= w || y >= h) {
-                    continue;
-                }
-                let v = ((u32::from(v) * u32::from(f)) >> 8) as u8;
-                let slot = &mut self.values[(y * w + x) as usize];
-                if v > *slot {
-                    *slot = v;
-                }
-            }
-        }
     }
 
     /// Field value of a cell (0 outside the window).

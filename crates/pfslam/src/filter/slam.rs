@@ -331,7 +331,6 @@ pub fn run_slam_with<P: MapPolicy>(
     let mut match_pts: Vec<[f64; 2]> = Vec::new();
     let mut field = scanmatch::LikelihoodField::new();
     field.set_source_threshold(opts.scan_match.field_source_threshold());
-    field.set_saturation(opts.scan_match.field_saturation());
     let match_params = opts.scan_match.params(config.map.resolution_m);
     let resample_threshold = match mode {
         FilterMode::Seed => opts.resample_threshold,

@@ -180,6 +180,17 @@ pub enum Switch {
     Off,
 }
 
+impl Switch {
+    /// On or off, `auto` taking what the recording decided.
+    pub fn is_on(self, auto: bool) -> bool {
+        match self {
+            Switch::Auto => auto,
+            Switch::On => true,
+            Switch::Off => false,
+        }
+    }
+}
+
 impl Default for GraphOptions {
     fn default() -> Self {
         GraphOptions {
@@ -420,21 +431,16 @@ pub fn optimize_trajectory(
     let mut urgent = false;
     let mut last_opt = 0usize;
     let mut submap_pts: Vec<[f64; 2]> = Vec::new();
-    let seq_matching = match opts.sequential_matching {
-        Switch::On => true,
-        Switch::Off => false,
-        // Level and fixed: the recordings `auto` runs `rbpf` on.
-        Switch::Auto => {
-            crate::filter::FilterMode::Auto.resolve(recording) == crate::filter::FilterMode::Rbpf
-        }
-    };
+    // `auto`: sequential matching for a level LiDAR fixed on the body (the recordings `auto`
+    // runs `rbpf` on); odometry-yaw edges for a LiDAR fixed on the body.
+    let level_and_fixed =
+        crate::filter::FilterMode::Auto.resolve(recording) == crate::filter::FilterMode::Rbpf;
+    let seq_matching = opts.sequential_matching.is_on(level_and_fixed);
     let yaw_edges = !seq_matching
         && opts.odometry_yaw_sigma_deg_per_sqrt_m > 0.0
-        && match opts.odometry_yaw_edges {
-            Switch::On => true,
-            Switch::Off => false,
-            Switch::Auto => recording.body_from_lidar_per_scan.is_none(),
-        };
+        && opts
+            .odometry_yaw_edges
+            .is_on(recording.body_from_lidar_per_scan.is_none());
     for k in 0..keyframes.len() {
         let kf = &keyframes[k];
         if k == 0 {
