@@ -344,26 +344,67 @@ impl LikelihoodField {
         }
         let (i, j) = (floor_to_i32(x), floor_to_i32(y));
         let (ax, ay) = (x - f64::from(i), y - f64::from(j));
-        let (li, lj) = (i - self.i0, j - self.j0);
-        let (f00, f10, f01, f11) =
-            if li >= 0 && lj >= 0 && (li as usize) + 1 < self.w && (lj as usize) + 1 < self.h {
-                // All four corners inside: one bounds check instead of four.
-                let k = lj as usize * self.w + li as usize;
-                let row0 = &self.values[k..k + 2];
-                let row1 = &self.values[k + self.w..k + self.w + 2];
-                (
-                    f64::from(row0[0]),
-                    f64::from(row0[1]),
-                    f64::from(row1[0]),
-                    f64::from(row1[1]),
-                )
-            } else {
-                let f = |di, dj| f64::from(self.at(Cell::new(i + di, j + dj)));
-                (f(0, 0), f(1, 0), f(0, 1), f(1, 1))
-            };
+        let [f00, f10, f01, f11] = self.corners(i, j);
         let bottom = f00 * (1.0 - ax) + f10 * ax;
         let top = f01 * (1.0 - ax) + f11 * ax;
         bottom * (1.0 - ay) + top * ay
+    }
+
+    /// [`Self::bilinear`] of `LANES` points at once: the same operations per lane (so the same
+    /// bits), written lane-wise so that the arithmetic vectorises; only the four byte loads
+    /// per point stay scalar. A lane outside the fast path's range takes [`Self::bilinear`].
+    #[inline(always)]
+    fn bilinear_lanes(&self, u: &[f64; LANES], v: &[f64; LANES]) -> [f64; LANES] {
+        const LIM: f64 = 1e9;
+        let mut x = [0.0; LANES];
+        let mut y = [0.0; LANES];
+        let mut ok = true;
+        for k in 0..LANES {
+            x[k] = u[k] - 0.5;
+            y[k] = v[k] - 0.5;
+            ok &= x[k].abs() < LIM && y[k].abs() < LIM;
+        }
+        if !ok {
+            return std::array::from_fn(|k| self.bilinear(u[k], v[k]));
+        }
+        let mut ax = [0.0; LANES];
+        let mut ay = [0.0; LANES];
+        let mut f = [[0.0; 4]; LANES];
+        for k in 0..LANES {
+            let (i, j) = (floor_to_i32(x[k]), floor_to_i32(y[k]));
+            ax[k] = x[k] - f64::from(i);
+            ay[k] = y[k] - f64::from(j);
+            f[k] = self.corners(i, j);
+        }
+        let mut out = [0.0; LANES];
+        for k in 0..LANES {
+            let [f00, f10, f01, f11] = f[k];
+            let bottom = f00 * (1.0 - ax[k]) + f10 * ax[k];
+            let top = f01 * (1.0 - ax[k]) + f11 * ax[k];
+            out[k] = bottom * (1.0 - ay[k]) + top * ay[k];
+        }
+        out
+    }
+
+    /// The field values at cells `(i, j)`, `(i+1, j)`, `(i, j+1)`, `(i+1, j+1)`: one bounds
+    /// check when all four lie inside the window (nearly always).
+    #[inline(always)]
+    fn corners(&self, i: i32, j: i32) -> [f64; 4] {
+        let (li, lj) = (i - self.i0, j - self.j0);
+        if li >= 0 && lj >= 0 && (li as usize) + 1 < self.w && (lj as usize) + 1 < self.h {
+            let k = lj as usize * self.w + li as usize;
+            let row0 = &self.values[k..k + 2];
+            let row1 = &self.values[k + self.w..k + self.w + 2];
+            [
+                f64::from(row0[0]),
+                f64::from(row0[1]),
+                f64::from(row1[0]),
+                f64::from(row1[1]),
+            ]
+        } else {
+            let f = |di, dj| f64::from(self.at(Cell::new(i + di, j + dj)));
+            [f(0, 0), f(1, 0), f(0, 1), f(1, 1)]
+        }
     }
 
     /// [`Self::bilinear`] as first written (the reference the fast path must equal).
@@ -454,8 +495,21 @@ impl RotatedPoints {
             self.yaw_bits = Some(pose.yaw_rad.to_bits());
         }
         let mut sum = -0.0;
-        for r in &self.points {
-            // Evaluated as `pose.x_m + c * p[0] - s * p[1]` is: left to right.
+        let mut chunks = self.points.chunks_exact(LANES);
+        for quad in &mut chunks {
+            // Per lane the same operations in the same order as the scalar tail below
+            // (`cell_coords`, then `bilinear`): the same bits, in vector registers.
+            let mut u = [0.0; LANES];
+            let mut v = [0.0; LANES];
+            for (k, r) in quad.iter().enumerate() {
+                // Evaluated as `pose.x_m + c * p[0] - s * p[1]` is: left to right.
+                (u[k], v[k]) = limits.cell_coords(pose.x_m + r[0] - r[1], pose.y_m + r[2] + r[3]);
+            }
+            for b in field.bilinear_lanes(&u, &v) {
+                sum += b;
+            }
+        }
+        for r in chunks.remainder() {
             let x = pose.x_m + r[0] - r[1];
             let y = pose.y_m + r[2] + r[3];
             let (u, v) = limits.cell_coords(x, y);
@@ -464,6 +518,9 @@ impl RotatedPoints {
         sum
     }
 }
+
+/// Points per batch of the refinement's interpolation.
+const LANES: usize = 4;
 
 /// Adds, for every base index `b`, the `S x S` block of `values` (row stride `w`) at `b` to
 /// `sums` (row-major, `S * S`). u16 accumulators over blocks of at most 257 points

@@ -13,6 +13,9 @@
 use crate::geometry::{Pose2, wrap_angle};
 use rayon::prelude::*;
 
+/// Points per batch of the interpolated score.
+const LANES: usize = 4;
+
 /// A likelihood-field window with max-pooled levels.
 #[derive(Debug, Clone)]
 pub struct PointField {
@@ -207,20 +210,7 @@ impl PointField {
         // `f64::floor` is a libm call on baseline x86-64; the integer floor is the same value.
         let (i, j) = (floor_to_i64(u), floor_to_i64(v));
         let (au, av) = (u - i as f64, v - j as f64);
-        let (w, h) = (self.w as i64, self.h as i64);
-        // The 2x2 block with one bounds check when it lies inside (nearly always).
-        let block = (i >= 0 && j >= 0 && i + 1 < w && j + 1 < h)
-            .then(|| {
-                let k = (j * w + i) as usize;
-                let lv = &self.levels[0];
-                let row0 = lv.get(k..k + 2)?;
-                let row1 = lv.get(k + w as usize..k + w as usize + 2)?;
-                Some([row0[0], row0[1], row1[0], row1[1]])
-            })
-            .flatten();
-        let [f00, f10, f01, f11] = block.unwrap_or_else(|| {
-            [(0, 0), (1, 0), (0, 1), (1, 1)].map(|(di, dj)| self.at(0, i + di, j + dj))
-        });
+        let [f00, f10, f01, f11] = self.corners(i, j);
         let f = |x: f32| f64::from(x);
         let bottom = f(f00) * (1.0 - au) + f(f10) * au;
         let top = f(f01) * (1.0 - au) + f(f11) * au;
@@ -233,16 +223,72 @@ impl PointField {
             return 0.0;
         }
         let (s, c) = pose.yaw_rad.sin_cos();
-        let sum: f64 = points_body
-            .iter()
-            .map(|p| {
-                self.bilinear(
-                    pose.x_m + c * p[0] - s * p[1],
-                    pose.y_m + s * p[0] + c * p[1],
-                )
-            })
-            .sum();
+        // The same left-to-right fold as `Iterator::sum` (from -0.0), four points at a time:
+        // per lane the operations of `bilinear`, so the same bits, in vector registers.
+        let mut sum = -0.0;
+        let mut chunks = points_body.chunks_exact(LANES);
+        for quad in &mut chunks {
+            let mut u = [0.0; LANES];
+            let mut v = [0.0; LANES];
+            for (k, p) in quad.iter().enumerate() {
+                let x = pose.x_m + c * p[0] - s * p[1];
+                let y = pose.y_m + s * p[0] + c * p[1];
+                u[k] = (x - self.origin_x_m) / self.resolution_m - 0.5;
+                v[k] = (y - self.origin_y_m) / self.resolution_m - 0.5;
+            }
+            for b in self.bilinear_lanes(&u, &v) {
+                sum += b;
+            }
+        }
+        for p in chunks.remainder() {
+            sum += self.bilinear(
+                pose.x_m + c * p[0] - s * p[1],
+                pose.y_m + s * p[0] + c * p[1],
+            );
+        }
         sum / points_body.len() as f64
+    }
+
+    /// [`Self::bilinear`] of `LANES` points given as cell coordinates minus one half (`u`,
+    /// `v` of `bilinear`), lane-wise so that the arithmetic vectorises.
+    #[inline(always)]
+    fn bilinear_lanes(&self, u: &[f64; LANES], v: &[f64; LANES]) -> [f64; LANES] {
+        let mut au = [0.0; LANES];
+        let mut av = [0.0; LANES];
+        let mut f = [[0.0f32; 4]; LANES];
+        for k in 0..LANES {
+            let (i, j) = (floor_to_i64(u[k]), floor_to_i64(v[k]));
+            au[k] = u[k] - i as f64;
+            av[k] = v[k] - j as f64;
+            f[k] = self.corners(i, j);
+        }
+        let mut out = [0.0; LANES];
+        for k in 0..LANES {
+            let [f00, f10, f01, f11] = f[k].map(f64::from);
+            let bottom = f00 * (1.0 - au[k]) + f10 * au[k];
+            let top = f01 * (1.0 - au[k]) + f11 * au[k];
+            out[k] = bottom * (1.0 - av[k]) + top * av[k];
+        }
+        out
+    }
+
+    /// Level-0 values at `(i, j)`, `(i+1, j)`, `(i, j+1)`, `(i+1, j+1)` (0 outside): one
+    /// bounds check when the 2x2 block lies inside (nearly always).
+    #[inline(always)]
+    fn corners(&self, i: i64, j: i64) -> [f32; 4] {
+        let (w, h) = (self.w as i64, self.h as i64);
+        let block = (i >= 0 && j >= 0 && i + 1 < w && j + 1 < h)
+            .then(|| {
+                let k = (j * w + i) as usize;
+                let lv = &self.levels[0];
+                let row0 = lv.get(k..k + 2)?;
+                let row1 = lv.get(k + w as usize..k + w as usize + 2)?;
+                Some([row0[0], row0[1], row1[0], row1[1]])
+            })
+            .flatten();
+        block.unwrap_or_else(|| {
+            [(0, 0), (1, 0), (0, 1), (1, 1)].map(|(di, dj)| self.at(0, i + di, j + dj))
+        })
     }
 
     /// Curvature of the match objective `n * score` at `pose`: minus its Hessian with
@@ -423,6 +469,28 @@ impl PointField {
         min_score: f64,
         exclude: Option<(Pose2, f64, f64)>,
     ) -> Option<(Pose2, f64)> {
+        self.bnb_from(start, min_score, exclude, false)
+    }
+
+    /// Whether [`Self::search_bnb_from`] would find a pose (its `is_some()`): the search
+    /// stops at the first pose above `min_score` instead of looking for the best (the
+    /// ambiguity test needs no more).
+    pub fn any_bnb_from(
+        &self,
+        start: &BnbStart,
+        min_score: f64,
+        exclude: Option<(Pose2, f64, f64)>,
+    ) -> bool {
+        self.bnb_from(start, min_score, exclude, true).is_some()
+    }
+
+    fn bnb_from(
+        &self,
+        start: &BnbStart,
+        min_score: f64,
+        exclude: Option<(Pose2, f64, f64)>,
+        first_only: bool,
+    ) -> Option<(Pose2, f64)> {
         let BnbStart {
             centre,
             yaws,
@@ -443,8 +511,7 @@ impl PointField {
         self.branch(
             cands.clone(),
             cells,
-            *n,
-            *n_pts,
+            (*n, *n_pts, first_only),
             &mut best,
             &mut best_score,
             // A node is excluded when every offset it covers is: its four corners are.
@@ -466,17 +533,18 @@ impl PointField {
         best.map(|c| (pose_of(&c), c.score))
     }
 
-    #[allow(clippy::too_many_arguments)]
+    /// Depth first over `cands` (best bound first); `(n, n_pts, first_only)`: the window's
+    /// half-width in cells, the point count, and whether to stop at the first leaf above
+    /// `best_score`. Returns true when it stopped there.
     fn branch(
         &self,
         mut cands: Vec<Candidate>,
         cells: &[Vec<(i64, i64)>],
-        n: i64,
-        n_pts: f64,
+        (n, n_pts, first_only): (i64, f64, bool),
         best: &mut Option<Candidate>,
         best_score: &mut f64,
         excluded: &dyn Fn(&Candidate) -> bool,
-    ) {
+    ) -> bool {
         cands.sort_by(|a, b| b.score.total_cmp(&a.score));
         for c in cands {
             if c.score <= *best_score {
@@ -488,6 +556,9 @@ impl PointField {
             if c.level == 0 {
                 *best_score = c.score;
                 *best = Some(c);
+                if first_only {
+                    return true;
+                }
                 continue;
             }
             let half = 1i64 << (c.level - 1);
@@ -505,8 +576,18 @@ impl PointField {
                     score: self.cell_sum(&cells[c.yaw_index], c.level - 1, dx, dy) / n_pts,
                 });
             }
-            self.branch(children, cells, n, n_pts, best, best_score, excluded);
+            if self.branch(
+                children,
+                cells,
+                (n, n_pts, first_only),
+                best,
+                best_score,
+                excluded,
+            ) {
+                return true;
+            }
         }
+        false
     }
 
     /// Exhaustive search over `win` around `prior.pose` maximising the cell scores minus
@@ -635,7 +716,9 @@ mod tests {
             let t = f64::from(k);
             // Poses that push points across the field's edges (outside cells count 0).
             let pose = Pose2::new((t * 0.37).sin() * 3.0, (t * 0.23).cos() * 2.5, t * 0.05);
-            let (fast, plain) = (f.score(&body, &pose), score_plain(&f, &body, &pose));
+            // Every remainder of the four-point batches.
+            let part = &body[..body.len() - k as usize % 4];
+            let (fast, plain) = (f.score(part, &pose), score_plain(&f, part, &pose));
             assert_eq!(fast.to_bits(), plain.to_bits(), "{pose:?}");
         }
         for v in [
@@ -655,6 +738,24 @@ mod tests {
             let b = f.search_bnb_from(&start, min, ex);
             assert_eq!(a, b);
             assert!(a.is_some());
+        }
+        // The early-exit existence test answers as the full search does, on both sides of
+        // the best score, with and without exclusions.
+        let (_, top) = f.search_bnb_from(&start, 0.0, None).unwrap();
+        for ratio in [0.0, 0.5, 0.8, 0.9, 0.95, 0.99, 1.0, 1.01] {
+            for ex in [
+                None,
+                Some((centre, 0.05, 0.01)),
+                Some((centre, 0.2, 0.05)),
+                Some((centre, 1.0, 1.0)),
+            ] {
+                let full = f.search_bnb_from(&start, ratio * top, ex).is_some();
+                assert_eq!(
+                    f.any_bnb_from(&start, ratio * top, ex),
+                    full,
+                    "{ratio} {ex:?}"
+                );
+            }
         }
     }
 

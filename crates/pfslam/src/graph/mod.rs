@@ -744,10 +744,7 @@ pub fn verify_closure(
         return Verdict::LowScore;
     };
     let exclusion = (best, opts.loop_ambiguity_radius_m, win.yaw_rad * 2.0 + 1.0);
-    if field
-        .search_bnb_from(&start, opts.loop_ambiguity_ratio * score, Some(exclusion))
-        .is_some()
-    {
+    if field.any_bnb_from(&start, opts.loop_ambiguity_ratio * score, Some(exclusion)) {
         return Verdict::Ambiguous;
     }
     let (pose, _) = field.refine(points_body, &best, win.yaw_step_rad, 4, None);
