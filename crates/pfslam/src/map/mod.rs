@@ -378,6 +378,14 @@ pub fn map_with_poses(
     let Some(k) = last else {
         return Err(MapError::NoScanInserted);
     };
+    tracing::debug!(
+        "map_with_poses: batch buffers {:.1} MB, {} scratches of {:.1} MB",
+        slots.iter().map(|s| s.0.capacity_bytes()).sum::<usize>() as f64 / 1e6,
+        pool.lock().map_or(0, |p| p.len()),
+        pool.lock()
+            .map_or(0, |p| p.first().map_or(0, |i| i.scratch.memory_bytes())) as f64
+            / 1e6
+    );
     // The last inserted scan in the world frame (cheap to redo once).
     let mut ins = ScanInserter::new(projector);
     if per_scan_mount {
