@@ -860,13 +860,28 @@ impl OccupancyGrid {
             |k: usize| ((k >> shift) >> TILE_SHIFT) * blocks + ((k & col_mask) >> TILE_SHIFT);
         // A counting sort by tile; tiles listed in the order the scan first touched them
         // (that of `insert_scan`'s tile runs, so the directory grows the same way).
+        // Counted per run of one tile (touch order is ray order): a counter in a register, not
+        // a chain of stores to one slot.
         block_order.clear();
-        for &k in touched {
-            let b = block_of(k as usize);
+        let mut add = |b: usize, n: u32| {
             if block_count[b] == 0 {
                 block_order.push(b as u32);
             }
-            block_count[b] += 1;
+            block_count[b] += n;
+        };
+        let (mut cur, mut run) = (usize::MAX, 0u32);
+        for &k in touched {
+            let b = block_of(k as usize);
+            if b != cur {
+                if run > 0 {
+                    add(cur, run);
+                }
+                (cur, run) = (b, 0);
+            }
+            run += 1;
+        }
+        if run > 0 {
+            add(cur, run);
         }
         let mut end = 0u32;
         for &b in block_order.iter() {
@@ -885,11 +900,16 @@ impl OccupancyGrid {
             rays: world_scan.points.len(),
             ..InsertStats::default()
         };
+        let (mut cur, mut pos) = (usize::MAX, 0usize);
         for &k in touched {
             let k = k as usize;
             let b = block_of(k);
-            let pos = block_count[b] as usize;
-            block_count[b] += 1;
+            if b != cur {
+                if cur != usize::MAX {
+                    block_count[cur] = pos as u32;
+                }
+                (cur, pos) = (b, block_count[b] as usize);
+            }
             let m = if traced.heights {
                 let m = std::mem::replace(&mut hmask[k], 0);
                 stats.count(m >> 16 != 0);
@@ -900,6 +920,7 @@ impl OccupancyGrid {
                 u32::from(m)
             };
             out.updates[pos] = local_of(k, shift) as u64 | u64::from(m) << 16;
+            pos += 1;
         }
         for &b in block_order.iter() {
             block_count[b as usize] = 0;
@@ -976,27 +997,32 @@ impl OccupancyGrid {
             // Cells whose bins changed since their 2-D value was last projected: a cell's
             // value is only read by a later 2-D update or at the end, so it is projected then
             // (once per batch instead of once per scan; the same value).
-            let mut stale = [0u64; TILE_CELLS / 64];
+            // One byte per cell: flagging neighbours makes no chain of stores to one word.
+            let mut stale = [false; TILE_CELLS];
             for &(_, s, g) in &entries[job.entries.clone()] {
                 let su = scans[s as usize];
                 let g = g as usize;
-                let from = if g == 0 { 0 } else { su.tiles[g - 1].2 as usize };
+                let from = if g == 0 {
+                    0
+                } else {
+                    su.tiles[g - 1].2 as usize
+                };
                 let updates = &su.updates[from..su.tiles[g].2 as usize];
                 match (&mut htile, model) {
                     (Some(ht), Some(model)) if su.heights => {
                         for &u in updates {
                             let local = (u & 0xffff) as usize;
                             update_bins(&mut ht.bins[local], (u >> 16) as u32, &model);
-                            stale[local >> 6] |= 1 << (local & 63);
+                            stale[local] = true;
                         }
                     }
                     _ => {
                         for &u in updates {
                             let local = (u & 0xffff) as usize;
-                            if stale[local >> 6] >> (local & 63) & 1 == 1
+                            if stale[local]
                                 && let (Some(ht), Some(model)) = (&htile, model)
                             {
-                                stale[local >> 6] &= !(1 << (local & 63));
+                                stale[local] = false;
                                 tile.cells[local] =
                                     project_column(&ht.bins[local], &model, f.occupied);
                             }
@@ -1006,13 +1032,8 @@ impl OccupancyGrid {
                 }
             }
             if let (Some(ht), Some(model)) = (&htile, model) {
-                for (w, &word) in stale.iter().enumerate() {
-                    let mut bits = word;
-                    while bits != 0 {
-                        let local = w * 64 + bits.trailing_zeros() as usize;
-                        bits &= bits - 1;
-                        tile.cells[local] = project_column(&ht.bins[local], &model, f.occupied);
-                    }
+                for (local, _) in stale.iter().enumerate().filter(|s| *s.1) {
+                    tile.cells[local] = project_column(&ht.bins[local], &model, f.occupied);
                 }
             }
         };
