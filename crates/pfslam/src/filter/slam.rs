@@ -10,10 +10,12 @@ use super::{FilterError, FilterMode, ParticleFilter, ParticleMaps, SERIAL_BELOW_
 use crate::config::Config;
 use crate::geometry::{Pose2, StampedPose2};
 use crate::map::{
-    Cell, InsertScratch, MapError, MapLimits, OccupancyGrid, PlanarScan, ScanProjector, to_world,
+    Cell, InsertScratch, MapError, MapLimits, OccupancyGrid, PlanarScan, ScanProjector,
+    ScanUpdates, to_world,
 };
 use crate::sensors::Recording;
 use rand_xoshiro::Xoshiro256PlusPlus;
+use rayon::prelude::*;
 use serde::Serialize;
 use std::time::Instant;
 
@@ -85,15 +87,29 @@ pub trait MapPolicy: ParticleMaps {
     fn resampled(&mut self, ancestors: &[usize]);
     /// The map to report for particle `best`.
     fn map_for_output(&self, best: usize) -> &OccupancyGrid;
+    /// Completes integrations a policy deferred (the loop calls it before every read of the
+    /// maps). The default defers nothing.
+    fn flush(&mut self) -> Result<(), MapError> {
+        Ok(())
+    }
 }
 
 /// The seeds' policy: one map, updated with the best particle's pose.
+///
+/// Scans are queued (in the world frame) and inserted at [`MapPolicy::flush`]: the scans
+/// between two updates are traced in parallel and applied in their order
+/// ([`OccupancyGrid::trace_updates`] / [`OccupancyGrid::apply_updates`]), which leaves the
+/// grid exactly as inserting them one by one would. `grid` is complete after a flush.
 #[derive(Debug, Clone)]
 pub struct BestParticleMap {
     /// The map.
     pub grid: OccupancyGrid,
-    scratch: InsertScratch,
-    world: PlanarScan,
+    /// One scratch per tracing task (a mask of megabytes each: reused, never per scan).
+    scratches: Vec<InsertScratch>,
+    /// Queued world-frame scans: the first `queued` are pending (the rest keep allocations).
+    pending: Vec<PlanarScan>,
+    queued: usize,
+    traced: Vec<ScanUpdates>,
 }
 
 impl BestParticleMap {
@@ -101,8 +117,10 @@ impl BestParticleMap {
     pub fn new(grid: OccupancyGrid) -> Self {
         BestParticleMap {
             grid,
-            scratch: InsertScratch::new(),
-            world: PlanarScan::default(),
+            scratches: vec![InsertScratch::new()],
+            pending: Vec::new(),
+            queued: 0,
+            traced: Vec::new(),
         }
     }
 }
@@ -122,8 +140,11 @@ impl MapPolicy for BestParticleMap {
         body_scan: &PlanarScan,
     ) -> Result<(), MapError> {
         let pose = poses.get(best).copied().unwrap_or_default();
-        to_world(body_scan, &pose, &mut self.world);
-        self.grid.insert_scan(&self.world, &mut self.scratch)?;
+        if self.pending.len() <= self.queued {
+            self.pending.push(PlanarScan::default());
+        }
+        to_world(body_scan, &pose, &mut self.pending[self.queued]);
+        self.queued += 1;
         Ok(())
     }
     fn integrate_at(
@@ -136,6 +157,43 @@ impl MapPolicy for BestParticleMap {
     fn resampled(&mut self, _ancestors: &[usize]) {}
     fn map_for_output(&self, _best: usize) -> &OccupancyGrid {
         &self.grid
+    }
+    fn flush(&mut self) -> Result<(), MapError> {
+        let n = std::mem::take(&mut self.queued);
+        if n == 0 {
+            return Ok(());
+        }
+        if n == 1 {
+            self.grid
+                .insert_scan(&self.pending[0], &mut self.scratches[0])?;
+            return Ok(());
+        }
+        // Contiguous runs of scans, one task (and scratch) each; tracing reads the grid only,
+        // so the runs are independent, and the updates are applied in scan order.
+        let tasks = rayon::current_num_threads().clamp(1, n);
+        let per_task = n.div_ceil(tasks);
+        let tasks = n.div_ceil(per_task);
+        if self.scratches.len() < tasks {
+            self.scratches.resize_with(tasks, InsertScratch::new);
+        }
+        if self.traced.len() < n {
+            self.traced.resize_with(n, ScanUpdates::new);
+        }
+        let grid = &self.grid;
+        let traced: Result<(), MapError> = self.traced[..n]
+            .par_chunks_mut(per_task)
+            .zip(self.pending[..n].par_chunks(per_task))
+            .zip(self.scratches.par_iter_mut())
+            .try_for_each(|((out, scans), scratch)| {
+                for (updates, scan) in out.iter_mut().zip(scans) {
+                    grid.trace_updates(scan, scratch, updates)?;
+                }
+                Ok(())
+            });
+        traced?;
+        let updates: Vec<&ScanUpdates> = self.traced[..n].iter().collect();
+        self.grid.apply_updates(&updates);
+        Ok(())
     }
 }
 
@@ -381,6 +439,9 @@ pub fn run_slam_with<P: MapPolicy>(
                 0
             } else {
                 let t = Instant::now();
+                policy.flush()?;
+                stats.timings.map_update_s += t.elapsed().as_secs_f64();
+                let t = Instant::now();
                 let report = match mode {
                     FilterMode::Seed => pf.reweight(
                         &*policy,
@@ -479,6 +540,7 @@ pub fn run_slam_with<P: MapPolicy>(
         stats.scans_processed += 1;
         let done = i + 1;
         if report_progress(observer, done, total, &stats, opts.snapshot_every_scans) {
+            policy.flush()?;
             observer(SlamEvent::Snapshot {
                 scans_done: done,
                 map: policy.map_for_output(pf.particles.best_index()),
@@ -486,6 +548,9 @@ pub fn run_slam_with<P: MapPolicy>(
             });
         }
     }
+    let t = Instant::now();
+    policy.flush()?;
+    stats.timings.map_update_s += t.elapsed().as_secs_f64();
     stats.finish_means(neff_sum, score_sum);
     stats.timings.total_s = t_start.elapsed().as_secs_f64();
     let map = policy.map_for_output(pf.particles.best_index()).clone();
