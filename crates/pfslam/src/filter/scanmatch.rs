@@ -671,17 +671,28 @@ pub fn match_scan(
     for &dyaw in &params.yaw_offsets_rad {
         let (s, c) = (predicted.yaw_rad + dyaw).sin_cos();
         scratch.base.clear();
-        for p in points_body {
-            let x = predicted.x_m + c * p[0] - s * p[1];
-            let y = predicted.y_m + s * p[0] + c * p[1];
-            let cell = limits.cell_of(x, y);
+        let base = &mut scratch.base;
+        let mut push = |cell: Cell| {
             let (li, lj) = (cell.i - field.i0, cell.j - field.j0);
             if li >= r && lj >= r && li < w - r && lj < h - r {
-                scratch
-                    .base
-                    .push((lj - r) as usize * field.w + (li - r) as usize);
+                base.push((lj - r) as usize * field.w + (li - r) as usize);
             }
+        };
+        let cell_of = |p: &[f64; 2]| {
+            let x = predicted.x_m + c * p[0] - s * p[1];
+            let y = predicted.y_m + s * p[0] + c * p[1];
+            limits.cell_of(x, y)
+        };
+        // Cells of four points at a time (the arithmetic vectorises), then kept in order.
+        let mut chunks = points_body.chunks_exact(LANES);
+        for quad in &mut chunks {
+            let mut cells = [Cell::new(0, 0); LANES];
+            for (cell, p) in cells.iter_mut().zip(quad) {
+                *cell = cell_of(p);
+            }
+            cells.into_iter().for_each(&mut push);
         }
+        chunks.remainder().iter().map(cell_of).for_each(push);
         // Point by point, the side x side block of the field under it is added to the sums
         // of all offsets at once: contiguous rows instead of one scattered byte per point
         // and offset. Integer sums: the same values in any order.
