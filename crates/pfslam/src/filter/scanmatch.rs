@@ -16,6 +16,7 @@
 use crate::geometry::Pose2;
 use crate::map::limits::floor_to_i32;
 use crate::map::{Cell, CellRect, MapLimits, OccupancyGrid};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// Options of the scan-matching mode (`[filter.scan_match]`).
@@ -220,6 +221,9 @@ pub struct MatchParams {
     pub refine_levels: u32,
 }
 
+/// Rows per parallel band of the field build.
+const FIELD_BAND_ROWS: usize = 32;
+
 /// Zero bytes kept after a field's cells (never read as cells).
 const FIELD_PAD: usize = 8;
 
@@ -234,7 +238,8 @@ pub struct LikelihoodField {
     values: Vec<u8>,
     kernel: Vec<(i32, i32, u8)>,
     kernel_radius: i32,
-    occupied: Vec<(i32, i32)>,
+    /// Occupied cells reaching each band of rows (pass 1 of the build).
+    occupied: Vec<Vec<(i32, i32)>>,
     source_threshold: Option<i16>,
 }
 
@@ -284,37 +289,59 @@ impl LikelihoodField {
         let unknown = (255.0 * unknown_value.clamp(0.0, 1.0)).round() as u8;
         self.values.clear();
         self.values.resize(self.w * self.h, unknown);
-        let (w, h) = (self.w as i32, self.h as i32);
+        let w = self.w as i32;
         let (i0, j0) = (self.i0, self.j0);
         let occupied_threshold = self.source_threshold.unwrap_or(grid.fixed().occupied);
-        // Pass 1: observed cells are 0 (free or not yet occupied); collect the occupied ones,
-        // including those up to `r` outside the window (they still reach into it).
-        self.occupied.clear();
-        let values = &mut self.values;
-        let occupied = &mut self.occupied;
-        grid.for_each_observed_in(&rect.expanded(r), |c, v| {
-            let (li, lj) = (c.i - i0, c.j - j0);
-            if li >= 0 && lj >= 0 && li < w && lj < h {
-                values[(lj * w + li) as usize] = 0;
-            }
-            if v >= occupied_threshold {
-                occupied.push((li, lj));
-            }
-        });
-        // Pass 2: the Gaussian around every occupied cell (maximum, so order does not matter).
-        for &(li, lj) in &self.occupied {
-            let inside = li >= r && lj >= r && li < w - r && lj < h - r;
-            for &(di, dj, v) in &self.kernel {
-                let (x, y) = (li + di, lj + dj);
-                if !inside && (x < 0 || y < 0 || x >= w || y >= h) {
-                    continue;
-                }
-                let slot = &mut self.values[(y * w + x) as usize];
-                if v > *slot {
-                    *slot = v;
-                }
-            }
+        // Bands of rows in parallel, each with both passes over its own rows: a cell's value
+        // is 0 if observed, raised to the maximum kernel value of the walls within reach
+        // (the maximum, so neither the order nor the band split changes it).
+        let bands = self.h.div_ceil(FIELD_BAND_ROWS);
+        if self.occupied.len() < bands {
+            self.occupied.resize_with(bands, Vec::new);
         }
+        let kernel = &self.kernel;
+        let n_cells = self.w * self.h;
+        self.values[..n_cells]
+            .par_chunks_mut((self.w * FIELD_BAND_ROWS).max(1))
+            .zip(self.occupied.par_iter_mut())
+            .enumerate()
+            .for_each(|(b, (band, occupied))| {
+                let y0 = (b * FIELD_BAND_ROWS) as i32;
+                let y1 = y0 + (band.len() / self.w) as i32;
+                let band_rect = CellRect {
+                    min_i: rect.min_i,
+                    min_j: j0 + y0,
+                    max_i: rect.max_i,
+                    max_j: j0 + y1 - 1,
+                };
+                // Pass 1: observed cells are 0 (free or not yet occupied); collect the
+                // occupied ones, including those up to `r` outside the band (they still
+                // reach into it).
+                occupied.clear();
+                grid.for_each_observed_in(&band_rect.expanded(r), |c, v| {
+                    let (li, lj) = (c.i - i0, c.j - j0);
+                    if li >= 0 && lj >= y0 && li < w && lj < y1 {
+                        band[((lj - y0) * w + li) as usize] = 0;
+                    }
+                    if v >= occupied_threshold {
+                        occupied.push((li, lj));
+                    }
+                });
+                // Pass 2: the Gaussian around every occupied cell.
+                for &(li, lj) in occupied.iter() {
+                    let inside = li >= r && lj >= y0 + r && li < w - r && lj < y1 - r;
+                    for &(di, dj, v) in kernel {
+                        let (x, y) = (li + di, lj + dj);
+                        if !inside && (x < 0 || y < y0 || x >= w || y >= y1) {
+                            continue;
+                        }
+                        let slot = &mut band[((y - y0) * w + x) as usize];
+                        if v > *slot {
+                            *slot = v;
+                        }
+                    }
+                }
+            });
         // Spare bytes after the last cell: the coarse search loads whole 8-byte rows.
         self.values.extend_from_slice(&[0; FIELD_PAD]);
     }
@@ -1042,6 +1069,73 @@ mod tests {
             ),
             objective: obj,
             fit: sum / (255.0 * n),
+        }
+    }
+
+    /// The field build as first written (one pass over the window, then the kernels).
+    fn field_values_reference(
+        grid: &OccupancyGrid,
+        rect: &CellRect,
+        sigma_m: f64,
+        unknown_value: f64,
+    ) -> Vec<u8> {
+        let sigma_cells = (sigma_m / grid.limits().resolution_m()).max(0.25);
+        let r = (3.0 * sigma_cells).ceil().min(16.0) as i32;
+        let (w, h) = (rect.width() as i32, rect.height() as i32);
+        let unknown = (255.0 * unknown_value.clamp(0.0, 1.0)).round() as u8;
+        let mut values = vec![unknown; (w * h) as usize];
+        let mut occupied = Vec::new();
+        grid.for_each_observed_in(&rect.expanded(r), |c, v| {
+            let (li, lj) = (c.i - rect.min_i, c.j - rect.min_j);
+            if li >= 0 && lj >= 0 && li < w && lj < h {
+                values[(lj * w + li) as usize] = 0;
+            }
+            if v >= grid.fixed().occupied {
+                occupied.push((li, lj));
+            }
+        });
+        for (li, lj) in occupied {
+            for dj in -r..=r {
+                for di in -r..=r {
+                    let d2 = f64::from(di * di + dj * dj);
+                    let v = (255.0 * (-0.5 * d2 / (sigma_cells * sigma_cells)).exp()).round();
+                    let (x, y) = (li + di, lj + dj);
+                    if v >= 1.0 && x >= 0 && y >= 0 && x < w && y < h {
+                        let slot = &mut values[(y * w + x) as usize];
+                        *slot = (*slot).max(v as u8);
+                    }
+                }
+            }
+        }
+        values
+    }
+
+    #[test]
+    fn banded_field_build_equals_the_plain_rule() {
+        use rand::{RngExt, SeedableRng};
+        let mut grid = OccupancyGrid::new(&MapOptions::default()).unwrap();
+        let mut world = PlanarScan::default();
+        let mut scratch = crate::map::InsertScratch::new();
+        to_world(&room_scan(), &Pose2::new(0.0, 0.0, 0.0), &mut world);
+        grid.insert_scan(&world, &mut scratch).unwrap();
+        to_world(&room_scan(), &Pose2::new(0.3, 0.1, 0.02), &mut world);
+        grid.insert_scan(&world, &mut scratch).unwrap();
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(5);
+        let mut field = LikelihoodField::new();
+        for case in 0..40 {
+            // Windows of 1 to ~150 rows (several bands, partial last bands), cutting walls.
+            let (min_i, min_j) = (rng.random_range(-80..20), rng.random_range(-80..20));
+            let rect = CellRect {
+                min_i,
+                min_j,
+                max_i: min_i + rng.random_range(0..150),
+                max_j: min_j + rng.random_range(0..150),
+            };
+            let (sigma, unknown) = (rng.random_range(0.03..0.5), [0.0, 0.5, 1.0][case % 3]);
+            field.build(&grid, &rect, sigma, unknown);
+            let want = field_values_reference(&grid, &rect, sigma, unknown);
+            assert_eq!(&field.values[..want.len()], &want[..], "case {case}");
+            assert_eq!(field.values.len(), want.len() + FIELD_PAD);
         }
     }
 
