@@ -403,14 +403,7 @@ impl LikelihoodField {
             ay[k] = y[k] - f64::from(j);
             f[k] = self.corners(i, j);
         }
-        let mut out = [0.0; LANES];
-        for k in 0..LANES {
-            let [f00, f10, f01, f11] = f[k];
-            let bottom = f00 * (1.0 - ax[k]) + f10 * ax[k];
-            let top = f01 * (1.0 - ax[k]) + f11 * ax[k];
-            out[k] = bottom * (1.0 - ay[k]) + top * ay[k];
-        }
-        out
+        mix_lanes(&f, &ax, &ay)
     }
 
     /// The field values at cells `(i, j)`, `(i+1, j)`, `(i, j+1)`, `(i+1, j+1)`: one bounds
@@ -546,8 +539,26 @@ impl RotatedPoints {
     }
 }
 
-/// Points per batch of the refinement's interpolation.
-const LANES: usize = 4;
+/// Points per batch of the interpolations (here and in the back end's matcher).
+pub(crate) const LANES: usize = 4;
+
+/// The bilinear mix per lane of corners `[f00, f10, f01, f11]` at fractions `(ax, ay)`, in
+/// the order of the scalar interpolations (so the same bits).
+#[inline(always)]
+pub(crate) fn mix_lanes(
+    f: &[[f64; 4]; LANES],
+    ax: &[f64; LANES],
+    ay: &[f64; LANES],
+) -> [f64; LANES] {
+    let mut out = [0.0; LANES];
+    for k in 0..LANES {
+        let [f00, f10, f01, f11] = f[k];
+        let bottom = f00 * (1.0 - ax[k]) + f10 * ax[k];
+        let top = f01 * (1.0 - ax[k]) + f11 * ax[k];
+        out[k] = bottom * (1.0 - ay[k]) + top * ay[k];
+    }
+    out
+}
 
 /// Adds, for every base index `b`, the `S x S` block of `values` (row stride `w`) at `b` to
 /// `sums` (row-major, `S * S`). u16 accumulators over blocks of at most 257 points

@@ -10,11 +10,9 @@
 //!   deviation from a prediction (sequential edges: along a corridor the prediction decides).
 //! - [`PointField::refine`]: sub-cell pattern search on the bilinearly interpolated field.
 
+use crate::filter::scanmatch::{LANES, mix_lanes};
 use crate::geometry::{Pose2, wrap_angle};
 use rayon::prelude::*;
-
-/// Points per batch of the interpolated score.
-const LANES: usize = 4;
 
 /// A likelihood-field window with max-pooled levels.
 #[derive(Debug, Clone)]
@@ -255,21 +253,14 @@ impl PointField {
     fn bilinear_lanes(&self, u: &[f64; LANES], v: &[f64; LANES]) -> [f64; LANES] {
         let mut au = [0.0; LANES];
         let mut av = [0.0; LANES];
-        let mut f = [[0.0f32; 4]; LANES];
+        let mut f = [[0.0; 4]; LANES];
         for k in 0..LANES {
             let (i, j) = (floor_to_i64(u[k]), floor_to_i64(v[k]));
             au[k] = u[k] - i as f64;
             av[k] = v[k] - j as f64;
-            f[k] = self.corners(i, j);
+            f[k] = self.corners(i, j).map(f64::from);
         }
-        let mut out = [0.0; LANES];
-        for k in 0..LANES {
-            let [f00, f10, f01, f11] = f[k].map(f64::from);
-            let bottom = f00 * (1.0 - au[k]) + f10 * au[k];
-            let top = f01 * (1.0 - au[k]) + f11 * au[k];
-            out[k] = bottom * (1.0 - av[k]) + top * av[k];
-        }
-        out
+        mix_lanes(&f, &au, &av)
     }
 
     /// Level-0 values at `(i, j)`, `(i+1, j)`, `(i, j+1)`, `(i+1, j+1)` (0 outside): one
