@@ -174,51 +174,6 @@ impl Trajectory {
     }
 }
 
-/// The planar transform `(T, s)` minimising `sum |b_i - (s R a_i + t)|^2` over point pairs
-/// `(a_i, b_i)` (closed-form 2-D Horn/Umeyama): centroids, the angle of the cross-covariance,
-/// and with `with_scale` the scale `|cross-covariance| / var(a)` (else 1: a rigid fit). `T`
-/// carries `R` and `t` (its yaw is the angle); the scale is 1 when the `a` points do not
-/// spread. An empty input gives the identity.
-pub fn align_points_2d(pairs: &[([f64; 2], [f64; 2])], with_scale: bool) -> (Pose2, f64) {
-    if pairs.is_empty() {
-        return (Pose2::IDENTITY, 1.0);
-    }
-    let n = pairs.len() as f64;
-    let (mut ex, mut ey, mut gx, mut gy) = (0.0, 0.0, 0.0, 0.0);
-    for (a, b) in pairs {
-        ex += a[0];
-        ey += a[1];
-        gx += b[0];
-        gy += b[1];
-    }
-    let (ex, ey, gx, gy) = (ex / n, ey / n, gx / n, gy / n);
-    let (mut sin_sum, mut cos_sum, mut var_a) = (0.0, 0.0, 0.0);
-    for (a, b) in pairs {
-        let (ax, ay) = (a[0] - ex, a[1] - ey);
-        let (bx, by) = (b[0] - gx, b[1] - gy);
-        sin_sum += ax * by - ay * bx;
-        cos_sum += ax * bx + ay * by;
-        var_a += ax * ax + ay * ay;
-    }
-    let theta = if sin_sum == 0.0 && cos_sum == 0.0 {
-        0.0
-    } else {
-        sin_sum.atan2(cos_sum)
-    };
-    let scale = if with_scale && var_a > 0.0 {
-        sin_sum.hypot(cos_sum) / var_a
-    } else {
-        1.0
-    };
-    let (s, c) = theta.sin_cos();
-    let t = Pose2::new(
-        gx - scale * (c * ex - s * ey),
-        gy - scale * (s * ex + c * ey),
-        theta,
-    );
-    (t, scale)
-}
-
 /// A 3-D rigid transform stored as a rotation matrix and a translation, exactly as
 /// calibration files give them (the rotation is not re-orthonormalised, so the numbers of a
 /// calibration file survive a round trip unchanged).

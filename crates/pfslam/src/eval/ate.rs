@@ -3,7 +3,7 @@
 //! scale) and without alignment.
 
 use super::{Association, ErrorStats, EvalError, PosePair, associate};
-use crate::geometry::{Pose2, Trajectory, align_points_2d, wrap_angle};
+use crate::geometry::{Pose2, Trajectory, wrap_angle};
 use serde::{Deserialize, Serialize};
 
 /// ATE of an estimate against ground truth.
@@ -28,16 +28,32 @@ pub struct AteResult {
 /// The rigid planar transform `T` minimising `sum |g_i - T e_i|^2` over the positions (no
 /// scale): centroids, then the angle of the cross-covariance.
 pub fn align_se2(pairs: &[PosePair]) -> Pose2 {
-    let points: Vec<([f64; 2], [f64; 2])> = pairs
-        .iter()
-        .map(|p| {
-            (
-                [p.estimate.x_m, p.estimate.y_m],
-                [p.ground_truth.x_m, p.ground_truth.y_m],
-            )
-        })
-        .collect();
-    align_points_2d(&points, false).0
+    if pairs.is_empty() {
+        return Pose2::IDENTITY;
+    }
+    let n = pairs.len() as f64;
+    let (mut ex, mut ey, mut gx, mut gy) = (0.0, 0.0, 0.0, 0.0);
+    for p in pairs {
+        ex += p.estimate.x_m;
+        ey += p.estimate.y_m;
+        gx += p.ground_truth.x_m;
+        gy += p.ground_truth.y_m;
+    }
+    let (ex, ey, gx, gy) = (ex / n, ey / n, gx / n, gy / n);
+    let (mut sin_sum, mut cos_sum) = (0.0, 0.0);
+    for p in pairs {
+        let (ax, ay) = (p.estimate.x_m - ex, p.estimate.y_m - ey);
+        let (bx, by) = (p.ground_truth.x_m - gx, p.ground_truth.y_m - gy);
+        sin_sum += ax * by - ay * bx;
+        cos_sum += ax * bx + ay * by;
+    }
+    let theta = if sin_sum == 0.0 && cos_sum == 0.0 {
+        0.0
+    } else {
+        sin_sum.atan2(cos_sum)
+    };
+    let (s, c) = theta.sin_cos();
+    Pose2::new(gx - (c * ex - s * ey), gy - (s * ex + c * ey), theta)
 }
 
 fn errors(pairs: &[PosePair], t: &Pose2) -> (Vec<f64>, Vec<f64>) {
