@@ -50,14 +50,17 @@ fn bench(c: &mut Criterion) {
     };
     let pools: Vec<rayon::ThreadPool> = [1, 2]
         .iter()
-        .map(|&n| rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap())
+        .map(|&n| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .unwrap()
+        })
         .collect();
     for (name, opts) in [("bins", MapOptions::default()), ("flat", flat)] {
         let mut group = c.benchmark_group(format!("map_with_poses/{name}"));
         group.throughput(Throughput::Elements(rec.scans.len() as u64));
-        group.bench_function("sequential", |b| {
-            b.iter(|| sequential(&rec, &poses, &opts))
-        });
+        group.bench_function("sequential", |b| b.iter(|| sequential(&rec, &poses, &opts)));
         for (pool, n) in pools.iter().zip([1, 2]) {
             group.bench_function(format!("threads_{n}"), |b| {
                 b.iter(|| pool.install(|| map_with_poses(&rec, &poses, &opts).unwrap()))

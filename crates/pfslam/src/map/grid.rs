@@ -486,11 +486,16 @@ pub struct ScanUpdates {
     heights: bool,
     /// Tiles in first-touch order: (tile column, tile row, end of its updates).
     tiles: Vec<(i32, i32, u32)>,
-    /// Per cell: its index within its tile (bits 0-15) and its mark (bits 16-47: a 2-D mark,
-    /// or the bins passed free (low 16 bits) and hit (high 16 bits)).
-    updates: Vec<u64>,
+    /// Per cell: its index within its tile (bits 0-11) and, for a 2-D mark, bit 15 set when
+    /// occupied (2 bytes per update: the batch's lists are written and read once each).
+    updates: Vec<u16>,
+    /// With `heights`, per cell: the bins passed free (low 16 bits) and hit (high 16 bits).
+    bin_marks: Vec<u32>,
     stats: InsertStats,
 }
+
+/// Bit of a 2-D update in [`ScanUpdates`]: the cell is occupied.
+const UPDATE_OCCUPIED: u16 = 1 << 15;
 
 impl ScanUpdates {
     /// Empty updates (nothing to apply).
@@ -502,6 +507,7 @@ impl ScanUpdates {
     pub fn clear(&mut self) {
         self.tiles.clear();
         self.updates.clear();
+        self.bin_marks.clear();
         self.stats = InsertStats::default();
         self.heights = false;
     }
@@ -524,7 +530,8 @@ impl ScanUpdates {
     /// Bytes held by the buffers (their capacity).
     pub fn capacity_bytes(&self) -> usize {
         self.tiles.capacity() * std::mem::size_of::<(i32, i32, u32)>()
-            + self.updates.capacity() * std::mem::size_of::<u64>()
+            + self.updates.capacity() * std::mem::size_of::<u16>()
+            + self.bin_marks.capacity() * std::mem::size_of::<u32>()
     }
 }
 
@@ -545,10 +552,10 @@ fn local_of(k: usize, shift: u32) -> usize {
     (((k >> shift) & TILE_MASK as usize) << TILE_SHIFT) | (k & TILE_MASK as usize)
 }
 
-/// One scan's update of a cell: the occupied update for `MARK_OCCUPIED`, else the free one.
+/// One scan's update of a cell: the occupied update when `occupied`, else the free one.
 #[inline(always)]
-fn apply_mark(cell: &mut i16, mark: u8, f: &FixedLogOdds) {
-    let delta = if mark == MARK_OCCUPIED { f.hit } else { f.miss };
+fn apply_mark(cell: &mut i16, occupied: bool, f: &FixedLogOdds) {
+    let delta = if occupied { f.hit } else { f.miss };
     *cell = f.apply(*cell, delta);
 }
 
@@ -818,7 +825,7 @@ impl OccupancyGrid {
                         let k = k as usize;
                         let m = std::mem::replace(&mut mask[k], MARK_NONE);
                         stats.count(m == MARK_OCCUPIED);
-                        apply_mark(&mut tile.cells[local_of(k, shift)], m, &f);
+                        apply_mark(&mut tile.cells[local_of(k, shift)], m == MARK_OCCUPIED, &f);
                     }
                 });
             }
@@ -896,6 +903,9 @@ impl OccupancyGrid {
         }
         out.heights = traced.heights;
         out.updates.resize(touched.len(), 0);
+        if traced.heights {
+            out.bin_marks.resize(touched.len(), 0);
+        }
         let mut stats = InsertStats {
             rays: world_scan.points.len(),
             ..InsertStats::default()
@@ -910,16 +920,17 @@ impl OccupancyGrid {
                 }
                 (cur, pos) = (b, block_count[b] as usize);
             }
-            let m = if traced.heights {
+            let local = local_of(k, shift) as u16;
+            if traced.heights {
                 let m = std::mem::replace(&mut hmask[k], 0);
                 stats.count(m >> 16 != 0);
-                m
+                out.updates[pos] = local;
+                out.bin_marks[pos] = m;
             } else {
-                let m = std::mem::replace(&mut mask[k], MARK_NONE);
-                stats.count(m == MARK_OCCUPIED);
-                u32::from(m)
-            };
-            out.updates[pos] = local_of(k, shift) as u64 | u64::from(m) << 16;
+                let occupied = std::mem::replace(&mut mask[k], MARK_NONE) == MARK_OCCUPIED;
+                stats.count(occupied);
+                out.updates[pos] = local | if occupied { UPDATE_OCCUPIED } else { 0 };
+            }
             pos += 1;
         }
         for &b in block_order.iter() {
@@ -1007,18 +1018,19 @@ impl OccupancyGrid {
                 } else {
                     su.tiles[g - 1].2 as usize
                 };
-                let updates = &su.updates[from..su.tiles[g].2 as usize];
+                let range = from..su.tiles[g].2 as usize;
+                let updates = &su.updates[range.clone()];
                 match (&mut htile, model) {
                     (Some(ht), Some(model)) if su.heights => {
-                        for &u in updates {
-                            let local = (u & 0xffff) as usize;
-                            update_bins(&mut ht.bins[local], (u >> 16) as u32, &model);
+                        for (&u, &m) in updates.iter().zip(&su.bin_marks[range]) {
+                            let local = usize::from(u);
+                            update_bins(&mut ht.bins[local], m, &model);
                             stale[local] = true;
                         }
                     }
                     _ => {
                         for &u in updates {
-                            let local = (u & 0xffff) as usize;
+                            let local = usize::from(u & !UPDATE_OCCUPIED);
                             if stale[local]
                                 && let (Some(ht), Some(model)) = (&htile, model)
                             {
@@ -1026,7 +1038,7 @@ impl OccupancyGrid {
                                 tile.cells[local] =
                                     project_column(&ht.bins[local], &model, f.occupied);
                             }
-                            apply_mark(&mut tile.cells[local], (u >> 16) as u8, &f);
+                            apply_mark(&mut tile.cells[local], u & UPDATE_OCCUPIED != 0, &f);
                         }
                     }
                 }
