@@ -33,13 +33,9 @@ fn bench(c: &mut Criterion) {
     };
     let world = pfslam::sim::World::builtin(sim.world_name()).unwrap();
     let out = pfslam::sim::simulate_car(&world, &sim).unwrap();
-    let rec = Recording {
-        name: "campus".into(),
-        scans: out.dataset.lidar.clone(),
-        lidar: out.dataset.calibration.lidar,
-        body_from_lidar: out.dataset.calibration.body_from_lidar,
-        ..Recording::default()
-    };
+    let rec = out
+        .recording(&pfslam::motion::MotionOptions::default())
+        .unwrap();
     let poses = Trajectory::new(out.ground_truth.clone());
     let flat = MapOptions {
         height: pfslam::map::HeightOptions {

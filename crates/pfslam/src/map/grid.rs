@@ -289,14 +289,19 @@ impl HeightLayer {
 /// observed (non-zero) bin — free when some height was passed free often enough — and 0
 /// (unknown) when no bin is observed. So a cell seen occupied at one height and passed free
 /// at another stays occupied, whatever the order of the scans.
-#[inline]
+///
+/// Computed on the bins biased to `u8` (`v ^ 0x80` keeps the order of `i8`), whose min and
+/// max are SSE2 instructions: a whole 16-bin column is a few vector instructions.
+#[inline(always)]
 pub fn project_bins(bins: &[i8], model: &BinLogOdds, occupied: i16) -> i16 {
-    let (mut lo, mut hi) = (i8::MAX, i8::MIN);
+    let (mut lo, mut hi) = (u8::MAX, 0u8);
     for &v in bins {
+        let u = (v as u8) ^ 0x80;
         // Unobserved bins (0) must not count: as the low one they would hide free space.
-        lo = lo.min(if v == 0 { i8::MAX } else { v });
-        hi = hi.max(v);
+        lo = lo.min(if v == 0 { u8::MAX } else { u });
+        hi = hi.max(u);
     }
+    let (lo, hi) = ((lo ^ 0x80) as i8, (hi ^ 0x80) as i8);
     let scale = (super::logodds::LOGODDS_SCALE / BIN_SCALE) as i16;
     if hi >= model.occupied {
         (hi as i16 * scale).max(occupied)
@@ -573,26 +578,10 @@ fn apply_bin_marks(
     *cell = project_column(bins, model, occupied);
 }
 
-/// [`project_bins`] of a whole column, written so that it compiles to a few vector
-/// instructions: the bins biased to `u8` (`v ^ 0x80` keeps the order of `i8`), whose min and
-/// max exist as SSE2 instructions. The same value as `project_bins(&bins[..], ..)`.
+/// [`project_bins`] of a whole column (a fixed length: vectorised).
 #[inline(always)]
 fn project_column(bins: &[i8; MAX_BINS], model: &BinLogOdds, occupied: i16) -> i16 {
-    let (mut lo, mut hi) = (u8::MAX, 0u8);
-    for &v in bins {
-        let u = (v as u8) ^ 0x80;
-        lo = lo.min(if v == 0 { u8::MAX } else { u });
-        hi = hi.max(u);
-    }
-    let (lo, hi) = ((lo ^ 0x80) as i8, (hi ^ 0x80) as i8);
-    let scale = (super::logodds::LOGODDS_SCALE / BIN_SCALE) as i16;
-    if hi >= model.occupied {
-        (hi as i16 * scale).max(occupied)
-    } else if lo == i8::MAX {
-        0
-    } else {
-        lo as i16 * scale
-    }
+    project_bins(bins, model, occupied)
 }
 
 /// The bins' part of [`apply_bin_marks`] (the cell's projection left to the caller).
@@ -1524,6 +1513,23 @@ mod reference_tests {
         stats
     }
 
+    /// [`project_bins`] as first written (signed bytes, one at a time).
+    fn project_bins_plain(bins: &[i8], model: &BinLogOdds, occupied: i16) -> i16 {
+        let (mut lo, mut hi) = (i8::MAX, i8::MIN);
+        for &v in bins {
+            lo = lo.min(if v == 0 { i8::MAX } else { v });
+            hi = hi.max(v);
+        }
+        let scale = (crate::map::logodds::LOGODDS_SCALE / BIN_SCALE) as i16;
+        if hi >= model.occupied {
+            (hi as i16 * scale).max(occupied)
+        } else if lo == i8::MAX {
+            0
+        } else {
+            lo as i16 * scale
+        }
+    }
+
     #[test]
     fn column_projection_equals_project_bins() {
         let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(5);
@@ -1544,9 +1550,13 @@ mod reference_tests {
             }
             bins.swap(0, rng.random_range(0..MAX_BINS));
             for occupied in [1, 563, 25600] {
+                let want = project_bins_plain(&bins, &model, occupied);
+                assert_eq!(project_column(&bins, &model, occupied), want, "{bins:?}");
+                let n = observed.max(1);
+                let short = project_bins_plain(&bins[..n], &model, occupied);
                 assert_eq!(
-                    project_column(&bins, &model, occupied),
-                    project_bins(&bins, &model, occupied),
+                    project_bins(&bins[..n], &model, occupied),
+                    short,
                     "{bins:?}"
                 );
             }
