@@ -934,7 +934,8 @@ impl OccupancyGrid {
     /// whatever the thread count. Tiles are created (or copied when shared) serially in the
     /// sequential order, then updated in parallel, one task per tile applying its updates scan
     /// by scan: an update reads and writes only its own cell (and bins), so the tiles are
-    /// independent and each cell sees its updates in scan order.
+    /// independent and each cell sees its updates in scan order. The updates must come from
+    /// this grid (or a clone with the same options) and be applied once, in scan order.
     pub fn apply_updates(&mut self, scans: &[&ScanUpdates]) {
         // Create the tiles in the order sequential insertion would (the directory grows alike).
         for su in scans {
@@ -1012,14 +1013,14 @@ impl OccupancyGrid {
                 match (&mut htile, model) {
                     (Some(ht), Some(model)) if su.heights => {
                         for (&u, &m) in updates.iter().zip(&su.bin_marks[range]) {
-                            let local = usize::from(u);
+                            let local = usize::from(u) & (TILE_CELLS - 1);
                             update_bins(&mut ht.bins[local], m, &model);
                             stale[local] = true;
                         }
                     }
                     _ => {
                         for &u in updates {
-                            let local = usize::from(u & !UPDATE_OCCUPIED);
+                            let local = usize::from(u) & (TILE_CELLS - 1);
                             if stale[local]
                                 && let (Some(ht), Some(model)) = (&htile, model)
                             {
