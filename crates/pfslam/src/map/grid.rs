@@ -187,6 +187,12 @@ impl<T: Clone> TileDir<T> {
     fn count(&self) -> usize {
         self.tiles.iter().filter(|t| t.is_some()).count()
     }
+
+    /// The tile coordinates of a slot.
+    fn coords(&self, slot: usize) -> (i32, i32) {
+        let w = self.w.max(1) as usize;
+        (self.ti0 + (slot % w) as i32, self.tj0 + (slot / w) as i32)
+    }
 }
 
 /// Fixed-point units per log-odds unit in a height bin (`i8`: |log-odds| <= 7.9, p within
@@ -240,6 +246,14 @@ struct HeightTile {
     bins: Vec<[i8; MAX_BINS]>,
 }
 
+impl HeightTile {
+    fn unknown() -> Self {
+        HeightTile {
+            bins: vec![[0; MAX_BINS]; TILE_CELLS],
+        }
+    }
+}
+
 impl std::fmt::Debug for HeightTile {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(f, "HeightTile({} bins)", self.bins.len())
@@ -275,14 +289,19 @@ impl HeightLayer {
 /// observed (non-zero) bin — free when some height was passed free often enough — and 0
 /// (unknown) when no bin is observed. So a cell seen occupied at one height and passed free
 /// at another stays occupied, whatever the order of the scans.
-#[inline]
+///
+/// Computed on the bins biased to `u8` (`v ^ 0x80` keeps the order of `i8`), whose min and
+/// max are SSE2 instructions: a whole 16-bin column is a few vector instructions.
+#[inline(always)]
 pub fn project_bins(bins: &[i8], model: &BinLogOdds, occupied: i16) -> i16 {
-    let (mut lo, mut hi) = (i8::MAX, i8::MIN);
+    let (mut lo, mut hi) = (u8::MAX, 0u8);
     for &v in bins {
+        let u = (v as u8) ^ 0x80;
         // Unobserved bins (0) must not count: as the low one they would hide free space.
-        lo = lo.min(if v == 0 { i8::MAX } else { v });
-        hi = hi.max(v);
+        lo = lo.min(if v == 0 { u8::MAX } else { u });
+        hi = hi.max(u);
     }
+    let (lo, hi) = ((lo ^ 0x80) as i8, (hi ^ 0x80) as i8);
     let scale = (super::logodds::LOGODDS_SCALE / BIN_SCALE) as i16;
     if hi >= model.occupied {
         (hi as i16 * scale).max(occupied)
@@ -321,12 +340,25 @@ pub struct InsertScratch {
     /// Height insertion's mask (same layout as `mask`): bits 0-15 = bins passed free, bits
     /// 16-31 = bins hit. Allocated on the first scan with heights; left zeroed.
     hmask: Vec<u32>,
+    /// [`OccupancyGrid::trace_updates`]' counting sort: cells per tile of the mask (left
+    /// zeroed), and the tiles in first-touch order.
+    block_count: Vec<u32>,
+    block_order: Vec<u32>,
 }
 
 impl InsertScratch {
     /// Empty scratch; it grows to the longest ray seen.
     pub fn new() -> Self {
         InsertScratch::default()
+    }
+
+    /// Bytes held (masks and lists).
+    pub fn memory_bytes(&self) -> usize {
+        self.mask.capacity()
+            + 4 * (self.hmask.capacity()
+                + self.touched.capacity()
+                + self.block_count.capacity()
+                + self.block_order.capacity())
     }
 
     fn ensure_half(&mut self, half: i32) {
@@ -428,6 +460,146 @@ pub struct InsertStats {
     pub occupied_cells: usize,
     /// Cells given the free update.
     pub free_cells: usize,
+}
+
+impl InsertStats {
+    #[inline(always)]
+    fn count(&mut self, occupied: bool) {
+        self.occupied_cells += usize::from(occupied);
+        self.free_cells += usize::from(!occupied);
+    }
+}
+
+/// Where a traced scan's marks lie ([`OccupancyGrid::trace_scan`]).
+#[derive(Debug, Clone, Copy)]
+struct Traced {
+    /// Tile coordinates of the mask's first tile.
+    t0i: i32,
+    t0j: i32,
+    /// Cells touched: the first `len` of `InsertScratch::touched`.
+    len: usize,
+    /// The marks are height bins (`hmask`), not 2-D marks (`mask`).
+    heights: bool,
+}
+
+/// One scan's cell updates, grouped by tile ([`OccupancyGrid::trace_updates`]), to be
+/// applied by [`OccupancyGrid::apply_updates`]. Reuse one per scan slot: it keeps its
+/// allocations.
+#[derive(Debug, Clone, Default)]
+pub struct ScanUpdates {
+    /// Per-bin marks (a scan with heights on a grid with bins), else 2-D marks.
+    heights: bool,
+    /// Tiles in first-touch order: (tile column, tile row, end of its updates).
+    tiles: Vec<(i32, i32, u32)>,
+    /// Per cell: its index within its tile (bits 0-11) and, for a 2-D mark, bit 15 set when
+    /// occupied (2 bytes per update: the batch's lists are written and read once each).
+    updates: Vec<u16>,
+    /// With `heights`, per cell: the bins passed free (low 16 bits) and hit (high 16 bits).
+    bin_marks: Vec<u32>,
+    stats: InsertStats,
+}
+
+/// Bit of a 2-D update in [`ScanUpdates`]: the cell is occupied.
+const UPDATE_OCCUPIED: u16 = 1 << 15;
+
+impl ScanUpdates {
+    /// Empty updates (nothing to apply).
+    pub fn new() -> Self {
+        ScanUpdates::default()
+    }
+
+    /// Forgets the updates, keeping the allocations.
+    pub fn clear(&mut self) {
+        self.tiles.clear();
+        self.updates.clear();
+        self.bin_marks.clear();
+        self.stats = InsertStats::default();
+        self.heights = false;
+    }
+
+    /// What the insertion of these updates does (as [`OccupancyGrid::insert_scan`] reports).
+    pub fn stats(&self) -> InsertStats {
+        self.stats
+    }
+
+    /// Number of cell updates.
+    pub fn len(&self) -> usize {
+        self.updates.len()
+    }
+
+    /// True when there is nothing to apply.
+    pub fn is_empty(&self) -> bool {
+        self.updates.is_empty()
+    }
+
+    /// Bytes held by the buffers (their capacity).
+    pub fn capacity_bytes(&self) -> usize {
+        self.tiles.capacity() * std::mem::size_of::<(i32, i32, u32)>()
+            + self.updates.capacity() * std::mem::size_of::<u16>()
+            + self.bin_marks.capacity() * std::mem::size_of::<u32>()
+    }
+}
+
+/// One tile's share of [`OccupancyGrid::apply_updates`]: the tile (and its bins) taken out of
+/// the directory while a worker updates it.
+struct TileJob {
+    slot: usize,
+    hslot: Option<usize>,
+    tile: Option<Arc<Tile>>,
+    htile: Option<Arc<HeightTile>>,
+    /// Its range of the sorted (slot, scan, group) list.
+    entries: std::ops::Range<usize>,
+}
+
+/// A mask index's cell index within its tile.
+#[inline(always)]
+fn local_of(k: usize, shift: u32) -> usize {
+    (((k >> shift) & TILE_MASK as usize) << TILE_SHIFT) | (k & TILE_MASK as usize)
+}
+
+/// One scan's update of a cell: the occupied update when `occupied`, else the free one.
+#[inline(always)]
+fn apply_mark(cell: &mut i16, occupied: bool, f: &FixedLogOdds) {
+    let delta = if occupied { f.hit } else { f.miss };
+    *cell = f.apply(*cell, delta);
+}
+
+/// One scan's update of a cell's height bins (`marks`: bins passed free in the low 16 bits,
+/// bins hit in the high 16; hit wins), then the cell's 2-D value re-projected.
+#[inline(always)]
+fn apply_bin_marks(
+    cell: &mut i16,
+    bins: &mut [i8; MAX_BINS],
+    marks: u32,
+    model: &BinLogOdds,
+    occupied: i16,
+) {
+    update_bins(bins, marks, model);
+    *cell = project_column(bins, model, occupied);
+}
+
+/// [`project_bins`] of a whole column (a fixed length: vectorised).
+#[inline(always)]
+fn project_column(bins: &[i8; MAX_BINS], model: &BinLogOdds, occupied: i16) -> i16 {
+    project_bins(bins, model, occupied)
+}
+
+/// The bins' part of [`apply_bin_marks`] (the cell's projection left to the caller).
+#[inline(always)]
+fn update_bins(bins: &mut [i8; MAX_BINS], marks: u32, model: &BinLogOdds) {
+    let (occ, free) = (marks >> 16, marks & 0xffff);
+    let mut todo = occ | free;
+    while todo != 0 {
+        let b = todo.trailing_zeros();
+        todo &= todo - 1;
+        let v = &mut bins[b as usize];
+        let d = if occ >> b & 1 == 1 {
+            model.hit
+        } else {
+            model.miss
+        };
+        *v = model.apply(*v, d);
+    }
 }
 
 /// The log-odds occupancy grid: unbounded, tiled, cheap to clone (see the module docs).
@@ -597,11 +769,293 @@ impl OccupancyGrid {
         world_scan: &PlanarScan,
         scratch: &mut InsertScratch,
     ) -> Result<InsertStats, MapError> {
-        if let Some(sensor_z_m) = world_scan.sensor_z_m
-            && self.height.is_some()
-        {
-            return self.insert_scan_heights(world_scan, sensor_z_m, scratch);
+        let traced = self.trace_scan(world_scan, scratch)?;
+        let mut stats = InsertStats {
+            rays: world_scan.points.len(),
+            ..InsertStats::default()
+        };
+        let (t0i, t0j, shift) = (traced.t0i, traced.t0j, scratch.shift);
+        let f = self.fixed;
+        let InsertScratch {
+            mask,
+            hmask,
+            touched,
+            ..
+        } = scratch;
+        let touched = &touched[..traced.len];
+        let dir = &mut self.dir;
+        // Apply in touch order (ray order: consecutive cells share tiles), clearing the mask.
+        match self.height.as_mut() {
+            Some(layer) if traced.heights => {
+                let model = layer.model;
+                for_each_tile_run(touched, shift, |bi, bj, run| {
+                    let (ti, tj) = (t0i + bi, t0j + bj);
+                    let tile = dir.get_mut(ti, tj, Tile::unknown);
+                    let htile = layer.dir.get_mut(ti, tj, HeightTile::unknown);
+                    for &k in run {
+                        let k = k as usize;
+                        let m = std::mem::replace(&mut hmask[k], 0);
+                        stats.count(m >> 16 != 0);
+                        let local = local_of(k, shift);
+                        apply_bin_marks(
+                            &mut tile.cells[local],
+                            &mut htile.bins[local],
+                            m,
+                            &model,
+                            f.occupied,
+                        );
+                    }
+                });
+            }
+            _ => {
+                for_each_tile_run(touched, shift, |bi, bj, run| {
+                    let tile = dir.get_mut(t0i + bi, t0j + bj, Tile::unknown);
+                    for &k in run {
+                        let k = k as usize;
+                        let m = std::mem::replace(&mut mask[k], MARK_NONE);
+                        stats.count(m == MARK_OCCUPIED);
+                        apply_mark(&mut tile.cells[local_of(k, shift)], m == MARK_OCCUPIED, &f);
+                    }
+                });
+            }
         }
+        Ok(stats)
+    }
+
+    /// The first half of [`Self::insert_scan`] for parallel insertion: traces `world_scan`'s
+    /// rays with the same rule and writes its cell updates, grouped by tile, into `out`,
+    /// leaving the grid unchanged (it needs only `&self`, so many scans can be traced at once,
+    /// one scratch per thread). [`Self::apply_updates`] applies them.
+    ///
+    /// Errors (`out` left empty) when the scan reaches beyond [`MAX_CELL_INDEX`].
+    pub fn trace_updates(
+        &self,
+        world_scan: &PlanarScan,
+        scratch: &mut InsertScratch,
+        out: &mut ScanUpdates,
+    ) -> Result<InsertStats, MapError> {
+        out.clear();
+        let traced = self.trace_scan(world_scan, scratch)?;
+        let shift = scratch.shift;
+        let blocks = (scratch.side >> TILE_SHIFT) as usize;
+        let InsertScratch {
+            mask,
+            hmask,
+            touched,
+            block_count,
+            block_order,
+            ..
+        } = scratch;
+        let touched = &touched[..traced.len];
+        if block_count.len() < blocks * blocks {
+            block_count.resize(blocks * blocks, 0);
+        }
+        let col_mask = (1usize << shift) - 1;
+        // Mask index -> the mask's tile (row-major over `blocks` x `blocks`).
+        let block_of =
+            |k: usize| ((k >> shift) >> TILE_SHIFT) * blocks + ((k & col_mask) >> TILE_SHIFT);
+        // A counting sort by tile; tiles listed in the order the scan first touched them
+        // (that of `insert_scan`'s tile runs, so the directory grows the same way).
+        // Counted per run of one tile (touch order is ray order): a counter in a register, not
+        // a chain of stores to one slot.
+        block_order.clear();
+        let mut add = |b: usize, n: u32| {
+            if block_count[b] == 0 {
+                block_order.push(b as u32);
+            }
+            block_count[b] += n;
+        };
+        let (mut cur, mut run) = (usize::MAX, 0u32);
+        for &k in touched {
+            let b = block_of(k as usize);
+            if b != cur {
+                if run > 0 {
+                    add(cur, run);
+                }
+                (cur, run) = (b, 0);
+            }
+            run += 1;
+        }
+        if run > 0 {
+            add(cur, run);
+        }
+        let mut end = 0u32;
+        for &b in block_order.iter() {
+            let b = b as usize;
+            let n = std::mem::replace(&mut block_count[b], end);
+            end += n;
+            out.tiles.push((
+                traced.t0i + (b % blocks) as i32,
+                traced.t0j + (b / blocks) as i32,
+                end,
+            ));
+        }
+        out.heights = traced.heights;
+        out.updates.resize(touched.len(), 0);
+        if traced.heights {
+            out.bin_marks.resize(touched.len(), 0);
+        }
+        let mut stats = InsertStats {
+            rays: world_scan.points.len(),
+            ..InsertStats::default()
+        };
+        let (mut cur, mut pos) = (usize::MAX, 0usize);
+        for &k in touched {
+            let k = k as usize;
+            let b = block_of(k);
+            if b != cur {
+                if cur != usize::MAX {
+                    block_count[cur] = pos as u32;
+                }
+                (cur, pos) = (b, block_count[b] as usize);
+            }
+            let local = local_of(k, shift) as u16;
+            if traced.heights {
+                let m = std::mem::replace(&mut hmask[k], 0);
+                stats.count(m >> 16 != 0);
+                out.updates[pos] = local;
+                out.bin_marks[pos] = m;
+            } else {
+                let occupied = std::mem::replace(&mut mask[k], MARK_NONE) == MARK_OCCUPIED;
+                stats.count(occupied);
+                out.updates[pos] = local | if occupied { UPDATE_OCCUPIED } else { 0 };
+            }
+            pos += 1;
+        }
+        for &b in block_order.iter() {
+            block_count[b as usize] = 0;
+        }
+        out.stats = stats;
+        Ok(stats)
+    }
+
+    /// Applies traced scans ([`Self::trace_updates`]) in their order: the grid ends exactly as
+    /// after [`Self::insert_scan`] of each scan in turn (same cells, bins, tiles and directory),
+    /// whatever the thread count. Tiles are created (or copied when shared) serially in the
+    /// sequential order, then updated in parallel, one task per tile applying its updates scan
+    /// by scan: an update reads and writes only its own cell (and bins), so the tiles are
+    /// independent and each cell sees its updates in scan order. The updates must come from
+    /// this grid (or a clone with the same options) and be applied once, in scan order.
+    pub fn apply_updates(&mut self, scans: &[&ScanUpdates]) {
+        // Create the tiles in the order sequential insertion would (the directory grows alike).
+        for su in scans {
+            for &(ti, tj, _) in &su.tiles {
+                self.dir.get_mut(ti, tj, Tile::unknown);
+                if su.heights
+                    && let Some(layer) = self.height.as_mut()
+                {
+                    layer.dir.get_mut(ti, tj, HeightTile::unknown);
+                }
+            }
+        }
+        // (directory slot, scan, tile group), sorted: each tile's groups in scan order.
+        let mut entries: Vec<(u32, u32, u32)> = Vec::new();
+        for (s, su) in scans.iter().enumerate() {
+            for (g, &(ti, tj, _)) in su.tiles.iter().enumerate() {
+                if let Some(slot) = self.dir.slot(ti, tj) {
+                    entries.push((slot as u32, s as u32, g as u32));
+                }
+            }
+        }
+        entries.sort_unstable();
+        let mut jobs: Vec<TileJob> = Vec::new();
+        let mut start = 0;
+        while start < entries.len() {
+            let slot = entries[start].0;
+            let mut end = start + 1;
+            while end < entries.len() && entries[end].0 == slot {
+                end += 1;
+            }
+            let (ti, tj) = self.dir.coords(slot as usize);
+            let needs_bins = entries[start..end]
+                .iter()
+                .any(|e| scans[e.1 as usize].heights);
+            let hslot = self
+                .height
+                .as_ref()
+                .filter(|_| needs_bins)
+                .and_then(|l| l.dir.slot(ti, tj));
+            jobs.push(TileJob {
+                slot: slot as usize,
+                hslot,
+                tile: self.dir.tiles[slot as usize].take(),
+                htile: match (hslot, self.height.as_mut()) {
+                    (Some(h), Some(l)) => l.dir.tiles[h].take(),
+                    _ => None,
+                },
+                entries: start..end,
+            });
+            start = end;
+        }
+        let f = self.fixed;
+        let model = self.height.as_ref().map(|l| l.model);
+        let entries = &entries;
+        let apply = |job: &mut TileJob| {
+            let Some(tile) = job.tile.as_mut().map(Arc::make_mut) else {
+                return;
+            };
+            let mut htile = job.htile.as_mut().map(Arc::make_mut);
+            // Cells whose bins changed since their 2-D value was last projected: a cell's
+            // value is only read by a later 2-D update or at the end, so it is projected then
+            // (once per batch instead of once per scan; the same value).
+            // One byte per cell: flagging neighbours makes no chain of stores to one word.
+            let mut stale = [false; TILE_CELLS];
+            for &(_, s, g) in &entries[job.entries.clone()] {
+                let su = scans[s as usize];
+                let g = g as usize;
+                let from = if g == 0 {
+                    0
+                } else {
+                    su.tiles[g - 1].2 as usize
+                };
+                let range = from..su.tiles[g].2 as usize;
+                let updates = &su.updates[range.clone()];
+                match (&mut htile, model) {
+                    (Some(ht), Some(model)) if su.heights => {
+                        for (&u, &m) in updates.iter().zip(&su.bin_marks[range]) {
+                            let local = usize::from(u) & (TILE_CELLS - 1);
+                            update_bins(&mut ht.bins[local], m, &model);
+                            stale[local] = true;
+                        }
+                    }
+                    _ => {
+                        for &u in updates {
+                            let local = usize::from(u) & (TILE_CELLS - 1);
+                            if stale[local]
+                                && let (Some(ht), Some(model)) = (&htile, model)
+                            {
+                                stale[local] = false;
+                                tile.cells[local] =
+                                    project_column(&ht.bins[local], &model, f.occupied);
+                            }
+                            apply_mark(&mut tile.cells[local], u & UPDATE_OCCUPIED != 0, &f);
+                        }
+                    }
+                }
+            }
+            if let (Some(ht), Some(model)) = (&htile, model) {
+                for (local, _) in stale.iter().enumerate().filter(|s| *s.1) {
+                    tile.cells[local] = project_column(&ht.bins[local], &model, f.occupied);
+                }
+            }
+        };
+        use rayon::prelude::*;
+        jobs.par_iter_mut().for_each(apply);
+        for job in jobs {
+            self.dir.tiles[job.slot] = job.tile;
+            if let (Some(h), Some(l)) = (job.hslot, self.height.as_mut()) {
+                l.dir.tiles[h] = job.htile;
+            }
+        }
+    }
+
+    /// Traces a scan's rays into the scratch mask (`mask`, or `hmask` for a scan with heights
+    /// on a grid with height bins) and lists the touched cells; the grid is not changed.
+    fn trace_scan(
+        &self,
+        world_scan: &PlanarScan,
+        scratch: &mut InsertScratch,
+    ) -> Result<Traced, MapError> {
         let origin = self.scan_origin(world_scan, scratch)?;
         let (sh, shift) = (scratch.half, scratch.shift);
         // Tile coordinates of the mask's first tile, and its first cell.
@@ -609,6 +1063,29 @@ impl OccupancyGrid {
         let (mi0, mj0) = (t0i << TILE_SHIFT, t0j << TILE_SHIFT);
         let flat = |c: Cell| (((c.j - mj0) as usize) << shift) | (c.i - mi0) as usize;
         let stride = 1isize << shift;
+        let len = match (world_scan.sensor_z_m, self.height.as_ref()) {
+            (Some(z), Some(layer)) => {
+                self.trace_heights(world_scan, z, layer, origin, flat, stride, scratch)
+            }
+            _ => self.trace_planar(world_scan, origin, flat, stride, scratch),
+        };
+        Ok(Traced {
+            t0i,
+            t0j,
+            len,
+            heights: world_scan.sensor_z_m.is_some() && self.height.is_some(),
+        })
+    }
+
+    /// [`Self::trace_scan`] for a scan without heights: one mark per cell.
+    fn trace_planar(
+        &self,
+        world_scan: &PlanarScan,
+        origin: Cell,
+        flat: impl Fn(Cell) -> usize,
+        stride: isize,
+        scratch: &mut InsertScratch,
+    ) -> usize {
         let InsertScratch { mask, touched, .. } = scratch;
         let mut len = 0usize;
         // Marks a cell and records it when first touched; branch-free (the mask read is the
@@ -650,32 +1127,7 @@ impl OccupancyGrid {
             let want = if p.hit { MARK_OCCUPIED } else { MARK_FREE };
             mark(mask, touched, &mut len, flat(end), want);
         }
-        // Apply in touch order (ray order: consecutive cells share tiles), clearing the mask.
-        let f = self.fixed;
-        let mut stats = InsertStats {
-            rays: world_scan.points.len(),
-            ..InsertStats::default()
-        };
-        let dir = &mut self.dir;
-        for_each_tile_run(&touched[..len], shift, |bi, bj, run| {
-            let tile = dir.get_mut(t0i + bi, t0j + bj, Tile::unknown);
-            for &k in run {
-                let k = k as usize;
-                let m = std::mem::replace(&mut mask[k], MARK_NONE);
-                let delta = if m == MARK_OCCUPIED {
-                    stats.occupied_cells += 1;
-                    f.hit
-                } else {
-                    stats.free_cells += 1;
-                    f.miss
-                };
-                let local =
-                    (((k >> shift) & TILE_MASK as usize) << TILE_SHIFT) | (k & TILE_MASK as usize);
-                let v = &mut tile.cells[local];
-                *v = f.apply(*v, delta);
-            }
-        });
-        Ok(stats)
+        len
     }
 
     /// Checks a scan's cells and sizes the scratch mask for its longest ray; returns the
@@ -704,27 +1156,23 @@ impl OccupancyGrid {
         Ok(origin)
     }
 
-    /// [`Self::insert_scan`] for a scan with heights on a grid with height bins: the same
+    /// [`Self::trace_scan`] for a scan with heights on a grid with height bins: the same
     /// cells, rules and margins, but per (cell, height bin). A ray is the 3-D segment from the
     /// sensor (`sensor_z_m`) to its end point (`z_m`); the cell `k` steps along its digital
     /// line (of `n` to the end cell) is passed at the height `k / n` of the way, the end cell
     /// hit at the return's height. Per scan each bin of a cell gets at most one update,
-    /// occupied winning; then the cell's 2-D log-odds is re-projected ([`project_bins`]).
-    fn insert_scan_heights(
-        &mut self,
+    /// occupied winning; applying re-projects the cell's 2-D log-odds ([`project_bins`]).
+    #[allow(clippy::too_many_arguments)]
+    fn trace_heights(
+        &self,
         world_scan: &PlanarScan,
         sensor_z_m: f64,
+        layer: &HeightLayer,
+        origin: Cell,
+        flat: impl Fn(Cell) -> usize,
+        stride: isize,
         scratch: &mut InsertScratch,
-    ) -> Result<InsertStats, MapError> {
-        let origin = self.scan_origin(world_scan, scratch)?;
-        let Some(layer) = self.height.as_mut() else {
-            return Ok(InsertStats::default());
-        };
-        let (sh, shift) = (scratch.half, scratch.shift);
-        let (t0i, t0j) = ((origin.i - sh) >> TILE_SHIFT, (origin.j - sh) >> TILE_SHIFT);
-        let (mi0, mj0) = (t0i << TILE_SHIFT, t0j << TILE_SHIFT);
-        let flat = |c: Cell| (((c.j - mj0) as usize) << shift) | (c.i - mi0) as usize;
-        let stride = 1isize << shift;
+    ) -> usize {
         let InsertScratch {
             hmask,
             touched,
@@ -785,48 +1233,7 @@ impl OccupancyGrid {
             let want = if p.hit { bit << 16 } else { bit };
             mark(hmask, touched, &mut len, flat(end), want);
         }
-        let f = self.fixed;
-        let model = layer.model;
-        let mut stats = InsertStats {
-            rays: world_scan.points.len(),
-            ..InsertStats::default()
-        };
-        let dir = &mut self.dir;
-        for_each_tile_run(&touched[..len], shift, |bi, bj, run| {
-            let (ti, tj) = (t0i + bi, t0j + bj);
-            let tile = dir.get_mut(ti, tj, Tile::unknown);
-            let htile = layer.dir.get_mut(ti, tj, || HeightTile {
-                bins: vec![[0; MAX_BINS]; TILE_CELLS],
-            });
-            for &k in run {
-                let k = k as usize;
-                let m = std::mem::replace(&mut hmask[k], 0);
-                let (occ, free) = (m >> 16, m & 0xffff);
-                if occ != 0 {
-                    stats.occupied_cells += 1;
-                } else {
-                    stats.free_cells += 1;
-                }
-                let local =
-                    (((k >> shift) & TILE_MASK as usize) << TILE_SHIFT) | (k & TILE_MASK as usize);
-                let bins = &mut htile.bins[local];
-                // Occupied wins per bin: a bin both hit and passed gets the hit only.
-                let mut todo = occ | free;
-                while todo != 0 {
-                    let b = todo.trailing_zeros();
-                    todo &= todo - 1;
-                    let v = &mut bins[b as usize];
-                    let d = if occ >> b & 1 == 1 {
-                        model.hit
-                    } else {
-                        model.miss
-                    };
-                    *v = model.apply(*v, d);
-                }
-                tile.cells[local] = project_bins(&bins[..], &model, f.occupied);
-            }
-        });
-        Ok(stats)
+        len
     }
 
     /// The rectangle of allocated tiles, in cells (`None` for an empty grid).
@@ -1105,6 +1512,56 @@ mod reference_tests {
             g.set_fixed(c, v).unwrap();
         }
         stats
+    }
+
+    /// [`project_bins`] as first written (signed bytes, one at a time).
+    fn project_bins_plain(bins: &[i8], model: &BinLogOdds, occupied: i16) -> i16 {
+        let (mut lo, mut hi) = (i8::MAX, i8::MIN);
+        for &v in bins {
+            lo = lo.min(if v == 0 { i8::MAX } else { v });
+            hi = hi.max(v);
+        }
+        let scale = (crate::map::logodds::LOGODDS_SCALE / BIN_SCALE) as i16;
+        if hi >= model.occupied {
+            (hi as i16 * scale).max(occupied)
+        } else if lo == i8::MAX {
+            0
+        } else {
+            lo as i16 * scale
+        }
+    }
+
+    #[test]
+    fn column_projection_equals_project_bins() {
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(5);
+        let edge = [i8::MIN, -127, -1, 0, 1, 13, 14, 15, 126, i8::MAX];
+        for case in 0..20_000 {
+            let model = BinLogOdds::new(
+                &crate::map::LogOddsParams::ese650(),
+                [0.55, 0.7, 0.9, 0.999][case % 4],
+            );
+            let mut bins = [0i8; MAX_BINS];
+            let observed = rng.random_range(0..=MAX_BINS);
+            for v in bins.iter_mut().take(observed) {
+                *v = if rng.random_range(0..4) == 0 {
+                    edge[rng.random_range(0..edge.len())]
+                } else {
+                    rng.random_range(-128..=127i32) as i8
+                };
+            }
+            bins.swap(0, rng.random_range(0..MAX_BINS));
+            for occupied in [1, 563, 25600] {
+                let want = project_bins_plain(&bins, &model, occupied);
+                assert_eq!(project_column(&bins, &model, occupied), want, "{bins:?}");
+                let n = observed.max(1);
+                let short = project_bins_plain(&bins[..n], &model, occupied);
+                assert_eq!(
+                    project_bins(&bins[..n], &model, occupied),
+                    short,
+                    "{bins:?}"
+                );
+            }
+        }
     }
 
     #[test]

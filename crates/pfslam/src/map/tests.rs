@@ -371,3 +371,124 @@ fn height_options_are_validated() {
     o.height.occupied_prob = Some(0.3);
     assert!(o.validate().is_err());
 }
+
+/// [`map_with_poses`] as it was before batching: each scan inserted in turn (the oracle).
+fn map_with_poses_sequential(
+    recording: &Recording,
+    poses: &Trajectory,
+    opts: &MapOptions,
+) -> (OccupancyGrid, PlanarScan, MappingStats) {
+    let mut grid = OccupancyGrid::new(opts).unwrap();
+    let projector =
+        ScanProjector::new(&recording.lidar, &recording.body_from_lidar, &opts.scan).unwrap();
+    let mut ins = ScanInserter::new(projector);
+    let mut stats = MappingStats::default();
+    for k in (0..recording.scans.len()).step_by(opts.scan_step) {
+        let Some(pose) = poses.pose_at(recording.scans.stamps_ns[k]) else {
+            stats.scans_without_pose += 1;
+            continue;
+        };
+        if recording.body_from_lidar_per_scan.is_some() {
+            ins.projector
+                .set_mount(&recording.lidar, recording.body_from_lidar_at(k));
+        }
+        stats.rays += ins
+            .insert(&mut grid, recording.scans.ranges(k), &pose)
+            .unwrap()
+            .rays;
+        stats.scans_inserted += 1;
+    }
+    (grid, ins.world, stats)
+}
+
+/// Every observable of two grids: tiles, directory size, cells and height bins.
+fn assert_same_grid(a: &OccupancyGrid, b: &OccupancyGrid, what: &str) {
+    assert_eq!(a.tile_count(), b.tile_count(), "{what}");
+    assert_eq!(a.height_tile_count(), b.height_tile_count(), "{what}");
+    assert_eq!(a.memory_bytes(), b.memory_bytes(), "{what}");
+    let r = a.allocated_bounds().unwrap();
+    assert_eq!(Some(r), b.allocated_bounds(), "{what}");
+    let (mut va, mut vb) = (Vec::new(), Vec::new());
+    a.copy_rect_fixed(&r, &mut va);
+    b.copy_rect_fixed(&r, &mut vb);
+    assert!(va == vb, "{what}: cells differ");
+    assert!(va.iter().filter(|&&v| v != 0).count() > 10_000, "{what}");
+    let mut binned = 0;
+    for j in r.min_j..=r.max_j {
+        for i in r.min_i..=r.max_i {
+            let c = Cell::new(i, j);
+            assert_eq!(a.height_bins(c), b.height_bins(c), "{what}: bins of {c:?}");
+            binned += usize::from(a.height_bins(c).is_some_and(|s| s.iter().any(|&v| v != 0)));
+        }
+    }
+    if a.height_tile_count() > 0 {
+        assert!(binned > 10_000, "{what}: {binned} binned cells");
+    }
+}
+
+#[test]
+fn batched_parallel_mapping_equals_sequential_insertion_for_any_thread_count() {
+    use crate::geometry::{Rigid3, StampedPose2};
+    use crate::sim::{SimOptions, World, simulate_car};
+    let sim_opts = SimOptions {
+        duration_s: 14.0,
+        ..SimOptions::noise_free()
+    };
+    let world = World::builtin(sim_opts.world_name()).unwrap();
+    let out = simulate_car(&world, &sim_opts).unwrap();
+    let car = out
+        .recording(&crate::motion::MotionOptions::default())
+        .unwrap();
+    // A LiDAR moving on the body, level on even scans and tilted on odd ones: one grid gets
+    // 2-D and height-bin updates, whose order per cell matters.
+    let level = Rigid3::from_rpy(0.0, 0.0, std::f64::consts::FRAC_PI_2, [0.8, 0.0, 1.5]);
+    let mut nodding = car.clone();
+    nodding.body_from_lidar_per_scan = Some(
+        (0..car.scans.len())
+            .map(|k| {
+                if k % 2 == 0 {
+                    level
+                } else {
+                    car.body_from_lidar
+                }
+            })
+            .collect(),
+    );
+    // Poses covering all but the first and last second of scans (some scans have none).
+    let truth: Vec<StampedPose2> = out.ground_truth[100..out.ground_truth.len() - 100].to_vec();
+    let poses = Trajectory::new(truth);
+    let flat = MapOptions {
+        height: HeightOptions {
+            enabled: false,
+            ..HeightOptions::default()
+        },
+        ..MapOptions::default()
+    };
+    let margin = MapOptions {
+        free_margin_m: 0.3,
+        scan_step: 3,
+        ..MapOptions::default()
+    };
+    let cases = [
+        ("heights", &car, MapOptions::default()),
+        ("flat", &car, flat),
+        ("margin, step 3", &car, margin),
+        ("moving mount", &nodding, MapOptions::default()),
+    ];
+    for (name, rec, opts) in cases {
+        let (want, want_last, want_stats) = map_with_poses_sequential(rec, &poses, &opts);
+        assert!(want_stats.scans_inserted > 2 * MAP_BATCH_SCANS, "{name}");
+        assert!(want_stats.scans_without_pose > 0, "{name}");
+        for threads in [1, 2, 3] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let (got, last, stats) = pool.install(|| map_with_poses(rec, &poses, &opts)).unwrap();
+            let what = format!("{name}, {threads} threads");
+            assert_eq!(stats, want_stats, "{what}");
+            assert_eq!(last, want_last, "{what}");
+            assert_same_grid(&got, &want, &what);
+        }
+    }
+}
