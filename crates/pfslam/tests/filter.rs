@@ -453,7 +453,7 @@ struct SimRun {
 }
 
 fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> SimRun {
-    use pfslam::filter::slam::{anchor_odometry_to_ground_truth, run_slam};
+    use pfslam::filter::slam::anchor_odometry_to_ground_truth;
     use pfslam::sim::{SimOptions, World, simulate_car};
     let mut opts = SimOptions {
         duration_s,
@@ -486,7 +486,17 @@ fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> 
             }
         }
     }
-    let result = run_slam(&rec, config, seed, &mut |_| {}).unwrap();
+    // What `pfslam run` does: the filter, the `[graph]` back end, the map rebuilt along the
+    // final trajectory.
+    let result = pfslam::pipeline::run_pipeline(
+        &rec,
+        config,
+        seed,
+        &pfslam::pipeline::PipelineOptions::default(),
+        &mut |_| {},
+    )
+    .unwrap()
+    .result;
     let gt = &out.ground_truth;
     let truth = out.true_map.to_binary_map();
     if std::env::var("PF_GTMAP").is_ok() {
@@ -554,11 +564,9 @@ fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> 
             }
         }
     }
-    // The map as `pfslam run` writes it: rebuilt along the trajectory with `[map]` as
+    // The map as `pfslam run` writes it: rebuilt along the final trajectory with `[map]` as
     // configured (height bins included; the scan-matching filter matches against a 2-D map).
-    let slam_traj = pfslam::geometry::Trajectory::new(result.trajectory.clone());
-    let (map, _, _) = pfslam::map::map_with_poses(&rec, &slam_traj, &config.map).unwrap();
-    let est = map.to_binary_map(None);
+    let est = result.map.to_binary_map(None);
     let cmp = out.scan_truth.compare(&est, 1).unwrap();
     SimRun {
         slam_ate_m: ate_rmse(&result.trajectory, gt),

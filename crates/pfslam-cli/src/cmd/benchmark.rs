@@ -163,10 +163,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .with_context(|| rec_path.display().to_string())?;
         let t = Instant::now();
         let options = PipelineOptions {
-            back_end_input: match args.graph_on_odometry {
-                true => BackEndInput::Odometry,
-                false => BackEndInput::FrontEnd,
-            },
+            back_end_input: args.graph_on_odometry.then_some(BackEndInput::Odometry),
             // The metric needs the trajectory only.
             rebuild_map: false,
         };

@@ -103,10 +103,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &config,
         args.seed,
         &PipelineOptions {
-            back_end_input: match args.graph_on_odometry {
-                true => BackEndInput::Odometry,
-                false => BackEndInput::FrontEnd,
-            },
+            back_end_input: args.graph_on_odometry.then_some(BackEndInput::Odometry),
             ..PipelineOptions::default()
         },
         &mut |ev| match ev {
@@ -168,6 +165,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         true => result.dead_reckoning.clone(),
         false => pipeline.front_end,
     };
+    // What the back end was fed and, for the calibrated odometry, the fitted errors.
+    let back_end_input = serde_json::json!({
+        "input": pipeline.back_end_input,
+        "odometry_calibration": pipeline.calibration,
+    });
     let graph = pipeline
         .graph
         .map(|g| ((back_end_s - g.total_s).max(0.0), g))
@@ -181,6 +183,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         load_s,
         anchored,
         graph.as_ref(),
+        back_end_input,
     )?;
     // The ground's colours along the SLAM path, when the dataset has stereo images.
     let (traj, map) = (&result.trajectory, &result.map);
@@ -212,6 +215,7 @@ fn write_outputs(
     load_s: f64,
     anchored: bool,
     graph: Option<&(GraphStats, f64, Vec<StampedPose2>)>,
+    back_end_input: serde_json::Value,
 ) -> anyhow::Result<()> {
     let out = &args.out;
     let t = Instant::now();
@@ -270,6 +274,7 @@ fn write_outputs(
     });
     if let Some((stats, remap_s, _)) = graph {
         summary["graph"] = serde_json::to_value(stats)?;
+        summary["graph_input"] = back_end_input;
         summary["timings_s"]["graph"] = stats.total_s.into();
         summary["timings_s"]["graph_remap"] = (*remap_s).into();
     }
@@ -324,6 +329,19 @@ fn write_outputs(
             g.loop_candidates,
             g.loop_removed_outliers,
             g.total_s
+        );
+    }
+    if let Some(c) = summary
+        .get("graph_input")
+        .map(|v| &v["odometry_calibration"])
+        && !c.is_null()
+    {
+        println!(
+            "back end fed the odometry calibrated against the filter: scale {:.5}, yaw-rate bias {:.2e} rad/s",
+            c["calibration"]["scale"].as_f64().unwrap_or(f64::NAN),
+            c["calibration"]["yaw_rate_bias_rad_per_s"]
+                .as_f64()
+                .unwrap_or(f64::NAN)
         );
     }
     if let Some(f) = summary.get("front_end_vs_ground_truth") {

@@ -26,6 +26,7 @@ pub mod optimize;
 
 use crate::geometry::{Pose2, StampedPose2};
 use crate::map::{MapError, PlanarScan, ScanOptions, ScanProjector};
+use crate::motion::calibration::CalibrationOptions;
 use crate::sensors::Recording;
 use matcher::{PointField, Prior, SearchWindow};
 use optimize::{Edge, OptimizeOptions, PoseGraph};
@@ -165,6 +166,52 @@ pub struct GraphOptions {
     /// for one moving on the body (the humanoid, whose odometry yaw is leg odometry: there
     /// they pulled the default 180 s walk from 0.130 to 0.369 m ATE, seed 1).
     pub odometry_yaw_edges: Switch,
+    /// What the back end is fed (its keyframes' initial poses and relative motions):
+    /// `auto` (default: `calibrated_odometry` for a tilted LiDAR fixed on the body, the car;
+    /// `front_end` otherwise), `front_end` (the filter's trajectory), `odometry` (the raw
+    /// odometry) or `calibrated_odometry` (the odometry with its distance scale and yaw-rate
+    /// bias fitted to the filter's trajectory, `[graph.calibration]`: locally as smooth as the
+    /// odometry, without its scale drift).
+    pub input: BackEndInput,
+    /// The odometry calibration of `input = "calibrated_odometry"`.
+    pub calibration: CalibrationOptions,
+}
+
+/// What the back end is fed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum BackEndInput {
+    /// Decided from the recording (see [`GraphOptions::input`]).
+    #[default]
+    Auto,
+    /// The filter's trajectory.
+    FrontEnd,
+    /// The raw odometry at every processed scan (to measure the back end alone).
+    Odometry,
+    /// The odometry corrected by a fit to the filter's trajectory
+    /// ([`crate::motion::calibration`]).
+    CalibratedOdometry,
+}
+
+impl BackEndInput {
+    /// `auto` decided for `recording`: the calibrated odometry for a tilted LiDAR fixed on
+    /// the body (the car: FOG yaw and 4096-tick wheels, locally far smoother than its filter,
+    /// off only by the wheels' scale), the front end otherwise (a level LiDAR's `rbpf` is
+    /// locally as good as the odometry; a head-mounted LiDAR's walker has leg odometry).
+    pub fn resolve(self, recording: &Recording) -> BackEndInput {
+        match self {
+            BackEndInput::Auto => {
+                let level = crate::filter::FilterMode::Auto.resolve(recording)
+                    == crate::filter::FilterMode::Rbpf;
+                if !level && recording.body_from_lidar_per_scan.is_none() {
+                    BackEndInput::CalibratedOdometry
+                } else {
+                    BackEndInput::FrontEnd
+                }
+            }
+            other => other,
+        }
+    }
 }
 
 /// A three-way switch: decided from the recording, or forced.
@@ -246,6 +293,8 @@ impl Default for GraphOptions {
             front_end_sigma_deg_per_sqrt_m: 0.004,
             odometry_yaw_sigma_deg_per_sqrt_m: 0.002,
             odometry_yaw_edges: Switch::Auto,
+            input: BackEndInput::Auto,
+            calibration: CalibrationOptions::default(),
         }
     }
 }
@@ -253,6 +302,9 @@ impl Default for GraphOptions {
 impl GraphOptions {
     /// Checks ranges; the message names the bad key.
     pub fn validate(&self) -> Result<(), String> {
+        self.calibration
+            .validate()
+            .map_err(|m| format!("graph.calibration: {m}"))?;
         let pos = |v: f64| v.is_finite() && v > 0.0;
         for (k, v) in [
             ("keyframe_distance_m", self.keyframe_distance_m),

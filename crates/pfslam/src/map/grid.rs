@@ -289,14 +289,19 @@ impl HeightLayer {
 /// observed (non-zero) bin — free when some height was passed free often enough — and 0
 /// (unknown) when no bin is observed. So a cell seen occupied at one height and passed free
 /// at another stays occupied, whatever the order of the scans.
-#[inline]
+///
+/// Computed on the bins biased to `u8` (`v ^ 0x80` keeps the order of `i8`), whose min and
+/// max are SSE2 instructions: a whole 16-bin column is a few vector instructions.
+#[inline(always)]
 pub fn project_bins(bins: &[i8], model: &BinLogOdds, occupied: i16) -> i16 {
-    let (mut lo, mut hi) = (i8::MAX, i8::MIN);
+    let (mut lo, mut hi) = (u8::MAX, 0u8);
     for &v in bins {
+        let u = (v as u8) ^ 0x80;
         // Unobserved bins (0) must not count: as the low one they would hide free space.
-        lo = lo.min(if v == 0 { i8::MAX } else { v });
-        hi = hi.max(v);
+        lo = lo.min(if v == 0 { u8::MAX } else { u });
+        hi = hi.max(u);
     }
+    let (lo, hi) = ((lo ^ 0x80) as i8, (hi ^ 0x80) as i8);
     let scale = (super::logodds::LOGODDS_SCALE / BIN_SCALE) as i16;
     if hi >= model.occupied {
         (hi as i16 * scale).max(occupied)
@@ -486,11 +491,16 @@ pub struct ScanUpdates {
     heights: bool,
     /// Tiles in first-touch order: (tile column, tile row, end of its updates).
     tiles: Vec<(i32, i32, u32)>,
-    /// Per cell: its index within its tile (bits 0-15) and its mark (bits 16-47: a 2-D mark,
-    /// or the bins passed free (low 16 bits) and hit (high 16 bits)).
-    updates: Vec<u64>,
+    /// Per cell: its index within its tile (bits 0-11) and, for a 2-D mark, bit 15 set when
+    /// occupied (2 bytes per update: the batch's lists are written and read once each).
+    updates: Vec<u16>,
+    /// With `heights`, per cell: the bins passed free (low 16 bits) and hit (high 16 bits).
+    bin_marks: Vec<u32>,
     stats: InsertStats,
 }
+
+/// Bit of a 2-D update in [`ScanUpdates`]: the cell is occupied.
+const UPDATE_OCCUPIED: u16 = 1 << 15;
 
 impl ScanUpdates {
     /// Empty updates (nothing to apply).
@@ -502,6 +512,7 @@ impl ScanUpdates {
     pub fn clear(&mut self) {
         self.tiles.clear();
         self.updates.clear();
+        self.bin_marks.clear();
         self.stats = InsertStats::default();
         self.heights = false;
     }
@@ -524,7 +535,8 @@ impl ScanUpdates {
     /// Bytes held by the buffers (their capacity).
     pub fn capacity_bytes(&self) -> usize {
         self.tiles.capacity() * std::mem::size_of::<(i32, i32, u32)>()
-            + self.updates.capacity() * std::mem::size_of::<u64>()
+            + self.updates.capacity() * std::mem::size_of::<u16>()
+            + self.bin_marks.capacity() * std::mem::size_of::<u32>()
     }
 }
 
@@ -545,10 +557,10 @@ fn local_of(k: usize, shift: u32) -> usize {
     (((k >> shift) & TILE_MASK as usize) << TILE_SHIFT) | (k & TILE_MASK as usize)
 }
 
-/// One scan's update of a cell: the occupied update for `MARK_OCCUPIED`, else the free one.
+/// One scan's update of a cell: the occupied update when `occupied`, else the free one.
 #[inline(always)]
-fn apply_mark(cell: &mut i16, mark: u8, f: &FixedLogOdds) {
-    let delta = if mark == MARK_OCCUPIED { f.hit } else { f.miss };
+fn apply_mark(cell: &mut i16, occupied: bool, f: &FixedLogOdds) {
+    let delta = if occupied { f.hit } else { f.miss };
     *cell = f.apply(*cell, delta);
 }
 
@@ -566,26 +578,10 @@ fn apply_bin_marks(
     *cell = project_column(bins, model, occupied);
 }
 
-/// [`project_bins`] of a whole column, written so that it compiles to a few vector
-/// instructions: the bins biased to `u8` (`v ^ 0x80` keeps the order of `i8`), whose min and
-/// max exist as SSE2 instructions. The same value as `project_bins(&bins[..], ..)`.
+/// [`project_bins`] of a whole column (a fixed length: vectorised).
 #[inline(always)]
 fn project_column(bins: &[i8; MAX_BINS], model: &BinLogOdds, occupied: i16) -> i16 {
-    let (mut lo, mut hi) = (u8::MAX, 0u8);
-    for &v in bins {
-        let u = (v as u8) ^ 0x80;
-        lo = lo.min(if v == 0 { u8::MAX } else { u });
-        hi = hi.max(u);
-    }
-    let (lo, hi) = ((lo ^ 0x80) as i8, (hi ^ 0x80) as i8);
-    let scale = (super::logodds::LOGODDS_SCALE / BIN_SCALE) as i16;
-    if hi >= model.occupied {
-        (hi as i16 * scale).max(occupied)
-    } else if lo == i8::MAX {
-        0
-    } else {
-        lo as i16 * scale
-    }
+    project_bins(bins, model, occupied)
 }
 
 /// The bins' part of [`apply_bin_marks`] (the cell's projection left to the caller).
@@ -818,7 +814,7 @@ impl OccupancyGrid {
                         let k = k as usize;
                         let m = std::mem::replace(&mut mask[k], MARK_NONE);
                         stats.count(m == MARK_OCCUPIED);
-                        apply_mark(&mut tile.cells[local_of(k, shift)], m, &f);
+                        apply_mark(&mut tile.cells[local_of(k, shift)], m == MARK_OCCUPIED, &f);
                     }
                 });
             }
@@ -896,6 +892,9 @@ impl OccupancyGrid {
         }
         out.heights = traced.heights;
         out.updates.resize(touched.len(), 0);
+        if traced.heights {
+            out.bin_marks.resize(touched.len(), 0);
+        }
         let mut stats = InsertStats {
             rays: world_scan.points.len(),
             ..InsertStats::default()
@@ -910,16 +909,17 @@ impl OccupancyGrid {
                 }
                 (cur, pos) = (b, block_count[b] as usize);
             }
-            let m = if traced.heights {
+            let local = local_of(k, shift) as u16;
+            if traced.heights {
                 let m = std::mem::replace(&mut hmask[k], 0);
                 stats.count(m >> 16 != 0);
-                m
+                out.updates[pos] = local;
+                out.bin_marks[pos] = m;
             } else {
-                let m = std::mem::replace(&mut mask[k], MARK_NONE);
-                stats.count(m == MARK_OCCUPIED);
-                u32::from(m)
-            };
-            out.updates[pos] = local_of(k, shift) as u64 | u64::from(m) << 16;
+                let occupied = std::mem::replace(&mut mask[k], MARK_NONE) == MARK_OCCUPIED;
+                stats.count(occupied);
+                out.updates[pos] = local | if occupied { UPDATE_OCCUPIED } else { 0 };
+            }
             pos += 1;
         }
         for &b in block_order.iter() {
@@ -934,7 +934,8 @@ impl OccupancyGrid {
     /// whatever the thread count. Tiles are created (or copied when shared) serially in the
     /// sequential order, then updated in parallel, one task per tile applying its updates scan
     /// by scan: an update reads and writes only its own cell (and bins), so the tiles are
-    /// independent and each cell sees its updates in scan order.
+    /// independent and each cell sees its updates in scan order. The updates must come from
+    /// this grid (or a clone with the same options) and be applied once, in scan order.
     pub fn apply_updates(&mut self, scans: &[&ScanUpdates]) {
         // Create the tiles in the order sequential insertion would (the directory grows alike).
         for su in scans {
@@ -1007,18 +1008,19 @@ impl OccupancyGrid {
                 } else {
                     su.tiles[g - 1].2 as usize
                 };
-                let updates = &su.updates[from..su.tiles[g].2 as usize];
+                let range = from..su.tiles[g].2 as usize;
+                let updates = &su.updates[range.clone()];
                 match (&mut htile, model) {
                     (Some(ht), Some(model)) if su.heights => {
-                        for &u in updates {
-                            let local = (u & 0xffff) as usize;
-                            update_bins(&mut ht.bins[local], (u >> 16) as u32, &model);
+                        for (&u, &m) in updates.iter().zip(&su.bin_marks[range]) {
+                            let local = usize::from(u) & (TILE_CELLS - 1);
+                            update_bins(&mut ht.bins[local], m, &model);
                             stale[local] = true;
                         }
                     }
                     _ => {
                         for &u in updates {
-                            let local = (u & 0xffff) as usize;
+                            let local = usize::from(u) & (TILE_CELLS - 1);
                             if stale[local]
                                 && let (Some(ht), Some(model)) = (&htile, model)
                             {
@@ -1026,7 +1028,7 @@ impl OccupancyGrid {
                                 tile.cells[local] =
                                     project_column(&ht.bins[local], &model, f.occupied);
                             }
-                            apply_mark(&mut tile.cells[local], (u >> 16) as u8, &f);
+                            apply_mark(&mut tile.cells[local], u & UPDATE_OCCUPIED != 0, &f);
                         }
                     }
                 }
@@ -1512,6 +1514,23 @@ mod reference_tests {
         stats
     }
 
+    /// [`project_bins`] as first written (signed bytes, one at a time).
+    fn project_bins_plain(bins: &[i8], model: &BinLogOdds, occupied: i16) -> i16 {
+        let (mut lo, mut hi) = (i8::MAX, i8::MIN);
+        for &v in bins {
+            lo = lo.min(if v == 0 { i8::MAX } else { v });
+            hi = hi.max(v);
+        }
+        let scale = (crate::map::logodds::LOGODDS_SCALE / BIN_SCALE) as i16;
+        if hi >= model.occupied {
+            (hi as i16 * scale).max(occupied)
+        } else if lo == i8::MAX {
+            0
+        } else {
+            lo as i16 * scale
+        }
+    }
+
     #[test]
     fn column_projection_equals_project_bins() {
         let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(5);
@@ -1532,9 +1551,13 @@ mod reference_tests {
             }
             bins.swap(0, rng.random_range(0..MAX_BINS));
             for occupied in [1, 563, 25600] {
+                let want = project_bins_plain(&bins, &model, occupied);
+                assert_eq!(project_column(&bins, &model, occupied), want, "{bins:?}");
+                let n = observed.max(1);
+                let short = project_bins_plain(&bins[..n], &model, occupied);
                 assert_eq!(
-                    project_column(&bins, &model, occupied),
-                    project_bins(&bins, &model, occupied),
+                    project_bins(&bins[..n], &model, occupied),
+                    short,
                     "{bins:?}"
                 );
             }

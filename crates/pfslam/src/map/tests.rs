@@ -436,13 +436,9 @@ fn batched_parallel_mapping_equals_sequential_insertion_for_any_thread_count() {
     };
     let world = World::builtin(sim_opts.world_name()).unwrap();
     let out = simulate_car(&world, &sim_opts).unwrap();
-    let car = Recording {
-        name: "campus".into(),
-        scans: out.dataset.lidar.clone(),
-        lidar: out.dataset.calibration.lidar,
-        body_from_lidar: out.dataset.calibration.body_from_lidar,
-        ..Recording::default()
-    };
+    let car = out
+        .recording(&crate::motion::MotionOptions::default())
+        .unwrap();
     // A LiDAR moving on the body, level on even scans and tilted on odd ones: one grid gets
     // 2-D and height-bin updates, whose order per cell matters.
     let level = Rigid3::from_rpy(0.0, 0.0, std::f64::consts::FRAC_PI_2, [0.8, 0.0, 1.5]);

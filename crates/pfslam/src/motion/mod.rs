@@ -7,6 +7,7 @@
 //! mounted without rotation, `Vehicle2FOG.txt`). Wheel distance = `pi * d * dticks / res`
 //! per wheel with its own diameter; the car's distance is the mean of the two wheels.
 
+pub mod calibration;
 pub mod dead_reckoning;
 pub mod odometry_model;
 
@@ -141,6 +142,12 @@ pub enum MotionError {
     /// Noise sigmas must be finite and non-negative.
     #[error("invalid velocity noise: {0}")]
     InvalidNoise(String),
+    /// Invalid calibration options.
+    #[error("invalid odometry calibration options: {0}")]
+    InvalidCalibration(String),
+    /// The odometry calibration could not be fitted.
+    #[error("odometry calibration: {0}")]
+    Calibration(String),
 }
 
 /// Distances travelled by the left and right wheels (m) for tick changes.
