@@ -263,6 +263,36 @@ pub fn scan_log_likelihood(
     points: &[[f64; 2]],
     pose: &Pose2,
 ) -> f64 {
+    scan_log_likelihood_above(grid, model, points, pose, None)
+}
+
+/// A candidate's bar in [`scan_log_likelihood_above`]: it wins only if
+/// `log-likelihood - penalty > bar`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Bar {
+    /// Subtracted from the log-likelihood before the comparison (the prior's term).
+    pub penalty: f64,
+    /// The value to beat (strictly).
+    pub bar: f64,
+}
+
+/// [`scan_log_likelihood`], but with a `bar` it may stop early: every point's term is <= 0,
+/// so the running sum only falls (rounding is monotonic) and once `sum - penalty <= bar`
+/// the candidate cannot win. Then it returns that partial sum, for which `sum - penalty >
+/// bar` is false, as it would be for the full sum. Otherwise (and without a bar) the
+/// full sum, the same bits as [`scan_log_likelihood`].
+pub fn scan_log_likelihood_above(
+    grid: &OccupancyGrid,
+    model: &ObservationModel,
+    points: &[[f64; 2]],
+    pose: &Pose2,
+    bar: Option<Bar>,
+) -> f64 {
+    // Without a bar, a test that never stops (NaN compares false).
+    let Bar { penalty, bar } = bar.unwrap_or(Bar {
+        penalty: 0.0,
+        bar: f64::NAN,
+    });
     let limits = grid.limits();
     let (s, c) = pose.yaw_rad.sin_cos();
     let k = model.kernel;
@@ -321,6 +351,9 @@ pub fn scan_log_likelihood(
         } else {
             model.no_hit
         };
+        if total - penalty <= bar {
+            return total;
+        }
     }
     total
 }
@@ -408,19 +441,32 @@ pub fn match_in_own_map(
     search: &SearchParams,
 ) -> (Pose2, f64) {
     let prior = search.prior;
-    let eval = |p: &Pose2| {
-        let ll = scan_log_likelihood(grid, model, points, p);
-        match prior {
+    // The objective `ll - penalty` (`ll` alone without a prior: `x - 0.0` is `x`). Given
+    // the value to beat, the likelihood may stop early; the result then does not beat it.
+    let eval = |p: &Pose2, bar: Option<f64>| {
+        let penalty = match prior {
             Some(pr) => {
                 let (dx, dy) = (p.x_m - start.x_m, p.y_m - start.y_m);
                 let da = wrap_angle(p.yaw_rad - start.yaw_rad);
-                ll - 0.5 * ((dx * dx + dy * dy) * pr.inv_var_xy + da * da * pr.inv_var_yaw)
+                0.5 * ((dx * dx + dy * dy) * pr.inv_var_xy + da * da * pr.inv_var_yaw)
             }
+            None => 0.0,
+        };
+        let bar = bar.map(|bar| Bar { penalty, bar });
+        let ll = scan_log_likelihood_above(grid, model, points, p, bar);
+        match prior {
+            Some(_) => ll - penalty,
             None => ll,
         }
     };
+    // Every pose evaluated so far has an objective <= the current value to beat (which
+    // only rises: a candidate either lost against it or raised it), so a candidate equal
+    // to one of them bit for bit cannot win and is not evaluated again.
+    let bits = |p: &Pose2| [p.x_m, p.y_m, p.yaw_rad].map(f64::to_bits);
+    let mut seen: Vec<[u64; 3]> = Vec::with_capacity(64);
     let mut best = *start;
-    let mut best_ll = eval(&best);
+    let mut best_ll = eval(&best, None);
+    seen.push(bits(&best));
     let r = search.xy_cells;
     for &dyaw in &search.yaw_offsets_rad {
         for oy in -r..=r {
@@ -433,7 +479,8 @@ pub fn match_in_own_map(
                     start.y_m + f64::from(oy) * search.resolution_m,
                     start.yaw_rad + dyaw,
                 );
-                let ll = eval(&cand);
+                let ll = eval(&cand, Some(best_ll));
+                seen.push(bits(&cand));
                 if ll > best_ll {
                     best_ll = ll;
                     best = cand;
@@ -444,11 +491,7 @@ pub fn match_in_own_map(
     let (mut sxy, mut syaw) = (search.step_xy_m, search.step_yaw_rad);
     let mut level = 0;
     let mut iterations = 0;
-    // The pose the last move came from: its objective is below the current one, so a
-    // candidate equal to it bit for bit cannot win and is not evaluated again. (Not
-    // `scanmatch::pattern_search`: this climb wraps the yaw at every step.)
-    let mut previous: Option<[u64; 3]> = None;
-    let bits = |p: &Pose2| [p.x_m, p.y_m, p.yaw_rad].map(f64::to_bits);
+    // (Not `scanmatch::pattern_search`: this climb wraps the yaw at every step.)
     while level < search.refine_levels && iterations < 200 {
         iterations += 1;
         let mut moved: Option<(Pose2, f64)> = None;
@@ -461,17 +504,19 @@ pub fn match_in_own_map(
             (0.0, 0.0, -syaw),
         ] {
             let cand = Pose2::new(best.x_m + ex, best.y_m + ey, best.yaw_rad + ea);
-            if previous == Some(bits(&cand)) {
+            let key = bits(&cand);
+            if seen.contains(&key) {
                 continue;
             }
-            let ll = eval(&cand);
-            if ll > moved.map_or(best_ll, |m| m.1) {
+            seen.push(key);
+            let to_beat = moved.map_or(best_ll, |m| m.1);
+            let ll = eval(&cand, Some(to_beat));
+            if ll > to_beat {
                 moved = Some((cand, ll));
             }
         }
         match moved {
             Some((p, ll)) => {
-                previous = Some(bits(&best));
                 best = p;
                 best_ll = ll;
             }
