@@ -454,10 +454,11 @@ pub fn match_in_own_map(
         };
         let bar = bar.map(|bar| Bar { penalty, bar });
         let ll = scan_log_likelihood_above(grid, model, points, p, bar);
-        match prior {
+        let objective = match prior {
             Some(_) => ll - penalty,
             None => ll,
-        }
+        };
+        (objective, ll)
     };
     // Every pose evaluated so far has an objective <= the current value to beat (which
     // only rises: a candidate either lost against it or raised it), so a candidate equal
@@ -465,7 +466,9 @@ pub fn match_in_own_map(
     let bits = |p: &Pose2| [p.x_m, p.y_m, p.yaw_rad].map(f64::to_bits);
     let mut seen: Vec<[u64; 3]> = Vec::with_capacity(64);
     let mut best = *start;
-    let mut best_ll = eval(&best, None);
+    // `best_raw`: the best pose's log-likelihood without the prior (always a full sum: a
+    // winner never stopped early).
+    let (mut best_ll, mut best_raw) = eval(&best, None);
     seen.push(bits(&best));
     let r = search.xy_cells;
     for &dyaw in &search.yaw_offsets_rad {
@@ -479,10 +482,11 @@ pub fn match_in_own_map(
                     start.y_m + f64::from(oy) * search.resolution_m,
                     start.yaw_rad + dyaw,
                 );
-                let ll = eval(&cand, Some(best_ll));
+                let (ll, raw) = eval(&cand, Some(best_ll));
                 seen.push(bits(&cand));
                 if ll > best_ll {
                     best_ll = ll;
+                    best_raw = raw;
                     best = cand;
                 }
             }
@@ -494,7 +498,7 @@ pub fn match_in_own_map(
     // (Not `scanmatch::pattern_search`: this climb wraps the yaw at every step.)
     while level < search.refine_levels && iterations < 200 {
         iterations += 1;
-        let mut moved: Option<(Pose2, f64)> = None;
+        let mut moved: Option<(Pose2, f64, f64)> = None;
         for (ex, ey, ea) in [
             (sxy, 0.0, 0.0),
             (-sxy, 0.0, 0.0),
@@ -510,15 +514,16 @@ pub fn match_in_own_map(
             }
             seen.push(key);
             let to_beat = moved.map_or(best_ll, |m| m.1);
-            let ll = eval(&cand, Some(to_beat));
+            let (ll, raw) = eval(&cand, Some(to_beat));
             if ll > to_beat {
-                moved = Some((cand, ll));
+                moved = Some((cand, ll, raw));
             }
         }
         match moved {
-            Some((p, ll)) => {
+            Some((p, ll, raw)) => {
                 best = p;
                 best_ll = ll;
+                best_raw = raw;
             }
             None => {
                 sxy *= 0.5;
@@ -527,13 +532,23 @@ pub fn match_in_own_map(
             }
         }
     }
-    best.yaw_rad = wrap_angle(best.yaw_rad);
-    // The weight is the observation's likelihood, without the prior.
-    let ll = if prior.is_some() {
-        scan_log_likelihood(grid, model, points, &best)
+    let wrapped = wrap_angle(best.yaw_rad);
+    // The weight is the observation's likelihood, without the prior: the one computed for
+    // this pose, unless wrapping the yaw changed the pose (then recomputed, with a prior).
+    let ll = if prior.is_none() || wrapped.to_bits() == best.yaw_rad.to_bits() {
+        best_raw
     } else {
-        best_ll
+        scan_log_likelihood(
+            grid,
+            model,
+            points,
+            &Pose2 {
+                yaw_rad: wrapped,
+                ..best
+            },
+        )
     };
+    best.yaw_rad = wrapped;
     (best, ll)
 }
 
@@ -1225,6 +1240,158 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The matcher before the early stop and the memo of evaluated poses: every candidate
+    /// fully evaluated, only the pose just left skipped, the weight recomputed.
+    fn match_in_own_map_plain(
+        grid: &OccupancyGrid,
+        model: &ObservationModel,
+        points: &[[f64; 2]],
+        start: &Pose2,
+        search: &SearchParams,
+    ) -> (Pose2, f64) {
+        let prior = search.prior;
+        let eval = |p: &Pose2| {
+            let ll = scan_log_likelihood_plain(grid, model, points, p);
+            match prior {
+                Some(pr) => {
+                    let (dx, dy) = (p.x_m - start.x_m, p.y_m - start.y_m);
+                    let da = wrap_angle(p.yaw_rad - start.yaw_rad);
+                    ll - 0.5 * ((dx * dx + dy * dy) * pr.inv_var_xy + da * da * pr.inv_var_yaw)
+                }
+                None => ll,
+            }
+        };
+        let mut best = *start;
+        let mut best_ll = eval(&best);
+        let r = search.xy_cells;
+        for &dyaw in &search.yaw_offsets_rad {
+            for oy in -r..=r {
+                for ox in -r..=r {
+                    if dyaw == 0.0 && ox == 0 && oy == 0 {
+                        continue;
+                    }
+                    let cand = Pose2::new(
+                        start.x_m + f64::from(ox) * search.resolution_m,
+                        start.y_m + f64::from(oy) * search.resolution_m,
+                        start.yaw_rad + dyaw,
+                    );
+                    let ll = eval(&cand);
+                    if ll > best_ll {
+                        best_ll = ll;
+                        best = cand;
+                    }
+                }
+            }
+        }
+        let (mut sxy, mut syaw) = (search.step_xy_m, search.step_yaw_rad);
+        let (mut level, mut iterations) = (0, 0);
+        while level < search.refine_levels && iterations < 200 {
+            iterations += 1;
+            let mut moved: Option<(Pose2, f64)> = None;
+            for (ex, ey, ea) in [
+                (sxy, 0.0, 0.0),
+                (-sxy, 0.0, 0.0),
+                (0.0, sxy, 0.0),
+                (0.0, -sxy, 0.0),
+                (0.0, 0.0, syaw),
+                (0.0, 0.0, -syaw),
+            ] {
+                let cand = Pose2::new(best.x_m + ex, best.y_m + ey, best.yaw_rad + ea);
+                let ll = eval(&cand);
+                if ll > moved.map_or(best_ll, |m| m.1) {
+                    moved = Some((cand, ll));
+                }
+            }
+            match moved {
+                Some((p, ll)) => {
+                    best = p;
+                    best_ll = ll;
+                }
+                None => {
+                    sxy *= 0.5;
+                    syaw *= 0.5;
+                    level += 1;
+                }
+            }
+        }
+        best.yaw_rad = wrap_angle(best.yaw_rad);
+        let ll = if prior.is_some() {
+            scan_log_likelihood_plain(grid, model, points, &best)
+        } else {
+            best_ll
+        };
+        (best, ll)
+    }
+
+    #[test]
+    fn matcher_with_early_stops_equals_the_plain_climb_bit_for_bit() {
+        use crate::map::{MapOptions, ScanPoint};
+        use rand::SeedableRng;
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(11);
+        let mut uni = |a: f64, b: f64| a + (b - a) * rng.random::<f64>();
+        let mut grid = OccupancyGrid::new(&MapOptions {
+            resolution_m: 0.05,
+            ..MapOptions::default()
+        })
+        .unwrap();
+        // Walls of a room and a few posts, seen from its middle.
+        let mut wall: Vec<[f64; 2]> = Vec::new();
+        for k in 0..160 {
+            let t = f64::from(k) * 0.05 - 4.0;
+            wall.extend([[t, 3.0], [t, -2.5], [4.0, 0.7 * t], [-4.0, 0.6 * t]]);
+        }
+        for k in 0..24 {
+            let a = f64::from(k) * 15f64.to_radians();
+            wall.extend([
+                [1.0 + 0.2 * a.cos(), 1.0 + 0.2 * a.sin()],
+                [-2.0 + 0.3 * a.cos(), -1.0 + 0.15 * a.sin()],
+            ]);
+        }
+        let scan = PlanarScan {
+            sensor_x_m: 0.0,
+            sensor_y_m: 0.0,
+            sensor_z_m: None,
+            points: wall
+                .iter()
+                .map(|p| ScanPoint {
+                    x_m: p[0],
+                    y_m: p[1],
+                    hit: true,
+                    free_to: 1.0,
+                    z_m: 0.0,
+                })
+                .collect(),
+        };
+        grid.insert_scan(&scan, &mut InsertScratch::new()).unwrap();
+        let body: Vec<[f64; 2]> = wall.iter().step_by(3).copied().collect();
+        let o = RbpfOptions::default();
+        let model = o.observation(0.05);
+        let mut checked = 0;
+        for trial in 0..60 {
+            let mut search = SearchParams::new(&o, 0.05);
+            search.xy_cells = (trial % 3) as i32 / 2;
+            search.prior = (trial % 4 != 0).then(|| MatchPrior {
+                inv_var_xy: 1.0 / uni(0.01, 0.2).powi(2),
+                inv_var_yaw: 1.0 / uni(0.01, 0.1).powi(2),
+            });
+            // Starts off the truth, some near +-pi (the climb wraps the yaw).
+            let yaw = if trial % 5 == 0 {
+                std::f64::consts::PI - uni(0.0, 0.03)
+            } else {
+                uni(-0.08, 0.08)
+            };
+            let start = Pose2::new(uni(-0.15, 0.15), uni(-0.15, 0.15), yaw);
+            let (fast, ll) = match_in_own_map(&grid, &model, &body, &start, &search);
+            let (plain, plain_ll) = match_in_own_map_plain(&grid, &model, &body, &start, &search);
+            let b = |p: &Pose2| [p.x_m, p.y_m, p.yaw_rad].map(f64::to_bits);
+            assert_eq!(b(&fast), b(&plain), "{trial} {start:?}");
+            assert_eq!(ll.to_bits(), plain_ll.to_bits(), "{trial}");
+            checked += usize::from(b(&fast) != b(&start));
+        }
+        // Most searches moved away from their start.
+        assert!(checked > 40, "{checked}");
     }
 
     #[test]
