@@ -810,9 +810,7 @@ impl Rbpf {
         let n = self.particles.len();
         let t = Instant::now();
         if !first {
-            // Motion draws per chunk, from the chunk's stream in particle order (cheap);
-            // then every particle matches on its own, so the threads balance whatever the
-            // particle count (5 chunks of 40 particles would split 3:2 over two threads).
+            // Motion draws per chunk, from the chunk's stream in particle order (cheap).
             for (parts, st) in self
                 .particles
                 .chunks_mut(CHUNK_PARTICLES)
@@ -822,31 +820,31 @@ impl Rbpf {
                     p.pose = sample_motion(&p.pose, delta, noise, &mut st.rng);
                 }
             }
-            self.particles
-                .par_iter_mut()
-                .zip(self.lls.par_iter_mut())
-                .with_max_len(1)
-                .for_each(|(p, ll)| {
-                    let (pose, l) = match_in_own_map(&p.map, model, points, &p.pose, search);
-                    p.pose = pose;
-                    *ll = l;
-                });
         }
-        let match_s = t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        // Mapped before resampling, so copies share the tiles this update wrote.
-        // Per particle too, each worker thread with its own scratch (a mask of megabytes:
-        // never per particle); the scratch does not affect results.
+        // Then every particle on its own (the threads balance whatever the particle count;
+        // 5 chunks of 40 particles would split 3:2 over two threads): match in its map, then
+        // map the scan into it, in one pass (a particle's match reads only its own map, and
+        // copy-on-write tiles keep the others' maps apart, so the same maps as matching all
+        // first). Mapped before resampling, so copies share the tiles this update wrote.
+        // Each worker thread has its own insertion scratch (a mask of megabytes: never per
+        // particle); the scratch does not affect results.
         let threads = rayon::current_num_threads().max(1);
         if self.scratch.0.len() < threads {
             self.scratch.0.resize_with(threads, Default::default);
         }
         let scratch = &self.scratch.0;
-        let results: Vec<Result<(), MapError>> = self
+        let results: Vec<Result<f64, MapError>> = self
             .particles
             .par_iter_mut()
+            .zip(self.lls.par_iter_mut())
             .with_max_len(1)
-            .map(|p| {
+            .map(|(p, ll)| {
+                if !first {
+                    let (pose, l) = match_in_own_map(&p.map, model, points, &p.pose, search);
+                    p.pose = pose;
+                    *ll = l;
+                }
+                let t_map = Instant::now();
                 let slot = rayon::current_thread_index().unwrap_or(0) % scratch.len();
                 let mut guard = scratch[slot]
                     .lock()
@@ -860,14 +858,19 @@ impl Rbpf {
                     scan,
                     parent: Some(p.node.clone()),
                 });
-                Ok(())
+                Ok(t_map.elapsed().as_secs_f64())
             })
             .collect();
+        let elapsed = t.elapsed().as_secs_f64();
         // The first error in particle order.
+        let mut map_thread_s = 0.0;
         for r in results {
-            r?;
+            map_thread_s += r?;
         }
-        let map_s = t.elapsed().as_secs_f64();
+        // Wall times of the two parts: the pass's wall time split by the threads' time
+        // spent mapping (an estimate: the parts now overlap).
+        let map_s = (map_thread_s / threads as f64).min(elapsed);
+        let match_s = elapsed - map_s;
         if first {
             return Ok(RbpfUpdate {
                 neff: n as f64,
