@@ -1374,7 +1374,7 @@ mod tests {
         let mut checked = 0;
         for trial in 0..60 {
             let mut search = SearchParams::new(&o, 0.05);
-            search.xy_cells = (trial % 3) as i32 / 2;
+            search.xy_cells = (trial % 3) / 2;
             search.prior = (trial % 4 != 0).then(|| MatchPrior {
                 inv_var_xy: 1.0 / uni(0.01, 0.2).powi(2),
                 inv_var_yaw: 1.0 / uni(0.01, 0.1).powi(2),

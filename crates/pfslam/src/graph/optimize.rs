@@ -326,7 +326,7 @@ impl System {
         }
         // Every node's three rows share their envelope's first column (`SparseOrder` builds
         // it per node), which the node kernel relies on.
-        let by_node = n % 3 == 0
+        let by_node = n.is_multiple_of(3)
             && (0..n).step_by(3).all(|r| {
                 self.first_col[r + 1] == self.first_col[r]
                     && self.first_col[r + 2] == self.first_col[r]
