@@ -577,26 +577,46 @@ fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> 
     }
 }
 
-/// Issue 5's acceptance on the default simulated drive (180 s, 1359 m, default errors, 40
-/// particles): SLAM ATE RMSE 5x lower than dead reckoning, map precision/recall >= 0.9
-/// against the scan-surface truth (`pfslam::sim::scan_truth`), the map rebuilt along the
-/// SLAM trajectory with the height bins as `pfslam run` writes it. Not reached yet, hence
-/// ignored (~1 min in release): with filter seeds 1-5, ATE RMSE 0.183 / 0.223 / 0.304 /
-/// 0.316 / 0.258 m vs dead reckoning 0.550 m (3.0x at best); map precision 0.76-0.90, recall
-/// 0.40-0.61 (with the true poses 0.9997 / 0.918). On the noise-free drive a tight yaw and
-/// `match_gain = 0.1` give 0.049 m, but with the odometry's scale error (wheel diameters)
-/// 0.31 m: matching against the filter's own map barely observes scale (README, "Results so
-/// far").
+/// Issue 5's accuracy target on the default simulated drive (180 s, 1359 m, default errors,
+/// 40 particles, filter seed 1), the whole pipeline as `pfslam run` runs it (filter, the
+/// odometry calibrated against it, the `[graph]` back end): ATE RMSE at least 5x below dead
+/// reckoning's. Measured: 0.074 m against 0.550 m (seeds 2-5: 0.053 / 0.072 / 0.064 / 0.057
+/// m). About 25 s of CPU in release.
 #[test]
-#[ignore = "not reached yet: SLAM ATE 0.18-0.32 m vs dead reckoning 0.55 m (target 5x), map recall 0.40-0.61"]
-fn simulated_car_slam_acceptance() {
+fn simulated_car_slam_ate_is_5x_below_dead_reckoning() {
     let config = pfslam::config::Config::default();
     let r = sim_car_slam(180.0, &config, 1);
     eprintln!(
-        "simulated car (180 s): ATE RMSE slam {:.3} m, dead reckoning {:.3} m, map precision {:.3} recall {:.3}; {:?}",
-        r.slam_ate_m, r.dr_ate_m, r.precision, r.recall, r.result.stats
+        "simulated car (180 s): ATE RMSE slam {:.3} m, dead reckoning {:.3} m, map precision {:.3} recall {:.3}",
+        r.slam_ate_m, r.dr_ate_m, r.precision, r.recall
     );
-    assert!(r.slam_ate_m * 5.0 <= r.dr_ate_m);
+    assert!(
+        r.slam_ate_m * 5.0 <= r.dr_ate_m,
+        "{} vs {}",
+        r.slam_ate_m,
+        r.dr_ate_m
+    );
+    // The map target's precision half holds (0.95-0.98 over seeds 1-5).
+    assert!(r.precision >= 0.9, "{}", r.precision);
+}
+
+/// Issue 5's map target on the same drive: precision and recall >= 0.9 against the
+/// scan-surface truth (`pfslam::sim::scan_truth`), the map rebuilt along the final trajectory
+/// with the height bins as `pfslam run` writes it, in the true map's frame (the SLAM map is
+/// anchored at the true start pose, not aligned). Not reached: recall 0.827 / 0.860 / 0.852 /
+/// 0.798 / 0.950 over seeds 1-5 (precision 0.95-0.98; with the true poses 0.9855). The
+/// trajectory's error relative to the start (0.11-0.19 m RMS) is mostly the FOG's angle
+/// random walk (0.08 deg over the drive), which the calibration cannot remove and only
+/// loop closures could; after the SE(2) alignment the ATE uses, recall is 0.98-0.99.
+#[test]
+#[ignore = "not reached yet: map recall 0.80-0.95 over seeds 1-5 (precision 0.95-0.98)"]
+fn simulated_car_slam_map_acceptance() {
+    let config = pfslam::config::Config::default();
+    let r = sim_car_slam(180.0, &config, 1);
+    eprintln!(
+        "simulated car (180 s): map precision {:.3} recall {:.3}",
+        r.precision, r.recall
+    );
     assert!(r.precision >= 0.9 && r.recall >= 0.9);
 }
 

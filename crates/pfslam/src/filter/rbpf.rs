@@ -263,6 +263,36 @@ pub fn scan_log_likelihood(
     points: &[[f64; 2]],
     pose: &Pose2,
 ) -> f64 {
+    scan_log_likelihood_above(grid, model, points, pose, None)
+}
+
+/// A candidate's bar in [`scan_log_likelihood_above`]: it wins only if
+/// `log-likelihood - penalty > bar`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Bar {
+    /// Subtracted from the log-likelihood before the comparison (the prior's term).
+    pub penalty: f64,
+    /// The value to beat (strictly).
+    pub bar: f64,
+}
+
+/// [`scan_log_likelihood`], but with a `bar` it may stop early: every point's term is <= 0,
+/// so the running sum only falls (rounding is monotonic) and once `sum - penalty <= bar`
+/// the candidate cannot win. Then it returns that partial sum, for which `sum - penalty >
+/// bar` is false, as it would be for the full sum. Otherwise (and without a bar) the
+/// full sum, the same bits as [`scan_log_likelihood`].
+pub fn scan_log_likelihood_above(
+    grid: &OccupancyGrid,
+    model: &ObservationModel,
+    points: &[[f64; 2]],
+    pose: &Pose2,
+    bar: Option<Bar>,
+) -> f64 {
+    // Without a bar, a test that never stops (NaN compares false).
+    let Bar { penalty, bar } = bar.unwrap_or(Bar {
+        penalty: 0.0,
+        bar: f64::NAN,
+    });
     let limits = grid.limits();
     let (s, c) = pose.yaw_rad.sin_cos();
     let k = model.kernel;
@@ -321,6 +351,9 @@ pub fn scan_log_likelihood(
         } else {
             model.no_hit
         };
+        if total - penalty <= bar {
+            return total;
+        }
     }
     total
 }
@@ -408,19 +441,35 @@ pub fn match_in_own_map(
     search: &SearchParams,
 ) -> (Pose2, f64) {
     let prior = search.prior;
-    let eval = |p: &Pose2| {
-        let ll = scan_log_likelihood(grid, model, points, p);
-        match prior {
+    // The objective `ll - penalty` (`ll` alone without a prior: `x - 0.0` is `x`). Given
+    // the value to beat, the likelihood may stop early; the result then does not beat it.
+    let eval = |p: &Pose2, bar: Option<f64>| {
+        let penalty = match prior {
             Some(pr) => {
                 let (dx, dy) = (p.x_m - start.x_m, p.y_m - start.y_m);
                 let da = wrap_angle(p.yaw_rad - start.yaw_rad);
-                ll - 0.5 * ((dx * dx + dy * dy) * pr.inv_var_xy + da * da * pr.inv_var_yaw)
+                0.5 * ((dx * dx + dy * dy) * pr.inv_var_xy + da * da * pr.inv_var_yaw)
             }
+            None => 0.0,
+        };
+        let bar = bar.map(|bar| Bar { penalty, bar });
+        let ll = scan_log_likelihood_above(grid, model, points, p, bar);
+        let objective = match prior {
+            Some(_) => ll - penalty,
             None => ll,
-        }
+        };
+        (objective, ll)
     };
+    // Every pose evaluated so far has an objective <= the current value to beat (which
+    // only rises: a candidate either lost against it or raised it), so a candidate equal
+    // to one of them bit for bit cannot win and is not evaluated again.
+    let bits = |p: &Pose2| [p.x_m, p.y_m, p.yaw_rad].map(f64::to_bits);
+    let mut seen: Vec<[u64; 3]> = Vec::with_capacity(64);
     let mut best = *start;
-    let mut best_ll = eval(&best);
+    // `best_raw`: the best pose's log-likelihood without the prior (always a full sum: a
+    // winner never stopped early).
+    let (mut best_ll, mut best_raw) = eval(&best, None);
+    seen.push(bits(&best));
     let r = search.xy_cells;
     for &dyaw in &search.yaw_offsets_rad {
         for oy in -r..=r {
@@ -433,9 +482,11 @@ pub fn match_in_own_map(
                     start.y_m + f64::from(oy) * search.resolution_m,
                     start.yaw_rad + dyaw,
                 );
-                let ll = eval(&cand);
+                let (ll, raw) = eval(&cand, Some(best_ll));
+                seen.push(bits(&cand));
                 if ll > best_ll {
                     best_ll = ll;
+                    best_raw = raw;
                     best = cand;
                 }
             }
@@ -444,14 +495,10 @@ pub fn match_in_own_map(
     let (mut sxy, mut syaw) = (search.step_xy_m, search.step_yaw_rad);
     let mut level = 0;
     let mut iterations = 0;
-    // The pose the last move came from: its objective is below the current one, so a
-    // candidate equal to it bit for bit cannot win and is not evaluated again. (Not
-    // `scanmatch::pattern_search`: this climb wraps the yaw at every step.)
-    let mut previous: Option<[u64; 3]> = None;
-    let bits = |p: &Pose2| [p.x_m, p.y_m, p.yaw_rad].map(f64::to_bits);
+    // (Not `scanmatch::pattern_search`: this climb wraps the yaw at every step.)
     while level < search.refine_levels && iterations < 200 {
         iterations += 1;
-        let mut moved: Option<(Pose2, f64)> = None;
+        let mut moved: Option<(Pose2, f64, f64)> = None;
         for (ex, ey, ea) in [
             (sxy, 0.0, 0.0),
             (-sxy, 0.0, 0.0),
@@ -461,19 +508,22 @@ pub fn match_in_own_map(
             (0.0, 0.0, -syaw),
         ] {
             let cand = Pose2::new(best.x_m + ex, best.y_m + ey, best.yaw_rad + ea);
-            if previous == Some(bits(&cand)) {
+            let key = bits(&cand);
+            if seen.contains(&key) {
                 continue;
             }
-            let ll = eval(&cand);
-            if ll > moved.map_or(best_ll, |m| m.1) {
-                moved = Some((cand, ll));
+            seen.push(key);
+            let to_beat = moved.map_or(best_ll, |m| m.1);
+            let (ll, raw) = eval(&cand, Some(to_beat));
+            if ll > to_beat {
+                moved = Some((cand, ll, raw));
             }
         }
         match moved {
-            Some((p, ll)) => {
-                previous = Some(bits(&best));
+            Some((p, ll, raw)) => {
                 best = p;
                 best_ll = ll;
+                best_raw = raw;
             }
             None => {
                 sxy *= 0.5;
@@ -482,13 +532,23 @@ pub fn match_in_own_map(
             }
         }
     }
-    best.yaw_rad = wrap_angle(best.yaw_rad);
-    // The weight is the observation's likelihood, without the prior.
-    let ll = if prior.is_some() {
-        scan_log_likelihood(grid, model, points, &best)
+    let wrapped = wrap_angle(best.yaw_rad);
+    // The weight is the observation's likelihood, without the prior: the one computed for
+    // this pose, unless wrapping the yaw changed the pose (then recomputed, with a prior).
+    let ll = if prior.is_none() || wrapped.to_bits() == best.yaw_rad.to_bits() {
+        best_raw
     } else {
-        best_ll
+        scan_log_likelihood(
+            grid,
+            model,
+            points,
+            &Pose2 {
+                yaw_rad: wrapped,
+                ..best
+            },
+        )
     };
+    best.yaw_rad = wrapped;
     (best, ll)
 }
 
@@ -750,9 +810,7 @@ impl Rbpf {
         let n = self.particles.len();
         let t = Instant::now();
         if !first {
-            // Motion draws per chunk, from the chunk's stream in particle order (cheap);
-            // then every particle matches on its own, so the threads balance whatever the
-            // particle count (5 chunks of 40 particles would split 3:2 over two threads).
+            // Motion draws per chunk, from the chunk's stream in particle order (cheap).
             for (parts, st) in self
                 .particles
                 .chunks_mut(CHUNK_PARTICLES)
@@ -762,31 +820,31 @@ impl Rbpf {
                     p.pose = sample_motion(&p.pose, delta, noise, &mut st.rng);
                 }
             }
-            self.particles
-                .par_iter_mut()
-                .zip(self.lls.par_iter_mut())
-                .with_max_len(1)
-                .for_each(|(p, ll)| {
-                    let (pose, l) = match_in_own_map(&p.map, model, points, &p.pose, search);
-                    p.pose = pose;
-                    *ll = l;
-                });
         }
-        let match_s = t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        // Mapped before resampling, so copies share the tiles this update wrote.
-        // Per particle too, each worker thread with its own scratch (a mask of megabytes:
-        // never per particle); the scratch does not affect results.
+        // Then every particle on its own (the threads balance whatever the particle count;
+        // 5 chunks of 40 particles would split 3:2 over two threads): match in its map, then
+        // map the scan into it, in one pass (a particle's match reads only its own map, and
+        // copy-on-write tiles keep the others' maps apart, so the same maps as matching all
+        // first). Mapped before resampling, so copies share the tiles this update wrote.
+        // Each worker thread has its own insertion scratch (a mask of megabytes: never per
+        // particle); the scratch does not affect results.
         let threads = rayon::current_num_threads().max(1);
         if self.scratch.0.len() < threads {
             self.scratch.0.resize_with(threads, Default::default);
         }
         let scratch = &self.scratch.0;
-        let results: Vec<Result<(), MapError>> = self
+        let results: Vec<Result<f64, MapError>> = self
             .particles
             .par_iter_mut()
+            .zip(self.lls.par_iter_mut())
             .with_max_len(1)
-            .map(|p| {
+            .map(|(p, ll)| {
+                if !first {
+                    let (pose, l) = match_in_own_map(&p.map, model, points, &p.pose, search);
+                    p.pose = pose;
+                    *ll = l;
+                }
+                let t_map = Instant::now();
                 let slot = rayon::current_thread_index().unwrap_or(0) % scratch.len();
                 let mut guard = scratch[slot]
                     .lock()
@@ -800,14 +858,19 @@ impl Rbpf {
                     scan,
                     parent: Some(p.node.clone()),
                 });
-                Ok(())
+                Ok(t_map.elapsed().as_secs_f64())
             })
             .collect();
+        let elapsed = t.elapsed().as_secs_f64();
         // The first error in particle order.
+        let mut map_thread_s = 0.0;
         for r in results {
-            r?;
+            map_thread_s += r?;
         }
-        let map_s = t.elapsed().as_secs_f64();
+        // Wall times of the two parts: the pass's wall time split by the threads' time
+        // spent mapping (an estimate: the parts now overlap).
+        let map_s = (map_thread_s / threads as f64).min(elapsed);
+        let match_s = elapsed - map_s;
         if first {
             return Ok(RbpfUpdate {
                 neff: n as f64,
@@ -1180,6 +1243,158 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The matcher before the early stop and the memo of evaluated poses: every candidate
+    /// fully evaluated, only the pose just left skipped, the weight recomputed.
+    fn match_in_own_map_plain(
+        grid: &OccupancyGrid,
+        model: &ObservationModel,
+        points: &[[f64; 2]],
+        start: &Pose2,
+        search: &SearchParams,
+    ) -> (Pose2, f64) {
+        let prior = search.prior;
+        let eval = |p: &Pose2| {
+            let ll = scan_log_likelihood_plain(grid, model, points, p);
+            match prior {
+                Some(pr) => {
+                    let (dx, dy) = (p.x_m - start.x_m, p.y_m - start.y_m);
+                    let da = wrap_angle(p.yaw_rad - start.yaw_rad);
+                    ll - 0.5 * ((dx * dx + dy * dy) * pr.inv_var_xy + da * da * pr.inv_var_yaw)
+                }
+                None => ll,
+            }
+        };
+        let mut best = *start;
+        let mut best_ll = eval(&best);
+        let r = search.xy_cells;
+        for &dyaw in &search.yaw_offsets_rad {
+            for oy in -r..=r {
+                for ox in -r..=r {
+                    if dyaw == 0.0 && ox == 0 && oy == 0 {
+                        continue;
+                    }
+                    let cand = Pose2::new(
+                        start.x_m + f64::from(ox) * search.resolution_m,
+                        start.y_m + f64::from(oy) * search.resolution_m,
+                        start.yaw_rad + dyaw,
+                    );
+                    let ll = eval(&cand);
+                    if ll > best_ll {
+                        best_ll = ll;
+                        best = cand;
+                    }
+                }
+            }
+        }
+        let (mut sxy, mut syaw) = (search.step_xy_m, search.step_yaw_rad);
+        let (mut level, mut iterations) = (0, 0);
+        while level < search.refine_levels && iterations < 200 {
+            iterations += 1;
+            let mut moved: Option<(Pose2, f64)> = None;
+            for (ex, ey, ea) in [
+                (sxy, 0.0, 0.0),
+                (-sxy, 0.0, 0.0),
+                (0.0, sxy, 0.0),
+                (0.0, -sxy, 0.0),
+                (0.0, 0.0, syaw),
+                (0.0, 0.0, -syaw),
+            ] {
+                let cand = Pose2::new(best.x_m + ex, best.y_m + ey, best.yaw_rad + ea);
+                let ll = eval(&cand);
+                if ll > moved.map_or(best_ll, |m| m.1) {
+                    moved = Some((cand, ll));
+                }
+            }
+            match moved {
+                Some((p, ll)) => {
+                    best = p;
+                    best_ll = ll;
+                }
+                None => {
+                    sxy *= 0.5;
+                    syaw *= 0.5;
+                    level += 1;
+                }
+            }
+        }
+        best.yaw_rad = wrap_angle(best.yaw_rad);
+        let ll = if prior.is_some() {
+            scan_log_likelihood_plain(grid, model, points, &best)
+        } else {
+            best_ll
+        };
+        (best, ll)
+    }
+
+    #[test]
+    fn matcher_with_early_stops_equals_the_plain_climb_bit_for_bit() {
+        use crate::map::{MapOptions, ScanPoint};
+        use rand::SeedableRng;
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(11);
+        let mut uni = |a: f64, b: f64| a + (b - a) * rng.random::<f64>();
+        let mut grid = OccupancyGrid::new(&MapOptions {
+            resolution_m: 0.05,
+            ..MapOptions::default()
+        })
+        .unwrap();
+        // Walls of a room and a few posts, seen from its middle.
+        let mut wall: Vec<[f64; 2]> = Vec::new();
+        for k in 0..160 {
+            let t = f64::from(k) * 0.05 - 4.0;
+            wall.extend([[t, 3.0], [t, -2.5], [4.0, 0.7 * t], [-4.0, 0.6 * t]]);
+        }
+        for k in 0..24 {
+            let a = f64::from(k) * 15f64.to_radians();
+            wall.extend([
+                [1.0 + 0.2 * a.cos(), 1.0 + 0.2 * a.sin()],
+                [-2.0 + 0.3 * a.cos(), -1.0 + 0.15 * a.sin()],
+            ]);
+        }
+        let scan = PlanarScan {
+            sensor_x_m: 0.0,
+            sensor_y_m: 0.0,
+            sensor_z_m: None,
+            points: wall
+                .iter()
+                .map(|p| ScanPoint {
+                    x_m: p[0],
+                    y_m: p[1],
+                    hit: true,
+                    free_to: 1.0,
+                    z_m: 0.0,
+                })
+                .collect(),
+        };
+        grid.insert_scan(&scan, &mut InsertScratch::new()).unwrap();
+        let body: Vec<[f64; 2]> = wall.iter().step_by(3).copied().collect();
+        let o = RbpfOptions::default();
+        let model = o.observation(0.05);
+        let mut checked = 0;
+        for trial in 0..60 {
+            let mut search = SearchParams::new(&o, 0.05);
+            search.xy_cells = (trial % 3) / 2;
+            search.prior = (trial % 4 != 0).then(|| MatchPrior {
+                inv_var_xy: 1.0 / uni(0.01, 0.2).powi(2),
+                inv_var_yaw: 1.0 / uni(0.01, 0.1).powi(2),
+            });
+            // Starts off the truth, some near +-pi (the climb wraps the yaw).
+            let yaw = if trial % 5 == 0 {
+                std::f64::consts::PI - uni(0.0, 0.03)
+            } else {
+                uni(-0.08, 0.08)
+            };
+            let start = Pose2::new(uni(-0.15, 0.15), uni(-0.15, 0.15), yaw);
+            let (fast, ll) = match_in_own_map(&grid, &model, &body, &start, &search);
+            let (plain, plain_ll) = match_in_own_map_plain(&grid, &model, &body, &start, &search);
+            let b = |p: &Pose2| [p.x_m, p.y_m, p.yaw_rad].map(f64::to_bits);
+            assert_eq!(b(&fast), b(&plain), "{trial} {start:?}");
+            assert_eq!(ll.to_bits(), plain_ll.to_bits(), "{trial}");
+            checked += usize::from(b(&fast) != b(&start));
+        }
+        // Most searches moved away from their start.
+        assert!(checked > 40, "{checked}");
     }
 
     #[test]

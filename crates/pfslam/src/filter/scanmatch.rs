@@ -55,13 +55,13 @@ pub struct ScanMatchOptions {
     /// Particles are sampled around their match with this standard deviation in x and y
     /// (m); the prediction itself composes the odometry without noise (the match, not the
     /// motion noise, is the proposal). Small, because the best particle changes from update
-    /// to update and each change is a jump of this order: with 0.01 m the filter's travel
-    /// was 0.04-0.12 % short of the true travel on the default drive (seeds 1-5; the
-    /// jittered particles that fall behind fit the map best), which the car's odometry
-    /// calibration then inherited; 0.003 m gave the back end's result 0.074 / 0.221 / 0.072
-    /// / 0.064 / 0.057 m ATE RMSE against 0.137 / 0.168 / 0.058 / 0.270 / 0.195 m, and the
-    /// humanoid's 0.132 / 0.119 / 0.134 m against 0.130 / 0.132 / 0.129 m (seeds 1-3); 0.001
-    /// m let the filter diverge (seed 1: 0.62 m).
+    /// to update and each change is a jump of this order, which the car's odometry
+    /// calibration then reads as travel: on the default drive (seeds 1-5, true scale
+    /// 1.00300) the filter's travel gave the scales 1.00276 / 1.00264 / 1.00289 / 1.00188 /
+    /// 1.00180 with 0.01 m (the jittered particles that fall behind fit the map best) and
+    /// 1.00326 / 1.00281 / 1.00293 / 1.00266 / 1.00285 with 0.003 m; the humanoid's ATE was
+    /// 0.130 / 0.132 / 0.129 m with 0.01 m and 0.132 / 0.119 / 0.134 m with 0.003 m (seeds
+    /// 1-3); 0.001 m let the car's filter diverge (seed 1: 0.62 m).
     pub proposal_sigma_xy_m: f64,
     /// Standard deviation of the yaw sampled around the match (deg).
     pub proposal_sigma_yaw_deg: f64,

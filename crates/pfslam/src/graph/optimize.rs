@@ -217,6 +217,7 @@ struct SparseOrder {
 }
 
 /// The normal equations in envelope storage.
+#[derive(Clone)]
 struct System {
     /// Row `r` holds columns `first_col[r]..=r`.
     rows: Vec<Vec<f64>>,
@@ -308,64 +309,47 @@ impl System {
     }
 
     /// Solves `(H + lambda * diag(H)) dx = rhs` by envelope Cholesky; `None` if not
-    /// positive definite.
+    /// positive definite. Large systems are factorised by two threads (when the pool has
+    /// two), with the same bits.
     fn solve_damped(&self, lambda: f64) -> Option<Vec<f64>> {
+        let two = rayon::current_num_threads() >= 2 && self.rows.len() >= PIPELINE_MIN_ROWS;
+        self.solve_damped_with(lambda, two)
+    }
+
+    /// [`Self::solve_damped`], on one thread or two (`pipelined`).
+    fn solve_damped_with(&self, lambda: f64, pipelined: bool) -> Option<Vec<f64>> {
         let n = self.rows.len();
         let mut l = self.rows.clone();
         for (r, row) in l.iter_mut().enumerate() {
             let d = r - self.first_col[r];
             row[d] += lambda * row[d].abs().max(1e-9);
         }
-        // The three rows of a node share their envelope's first column: their entries left of
-        // the node's diagonal block depend only on earlier rows and their own prefixes, so
-        // they are computed together (three independent dot products per column: three
-        // times the instruction-level parallelism, each dot in `dot`'s exact order, so the
-        // same bits as row by row). The diagonal block follows row by row.
-        for r0 in (0..n).step_by(3) {
-            let fr = self.first_col[r0];
-            if r0 + 3 <= n && self.first_col[r0 + 1] == fr && self.first_col[r0 + 2] == fr {
-                let (done, rest) = l.split_at_mut(r0);
-                if let [ra, rb, rc, ..] = rest {
-                    for c in fr..r0 {
-                        let fc = self.first_col[c];
-                        let k0 = fr.max(fc);
-                        let (lo, hi) = (k0 - fr, c - fr);
-                        let col = &done[c][k0 - fc..c - fc];
-                        let d = dot3([&ra[lo..hi], &rb[lo..hi], &rc[lo..hi]], col);
-                        let diag = done[c][c - fc];
-                        ra[hi] = (ra[hi] - d[0]) / diag;
-                        rb[hi] = (rb[hi] - d[1]) / diag;
-                        rc[hi] = (rc[hi] - d[2]) / diag;
-                    }
-                }
-            }
-            let block_start =
-                if r0 + 3 <= n && self.first_col[r0 + 1] == fr && self.first_col[r0 + 2] == fr {
-                    r0
-                } else {
-                    fr
-                };
-            for r in r0..(r0 + 3).min(n) {
-                let fr = self.first_col[r];
-                for c in block_start.max(fr)..=r {
-                    let fc = self.first_col[c];
-                    let k0 = fr.max(fc);
-                    let mut sum = l[r][c - fr];
-                    if c == r {
-                        let row = &l[r][k0 - fr..c - fr];
-                        sum -= dot(row, row);
-                        if sum <= 0.0 || !sum.is_finite() {
-                            return None;
-                        }
-                        l[r][c - fr] = sum.sqrt();
-                    } else {
-                        sum -= dot(&l[r][k0 - fr..c - fr], &l[c][k0 - fc..c - fc]);
-                        let diag = l[c][c - fc];
-                        l[r][c - fr] = sum / diag;
-                    }
-                }
-            }
+        // Every node's three rows share their envelope's first column (`SparseOrder` builds
+        // it per node), which the node kernel relies on.
+        let by_node = n.is_multiple_of(3)
+            && (0..n).step_by(3).all(|r| {
+                self.first_col[r + 1] == self.first_col[r]
+                    && self.first_col[r + 2] == self.first_col[r]
+            });
+        if !by_node {
+            return None;
         }
+        let l = if pipelined {
+            factor_pipelined(l, &self.first_col)?
+        } else {
+            let mut done: Vec<Vec<f64>> = Vec::with_capacity(n);
+            let mut it = l.into_iter();
+            while let (Some(a), Some(b), Some(c)) = (it.next(), it.next(), it.next()) {
+                let mut rows = [a, b, c];
+                let r0 = done.len();
+                factor_columns(&mut rows, r0, &self.first_col, (0, r0), |c| {
+                    Some(&done[c][..])
+                })?;
+                factor_diagonal(&mut rows, r0, &self.first_col)?;
+                done.extend(rows);
+            }
+            done
+        };
         // Forward: L y = b; backward: L^T x = y.
         let mut y = self.rhs.clone();
         for r in 0..n {
@@ -386,6 +370,197 @@ impl System {
         }
         Some(y)
     }
+}
+
+/// Below this many rows the factorisation stays on one thread (a thread per solve costs
+/// tens of microseconds).
+const PIPELINE_MIN_ROWS: usize = 600;
+
+/// Nodes per work unit of the two-thread factorisation: a unit waits (at most) once for
+/// the other thread's previous unit.
+const PIPELINE_NODES: usize = 8;
+
+/// Columns `c_lo..c_hi` (all `< r0`, clipped to the envelope) of rows `r0..r0 + 3` (one
+/// node, sharing the envelope's first column) of the envelope Cholesky factor, in place;
+/// `done(c)` gives the finished row `c` (`None`: give up). These entries depend only on
+/// earlier rows and the rows' own earlier entries, so the three rows are computed together
+/// (three independent dot products per column, each in `dot`'s exact order: the same bits
+/// as row by row). Columns must be done in increasing order.
+#[inline]
+fn factor_columns<'a>(
+    rows: &mut [Vec<f64>; 3],
+    r0: usize,
+    first_col: &[usize],
+    (c_lo, c_hi): (usize, usize),
+    done: impl Fn(usize) -> Option<&'a [f64]>,
+) -> Option<()> {
+    let fr = first_col[r0];
+    let [ra, rb, rc] = rows;
+    for c in fr.max(c_lo)..c_hi {
+        let row_c = done(c)?;
+        let fc = first_col[c];
+        let k0 = fr.max(fc);
+        let (lo, hi) = (k0 - fr, c - fr);
+        let col = &row_c[k0 - fc..c - fc];
+        let d = dot3([&ra[lo..hi], &rb[lo..hi], &rc[lo..hi]], col);
+        let diag = row_c[c - fc];
+        ra[hi] = (ra[hi] - d[0]) / diag;
+        rb[hi] = (rb[hi] - d[1]) / diag;
+        rc[hi] = (rc[hi] - d[2]) / diag;
+    }
+    Some(())
+}
+
+/// The node's 3x3 diagonal block, row by row, after all its columns left of it; `None` if
+/// not positive definite.
+#[inline]
+fn factor_diagonal(rows: &mut [Vec<f64>; 3], r0: usize, first_col: &[usize]) -> Option<()> {
+    let fr = first_col[r0];
+    for i in 0..3 {
+        let r = r0 + i;
+        let (before, rest) = rows.split_at_mut(i);
+        let row = &mut rest[0];
+        for c in r0..=r {
+            let mut sum = row[c - fr];
+            if c == r {
+                let own = &row[..c - fr];
+                sum -= dot(own, own);
+                if sum <= 0.0 || !sum.is_finite() {
+                    return None;
+                }
+                row[c - fr] = sum.sqrt();
+            } else {
+                let other = &before[c - r0];
+                sum -= dot(&row[..c - fr], &other[..c - fr]);
+                row[c - fr] = sum / other[c - fr];
+            }
+        }
+    }
+    Some(())
+}
+
+/// One work unit of [`factor_pipelined`]: consecutive nodes and their rows.
+type Unit = Vec<[Vec<f64>; 3]>;
+
+/// The factorisation on two threads, the same bits as on one (every entry is computed by
+/// the same expression; only the order between independent entries changes). The nodes
+/// are cut into units of [`PIPELINE_NODES`] that alternate between the threads. A unit's
+/// columns left of the previous unit need only older units, so a thread computes them
+/// while the other thread finishes the previous unit; then it waits for that unit and
+/// does the remaining columns and the diagonal blocks. Waiting blocks (no spinning on a
+/// shared machine).
+fn factor_pipelined(l: Vec<Vec<f64>>, first_col: &[usize]) -> Option<Vec<Vec<f64>>> {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::{Condvar, Mutex, OnceLock};
+    let nodes = l.len() / 3;
+    let k = PIPELINE_NODES;
+    let units = nodes.div_ceil(k);
+    let finished: Vec<OnceLock<Unit>> = (0..units).map(|_| OnceLock::new()).collect();
+    let failed = AtomicBool::new(false);
+    let signal = (Mutex::new(()), Condvar::new());
+    let mut lanes: [Vec<(usize, Unit)>; 2] = [Vec::new(), Vec::new()];
+    let mut it = l.into_iter();
+    for u in 0..units {
+        let mut unit = Vec::with_capacity(k);
+        while unit.len() < k {
+            match (it.next(), it.next(), it.next()) {
+                (Some(a), Some(b), Some(c)) => unit.push([a, b, c]),
+                _ => break,
+            }
+        }
+        lanes[u % 2].push((u, unit));
+    }
+    let [even, odd] = lanes;
+    let (cells, failed_ref, signal_ref) = (&finished, &failed, &signal);
+    // Unit `u` finished, or `None` once the other thread gave up.
+    let wait = move |u: usize| -> Option<&Unit> {
+        if let Some(unit) = cells[u].get() {
+            return Some(unit);
+        }
+        let mut guard = signal_ref
+            .0
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        loop {
+            if let Some(unit) = cells[u].get() {
+                return Some(unit);
+            }
+            if failed_ref.load(Ordering::Acquire) {
+                return None;
+            }
+            guard = signal_ref
+                .1
+                .wait(guard)
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+        }
+    };
+    let publish = move |u: usize, unit: Option<Unit>| {
+        match unit {
+            // Each cell is set once, by its lane.
+            Some(unit) => drop(cells[u].set(unit)),
+            None => failed_ref.store(true, Ordering::Release),
+        }
+        // Under the lock, so a waiter cannot miss it between its check and its wait.
+        let _guard = signal_ref
+            .0
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        signal_ref.1.notify_all();
+    };
+    let row_of = move |c: usize| -> Option<&[f64]> {
+        let node = c / 3;
+        wait(node / k).map(|unit| &unit[node % k][c % 3][..])
+    };
+    let run = move |lane: Vec<(usize, Unit)>| {
+        for (u, mut unit) in lane {
+            let first = u * k;
+            // Columns before the previous unit: older units only.
+            let before_prev = 3 * first.saturating_sub(k);
+            let mut ok = unit.iter_mut().enumerate().all(|(i, rows)| {
+                factor_columns(rows, 3 * (first + i), first_col, (0, before_prev), row_of).is_some()
+            });
+            // Then the previous unit's columns, the unit's own and the diagonal blocks.
+            for i in 0..unit.len() {
+                if !ok {
+                    break;
+                }
+                let r0 = 3 * (first + i);
+                let (own, rest) = unit.split_at_mut(i);
+                let rows = &mut rest[0];
+                let own_or_older = |c: usize| -> Option<&[f64]> {
+                    let node = c / 3;
+                    if node >= first {
+                        Some(&own[node - first][c % 3][..])
+                    } else {
+                        row_of(c)
+                    }
+                };
+                ok = factor_columns(rows, r0, first_col, (before_prev, r0), own_or_older)
+                    .and_then(|()| factor_diagonal(rows, r0, first_col))
+                    .is_some();
+            }
+            publish(u, ok.then_some(unit));
+            if !ok {
+                return;
+            }
+        }
+    };
+    std::thread::scope(|s| {
+        let other = s.spawn(move || run(odd));
+        run(even);
+        // A panic in the other lane would be a bug; its units are then missing (below).
+        let _ = other.join();
+    });
+    if failed.load(Ordering::Acquire) {
+        return None;
+    }
+    let mut out = Vec::with_capacity(3 * nodes);
+    for cell in finished {
+        for rows in cell.into_inner()? {
+            out.extend(rows);
+        }
+    }
+    Some(out)
 }
 
 /// Three dot products of `a[k]` with `b` at once, each in exactly [`dot`]'s order.
@@ -600,11 +775,27 @@ mod tests {
             system.add_rhs(e.to, &(-(ob * err)), &order);
         }
         for lambda in [0.0, 1e-6, 1e-2, 10.0] {
-            let fast = system.solve_damped(lambda).expect("positive definite");
             let plain = solve_damped_plain(&system, lambda).expect("positive definite");
-            assert_eq!(fast.len(), plain.len());
-            for (a, b) in fast.iter().zip(&plain) {
-                assert_eq!(a.to_bits(), b.to_bits());
+            for pipelined in [false, true] {
+                let fast = system
+                    .solve_damped_with(lambda, pipelined)
+                    .expect("positive definite");
+                assert_eq!(fast.len(), plain.len());
+                for (a, b) in fast.iter().zip(&plain) {
+                    assert_eq!(a.to_bits(), b.to_bits(), "pipelined {pipelined}");
+                }
+            }
+        }
+        // Not positive definite at a node in the middle: both ways give up (the waiting
+        // lane must not hang).
+        for node in [150, 158] {
+            let mut broken = system.clone();
+            let r = 3 * node;
+            let d = r - broken.first_col[r];
+            broken.rows[r][d] = -1e9;
+            assert!(solve_damped_plain(&broken, 1e-6).is_none());
+            for pipelined in [false, true] {
+                assert!(broken.solve_damped_with(1e-6, pipelined).is_none());
             }
         }
         graph.poses[1].x_m += 0.3;
