@@ -197,7 +197,8 @@ impl BackEndInput {
     /// `auto` decided for `recording`: the calibrated odometry for a tilted LiDAR fixed on
     /// the body (the car: FOG yaw and 4096-tick wheels, locally far smoother than its filter,
     /// off only by the wheels' scale), the front end otherwise (a level LiDAR's `rbpf` is
-    /// locally as good as the odometry; a head-mounted LiDAR's walker has leg odometry).
+    /// locally as good as the odometry; a head-mounted LiDAR's walker has leg odometry,
+    /// which calibrated gave the default walk 0.33-0.34 m ATE against 0.12-0.13 m, seeds 1-3).
     pub fn resolve(self, recording: &Recording) -> BackEndInput {
         match self {
             BackEndInput::Auto => {
