@@ -141,10 +141,10 @@ pub fn run_pipeline(
                         fit.increments - fit.trimmed,
                         fit.increments
                     );
-                    // Anchored at the odometry's first pose, as the filter is: the map frame
-                    // is the start pose, and the fit's rigid alignment would carry the
-                    // filter's global heading error into it (0.18 deg on seed 3 of the
-                    // default drive: 0.9 m at its far end).
+                    // Starts at the odometry's first pose, as the filter does: the map frame
+                    // is the start pose (aligning it to the filter's whole path instead would
+                    // carry the filter's global heading error into it: 0.18 deg on seed 3 of
+                    // the default drive, 0.9 m at its far end).
                     calibrated = fit.calibration.apply(&result.dead_reckoning);
                     calibration = Some(fit);
                 }

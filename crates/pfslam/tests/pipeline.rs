@@ -61,3 +61,39 @@ fn pipeline_is_filter_then_back_end_and_thread_count_independent() {
     assert_eq!(c.result.trajectory, a.front_end);
     assert_ne!(a.result.trajectory, a.front_end, "the back end moved poses");
 }
+
+/// `[graph] input = "calibrated_odometry"` end to end: `synthetic::recording`'s odometry is
+/// 2 % long and turns 0.01 rad/s too fast; both are fitted against the filter and the back end
+/// is fed the corrected odometry. A fit that fails (here: any scale error refused) falls back
+/// to the filter's trajectory, exactly as with `input = "front_end"`.
+#[test]
+fn pipeline_calibrates_the_odometry_or_falls_back_to_the_filter() {
+    use pfslam::pipeline::BackEndInput;
+    let rec = synthetic::recording(30.0, 5);
+    let mut calibrated = config();
+    calibrated.graph.input = BackEndInput::CalibratedOdometry;
+    let a = pipeline(&rec, &calibrated, 2);
+    assert_eq!(a.back_end_input, Some(BackEndInput::CalibratedOdometry));
+    let fit = a.calibration.expect("the calibration was fitted");
+    eprintln!("{fit:?}");
+    assert!(
+        (fit.calibration.scale - 1.0 / 1.02).abs() < 0.002,
+        "{fit:?}"
+    );
+    assert!(
+        (fit.calibration.yaw_rate_bias_rad_per_s - 0.01).abs() < 0.002,
+        "{fit:?}"
+    );
+    assert!(fit.rms_m < fit.rms_uncorrected_m, "{fit:?}");
+
+    let mut refused = calibrated.clone();
+    refused.graph.calibration.max_scale_error = 1e-6;
+    let b = pipeline(&rec, &refused, 2);
+    assert_eq!(b.back_end_input, Some(BackEndInput::FrontEnd));
+    assert!(b.calibration.is_none());
+    let mut front = config();
+    front.graph.input = BackEndInput::FrontEnd;
+    let c = pipeline(&rec, &front, 2);
+    assert_eq!(b.result.trajectory, c.result.trajectory);
+    assert_ne!(a.result.trajectory, c.result.trajectory);
+}

@@ -12,8 +12,9 @@
 //! truly `(s dx, s dy, dyaw - b dt)`: one scale `s` for distance (the mean of the two wheels'
 //! errors when the yaw comes from a gyro) and one constant yaw-rate bias `b` (a gyro's bias,
 //! or a leg odometry's heading drift). Fit: least squares over increments of the path (see
-//! [`fit_odometry_calibration`]); one robust pass drops the increments whose residual exceeds
-//! `trim_sigmas` times the first fit's RMS (where the filter jumped) and fits again.
+//! [`fit_odometry_calibration`]); optionally (`trim_sigmas`, off by default) one robust pass
+//! drops the increments whose residual exceeds that many times the first fit's RMS and fits
+//! again.
 
 use super::MotionError;
 use crate::geometry::{Pose2, StampedPose2, wrap_angle};
