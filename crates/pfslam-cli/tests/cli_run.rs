@@ -55,6 +55,17 @@ fn run_on_a_short_simulated_drive() {
     assert_eq!(summary["seed"], 3);
     assert!(summary["slam_vs_ground_truth"]["ate"]["aligned_m"]["rmse"].is_number());
     assert!(summary["map_vs_true_map"]["precision"].is_number());
+    // The same map through the trajectory's alignment: a separate figure with its transform.
+    let aligned = &summary["map_vs_true_map_aligned"];
+    assert!(aligned["recall"].is_number(), "{aligned}");
+    assert!(
+        aligned["ground_truth_from_map"]["yaw_rad"].is_number(),
+        "{aligned}"
+    );
+    assert!(
+        stdout.contains("through the ATE's SE(2) alignment"),
+        "{stdout}"
+    );
     assert!(summary["stats"]["timings"]["correlate_s"].is_number());
     assert!(summary["stats"]["neff_mean"].as_f64().unwrap() >= 1.0);
 }

@@ -449,6 +449,8 @@ struct SimRun {
     dr_ate_m: f64,
     precision: f64,
     recall: f64,
+    /// The map compared through the trajectory's SE(2) alignment onto the ground truth.
+    aligned: pfslam::map::MapComparison,
     result: pfslam::filter::slam::SlamResult,
 }
 
@@ -568,11 +570,22 @@ fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> 
     // configured (height bins included; the scan-matching filter matches against a 2-D map).
     let est = result.map.to_binary_map(None);
     let cmp = out.scan_truth.compare(&est, 1).unwrap();
+    let truth_from_map = pfslam::eval::ate::ate(
+        &pfslam::geometry::Trajectory::new(result.trajectory.clone()),
+        &pfslam::geometry::Trajectory::new(gt.clone()),
+        pfslam::eval::Association::Nearest { tolerance_ns: 1000 },
+    )
+    .unwrap()
+    .alignment;
     SimRun {
         slam_ate_m: ate_rmse(&result.trajectory, gt),
         dr_ate_m: ate_rmse(&result.dead_reckoning, gt),
         precision: cmp.precision(),
         recall: cmp.recall(),
+        aligned: out
+            .scan_truth
+            .compare_aligned(&est, 1, &truth_from_map)
+            .unwrap(),
         result,
     }
 }
@@ -596,18 +609,28 @@ fn simulated_car_slam_ate_is_5x_below_dead_reckoning() {
         r.slam_ate_m,
         r.dr_ate_m
     );
-    // The map target's precision half holds (0.95-0.98 over seeds 1-5).
+    // The map target's precision half holds as written (0.95-0.98 over seeds 1-5) ...
     assert!(r.precision >= 0.9, "{}", r.precision);
+    // ... and both halves in the frame the ATE is measured in (the trajectory's SE(2)
+    // alignment onto the ground truth): 0.994 / 0.986 on seed 4, the worst as written.
+    eprintln!("map through the ATE's alignment: {}", r.aligned);
+    assert!(
+        r.aligned.precision() >= 0.9 && r.aligned.recall() >= 0.9,
+        "{}",
+        r.aligned
+    );
 }
 
-/// Issue 5's map target on the same drive: precision and recall >= 0.9 against the
-/// scan-surface truth (`pfslam::sim::scan_truth`), the map rebuilt along the final trajectory
-/// with the height bins as `pfslam run` writes it, in the true map's frame (the SLAM map is
-/// anchored at the true start pose, not aligned). Not reached: recall 0.827 / 0.860 / 0.852 /
-/// 0.798 / 0.950 over seeds 1-5 (precision 0.95-0.98; with the true poses 0.9855). The
-/// trajectory's error relative to the start (0.11-0.19 m RMS) is mostly the FOG's angle
-/// random walk (0.08 deg over the drive), which the calibration cannot remove and only
-/// loop closures could; after the SE(2) alignment the ATE uses, recall is 0.98-0.99.
+/// Issue 5's map target on the same drive, as written: precision and recall >= 0.9 against
+/// the scan-surface truth (`pfslam::sim::scan_truth`), the map rebuilt along the final
+/// trajectory with the height bins as `pfslam run` writes it, in the true map's frame (the
+/// SLAM map is anchored at the true start pose, not aligned). Not reached: recall 0.827 /
+/// 0.860 / 0.852 / 0.798 / 0.950 over seeds 1-5 (precision 0.95-0.98; with the true poses
+/// 0.9855). Through the ATE's SE(2) alignment both are >= 0.98 (asserted in
+/// `simulated_car_slam_ate_is_5x_below_dead_reckoning`). The trajectory's error relative to
+/// the start (0.11-0.19 m RMS) comes from the odometry calibration's precision on a 180 s
+/// drive (+-0.03 % scale, +-0.4e-5 rad/s bias): with the exact calibration dead reckoning
+/// alone maps at recall 0.943 as written (seed 4's drive).
 #[test]
 #[ignore = "not reached yet: map recall 0.80-0.95 over seeds 1-5 (precision 0.95-0.98)"]
 fn simulated_car_slam_map_acceptance() {

@@ -8,10 +8,14 @@
 //!   [`pfslam::io::recording::read_recording`].
 
 use pfslam::config::Config;
+use pfslam::geometry::Pose2;
 use pfslam::io::map_files::read_map_server;
 use pfslam::io::tum::read_tum;
 use pfslam::io::ucsd::{ReadOptions, TimestampPolicy, read_car_dataset};
-use pfslam::map::{BinaryMap, MapComparison, compare_maps, compare_maps_visible};
+use pfslam::map::{
+    BinaryMap, MapComparison, compare_maps, compare_maps_aligned, compare_maps_visible,
+    compare_maps_visible_aligned,
+};
 use pfslam::sensors::{CarDataset, Recording};
 use std::path::Path;
 
@@ -116,6 +120,31 @@ impl TrueMaps {
         Ok(match &self.visible {
             Some(v) => compare_maps_visible(estimate, &self.occupancy, v, tolerance_cells)?,
             None => compare_maps(estimate, &self.occupancy, tolerance_cells)?,
+        })
+    }
+
+    /// [`Self::compare`] with the estimate moved by `truth_from_estimate` (a SLAM map
+    /// through its trajectory's SE(2) alignment onto the ground truth).
+    pub fn compare_aligned(
+        &self,
+        estimate: &BinaryMap,
+        tolerance_cells: u32,
+        truth_from_estimate: &Pose2,
+    ) -> anyhow::Result<MapComparison> {
+        Ok(match &self.visible {
+            Some(v) => compare_maps_visible_aligned(
+                estimate,
+                &self.occupancy,
+                v,
+                tolerance_cells,
+                truth_from_estimate,
+            )?,
+            None => compare_maps_aligned(
+                estimate,
+                &self.occupancy,
+                tolerance_cells,
+                truth_from_estimate,
+            )?,
         })
     }
 }

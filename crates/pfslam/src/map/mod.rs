@@ -24,7 +24,10 @@ pub mod ray;
 pub mod scan;
 
 pub use binary::BinaryMap;
-pub use compare::{MapComparison, compare_maps, compare_maps_visible};
+pub use compare::{
+    MapComparison, compare_maps, compare_maps_aligned, compare_maps_visible,
+    compare_maps_visible_aligned,
+};
 pub use grid::{
     BIN_SCALE, BinLogOdds, InsertScratch, InsertStats, OccupancyGrid, ScanUpdates, TILE_BYTES,
     TILE_SIZE, project_bins,

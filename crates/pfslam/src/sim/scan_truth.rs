@@ -56,7 +56,10 @@ use super::{SimError, SimOptions};
 use crate::geometry::{Pose2, Rigid3};
 use crate::io::IoError;
 use crate::io::map_files::write_map_server;
-use crate::map::{BinaryMap, CellState, MapComparison, MapLimits, compare_maps_visible};
+use crate::map::{
+    BinaryMap, CellState, MapComparison, MapLimits, compare_maps_visible,
+    compare_maps_visible_aligned,
+};
 use crate::sensors::LidarGeometry;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -337,6 +340,23 @@ impl ScanSurfaceTruth {
         tolerance_cells: u32,
     ) -> Result<MapComparison, crate::map::MapError> {
         compare_maps_visible(estimate, &self.occupancy, &self.visible, tolerance_cells)
+    }
+
+    /// [`Self::compare`] with the estimate moved by `truth_from_estimate` (for a SLAM map,
+    /// the SE(2) alignment of its trajectory onto the ground truth).
+    pub fn compare_aligned(
+        &self,
+        estimate: &BinaryMap,
+        tolerance_cells: u32,
+        truth_from_estimate: &Pose2,
+    ) -> Result<MapComparison, crate::map::MapError> {
+        compare_maps_visible_aligned(
+            estimate,
+            &self.occupancy,
+            &self.visible,
+            tolerance_cells,
+            truth_from_estimate,
+        )
     }
 
     /// Writes `<stem>.png` (occupancy: black occupied, white free, grey unknown),
