@@ -23,7 +23,7 @@ fn corridor_graph(per_lap: usize, laps: usize, seed: u64) -> PoseGraph {
             Pose2::new(15.0 * r * c, 10.0 * r * s, t + std::f64::consts::FRAC_PI_2)
         })
         .collect();
-    let mut noisy = |z: Pose2, sxy: f64, syaw: f64, rng: &mut Xoshiro256PlusPlus| {
+    let noisy = |z: Pose2, sxy: f64, syaw: f64, rng: &mut Xoshiro256PlusPlus| {
         Pose2::new(
             z.x_m + sxy * (rng.random::<f64>() - 0.5),
             z.y_m + sxy * (rng.random::<f64>() - 0.5),
