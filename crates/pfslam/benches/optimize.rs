@@ -1,6 +1,7 @@
 //! The back end's Levenberg-Marquardt optimiser on an Intel-like pose graph: a long chain
 //! of keyframes driving laps around a closed corridor, with loop closures between laps
-//! (about as many nodes as Intel's 2,557 keyframes), started from drifted odometry.
+//! (about as many nodes as Intel's 2,557 keyframes), started from drifted odometry; a small
+//! one, and a car-sized one with few closures.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use pfslam::geometry::Pose2;
@@ -61,15 +62,35 @@ fn corridor_graph(per_lap: usize, laps: usize, seed: u64) -> PoseGraph {
 fn bench(c: &mut Criterion) {
     let mut g = c.benchmark_group("optimize");
     g.sample_size(10);
-    let graph = corridor_graph(320, 8, 1);
     let opts = OptimizeOptions::default();
-    g.bench_function("corridor_2560_nodes", |b| {
-        b.iter(|| {
-            let mut work = graph.clone();
-            black_box(work.optimize(black_box(&opts)))
-        })
-    });
+    // Intel-sized; a small graph (the size rule: no cheaper solver below some size); a
+    // car-sized one (the full-size drive's last graphs: 25,000 nodes, few closures).
+    for (name, graph) in [
+        ("corridor_2560_nodes", corridor_graph(320, 8, 1)),
+        ("corridor_120_nodes", corridor_graph(40, 3, 2)),
+        ("drive_25000_nodes", sparse_closures(corridor_graph(5000, 5, 3), 20)),
+    ] {
+        g.bench_function(name, |b| {
+            b.iter(|| {
+                let mut work = graph.clone();
+                black_box(work.optimize(black_box(&opts)))
+            })
+        });
+    }
     g.finish();
+}
+
+/// Keeps every `keep`-th loop closure (a drive revisits less than Intel's robot).
+fn sparse_closures(mut graph: PoseGraph, keep: usize) -> PoseGraph {
+    let mut closure = 0;
+    graph.edges.retain(|e| {
+        if e.to == e.from + 1 {
+            return true;
+        }
+        closure += 1;
+        closure % keep == 0
+    });
+    graph
 }
 
 criterion_group!(benches, bench);

@@ -257,33 +257,26 @@ impl BlockCholesky {
     fn new(n: usize, edges: &[Edge]) -> BlockCholesky {
         let m = n.saturating_sub(1);
         let free = |node: usize| (node != 0 && node < n).then(|| node - 1);
-        let mut adj: Vec<Vec<usize>> = vec![Vec::new(); m];
-        for e in edges {
-            if let (Some(a), Some(b)) = (free(e.from), free(e.to))
-                && a != b
-            {
-                adj[a].push(b);
-                adj[b].push(a);
-            }
-        }
-        for a in &mut adj {
-            a.sort_unstable();
-            a.dedup();
-        }
-        let order = minimum_degree_order(&adj);
+        let pairs = edges.iter().filter_map(|e| match (free(e.from), free(e.to)) {
+            (Some(a), Some(b)) if a != b => Some((a, b)),
+            _ => None,
+        });
+        let adj = Compressed::from_pairs(m, pairs.flat_map(|(a, b)| [(a, b), (b, a)]));
+        let order = postorder(&adj, &minimum_degree_order(&adj));
         let mut perm = vec![0; m];
         for (pos, &v) in order.iter().enumerate() {
             perm[v] = pos;
         }
         // The lower pattern of the permuted matrix, by column.
-        let mut lower: Vec<Vec<usize>> = vec![Vec::new(); m];
-        for (v, a) in adj.iter().enumerate() {
-            for &u in a {
+        let mut lower_pairs = Vec::with_capacity(adj.idx.len() / 2);
+        for v in 0..m {
+            for &u in adj.row(v) {
                 if perm[u] > perm[v] {
-                    lower[perm[v]].push(perm[u]);
+                    lower_pairs.push((perm[v], perm[u]));
                 }
             }
         }
+        let lower = Compressed::from_pairs(m, lower_pairs.iter().copied());
         drop(adj);
         // Column j's pattern: its own entries and its elimination-tree children's
         // patterns below j.
@@ -297,7 +290,7 @@ impl BlockCholesky {
         for j in 0..m {
             let start = row_idx.len();
             mark[j] = j;
-            for &i in &lower[j] {
+            for &i in lower.row(j) {
                 if mark[i] != j {
                     mark[i] = j;
                     row_idx.push(i);
@@ -429,13 +422,6 @@ impl BlockCholesky {
     /// Solves `(H + lambda * diag(H)) x = rhs` (left-looking block Cholesky, then the two
     /// triangular solves) into [`Self::step_of`]; `false` if not positive definite.
     fn solve_damped(&mut self, lambda: f64) -> bool {
-        self.l_diag.copy_from_slice(&self.a_diag);
-        self.l_off.copy_from_slice(&self.a_off);
-        for d in &mut self.l_diag {
-            for k in [0, 4, 8] {
-                d[k] += lambda * d[k].abs().max(1e-9);
-            }
-        }
         let m = self.l_diag.len();
         for j in 0..m {
             let base = self.col_ptr[j];
@@ -445,7 +431,12 @@ impl BlockCholesky {
             }
             let (done, rest) = self.l_off.split_at_mut(base);
             let col = &mut rest[..end - base];
-            let mut d = self.l_diag[j];
+            // The column starts as the normal equations' (copied here, while in cache).
+            col.copy_from_slice(&self.a_off[base..end]);
+            let mut d = self.a_diag[j];
+            for k in [0, 4, 8] {
+                d[k] += lambda * d[k].abs().max(1e-9);
+            }
             for &(k, s) in &self.row_entries[self.row_ptr[j]..self.row_ptr[j + 1]] {
                 let ljk = done[s];
                 sub_mul_transposed(&mut d, &ljk, &ljk);
@@ -457,8 +448,9 @@ impl BlockCholesky {
             let Some(c) = cholesky3(&d) else {
                 return false;
             };
+            let inv = [1.0 / c[0], 1.0 / c[4], 1.0 / c[8]];
             for b in col.iter_mut() {
-                solve_right_transposed(b, &c);
+                solve_right_transposed(b, &c, &inv);
             }
             self.l_diag[j] = c;
         }
@@ -523,93 +515,149 @@ fn cholesky3(d: &[f64; 9]) -> Option<[f64; 9]> {
     Some([l00, 0.0, 0.0, l10, l11, 0.0, l20, l21, l22])
 }
 
-/// `b <- b * c^-T` for a lower-triangular `c` (each row of `b` solves `c y = row`).
+/// `b <- b * c^-T` for a lower-triangular `c` with diagonal reciprocals `inv` (each row of
+/// `b` solves `c y = row`).
 #[inline]
-fn solve_right_transposed(b: &mut [f64; 9], c: &[f64; 9]) {
+fn solve_right_transposed(b: &mut [f64; 9], c: &[f64; 9], inv: &[f64; 3]) {
     for r in 0..3 {
-        let y0 = b[3 * r] / c[0];
-        let y1 = (b[3 * r + 1] - c[3] * y0) / c[4];
-        let y2 = (b[3 * r + 2] - c[6] * y0 - c[7] * y1) / c[8];
+        let y0 = b[3 * r] * inv[0];
+        let y1 = (b[3 * r + 1] - c[3] * y0) * inv[1];
+        let y2 = (b[3 * r + 2] - c[6] * y0 - c[7] * y1) * inv[2];
         b[3 * r] = y0;
         b[3 * r + 1] = y1;
         b[3 * r + 2] = y2;
     }
 }
 
-/// A minimum-degree elimination order of a graph given by sorted adjacency lists (`order[k]`
-/// = the k-th node eliminated): on the quotient graph, with AMD's approximate external
-/// degrees and element absorption (Amestoy, Davis and Duff 1996), without supervariables
-/// (the nodes are already 3x3 blocks). Ties go to the lowest index, so the order depends
-/// only on the graph.
-fn minimum_degree_order(adj: &[Vec<usize>]) -> Vec<usize> {
+/// A graph or a sparsity pattern in compressed rows: row `i` is `idx[ptr[i]..ptr[i + 1]]`.
+struct Compressed {
+    ptr: Vec<usize>,
+    idx: Vec<usize>,
+}
+
+impl Compressed {
+    /// From `(row, column)` pairs; each row sorted, without duplicates.
+    fn from_pairs(rows: usize, pairs: impl Iterator<Item = (usize, usize)> + Clone) -> Compressed {
+        let mut ptr = vec![0; rows + 1];
+        for (r, _) in pairs.clone() {
+            ptr[r + 1] += 1;
+        }
+        for r in 0..rows {
+            ptr[r + 1] += ptr[r];
+        }
+        let mut fill = ptr.clone();
+        let mut idx = vec![0; ptr[rows]];
+        for (r, c) in pairs {
+            idx[fill[r]] = c;
+            fill[r] += 1;
+        }
+        // Sort and compact each row in place (the write position never passes the read).
+        let mut w = 0;
+        for r in 0..rows {
+            let (start, end) = (ptr[r], ptr[r + 1]);
+            idx[start..end].sort_unstable();
+            ptr[r] = w;
+            for k in start..end {
+                if w == ptr[r] || idx[w - 1] != idx[k] {
+                    idx[w] = idx[k];
+                    w += 1;
+                }
+            }
+        }
+        ptr[rows] = w;
+        idx.truncate(w);
+        Compressed { ptr, idx }
+    }
+
+    fn row(&self, i: usize) -> &[usize] {
+        &self.idx[self.ptr[i]..self.ptr[i + 1]]
+    }
+}
+
+/// A minimum-degree elimination order of a graph without self-loops (`order[k]` = the k-th
+/// node eliminated): on the quotient graph, with AMD's approximate external degrees and
+/// element absorption (Amestoy, Davis and Duff 1996), without supervariables (the nodes
+/// are already 3x3 blocks). Ties go to the lowest index, so the order depends only on the
+/// graph.
+fn minimum_degree_order(adj: &Compressed) -> Vec<usize> {
+    use std::cmp::Reverse;
     #[derive(Clone, Copy, PartialEq)]
     enum State {
         Variable,
         Element,
         Absorbed,
     }
-    let m = adj.len();
-    let mut state = vec![State::Variable; m];
-    // A variable's variable neighbours, its adjacent elements; an element's variables.
-    let mut vars: Vec<Vec<usize>> = adj
-        .iter()
-        .enumerate()
-        .map(|(i, a)| a.iter().copied().filter(|&v| v != i).collect())
-        .collect();
-    let mut elems: Vec<Vec<usize>> = vec![Vec::new(); m];
-    let mut members: Vec<Vec<usize>> = vec![Vec::new(); m];
-    let mut degree: Vec<usize> = vars.iter().map(Vec::len).collect();
-    let mut queue: std::collections::BTreeSet<(usize, usize)> =
-        (0..m).map(|i| (degree[i], i)).collect();
     const NONE: usize = usize::MAX;
+    let m = adj.ptr.len() - 1;
+    let mut state = vec![State::Variable; m];
+    // A variable's variable neighbours: `vars[vars_at[i]..][..vars_len[i]]`, only shrinking.
+    let mut vars = adj.idx.clone();
+    let vars_at = &adj.ptr;
+    let mut vars_len: Vec<usize> = (0..m).map(|i| adj.ptr[i + 1] - adj.ptr[i]).collect();
+    // A variable's adjacent elements.
+    let mut elems: Vec<Vec<usize>> = vec![Vec::new(); m];
+    // An element's variables: `members[members_at[e]..][..members_len[e]]` (fixed once
+    // made: an element holding an eliminated variable has been absorbed).
+    let mut members = Vec::new();
+    let mut members_at = vec![0; m];
+    let mut members_len = vec![0; m];
+    let mut degree = vars_len.clone();
+    // Stale entries (an old degree, or eliminated) are skipped when popped.
+    let mut queue: std::collections::BinaryHeap<Reverse<(usize, usize)>> =
+        (0..m).map(|i| Reverse((degree[i], i))).collect();
     let mut in_lp = vec![NONE; m];
     let mut w_step = vec![NONE; m];
     let mut w = vec![0usize; m];
     let mut order = Vec::with_capacity(m);
-    while let Some((_, p)) = queue.pop_first() {
+    while let Some(Reverse((d, p))) = queue.pop() {
+        if state[p] != State::Variable || d != degree[p] {
+            continue;
+        }
         let step = order.len();
         order.push(p);
         let remaining = m - order.len();
         // The new element's variables: p's variables and those of the elements it absorbs.
-        let mut lp = Vec::new();
+        let lp_at = members.len();
         in_lp[p] = step;
-        for &v in &vars[p] {
+        for &v in &vars[vars_at[p]..][..vars_len[p]] {
             if in_lp[v] != step {
                 in_lp[v] = step;
-                lp.push(v);
+                members.push(v);
             }
         }
         for &e in &elems[p] {
             if state[e] != State::Element {
                 continue;
             }
-            for &v in &members[e] {
+            for k in members_at[e]..members_at[e] + members_len[e] {
+                let v = members[k];
                 if in_lp[v] != step {
                     in_lp[v] = step;
-                    lp.push(v);
+                    members.push(v);
                 }
             }
             state[e] = State::Absorbed;
-            members[e] = Vec::new();
         }
         state[p] = State::Element;
-        vars[p] = Vec::new();
+        vars_len[p] = 0;
         elems[p] = Vec::new();
+        members_at[p] = lp_at;
+        members_len[p] = members.len() - lp_at;
+        let lp = &members[lp_at..];
         // |Le \ Lp| of every other element next to Lp.
-        for &i in &lp {
+        for &i in lp {
             for &e in &elems[i] {
                 if state[e] != State::Element {
                     continue;
                 }
                 if w_step[e] != step {
                     w_step[e] = step;
-                    w[e] = members[e].len();
+                    w[e] = members_len[e];
                 }
                 w[e] -= 1;
             }
         }
-        let lp_len = lp.len();
-        for &i in &lp {
+        for &i in lp {
             let mut external = 0;
             elems[i].retain(|&e| {
                 if state[e] != State::Element {
@@ -618,7 +666,6 @@ fn minimum_degree_order(adj: &[Vec<usize>]) -> Vec<usize> {
                 if w[e] == 0 {
                     // Inside Lp: absorbed (its variables keep p instead).
                     state[e] = State::Absorbed;
-                    members[e] = Vec::new();
                     return false;
                 }
                 external += w[e];
@@ -626,17 +673,83 @@ fn minimum_degree_order(adj: &[Vec<usize>]) -> Vec<usize> {
             });
             elems[i].push(p);
             // Variables in Lp are now reached through the element.
-            vars[i].retain(|&v| in_lp[v] != step);
-            let d = (vars[i].len() + lp_len - 1 + external)
-                .min(degree[i] + lp_len - 1)
+            let own = &mut vars[vars_at[i]..][..vars_len[i]];
+            let mut kept = 0;
+            for k in 0..own.len() {
+                if in_lp[own[k]] != step {
+                    own[kept] = own[k];
+                    kept += 1;
+                }
+            }
+            vars_len[i] = kept;
+            let d = (kept + lp.len() - 1 + external)
+                .min(degree[i] + lp.len() - 1)
                 .min(remaining - 1);
-            queue.remove(&(degree[i], i));
-            degree[i] = d;
-            queue.insert((d, i));
+            if d != degree[i] {
+                degree[i] = d;
+                queue.push(Reverse((d, i)));
+            }
         }
-        members[p] = lp;
     }
     order
+}
+
+/// `order` (an elimination order of `adj`) rearranged into a postorder of its elimination
+/// tree (children by increasing position): the same factor pattern, but each subtree's
+/// columns are contiguous, so the columns that update a column were computed recently.
+fn postorder(adj: &Compressed, order: &[usize]) -> Vec<usize> {
+    const NONE: usize = usize::MAX;
+    let m = order.len();
+    let mut pos = vec![0; m];
+    for (k, &v) in order.iter().enumerate() {
+        pos[v] = k;
+    }
+    // Liu's elimination tree with path compression through `ancestor`.
+    let mut parent = vec![NONE; m];
+    let mut ancestor = vec![NONE; m];
+    for (k, &v) in order.iter().enumerate() {
+        for &u in adj.row(v) {
+            let mut i = pos[u];
+            if i >= k {
+                continue;
+            }
+            while ancestor[i] != NONE && ancestor[i] != k {
+                let next = ancestor[i];
+                ancestor[i] = k;
+                i = next;
+            }
+            if ancestor[i] == NONE {
+                ancestor[i] = k;
+                parent[i] = k;
+            }
+        }
+    }
+    // Children lists, ascending (built from the last child to the first).
+    let mut first_child = vec![NONE; m];
+    let mut next_sibling = vec![NONE; m];
+    for j in (0..m).rev() {
+        if parent[j] != NONE {
+            next_sibling[j] = first_child[parent[j]];
+            first_child[parent[j]] = j;
+        }
+    }
+    let mut out = Vec::with_capacity(m);
+    let mut stack = Vec::new();
+    for root in (0..m).filter(|&j| parent[j] == NONE) {
+        stack.push(root);
+        while let Some(&top) = stack.last() {
+            let child = first_child[top];
+            if child == NONE {
+                stack.pop();
+                out.push(order[top]);
+            } else {
+                // Descend into the first child not yet visited.
+                first_child[top] = next_sibling[child];
+                stack.push(child);
+            }
+        }
+    }
+    out
 }
 
 #[cfg(test)]
