@@ -72,7 +72,10 @@ fn bench(c: &mut Criterion<ThreadCpuTime>) {
     for (name, graph) in [
         ("corridor_2560_nodes", corridor_graph(320, 8, 1)),
         ("corridor_120_nodes", corridor_graph(40, 3, 2)),
-        ("drive_25000_nodes", sparse_closures(corridor_graph(5000, 5, 3), 20)),
+        (
+            "drive_25000_nodes",
+            sparse_closures(corridor_graph(5000, 5, 3), 20),
+        ),
     ] {
         g.bench_function(name, |b| {
             b.iter(|| {

@@ -90,13 +90,14 @@ pub struct OptimizeReport {
 
 /// Error, and Jacobians with respect to `x_i` and `x_j`, of one edge.
 fn linearise(xi: &Pose2, xj: &Pose2, z: &Pose2) -> (Vector3<f64>, Matrix3<f64>, Matrix3<f64>) {
-    let ri = rot(xi.yaw_rad);
+    let (s, c) = xi.yaw_rad.sin_cos();
+    let ri = Matrix2::new(c, -s, s, c);
     let rz = rot(z.yaw_rad);
     let dt = Vector2::new(xj.x_m - xi.x_m, xj.y_m - xi.y_m);
     let rzt_rit = rz.transpose() * ri.transpose();
+    // The same expressions as `edge_error` (the same bits).
     let et = rz.transpose() * (ri.transpose() * dt - Vector2::new(z.x_m, z.y_m));
     let eyaw = wrap_angle(xj.yaw_rad - xi.yaw_rad - z.yaw_rad);
-    let (s, c) = xi.yaw_rad.sin_cos();
     // d(R_i^T)/d(theta_i)
     let drit = Matrix2::new(-s, c, -c, -s);
     let d_theta = rz.transpose() * drit * dt;
@@ -112,6 +113,16 @@ fn linearise(xi: &Pose2, xj: &Pose2, z: &Pose2) -> (Vector3<f64>, Matrix3<f64>, 
     a[(2, 2)] = -1.0;
     b[(2, 2)] = 1.0;
     (Vector3::new(et.x, et.y, eyaw), a, b)
+}
+
+/// The error of [`linearise`] without the Jacobians (the cost's inner loop).
+fn edge_error(xi: &Pose2, xj: &Pose2, z: &Pose2) -> Vector3<f64> {
+    let ri = rot(xi.yaw_rad);
+    let rz = rot(z.yaw_rad);
+    let dt = Vector2::new(xj.x_m - xi.x_m, xj.y_m - xi.y_m);
+    let et = rz.transpose() * (ri.transpose() * dt - Vector2::new(z.x_m, z.y_m));
+    let eyaw = wrap_angle(xj.yaw_rad - xi.yaw_rad - z.yaw_rad);
+    Vector3::new(et.x, et.y, eyaw)
 }
 
 fn rot(yaw: f64) -> Matrix2<f64> {
@@ -134,7 +145,7 @@ impl PoseGraph {
     /// The squared whitened error `e^T Omega e` of edge `k`.
     pub fn edge_chi2(&self, k: usize) -> f64 {
         let e = &self.edges[k];
-        let (err, _, _) = linearise(&self.poses[e.from], &self.poses[e.to], &e.measurement);
+        let err = edge_error(&self.poses[e.from], &self.poses[e.to], &e.measurement);
         (err.transpose() * e.information * err)[(0, 0)]
     }
 
@@ -257,10 +268,12 @@ impl BlockCholesky {
     fn new(n: usize, edges: &[Edge]) -> BlockCholesky {
         let m = n.saturating_sub(1);
         let free = |node: usize| (node != 0 && node < n).then(|| node - 1);
-        let pairs = edges.iter().filter_map(|e| match (free(e.from), free(e.to)) {
-            (Some(a), Some(b)) if a != b => Some((a, b)),
-            _ => None,
-        });
+        let pairs = edges
+            .iter()
+            .filter_map(|e| match (free(e.from), free(e.to)) {
+                (Some(a), Some(b)) if a != b => Some((a, b)),
+                _ => None,
+            });
         let adj = Compressed::from_pairs(m, pairs.flat_map(|(a, b)| [(a, b), (b, a)]));
         let order = postorder(&adj, &minimum_degree_order(&adj));
         let mut perm = vec![0; m];
@@ -325,7 +338,12 @@ impl BlockCholesky {
         let mut fill = row_ptr.clone();
         let mut row_entries = vec![(0, 0); row_idx.len()];
         for k in 0..m {
-            for (t, &i) in row_idx.iter().enumerate().take(col_ptr[k + 1]).skip(col_ptr[k]) {
+            for (t, &i) in row_idx
+                .iter()
+                .enumerate()
+                .take(col_ptr[k + 1])
+                .skip(col_ptr[k])
+            {
                 row_entries[fill[i]] = (k, t);
                 fill[i] += 1;
             }
@@ -413,7 +431,11 @@ impl BlockCholesky {
             let b = &mut self.a_off[slot];
             for r in 0..3 {
                 for c in 0..3 {
-                    b[3 * r + c] += if transposed { h_tf[(c, r)] } else { h_tf[(r, c)] };
+                    b[3 * r + c] += if transposed {
+                        h_tf[(c, r)]
+                    } else {
+                        h_tf[(r, c)]
+                    };
                 }
             }
         }
@@ -762,6 +784,7 @@ mod tests {
         let xj = Pose2::new(2.5, 0.3, -2.9);
         let z = Pose2::new(0.4, 1.1, 0.2);
         let (e0, a, b) = linearise(&xi, &xj, &z);
+        assert_eq!(e0, edge_error(&xi, &xj, &z));
         let h = 1e-6;
         for k in 0..3 {
             let bump = |p: &Pose2| {
@@ -872,7 +895,10 @@ mod tests {
                         worst = worst.max((got[r] - truth[3 * (node - 1) + r]).abs());
                     }
                 }
-                assert!(worst <= 1e-9 * scale, "n {n} lambda {lambda}: {worst} vs {scale}");
+                assert!(
+                    worst <= 1e-9 * scale,
+                    "n {n} lambda {lambda}: {worst} vs {scale}"
+                );
             }
         }
     }
@@ -903,7 +929,14 @@ mod tests {
         let mut edges = Vec::new();
         for k in 1..n {
             let parent = if k % 7 == 0 { k / 2 } else { k - 1 };
-            edges.push(Edge::with_sigmas(parent, k, Pose2::default(), 1.0, 1.0, None));
+            edges.push(Edge::with_sigmas(
+                parent,
+                k,
+                Pose2::default(),
+                1.0,
+                1.0,
+                None,
+            ));
         }
         let solver = BlockCholesky::new(n, &edges);
         let free_edges = edges.iter().filter(|e| e.from != 0).count();
@@ -916,7 +949,11 @@ mod tests {
         let pairs = loopy_structure(n, &mut rng);
         let (solver, _, _) = random_system(n, &pairs, &mut rng);
         let m = n - 1;
-        assert!(solver.row_idx.len() < m * (m - 1) / 20, "{}", solver.row_idx.len());
+        assert!(
+            solver.row_idx.len() < m * (m - 1) / 20,
+            "{}",
+            solver.row_idx.len()
+        );
     }
 
     /// A corridor driven in laps, closures between laps, from drifted odometry.
