@@ -111,6 +111,17 @@ pub struct ScanMatchOptions {
     pub shared_match_radius_m: f64,
     /// The yaw half of `shared_match_radius_m`'s box (deg).
     pub shared_match_radius_deg: f64,
+    /// With shared matching, a member particle is not placed by the linear response (0)
+    /// but refined by its own pattern search (the refinement's last `n` levels, from its
+    /// anchor's offset from its prediction): its pose stays on the lattice of steps its own
+    /// full search would use.
+    pub shared_match_refine_levels: u32,
+    /// Between updates only scans `k` (counted from the first, like `[filter]
+    /// update_every_scans`) with `k % map_every_scans == 0` are mapped (at the odometry-
+    /// composed pose); update scans always are. 1 = every scan (the behaviour before). The
+    /// filter's map only serves its matching (`pfslam run`'s output map is rebuilt along the
+    /// final trajectory from every scan), and consecutive scans see nearly the same walls.
+    pub map_every_scans: usize,
 }
 
 impl Default for ScanMatchOptions {
@@ -137,6 +148,8 @@ impl Default for ScanMatchOptions {
             map_height_bins: false,
             shared_match_radius_m: 0.0,
             shared_match_radius_deg: 0.0,
+            shared_match_refine_levels: 1,
+            map_every_scans: 1,
         }
     }
 }
@@ -147,6 +160,9 @@ impl ScanMatchOptions {
         let pos = |v: f64| v.is_finite() && v > 0.0;
         if self.beam_decimation == 0 {
             return Err("filter.scan_match.beam_decimation must be at least 1".into());
+        }
+        if self.map_every_scans == 0 {
+            return Err("filter.scan_match.map_every_scans must be at least 1".into());
         }
         for (k, v) in [
             ("match_range_max_m", self.match_range_max_m),
@@ -227,6 +243,7 @@ impl ScanMatchOptions {
             refine_levels: self.refine_levels,
             share_radius_xy_m: self.shared_match_radius_m,
             share_radius_yaw_rad: self.shared_match_radius_deg.to_radians(),
+            share_refine_levels: self.shared_match_refine_levels.min(self.refine_levels),
         }
     }
 }
@@ -254,6 +271,8 @@ pub struct MatchParams {
     pub share_radius_xy_m: f64,
     /// Shared matching's box half-width in yaw (rad).
     pub share_radius_yaw_rad: f64,
+    /// Shared matching: pattern-search levels of a member (0 = the linear response).
+    pub share_refine_levels: u32,
 }
 
 /// Rows per parallel band of the field build.
@@ -727,7 +746,6 @@ pub fn match_scan(
     params: &MatchParams,
     scratch: &mut MatchScratch,
 ) -> MatchResult {
-    let n = points_body.len().max(1) as f64;
     let Some(limits) = field.limits else {
         return MatchResult {
             pose: *predicted,
@@ -794,9 +812,36 @@ pub fn match_scan(
             }
         }
     }
-    let dx = f64::from(best.1) * res;
-    let dy = f64::from(best.2) * res;
-    let dyaw = best.3;
+    let start = [f64::from(best.1) * res, f64::from(best.2) * res, best.3];
+    refine_from(
+        field,
+        &limits,
+        points_body,
+        predicted,
+        params,
+        scratch,
+        start,
+        [0.5 * res, 0.5 * params.yaw_step_rad],
+        params.refine_levels,
+    )
+}
+
+/// The refinement of [`match_scan`]: pattern search from the offset `start` (x m, y m, yaw
+/// rad) from `predicted`, first steps `steps` (x/y m, yaw rad), `levels` halvings.
+#[allow(clippy::too_many_arguments)]
+fn refine_from(
+    field: &LikelihoodField,
+    limits: &MapLimits,
+    points_body: &[[f64; 2]],
+    predicted: &Pose2,
+    params: &MatchParams,
+    scratch: &mut MatchScratch,
+    start: [f64; 3],
+    steps: [f64; 2],
+    levels: u32,
+) -> MatchResult {
+    let n = points_body.len().max(1) as f64;
+    let [dx, dy, dyaw] = start;
     let mut rot = RotatedPoints::take(&mut scratch.rotated);
     let mut eval = |dx: f64, dy: f64, dyaw: f64, keep: bool| {
         let pose = Pose2::new(
@@ -804,7 +849,7 @@ pub fn match_scan(
             predicted.y_m + dy,
             predicted.yaw_rad + dyaw,
         );
-        let sum = rot.field_sum(field, &limits, points_body, &pose, keep);
+        let sum = rot.field_sum(field, limits, points_body, &pose, keep);
         (
             params.gain_per_unit * sum - prior_penalty(params, dx, dy, dyaw),
             sum,
@@ -815,9 +860,9 @@ pub fn match_scan(
     let ([dx, dy, dyaw], (obj, sum)) = pattern_search(
         [dx, dy, dyaw],
         first,
-        0.5 * res,
-        0.5 * params.yaw_step_rad,
-        params.refine_levels,
+        steps[0],
+        steps[1],
+        levels,
         64,
         |at, same_yaw| eval(at[0], at[1], at[2], same_yaw),
     );
@@ -996,6 +1041,49 @@ pub fn member_match(
     }
 }
 
+/// A member particle's match under shared matching with `params.share_refine_levels > 0`:
+/// the last levels of [`match_scan`]'s refinement (the same steps), started at its anchor's
+/// offset from the anchor's prediction.
+pub fn member_refined(
+    field: &LikelihoodField,
+    points_body: &[[f64; 2]],
+    anchor_predicted: &Pose2,
+    anchor: &MatchResult,
+    member: &Pose2,
+    params: &MatchParams,
+    scratch: &mut MatchScratch,
+) -> MatchResult {
+    let Some(limits) = field.limits else {
+        return MatchResult {
+            pose: *member,
+            objective: 0.0,
+            fit: 0.0,
+        };
+    };
+    let start = [
+        anchor.pose.x_m - anchor_predicted.x_m,
+        anchor.pose.y_m - anchor_predicted.y_m,
+        anchor.pose.yaw_rad - anchor_predicted.yaw_rad,
+    ];
+    let levels = params.share_refine_levels.min(params.refine_levels);
+    let halvings = params.refine_levels - levels;
+    let scale = 0.5f64.powi(halvings as i32);
+    refine_from(
+        field,
+        &limits,
+        points_body,
+        member,
+        params,
+        scratch,
+        start,
+        [
+            0.5 * params.resolution_m * scale,
+            0.5 * params.yaw_step_rad * scale,
+        ],
+        levels,
+    )
+}
+
 /// Buffers of [`match_particles`].
 #[derive(Debug, Clone, Default)]
 pub struct ShareScratch {
@@ -1050,15 +1138,17 @@ pub fn match_particles(
         .par_iter_mut()
         .for_each_init(MatchScratch::default, |scratch, (i, m, gain)| {
             *m = match_scan(field, points_body, &predicted[*i], params, scratch);
-            let h = field_curvature(field, points_body, &m.pose, params);
-            *gain = shared_gain(&h, params);
+            if params.share_refine_levels == 0 {
+                let h = field_curvature(field, points_body, &m.pose, params);
+                *gain = shared_gain(&h, params);
+            }
         });
     let anchors = &share.anchors;
     let anchor_of = &share.anchor_of;
     results
         .par_iter_mut()
         .enumerate()
-        .for_each(|(i, m)| {
+        .for_each_init(MatchScratch::default, |scratch, (i, m)| {
             let a = anchor_of[i];
             let Ok(k) = anchors.binary_search_by_key(&a, |e| e.0) else {
                 return;
@@ -1066,6 +1156,16 @@ pub fn match_particles(
             let (_, anchor, gain) = &anchors[k];
             *m = if a == i {
                 *anchor
+            } else if params.share_refine_levels > 0 {
+                member_refined(
+                    field,
+                    points_body,
+                    &predicted[a],
+                    anchor,
+                    &predicted[i],
+                    params,
+                    scratch,
+                )
             } else {
                 member_match(
                     field,
