@@ -116,6 +116,11 @@ pub struct ScanMatchOptions {
     /// anchor's offset from its prediction): its pose stays on the lattice of steps its own
     /// full search would use.
     pub shared_match_refine_levels: u32,
+    /// With shared matching and `shared_match_refine_levels > 0`, a member's own search
+    /// starts at the linear response (see `shared_match_radius_m`) instead of its anchor's
+    /// offset: where the walls pin the pose the particles then close up on the anchor's
+    /// optimum as their own full searches would.
+    pub shared_match_linear_start: bool,
     /// Between updates only scans `k` (counted from the first, like `[filter]
     /// update_every_scans`) with `k % map_every_scans == 0` are mapped (at the odometry-
     /// composed pose); update scans always are. 1 = every scan (the behaviour before). The
@@ -149,6 +154,7 @@ impl Default for ScanMatchOptions {
             shared_match_radius_m: 0.0,
             shared_match_radius_deg: 0.0,
             shared_match_refine_levels: 1,
+            shared_match_linear_start: false,
             map_every_scans: 1,
         }
     }
@@ -244,6 +250,7 @@ impl ScanMatchOptions {
             share_radius_xy_m: self.shared_match_radius_m,
             share_radius_yaw_rad: self.shared_match_radius_deg.to_radians(),
             share_refine_levels: self.shared_match_refine_levels.min(self.refine_levels),
+            share_linear_start: self.shared_match_linear_start,
         }
     }
 }
@@ -273,6 +280,8 @@ pub struct MatchParams {
     pub share_radius_yaw_rad: f64,
     /// Shared matching: pattern-search levels of a member (0 = the linear response).
     pub share_refine_levels: u32,
+    /// Shared matching: a refined member starts at the linear response.
+    pub share_linear_start: bool,
 }
 
 /// Rows per parallel band of the field build.
@@ -994,15 +1003,37 @@ pub fn shared_gain(h: &[[f64; 3]; 3], params: &MatchParams) -> [[f64; 3]; 3] {
     std::array::from_fn(|i| std::array::from_fn(|j| k_white[(i, j)] * s[j] / s[i]))
 }
 
-/// A member particle's match under shared matching: its prediction `member` moved by the
-/// anchor's offset plus the linear response `(K - I) (member - anchor_predicted)`, scored by
-/// the exact objective there (one field sum).
+/// A member particle's starting offset (x m, y m, yaw rad) from its prediction `member` under
+/// shared matching: its anchor's offset from the anchor's prediction, plus with `gain` (`K`)
+/// the linear response `(K - I) (member - anchor_predicted)`.
+pub fn member_offset(
+    anchor_predicted: &Pose2,
+    anchor: &MatchResult,
+    gain: Option<&[[f64; 3]; 3]>,
+    member: &Pose2,
+) -> [f64; 3] {
+    let base = [
+        anchor.pose.x_m - anchor_predicted.x_m,
+        anchor.pose.y_m - anchor_predicted.y_m,
+        anchor.pose.yaw_rad - anchor_predicted.yaw_rad,
+    ];
+    let Some(gain) = gain else {
+        return base;
+    };
+    let d = [
+        member.x_m - anchor_predicted.x_m,
+        member.y_m - anchor_predicted.y_m,
+        crate::geometry::wrap_angle(member.yaw_rad - anchor_predicted.yaw_rad),
+    ];
+    std::array::from_fn(|i| base[i] - d[i] + (0..3).map(|j| gain[i][j] * d[j]).sum::<f64>())
+}
+
+/// A member particle's match placed at `offset` from its prediction `member`, scored by the
+/// exact objective there (one field sum).
 pub fn member_match(
     field: &LikelihoodField,
     points_body: &[[f64; 2]],
-    anchor_predicted: &Pose2,
-    anchor: &MatchResult,
-    gain: &[[f64; 3]; 3],
+    offset: [f64; 3],
     member: &Pose2,
     params: &MatchParams,
 ) -> MatchResult {
@@ -1014,19 +1045,7 @@ pub fn member_match(
         };
     };
     let n = points_body.len().max(1) as f64;
-    let d = [
-        member.x_m - anchor_predicted.x_m,
-        member.y_m - anchor_predicted.y_m,
-        crate::geometry::wrap_angle(member.yaw_rad - anchor_predicted.yaw_rad),
-    ];
-    let base = [
-        anchor.pose.x_m - anchor_predicted.x_m,
-        anchor.pose.y_m - anchor_predicted.y_m,
-        anchor.pose.yaw_rad - anchor_predicted.yaw_rad,
-    ];
-    let off: [f64; 3] = std::array::from_fn(|i| {
-        base[i] - d[i] + (0..3).map(|j| gain[i][j] * d[j]).sum::<f64>()
-    });
+    let off = offset;
     let pose = Pose2::new(
         member.x_m + off[0],
         member.y_m + off[1],
@@ -1042,13 +1061,12 @@ pub fn member_match(
 }
 
 /// A member particle's match under shared matching with `params.share_refine_levels > 0`:
-/// the last levels of [`match_scan`]'s refinement (the same steps), started at its anchor's
-/// offset from the anchor's prediction.
+/// the last levels of [`match_scan`]'s refinement (the same steps), started at `offset`
+/// from its prediction `member` (see [`member_offset`]).
 pub fn member_refined(
     field: &LikelihoodField,
     points_body: &[[f64; 2]],
-    anchor_predicted: &Pose2,
-    anchor: &MatchResult,
+    offset: [f64; 3],
     member: &Pose2,
     params: &MatchParams,
     scratch: &mut MatchScratch,
@@ -1060,11 +1078,6 @@ pub fn member_refined(
             fit: 0.0,
         };
     };
-    let start = [
-        anchor.pose.x_m - anchor_predicted.x_m,
-        anchor.pose.y_m - anchor_predicted.y_m,
-        anchor.pose.yaw_rad - anchor_predicted.yaw_rad,
-    ];
     let levels = params.share_refine_levels.min(params.refine_levels);
     let halvings = params.refine_levels - levels;
     let scale = 0.5f64.powi(halvings as i32);
@@ -1075,7 +1088,7 @@ pub fn member_refined(
         member,
         params,
         scratch,
-        start,
+        offset,
         [
             0.5 * params.resolution_m * scale,
             0.5 * params.yaw_step_rad * scale,
@@ -1138,7 +1151,7 @@ pub fn match_particles(
         .par_iter_mut()
         .for_each_init(MatchScratch::default, |scratch, (i, m, gain)| {
             *m = match_scan(field, points_body, &predicted[*i], params, scratch);
-            if params.share_refine_levels == 0 {
+            if params.share_refine_levels == 0 || params.share_linear_start {
                 let h = field_curvature(field, points_body, &m.pose, params);
                 *gain = shared_gain(&h, params);
             }
@@ -1154,28 +1167,14 @@ pub fn match_particles(
                 return;
             };
             let (_, anchor, gain) = &anchors[k];
+            let linear = params.share_refine_levels == 0 || params.share_linear_start;
+            let offset = member_offset(&predicted[a], anchor, linear.then_some(gain), &predicted[i]);
             *m = if a == i {
                 *anchor
             } else if params.share_refine_levels > 0 {
-                member_refined(
-                    field,
-                    points_body,
-                    &predicted[a],
-                    anchor,
-                    &predicted[i],
-                    params,
-                    scratch,
-                )
+                member_refined(field, points_body, offset, &predicted[i], params, scratch)
             } else {
-                member_match(
-                    field,
-                    points_body,
-                    &predicted[a],
-                    anchor,
-                    gain,
-                    &predicted[i],
-                    params,
-                )
+                member_match(field, points_body, offset, &predicted[i], params)
             };
         });
     count
@@ -1709,16 +1708,6 @@ mod tests {
     #[test]
     fn shared_matching_is_close_to_matching_every_particle() {
         let (field, pts) = room_field();
-        let params = ScanMatchOptions {
-            shared_match_radius_m: 0.05,
-            shared_match_radius_deg: 0.25,
-            ..ScanMatchOptions::default()
-        }
-        .params(0.1);
-        let plain = MatchParams {
-            share_radius_xy_m: 0.0,
-            ..params.clone()
-        };
         // A cloud of jittered copies around a prediction 8 cm and 0.3 deg off.
         let base = Pose2::new(0.08, -0.05, 0.3f64.to_radians());
         let predicted: Vec<Pose2> = (0..30)
@@ -1737,29 +1726,58 @@ mod tests {
             objective: 0.0,
             fit: 0.0,
         };
-        let mut want = vec![empty; 30];
-        let mut got = vec![empty; 30];
         let mut share = ShareScratch::default();
+        // Every particle searched in full: the plain rule (radius 0 = `match_scan` each).
+        let plain = ScanMatchOptions::default().params(0.1);
+        let mut want = vec![empty; 30];
         let full = match_particles(&field, &pts, &predicted, &weights, &plain, &mut share, &mut want);
         assert_eq!(full, 30);
-        let full = match_particles(&field, &pts, &predicted, &weights, &params, &mut share, &mut got);
-        assert_eq!(full, 1, "one cloud, one search");
-        let anchor = 6; // the first of the heaviest (weight 7)
-        for i in 0..30 {
-            let (g, w) = (&got[i], &want[i]);
-            if i == anchor {
-                assert_eq!(g, w, "the anchor is matched in full");
+        let mut ms = MatchScratch::default();
+        for (w, p) in want.iter().zip(&predicted) {
+            assert_eq!(*w, match_scan(&field, &pts, p, &plain, &mut ms));
+        }
+        for (levels, linear) in [(0, false), (1, false), (2, false), (3, false), (1, true)] {
+            let params = ScanMatchOptions {
+                shared_match_radius_m: 0.05,
+                shared_match_radius_deg: 0.25,
+                shared_match_refine_levels: levels,
+                shared_match_linear_start: linear,
+                ..ScanMatchOptions::default()
             }
-            // The walls pin the pose: every particle lands where its own search does, to
-            // within the search's last step (1.25 cm, 0.03 deg) ...
-            assert!((g.pose.x_m - w.pose.x_m).abs() < 0.0125, "{i}: {g:?} {w:?}");
-            assert!((g.pose.y_m - w.pose.y_m).abs() < 0.0125, "{i}: {g:?} {w:?}");
-            assert!((g.pose.yaw_rad - w.pose.yaw_rad).abs() < 0.05f64.to_radians());
-            // ... and near the truth, with an objective as good (the search's steps are
-            // coarser than the linear response).
-            assert!(g.pose.translation_norm_m() < 0.03, "{i}: {g:?}");
-            assert!(g.objective > w.objective - 0.5, "{i}: {g:?} {w:?}");
-            assert!(g.fit > 0.8);
+            .params(0.1);
+            let mut got = vec![empty; 30];
+            let full =
+                match_particles(&field, &pts, &predicted, &weights, &params, &mut share, &mut got);
+            assert_eq!(full, 1, "one cloud, one search");
+            let anchor = 6; // the first of the heaviest (weight 7)
+            for i in 0..30 {
+                let (g, w) = (&got[i], &want[i]);
+                if i == anchor {
+                    assert_eq!(g, w, "the anchor is matched in full");
+                }
+                // The walls pin the pose: every particle lands where its own search does, to
+                // within the search's last steps (1.25 cm, 0.03 deg) ...
+                let msg = format!("levels {levels} {linear}, particle {i}: {g:?} {w:?}");
+                assert!((g.pose.x_m - w.pose.x_m).abs() < 0.0126, "{msg}");
+                assert!((g.pose.y_m - w.pose.y_m).abs() < 0.0126, "{msg}");
+                assert!((g.pose.yaw_rad - w.pose.yaw_rad).abs() < 0.05f64.to_radians());
+                // ... near the truth, with an objective about as good.
+                assert!(g.pose.translation_norm_m() < 0.03, "{msg}");
+                assert!(g.objective > w.objective - 0.5, "{msg}");
+                assert!(g.fit > 0.8);
+                if levels > 0 && !linear {
+                    // A refined member sits on its own search's lattice: prediction + the
+                    // anchor's offset + whole finest steps.
+                    let step = 0.5 * 0.1 * 0.25; // the finest of the 3 default levels
+                    let a = (&got[anchor], &predicted[anchor]);
+                    let lattice = |v: f64, p: f64, av: f64, ap: f64| {
+                        let k = ((v - p) - (av - ap)) / step;
+                        (k - k.round()).abs() < 1e-6
+                    };
+                    assert!(lattice(g.pose.x_m, predicted[i].x_m, a.0.pose.x_m, a.1.x_m), "{msg}");
+                    assert!(lattice(g.pose.y_m, predicted[i].y_m, a.0.pose.y_m, a.1.y_m), "{msg}");
+                }
+            }
         }
     }
 }
