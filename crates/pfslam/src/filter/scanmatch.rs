@@ -121,12 +121,6 @@ pub struct ScanMatchOptions {
     /// offset: where the walls pin the pose the particles then close up on the anchor's
     /// optimum as their own full searches would.
     pub shared_match_linear_start: bool,
-    /// Between updates only scans `k` (counted from the first, like `[filter]
-    /// update_every_scans`) with `k % map_every_scans == 0` are mapped (at the odometry-
-    /// composed pose); update scans always are. 1 = every scan (the behaviour before). The
-    /// filter's map only serves its matching (`pfslam run`'s output map is rebuilt along the
-    /// final trajectory from every scan), and consecutive scans see nearly the same walls.
-    pub map_every_scans: usize,
 }
 
 impl Default for ScanMatchOptions {
@@ -151,11 +145,10 @@ impl Default for ScanMatchOptions {
             min_update_travel_m: 0.0,
             match_gain: 1.0,
             map_height_bins: false,
-            shared_match_radius_m: 0.0,
-            shared_match_radius_deg: 0.0,
-            shared_match_refine_levels: 1,
+            shared_match_radius_m: 0.05,
+            shared_match_radius_deg: 0.25,
+            shared_match_refine_levels: 2,
             shared_match_linear_start: false,
-            map_every_scans: 1,
         }
     }
 }
@@ -166,9 +159,6 @@ impl ScanMatchOptions {
         let pos = |v: f64| v.is_finite() && v > 0.0;
         if self.beam_decimation == 0 {
             return Err("filter.scan_match.beam_decimation must be at least 1".into());
-        }
-        if self.map_every_scans == 0 {
-            return Err("filter.scan_match.map_every_scans must be at least 1".into());
         }
         for (k, v) in [
             ("match_range_max_m", self.match_range_max_m),
@@ -1728,7 +1718,11 @@ mod tests {
         };
         let mut share = ShareScratch::default();
         // Every particle searched in full: the plain rule (radius 0 = `match_scan` each).
-        let plain = ScanMatchOptions::default().params(0.1);
+        let plain = ScanMatchOptions {
+            shared_match_radius_m: 0.0,
+            ..ScanMatchOptions::default()
+        }
+        .params(0.1);
         let mut want = vec![empty; 30];
         let full = match_particles(&field, &pts, &predicted, &weights, &plain, &mut share, &mut want);
         assert_eq!(full, 30);

@@ -517,10 +517,7 @@ pub fn run_slam_with<P: MapPolicy>(
             estimate
         } else {
             let estimate = last_estimate.compose(&last_update_odom.between(&odom.pose));
-            if opts.map_between_updates
-                || (mode == FilterMode::ScanMatch
-                    && k.is_multiple_of(opts.scan_match.map_every_scans))
-            {
+            if opts.map_between_updates || mode == FilterMode::ScanMatch {
                 // Insert this scan at the composed pose: the map then reaches up to the
                 // latest scan when the next update correlates against it.
                 let t = Instant::now();
