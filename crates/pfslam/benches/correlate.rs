@@ -156,7 +156,10 @@ fn scan_match(c: &mut Criterion) {
         g.bench_function(format!("update_jittered_100_{name}"), |b| {
             b.iter(|| {
                 pf.particles.poses.fill(predicted);
-                pf.jitter(sm.proposal_sigma_xy_m, sm.proposal_sigma_yaw_deg.to_radians());
+                pf.jitter(
+                    sm.proposal_sigma_xy_m,
+                    sm.proposal_sigma_yaw_deg.to_radians(),
+                );
                 black_box(pf.scan_match_update(&field, &pts, &p, sm.weight_temperature))
             })
         });

@@ -1168,7 +1168,8 @@ pub fn match_particles(
             };
             let (_, anchor, gain) = &anchors[k];
             let linear = params.share_refine_levels == 0 || params.share_linear_start;
-            let offset = member_offset(&predicted[a], anchor, linear.then_some(gain), &predicted[i]);
+            let offset =
+                member_offset(&predicted[a], anchor, linear.then_some(gain), &predicted[i]);
             *m = if a == i {
                 *anchor
             } else if params.share_refine_levels > 0 {
@@ -1618,7 +1619,11 @@ mod tests {
         let mut world = PlanarScan::default();
         let mut scratch = crate::map::InsertScratch::new();
         for k in 0..3 {
-            to_world(&scan, &Pose2::new(0.01 * f64::from(k), 0.0, 0.0), &mut world);
+            to_world(
+                &scan,
+                &Pose2::new(0.01 * f64::from(k), 0.0, 0.0),
+                &mut world,
+            );
             grid.insert_scan(&world, &mut scratch).unwrap();
         }
         let mut field = LikelihoodField::new();
@@ -1651,12 +1656,18 @@ mod tests {
                     .map(|m| (h[i][m] + if i == m { w[i] } else { 0.0 }) * k[m][j])
                     .sum();
                 let rhs = if i == j { w[i] } else { 0.0 };
-                assert!((lhs - rhs).abs() <= 1e-9 * w[i].max(w[j]), "{i} {j} {lhs} {rhs}");
+                assert!(
+                    (lhs - rhs).abs() <= 1e-9 * w[i].max(w[j]),
+                    "{i} {j} {lhs} {rhs}"
+                );
             }
         }
         // No curvature: the particle keeps its own offset (K = I); negative curvature is
         // treated as none.
-        for h in [[[0.0; 3]; 3], [[-500.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -9.0]]] {
+        for h in [
+            [[0.0; 3]; 3],
+            [[-500.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -9.0]],
+        ] {
             let k = shared_gain(&h, &params);
             for (i, row) in k.iter().enumerate() {
                 for (j, v) in row.iter().enumerate() {
@@ -1692,9 +1703,8 @@ mod tests {
                 .max_by(|&a, &b| weights[a].total_cmp(&weights[b]).then(b.cmp(&a)))
                 .unwrap();
             assert_eq!(anchor_of[heaviest], heaviest);
-            let inside = |p: &Pose2, q: &Pose2| {
-                (p.x_m - q.x_m).abs() <= rx && (p.y_m - q.y_m).abs() <= rx
-            };
+            let inside =
+                |p: &Pose2, q: &Pose2| (p.x_m - q.x_m).abs() <= rx && (p.y_m - q.y_m).abs() <= rx;
             for i in 0..n {
                 let a = anchor_of[i];
                 assert_eq!(anchor_of[a], a, "a member's anchor is an anchor");
@@ -1734,7 +1744,9 @@ mod tests {
         }
         .params(0.1);
         let mut want = vec![empty; 30];
-        let full = match_particles(&field, &pts, &predicted, &weights, &plain, &mut share, &mut want);
+        let full = match_particles(
+            &field, &pts, &predicted, &weights, &plain, &mut share, &mut want,
+        );
         assert_eq!(full, 30);
         let mut ms = MatchScratch::default();
         for (w, p) in want.iter().zip(&predicted) {
@@ -1750,8 +1762,9 @@ mod tests {
             }
             .params(0.1);
             let mut got = vec![empty; 30];
-            let full =
-                match_particles(&field, &pts, &predicted, &weights, &params, &mut share, &mut got);
+            let full = match_particles(
+                &field, &pts, &predicted, &weights, &params, &mut share, &mut got,
+            );
             assert_eq!(full, 1, "one cloud, one search");
             let anchor = 6; // the first of the heaviest (weight 7)
             for i in 0..30 {
@@ -1778,8 +1791,14 @@ mod tests {
                         let k = ((v - p) - (av - ap)) / step;
                         (k - k.round()).abs() < 1e-6
                     };
-                    assert!(lattice(g.pose.x_m, predicted[i].x_m, a.0.pose.x_m, a.1.x_m), "{msg}");
-                    assert!(lattice(g.pose.y_m, predicted[i].y_m, a.0.pose.y_m, a.1.y_m), "{msg}");
+                    assert!(
+                        lattice(g.pose.x_m, predicted[i].x_m, a.0.pose.x_m, a.1.x_m),
+                        "{msg}"
+                    );
+                    assert!(
+                        lattice(g.pose.y_m, predicted[i].y_m, a.0.pose.y_m, a.1.y_m),
+                        "{msg}"
+                    );
                 }
             }
         }
