@@ -111,9 +111,10 @@ pub struct ScanMatchOptions {
     /// in full. With 0.05 (and `shared_match_radius_deg = 0.25`, 2 levels): default drive,
     /// 40 particles, ATE RMSE seeds 1-5 0.051 / 0.055 / 0.054 / 0.057 / 0.052 m (mean
     /// 0.054) against 0.074 / 0.053 / 0.072 / 0.064 / 0.057 m (mean 0.064), one update of
-    /// 100 particles 2.7x cheaper, the full-size car's filter 30 % less CPU; but the
-    /// full-size car's ATE 0.090 m against 0.036 m, and MIT-CSAIL's back end on this
-    /// filter 0.045 m against <= 0.035 m: not the default.
+    /// 100 particles 2.7x cheaper, the full-size car's filter 31 % less CPU; but the
+    /// full-size car's ATE 0.090 m against 0.036 m (fitted odometry scale 1.00345 against
+    /// 1.00302, true 1.00300; 3 levels: 0.069 m), and MIT-CSAIL's back end on this filter
+    /// 0.045 m against <= 0.035 m: not the default.
     pub shared_match_radius_m: f64,
     /// The yaw half of `shared_match_radius_m`'s box (deg).
     pub shared_match_radius_deg: f64,
