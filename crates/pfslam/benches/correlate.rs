@@ -100,6 +100,8 @@ fn scan_match(c: &mut Criterion) {
         format!("field_build_{}x{}", rect.width(), rect.height()),
         |b| b.iter(|| field.build(&grid, &rect, sm.field_sigma_m, sm.unknown_value)),
     );
+    // Built here too: a filtered run skips the build bench above.
+    field.build(&grid, &rect, sm.field_sigma_m, sm.unknown_value);
     let mut scratch = MatchScratch::default();
     // A prediction 12 cm and 0.3 deg off, as after an odometry step.
     let predicted =
@@ -121,6 +123,44 @@ fn scan_match(c: &mut Criterion) {
             b.iter(|| {
                 pf.particles.poses.fill(predicted);
                 black_box(pf.scan_match_update(&field, &pts, &params, sm.weight_temperature))
+            })
+        });
+    }
+    // A cloud as after resampling: jittered copies of one pose (`proposal_sigma_xy_m`),
+    // every particle searched in full vs shared matching.
+    let shared = |levels: u32, linear: bool| {
+        pfslam::filter::scanmatch::ScanMatchOptions {
+            shared_match_radius_m: 0.05,
+            shared_match_radius_deg: 0.25,
+            shared_match_refine_levels: levels,
+            shared_match_linear_start: linear,
+            ..sm.clone()
+        }
+        .params(config.map.resolution_m)
+    };
+    for (name, p) in [
+        (
+            "every_particle",
+            pfslam::filter::scanmatch::ScanMatchOptions {
+                shared_match_radius_m: 0.0,
+                ..sm.clone()
+            }
+            .params(config.map.resolution_m),
+        ),
+        ("shared_levels_2", shared(2, false)),
+        ("shared_levels_1", shared(1, false)),
+        ("shared_linear_levels_1", shared(1, true)),
+        ("shared_linear_levels_0", shared(0, false)),
+    ] {
+        let mut pf = ParticleFilter::new(100, predicted, 1);
+        g.bench_function(format!("update_jittered_100_{name}"), |b| {
+            b.iter(|| {
+                pf.particles.poses.fill(predicted);
+                pf.jitter(
+                    sm.proposal_sigma_xy_m,
+                    sm.proposal_sigma_yaw_deg.to_radians(),
+                );
+                black_box(pf.scan_match_update(&field, &pts, &p, sm.weight_temperature))
             })
         });
     }

@@ -553,6 +553,13 @@ pub fn run_slam_with<P: MapPolicy>(
     stats.timings.map_update_s += t.elapsed().as_secs_f64();
     stats.finish_means(neff_sum, score_sum);
     stats.timings.total_s = t_start.elapsed().as_secs_f64();
+    if stats.updates > 0 {
+        tracing::info!(
+            "scan matching: {:.2} full searches per update ({} particles)",
+            pf.full_matches as f64 / stats.updates as f64,
+            opts.particles
+        );
+    }
     let map = policy.map_for_output(pf.particles.best_index()).clone();
     Ok(SlamResult {
         trajectory,
