@@ -333,7 +333,7 @@ fn simulated_car_loop_closes_on_dead_reckoning() {
         .unwrap();
     let gt = Trajectory::new(sim.ground_truth.clone());
     let assoc = Association::Nearest { tolerance_ns: 0 };
-    let before = ate(&Trajectory::new(front), &gt, assoc).unwrap();
+    let before = ate(&Trajectory::new(front.clone()), &gt, assoc).unwrap();
     let after = ate(&Trajectory::new(g.trajectory), &gt, assoc).unwrap();
     eprintln!(
         "simulated loop, dead reckoning {:.3} m -> back end {:.3} m, {:?}",
@@ -349,6 +349,54 @@ fn simulated_car_loop_closes_on_dead_reckoning() {
         after.aligned_m.rmse < 0.4 * before.aligned_m.rmse,
         "{} vs {}",
         after.aligned_m.rmse,
+        before.aligned_m.rmse
+    );
+    assert_eq!(g.stats.loop_skipped_keyframes, 0, "gap 0: every due keyframe");
+    // `loop_closure_gap_m`: no loop search within 5 m of path after an accepted closure, so
+    // accepted closures are at least 5 m of path apart; `loop_ambiguous_gap_m`: none within
+    // 5 m after a keyframe whose candidates were all ambiguous. Far fewer candidates are
+    // matched, and the loop still closes.
+    let gap_m = 5.0;
+    config.graph.loop_closure_gap_m = gap_m;
+    config.graph.loop_ambiguous_gap_m = gap_m;
+    let gg = pfslam::graph::optimize_trajectory(&recording, &config.map.scan, &front, &config.graph)
+        .unwrap();
+    let sparse = ate(&Trajectory::new(gg.trajectory.clone()), &gt, assoc).unwrap();
+    eprintln!(
+        "gap {gap_m} m: back end {:.3} m, {:?}",
+        sparse.aligned_m.rmse, gg.stats
+    );
+    assert!(gg.stats.loop_skipped_keyframes > 0, "{:?}", gg.stats);
+    assert!(
+        2 * gg.stats.loop_accepted < g.stats.loop_accepted
+            && 2 * gg.stats.loop_candidates < g.stats.loop_candidates,
+        "{:?}",
+        gg.stats
+    );
+    assert!(gg.stats.loop_accepted >= 5, "{:?}", gg.stats);
+    // Path length along the input trajectory at each keyframe, summed as the back end does.
+    let mut path_at = std::collections::HashMap::new();
+    let mut path_m = 0.0;
+    for (i, sp) in front.iter().enumerate() {
+        if i > 0 {
+            path_m += front[i - 1].pose.between(&sp.pose).translation_norm_m();
+        }
+        path_at.insert(sp.stamp_ns, path_m);
+    }
+    let mut at: Vec<f64> = gg
+        .loop_edges
+        .iter()
+        .map(|&(_, to)| path_at[&gg.keyframes[to].stamp_ns])
+        .collect();
+    at.sort_by(f64::total_cmp);
+    at.dedup();
+    for w in at.windows(2) {
+        assert!(w[1] - w[0] >= gap_m, "closures {} m apart", w[1] - w[0]);
+    }
+    assert!(
+        sparse.aligned_m.rmse < 0.4 * before.aligned_m.rmse,
+        "{} vs {}",
+        sparse.aligned_m.rmse,
         before.aligned_m.rmse
     );
 }
