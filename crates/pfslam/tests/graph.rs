@@ -296,7 +296,9 @@ fn mit_csail_back_end_beats_the_front_end() {
 /// The simulated car (tilted LiDAR) driving the example world's 330 m loop twice with a FOG
 /// bias 15x the default's (so the dead reckoning drifts by metres), the back end fed the
 /// dead reckoning: closures are accepted on the second lap, none is removed as an outlier,
-/// and the error falls to a quarter (measured: 0.627 -> 0.162 m).
+/// and the error falls to a quarter (measured: 0.627 -> 0.162 m). With 5 m gaps after an
+/// accepted or all-ambiguous keyframe (`loop_closure_gap_m`, `loop_ambiguous_gap_m`):
+/// 442 -> 144 candidates, 95 -> 26 closures, 0.175 m.
 #[test]
 fn simulated_car_loop_closes_on_dead_reckoning() {
     use pfslam::eval::{Association, ate::ate};
@@ -315,6 +317,9 @@ fn simulated_car_loop_closes_on_dead_reckoning() {
         .recording(&pfslam::motion::MotionOptions::default())
         .unwrap();
     let mut config = pfslam::config::Config::default();
+    // Every due keyframe searches first (the gaps are set below).
+    config.graph.loop_closure_gap_m = 0.0;
+    config.graph.loop_ambiguous_gap_m = 0.0;
     // The front end is the odometry itself, so an odometry-yaw edge would count its yaw
     // twice, and this FOG's bias is far beyond that edge's default uncertainty.
     config.graph.odometry_yaw_sigma_deg_per_sqrt_m = 0.0;
@@ -351,7 +356,10 @@ fn simulated_car_loop_closes_on_dead_reckoning() {
         after.aligned_m.rmse,
         before.aligned_m.rmse
     );
-    assert_eq!(g.stats.loop_skipped_keyframes, 0, "gap 0: every due keyframe");
+    assert_eq!(
+        g.stats.loop_skipped_keyframes, 0,
+        "gap 0: every due keyframe"
+    );
     // `loop_closure_gap_m`: no loop search within 5 m of path after an accepted closure, so
     // accepted closures are at least 5 m of path apart; `loop_ambiguous_gap_m`: none within
     // 5 m after a keyframe whose candidates were all ambiguous. Far fewer candidates are
@@ -359,8 +367,9 @@ fn simulated_car_loop_closes_on_dead_reckoning() {
     let gap_m = 5.0;
     config.graph.loop_closure_gap_m = gap_m;
     config.graph.loop_ambiguous_gap_m = gap_m;
-    let gg = pfslam::graph::optimize_trajectory(&recording, &config.map.scan, &front, &config.graph)
-        .unwrap();
+    let gg =
+        pfslam::graph::optimize_trajectory(&recording, &config.map.scan, &front, &config.graph)
+            .unwrap();
     let sparse = ate(&Trajectory::new(gg.trajectory.clone()), &gt, assoc).unwrap();
     eprintln!(
         "gap {gap_m} m: back end {:.3} m, {:?}",
