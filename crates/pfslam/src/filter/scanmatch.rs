@@ -1313,16 +1313,7 @@ mod tests {
             grid.insert_scan(&street(380), &mut scratch).unwrap();
         }
         let scan = street(250);
-        let mut field = LikelihoodField::new();
-        let rect = CellRect {
-            min_i: -400,
-            min_j: -100,
-            max_i: 400,
-            max_j: 100,
-        };
-        field.build(&grid, &rect, 0.15, 0.5);
-        let mut pts = Vec::new();
-        match_points(&scan, 40.0, 1, &mut pts);
+        let (field, pts) = field_and_points(&grid, &scan, (400, 100), 1);
         let params = ScanMatchOptions::default().params(opts.resolution_m);
         let predicted = Pose2::new(0.137, 0.02, 0.0);
         let m = match_scan(
@@ -1609,16 +1600,27 @@ mod tests {
             );
             grid.insert_scan(&world, &mut scratch).unwrap();
         }
+        field_and_points(&grid, &scan, (70, 60), 2)
+    }
+
+    /// The field (sigma 0.15 m, unknown 0.5) over cells `-half..=half` of `grid`, and the
+    /// scan's matching points (up to 40 m, every `decimation`-th return).
+    fn field_and_points(
+        grid: &OccupancyGrid,
+        scan: &PlanarScan,
+        (half_i, half_j): (i32, i32),
+        decimation: usize,
+    ) -> (LikelihoodField, Vec<[f64; 2]>) {
         let mut field = LikelihoodField::new();
         let rect = CellRect {
-            min_i: -70,
-            min_j: -60,
-            max_i: 70,
-            max_j: 60,
+            min_i: -half_i,
+            min_j: -half_j,
+            max_i: half_i,
+            max_j: half_j,
         };
-        field.build(&grid, &rect, 0.15, 0.5);
+        field.build(grid, &rect, 0.15, 0.5);
         let mut pts = Vec::new();
-        match_points(&scan, 40.0, 2, &mut pts);
+        match_points(scan, 40.0, decimation, &mut pts);
         (field, pts)
     }
 
