@@ -12,10 +12,7 @@ use pfslam::geometry::Pose2;
 use pfslam::io::map_files::read_map_server;
 use pfslam::io::tum::read_tum;
 use pfslam::io::ucsd::{ReadOptions, TimestampPolicy, read_car_dataset};
-use pfslam::map::{
-    BinaryMap, MapComparison, compare_maps, compare_maps_aligned, compare_maps_visible,
-    compare_maps_visible_aligned,
-};
+use pfslam::map::{BinaryMap, MapComparison, compare_maps_aligned, compare_maps_visible_aligned};
 use pfslam::sensors::{CarDataset, Recording};
 use std::path::Path;
 
@@ -117,10 +114,7 @@ impl TrueMaps {
         estimate: &BinaryMap,
         tolerance_cells: u32,
     ) -> anyhow::Result<MapComparison> {
-        Ok(match &self.visible {
-            Some(v) => compare_maps_visible(estimate, &self.occupancy, v, tolerance_cells)?,
-            None => compare_maps(estimate, &self.occupancy, tolerance_cells)?,
-        })
+        self.compare_aligned(estimate, tolerance_cells, &Pose2::IDENTITY)
     }
 
     /// [`Self::compare`] with the estimate moved by `truth_from_estimate` (a SLAM map

@@ -149,9 +149,6 @@ pub fn compare_maps_visible(
     visible: &BinaryMap,
     tolerance_cells: u32,
 ) -> Result<MapComparison, MapError> {
-    if visible.width == 0 || visible.height == 0 {
-        return Err(MapError::Compare("the visibility truth is empty".into()));
-    }
     compare_impl(estimate, truth, Some(visible), tolerance_cells, None)
 }
 
@@ -180,9 +177,6 @@ pub fn compare_maps_visible_aligned(
     tolerance_cells: u32,
     truth_from_estimate: &Pose2,
 ) -> Result<MapComparison, MapError> {
-    if visible.width == 0 || visible.height == 0 {
-        return Err(MapError::Compare("the visibility truth is empty".into()));
-    }
     compare_impl(
         estimate,
         truth,
@@ -205,6 +199,9 @@ fn compare_impl(
     tolerance_cells: u32,
     truth_from_estimate: Option<Pose2>,
 ) -> Result<MapComparison, MapError> {
+    if visible.is_some_and(|v| v.width == 0 || v.height == 0) {
+        return Err(MapError::Compare("the visibility truth is empty".into()));
+    }
     let to_truth = truth_from_estimate.as_ref();
     let estimate_from_truth = truth_from_estimate.map(|t| t.inverse());
     let to_estimate = estimate_from_truth.as_ref();
