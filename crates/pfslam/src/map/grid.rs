@@ -281,6 +281,58 @@ impl HeightLayer {
         let b = (((z_m - self.z_min_m) * self.bins_per_m) as i32).clamp(0, self.bins as i32 - 1);
         1 << b
     }
+
+    /// `out[s] = self.bit(z0 + s as f32 * dz)` for every `s`: the bins of a ray's steps, the
+    /// same bits as [`Self::bit`] step by step, four steps per vector instruction on x86-64
+    /// (the scalar form's saturating conversion and clamps cost ~40 % of a binned ray walk).
+    fn fill_bits(&self, z0: f32, dz: f32, out: &mut [u32]) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            // SAFETY: SSE2 is part of the x86-64 baseline.
+            let done = unsafe { self.fill_bits_sse2(z0, dz, out) };
+            for (s, o) in out.iter_mut().enumerate().skip(done) {
+                *o = self.bit(z0 + s as f32 * dz);
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        for (s, o) in out.iter_mut().enumerate() {
+            *o = self.bit(z0 + s as f32 * dz);
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl HeightLayer {
+    /// [`Self::fill_bits`] of the whole groups of four steps; returns how many steps it did.
+    #[target_feature(enable = "sse2")]
+    fn fill_bits_sse2(&self, z0: f32, dz: f32, out: &mut [u32]) -> usize {
+        use std::arch::x86_64::*;
+        let top = (self.bins - 1) as f32;
+        let (z0v, dzv) = (_mm_set1_ps(z0), _mm_set1_ps(dz));
+        let (zminv, bpmv) = (_mm_set1_ps(self.z_min_m), _mm_set1_ps(self.bins_per_m));
+        let (zero, topv) = (_mm_setzero_ps(), _mm_set1_ps(top));
+        let mut steps = _mm_setr_epi32(0, 1, 2, 3);
+        let whole = out.len() & !3;
+        let mut chunks = out[..whole].chunks_exact_mut(4);
+        for chunk in &mut chunks {
+            // The same operations in the same order as `bit` (exact: steps < 2^24).
+            let z = _mm_add_ps(z0v, _mm_mul_ps(_mm_cvtepi32_ps(steps), dzv));
+            let v = _mm_mul_ps(_mm_sub_ps(z, zminv), bpmv);
+            // max(v, 0) gives 0 for NaN (its second operand), as the saturating cast does.
+            // Clamping before truncating equals truncating then clamping to 0..=top.
+            let v = _mm_min_ps(_mm_max_ps(v, zero), topv);
+            let b = _mm_cvttps_epi32(v);
+            // 1 << b as the float 2^b converted back to an integer (exact for b <= 15).
+            let bit = _mm_cvttps_epi32(_mm_castsi128_ps(_mm_slli_epi32(
+                _mm_add_epi32(b, _mm_set1_epi32(127)),
+                23,
+            )));
+            // SAFETY: `chunk` is 4 `u32`s (16 bytes); `storeu` needs no alignment.
+            unsafe { _mm_storeu_si128(chunk.as_mut_ptr().cast::<__m128i>(), bit) };
+            steps = _mm_add_epi32(steps, _mm_set1_epi32(4));
+        }
+        whole
+    }
 }
 
 /// The 2-D log-odds (fixed point, 1/256) of a cell from its height bins. When a bin is
@@ -344,6 +396,8 @@ pub struct InsertScratch {
     /// zeroed), and the tiles in first-touch order.
     block_count: Vec<u32>,
     block_order: Vec<u32>,
+    /// [`OccupancyGrid::trace_heights`]: the height bin of each step of the current ray.
+    bits: Vec<u32>,
 }
 
 impl InsertScratch {
@@ -358,7 +412,8 @@ impl InsertScratch {
             + 4 * (self.hmask.capacity()
                 + self.touched.capacity()
                 + self.block_count.capacity()
-                + self.block_order.capacity())
+                + self.block_order.capacity()
+                + self.bits.capacity())
     }
 
     fn ensure_half(&mut self, half: i32) {
@@ -1177,6 +1232,7 @@ impl OccupancyGrid {
             hmask,
             touched,
             mask,
+            bits,
             ..
         } = scratch;
         if hmask.len() != mask.len() {
@@ -1211,8 +1267,8 @@ impl OccupancyGrid {
             }
             // Steps along the clearing line stand for the same distance as along the full
             // ray's (both are the major-axis distance to the sensor's cell, up to rounding).
-            let mut step = 0i32;
             if partial && margin > 0 {
+                let mut step = 0i32;
                 bresenham(origin, clear_end, |c| {
                     let z = z0 + step as f32 * dz;
                     step += 1;
@@ -1223,10 +1279,14 @@ impl OccupancyGrid {
                 });
             } else {
                 let count = if partial { n } else { (n - margin).max(0) };
+                if bits.len() < count as usize {
+                    bits.resize(count as usize + 1024, 0);
+                }
+                let bits = &mut bits[..count as usize];
+                layer.fill_bits(z0, dz, bits);
+                let mut bit = bits.iter();
                 walk_mask(origin, clear_end, count, flat(origin), stride, |k| {
-                    let z = z0 + step as f32 * dz;
-                    step += 1;
-                    mark(hmask, touched, &mut len, k, layer.bit(z));
+                    mark(hmask, touched, &mut len, k, bit.next().copied().unwrap_or(0));
                 });
             }
             let bit = layer.bit(p.z_m);
@@ -1560,6 +1620,51 @@ mod reference_tests {
                     short,
                     "{bins:?}"
                 );
+            }
+        }
+    }
+
+    #[test]
+    fn vectorised_ray_bins_equal_the_per_step_bin() {
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(9);
+        let special = [
+            0.0,
+            -0.0,
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::MAX,
+            f32::MIN,
+            1e-30,
+            0.64,
+            3.04,
+            1.76,
+        ];
+        let mut out = Vec::new();
+        for case in 0..4_000 {
+            let bins = [2, 5, 8, 16][case % 4];
+            let layer = HeightLayer {
+                bins,
+                model: BinLogOdds::new(&crate::map::LogOddsParams::ese650(), 0.7),
+                z_min_m: [0.64, -1.0, 0.0][case % 3],
+                bins_per_m: [bins as f32 / 2.4, 1e-3, 1e6][(case / 3) % 3],
+                dir: TileDir::default(),
+            };
+            let pick = |rng: &mut rand_xoshiro::Xoshiro256PlusPlus, scale: f32| {
+                if rng.random_range(0..6) == 0 {
+                    special[rng.random_range(0..special.len())]
+                } else {
+                    rng.random_range(-scale..scale)
+                }
+            };
+            let z0 = pick(&mut rng, 5.0);
+            let dz = pick(&mut rng, 0.1);
+            let n = rng.random_range(0..40);
+            out.clear();
+            out.resize(n, 0);
+            layer.fill_bits(z0, dz, &mut out);
+            for (s, &b) in out.iter().enumerate() {
+                assert_eq!(b, layer.bit(z0 + s as i32 as f32 * dz), "{z0} {dz} step {s}");
             }
         }
     }
