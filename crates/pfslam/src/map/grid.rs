@@ -373,11 +373,14 @@ const MARK_FREE: u8 = 1;
 const MARK_OCCUPIED: u8 = 3;
 
 /// Caller-owned scratch for [`OccupancyGrid::insert_scan`]: a zeroed mask around the
-/// sensor's cell and the list of cells touched by the current scan. The mask is a flat
-/// row-major array whose row stride is a power of two and whose origin is aligned with the
-/// grid's tiles: a ray walks it by adding a constant per step, and a mask index splits into
-/// tile and cell with shifts. Reuse one per thread (or per particle); it never needs clearing
-/// (insertion leaves the mask zeroed).
+/// sensor's cell and the list of cells touched by the current scan. The mask covers whole
+/// tiles of the grid (its origin is aligned with them), stored tile after tile (row-major
+/// over the mask's tiles), each tile as 16 x 16 blocks of 4 x 4 cells (a block of `u32` marks
+/// is one 64-byte cache line): a ray in any direction touches about one cache line per 4
+/// cells, not one per cell as a steep ray does in a row-major mask, and a mask index splits
+/// into tile and cell with shifts. The index is separable, `xoff[column] + yoff[row]`, so a
+/// ray walks it with two table reads per step. Reuse one per thread (or per particle); it
+/// never needs clearing (insertion leaves the mask zeroed).
 #[derive(Debug, Default, Clone)]
 pub struct InsertScratch {
     mask: Vec<u8>,
@@ -385,8 +388,11 @@ pub struct InsertScratch {
     half: i32,
     /// Mask side in cells (a whole number of tiles).
     side: i32,
-    /// log2 of the row stride (>= side).
-    shift: u32,
+    /// Mask side in tiles.
+    blocks: usize,
+    /// Mask index of a column's / a row's cells: `xoff[column] + yoff[row]`.
+    xoff: Vec<u32>,
+    yoff: Vec<u32>,
     /// Touched cells (mask indices); only the first `len` of an insertion are meaningful.
     touched: Vec<u32>,
     /// Height insertion's mask (same layout as `mask`): bits 0-15 = bins passed free, bits
@@ -413,7 +419,9 @@ impl InsertScratch {
                 + self.touched.capacity()
                 + self.block_count.capacity()
                 + self.block_order.capacity()
-                + self.bits.capacity())
+                + self.bits.capacity()
+                + self.xoff.capacity()
+                + self.yoff.capacity())
     }
 
     fn ensure_half(&mut self, half: i32) {
@@ -421,46 +429,97 @@ impl InsertScratch {
             // 2 * half + 1 cells starting anywhere in a tile span at most this many tiles.
             let blocks = (2 * half + 1 + TILE_MASK) / TILE_SIZE as i32 + 1;
             let side = blocks * TILE_SIZE as i32;
-            let shift = (side as u32).next_power_of_two().trailing_zeros();
-            self.mask = vec![MARK_NONE; (side as usize) << shift];
+            let blocks = blocks as usize;
+            self.mask = vec![MARK_NONE; blocks * blocks * TILE_CELLS];
             self.half = half;
             self.side = side;
-            self.shift = shift;
+            self.blocks = blocks;
+            self.xoff = (0..side as u32).map(mask_x).collect();
+            self.yoff = (0..side as u32).map(|r| mask_y(r, blocks)).collect();
         }
     }
 }
 
-/// Walks the first `count` cells of [`bresenham`]`(from, to)` as mask indices (`start` is
-/// `from`'s index, `stride` the mask's row stride), without per-cell checks: the same cells,
-/// in the same order, as the callback form.
+/// Mask index of column `c` (of the first row): tile, block column and column in block.
+fn mask_x(c: u32) -> u32 {
+    ((c >> TILE_SHIFT) << (2 * TILE_SHIFT)) | ((c & TILE_MASK as u32) >> 2) << 4 | (c & 3)
+}
+
+/// Mask index of row `r` (of the first column), `blocks` tiles per mask row.
+fn mask_y(r: u32, blocks: usize) -> u32 {
+    ((r >> TILE_SHIFT) * blocks as u32) << (2 * TILE_SHIFT)
+        | ((r & TILE_MASK as u32) >> 2) << 8
+        | (r & 3) << 2
+}
+
+/// A mask index's tile (row-major over the mask's tiles).
+#[inline(always)]
+fn mask_tile(k: usize) -> usize {
+    k >> (2 * TILE_SHIFT)
+}
+
+/// A mask index's cell index within its tile (row-major, as [`Tile`]): the mask's tile holds
+/// block row (bits 8-11), block column (4-7), row in block (2-3), column in block (0-1).
+#[inline(always)]
+fn local_of(k: usize) -> usize {
+    (k & 0xf00) | (k & 0xc) << 4 | (k & 0xf0) >> 2 | (k & 3)
+}
+
+/// Cells -> mask indices of the mask placed with its first cell at `(mi0, mj0)`.
+#[derive(Clone, Copy)]
+struct MaskLayout<'a> {
+    xoff: &'a [u32],
+    yoff: &'a [u32],
+    mi0: i32,
+    mj0: i32,
+}
+
+impl MaskLayout<'_> {
+    #[inline(always)]
+    fn index(&self, c: Cell) -> usize {
+        (self.xoff[(c.i - self.mi0) as usize] + self.yoff[(c.j - self.mj0) as usize]) as usize
+    }
+}
+
+/// Walks the first `count` cells of [`bresenham`]`(from, to)` as mask indices, without
+/// per-cell checks: the same cells, in the same order, as the callback form.
 #[inline(always)]
 fn walk_mask<F: FnMut(usize)>(
     from: Cell,
     to: Cell,
     count: i32,
-    start: usize,
-    stride: isize,
+    layout: &MaskLayout<'_>,
     mut visit: F,
 ) {
     let (dx, dy) = ((to.i - from.i).abs(), (to.j - from.j).abs());
-    let step_i: isize = if to.i >= from.i { 1 } else { -1 };
-    let step_j: isize = if to.j >= from.j { stride } else { -stride };
+    let step_x: isize = if to.i >= from.i { 1 } else { -1 };
+    let step_y: isize = if to.j >= from.j { 1 } else { -1 };
+    let (xoff, yoff) = (layout.xoff, layout.yoff);
+    let mut x = (from.i - layout.mi0) as isize;
+    let mut y = (from.j - layout.mj0) as isize;
     // Major axis: one step per cell; minor axis: when the error crosses half a cell.
-    let (major, minor, d_major, d_minor) = if dx >= dy {
-        (step_i, step_j, dx, dy)
-    } else {
-        (step_j, step_i, dy, dx)
-    };
-    let mut idx = start as isize;
-    let mut err = 2 * d_minor - d_major;
-    for _ in 0..count {
-        visit(idx as usize);
-        if err > 0 {
-            idx += minor;
-            err -= 2 * d_major;
+    if dx >= dy {
+        let mut err = 2 * dy - dx;
+        for _ in 0..count {
+            visit((xoff[x as usize] + yoff[y as usize]) as usize);
+            if err > 0 {
+                y += step_y;
+                err -= 2 * dx;
+            }
+            err += 2 * dy;
+            x += step_x;
         }
-        err += 2 * d_minor;
-        idx += major;
+    } else {
+        let mut err = 2 * dx - dy;
+        for _ in 0..count {
+            visit((xoff[x as usize] + yoff[y as usize]) as usize);
+            if err > 0 {
+                x += step_x;
+                err -= 2 * dy;
+            }
+            err += 2 * dx;
+            y += step_y;
+        }
     }
 }
 
@@ -481,25 +540,19 @@ fn ray_cells(limits: &MapLimits, scan: &PlanarScan, p: &ScanPoint) -> (Cell, Cel
 
 /// Splits the touched mask indices (in touch order: ray order, so consecutive cells share
 /// tiles) into runs within one tile, and calls `apply(tile column, tile row, run)` with the
-/// tile's position in the mask: one directory lookup per run.
+/// tile's position in the mask (`blocks` tiles per row): one directory lookup per run.
 #[inline(always)]
-fn for_each_tile_run(touched: &[u32], shift: u32, mut apply: impl FnMut(i32, i32, &[u32])) {
-    let col_mask = (1usize << shift) - 1;
-    // Mask index -> (tile column, tile row) of the mask, packed.
-    let block_of = |k: u32| {
-        let k = k as usize;
-        (((k >> shift) >> TILE_SHIFT) << 16) | ((k & col_mask) >> TILE_SHIFT)
-    };
+fn for_each_tile_run(touched: &[u32], blocks: usize, mut apply: impl FnMut(i32, i32, &[u32])) {
     let mut start = 0;
     while start < touched.len() {
-        let block = block_of(touched[start]);
+        let block = mask_tile(touched[start] as usize);
         let mut end = start + 1;
-        while end < touched.len() && block_of(touched[end]) == block {
+        while end < touched.len() && mask_tile(touched[end] as usize) == block {
             end += 1;
         }
         apply(
-            (block & 0xffff) as i32,
-            (block >> 16) as i32,
+            (block % blocks) as i32,
+            (block / blocks) as i32,
             &touched[start..end],
         );
         start = end;
@@ -604,12 +657,6 @@ struct TileJob {
     htile: Option<Arc<HeightTile>>,
     /// Its range of the sorted (slot, scan, group) list.
     entries: std::ops::Range<usize>,
-}
-
-/// A mask index's cell index within its tile.
-#[inline(always)]
-fn local_of(k: usize, shift: u32) -> usize {
-    (((k >> shift) & TILE_MASK as usize) << TILE_SHIFT) | (k & TILE_MASK as usize)
 }
 
 /// One scan's update of a cell: the occupied update when `occupied`, else the free one.
@@ -829,7 +876,7 @@ impl OccupancyGrid {
             rays: world_scan.points.len(),
             ..InsertStats::default()
         };
-        let (t0i, t0j, shift) = (traced.t0i, traced.t0j, scratch.shift);
+        let (t0i, t0j, blocks) = (traced.t0i, traced.t0j, scratch.blocks);
         let f = self.fixed;
         let InsertScratch {
             mask,
@@ -843,7 +890,7 @@ impl OccupancyGrid {
         match self.height.as_mut() {
             Some(layer) if traced.heights => {
                 let model = layer.model;
-                for_each_tile_run(touched, shift, |bi, bj, run| {
+                for_each_tile_run(touched, blocks, |bi, bj, run| {
                     let (ti, tj) = (t0i + bi, t0j + bj);
                     let tile = dir.get_mut(ti, tj, Tile::unknown);
                     let htile = layer.dir.get_mut(ti, tj, HeightTile::unknown);
@@ -851,7 +898,7 @@ impl OccupancyGrid {
                         let k = k as usize;
                         let m = std::mem::replace(&mut hmask[k], 0);
                         stats.count(m >> 16 != 0);
-                        let local = local_of(k, shift);
+                        let local = local_of(k);
                         apply_bin_marks(
                             &mut tile.cells[local],
                             &mut htile.bins[local],
@@ -863,13 +910,13 @@ impl OccupancyGrid {
                 });
             }
             _ => {
-                for_each_tile_run(touched, shift, |bi, bj, run| {
+                for_each_tile_run(touched, blocks, |bi, bj, run| {
                     let tile = dir.get_mut(t0i + bi, t0j + bj, Tile::unknown);
                     for &k in run {
                         let k = k as usize;
                         let m = std::mem::replace(&mut mask[k], MARK_NONE);
                         stats.count(m == MARK_OCCUPIED);
-                        apply_mark(&mut tile.cells[local_of(k, shift)], m == MARK_OCCUPIED, &f);
+                        apply_mark(&mut tile.cells[local_of(k)], m == MARK_OCCUPIED, &f);
                     }
                 });
             }
@@ -891,8 +938,7 @@ impl OccupancyGrid {
     ) -> Result<InsertStats, MapError> {
         out.clear();
         let traced = self.trace_scan(world_scan, scratch)?;
-        let shift = scratch.shift;
-        let blocks = (scratch.side >> TILE_SHIFT) as usize;
+        let blocks = scratch.blocks;
         let InsertScratch {
             mask,
             hmask,
@@ -905,10 +951,8 @@ impl OccupancyGrid {
         if block_count.len() < blocks * blocks {
             block_count.resize(blocks * blocks, 0);
         }
-        let col_mask = (1usize << shift) - 1;
         // Mask index -> the mask's tile (row-major over `blocks` x `blocks`).
-        let block_of =
-            |k: usize| ((k >> shift) >> TILE_SHIFT) * blocks + ((k & col_mask) >> TILE_SHIFT);
+        let block_of = mask_tile;
         // A counting sort by tile; tiles listed in the order the scan first touched them
         // (that of `insert_scan`'s tile runs, so the directory grows the same way).
         // Counted per run of one tile (touch order is ray order): a counter in a register, not
@@ -964,7 +1008,7 @@ impl OccupancyGrid {
                 }
                 (cur, pos) = (b, block_count[b] as usize);
             }
-            let local = local_of(k, shift) as u16;
+            let local = local_of(k) as u16;
             if traced.heights {
                 let m = std::mem::replace(&mut hmask[k], 0);
                 stats.count(m >> 16 != 0);
@@ -1112,17 +1156,15 @@ impl OccupancyGrid {
         scratch: &mut InsertScratch,
     ) -> Result<Traced, MapError> {
         let origin = self.scan_origin(world_scan, scratch)?;
-        let (sh, shift) = (scratch.half, scratch.shift);
+        let sh = scratch.half;
         // Tile coordinates of the mask's first tile, and its first cell.
         let (t0i, t0j) = ((origin.i - sh) >> TILE_SHIFT, (origin.j - sh) >> TILE_SHIFT);
         let (mi0, mj0) = (t0i << TILE_SHIFT, t0j << TILE_SHIFT);
-        let flat = |c: Cell| (((c.j - mj0) as usize) << shift) | (c.i - mi0) as usize;
-        let stride = 1isize << shift;
         let len = match (world_scan.sensor_z_m, self.height.as_ref()) {
             (Some(z), Some(layer)) => {
-                self.trace_heights(world_scan, z, layer, origin, flat, stride, scratch)
+                self.trace_heights(world_scan, z, layer, origin, (mi0, mj0), scratch)
             }
-            _ => self.trace_planar(world_scan, origin, flat, stride, scratch),
+            _ => self.trace_planar(world_scan, origin, (mi0, mj0), scratch),
         };
         Ok(Traced {
             t0i,
@@ -1137,11 +1179,23 @@ impl OccupancyGrid {
         &self,
         world_scan: &PlanarScan,
         origin: Cell,
-        flat: impl Fn(Cell) -> usize,
-        stride: isize,
+        (mi0, mj0): (i32, i32),
         scratch: &mut InsertScratch,
     ) -> usize {
-        let InsertScratch { mask, touched, .. } = scratch;
+        let InsertScratch {
+            mask,
+            touched,
+            xoff,
+            yoff,
+            ..
+        } = scratch;
+        let layout = MaskLayout {
+            xoff,
+            yoff,
+            mi0,
+            mj0,
+        };
+        let flat = |c: Cell| layout.index(c);
         let mut len = 0usize;
         // Marks a cell and records it when first touched; branch-free (the mask read is the
         // cost of a ray; whether a cell is new is unpredictable).
@@ -1175,7 +1229,7 @@ impl OccupancyGrid {
                 // of `end` (full ray), or the last one (partial ray: `clear_end`; `end` lies
                 // beyond it, hence not on the line).
                 let count = if partial { n } else { (n - margin).max(0) };
-                walk_mask(origin, clear_end, count, flat(origin), stride, |k| {
+                walk_mask(origin, clear_end, count, &layout, |k| {
                     mark(mask, touched, &mut len, k, MARK_FREE);
                 });
             }
@@ -1224,8 +1278,7 @@ impl OccupancyGrid {
         sensor_z_m: f64,
         layer: &HeightLayer,
         origin: Cell,
-        flat: impl Fn(Cell) -> usize,
-        stride: isize,
+        (mi0, mj0): (i32, i32),
         scratch: &mut InsertScratch,
     ) -> usize {
         let InsertScratch {
@@ -1233,8 +1286,17 @@ impl OccupancyGrid {
             touched,
             mask,
             bits,
+            xoff,
+            yoff,
             ..
         } = scratch;
+        let layout = MaskLayout {
+            xoff,
+            yoff,
+            mi0,
+            mj0,
+        };
+        let flat = |c: Cell| layout.index(c);
         if hmask.len() != mask.len() {
             // Zeroed: a previous insertion left it clear, a new one is clear.
             *hmask = vec![0; mask.len()];
@@ -1285,7 +1347,7 @@ impl OccupancyGrid {
                 let bits = &mut bits[..count as usize];
                 layer.fill_bits(z0, dz, bits);
                 let mut bit = bits.iter();
-                walk_mask(origin, clear_end, count, flat(origin), stride, |k| {
+                walk_mask(origin, clear_end, count, &layout, |k| {
                     mark(hmask, touched, &mut len, k, bit.next().copied().unwrap_or(0));
                 });
             }
