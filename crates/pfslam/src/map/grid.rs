@@ -404,6 +404,8 @@ pub struct InsertScratch {
     block_order: Vec<u32>,
     /// [`OccupancyGrid::trace_heights`]: the height bin of each step of the current ray.
     bits: Vec<u32>,
+    /// The current ray's cells (mask indices), walked before they are marked.
+    cells: Vec<u32>,
 }
 
 impl InsertScratch {
@@ -420,6 +422,7 @@ impl InsertScratch {
                 + self.block_count.capacity()
                 + self.block_order.capacity()
                 + self.bits.capacity()
+                + self.cells.capacity()
                 + self.xoff.capacity()
                 + self.yoff.capacity())
     }
@@ -481,16 +484,11 @@ impl MaskLayout<'_> {
     }
 }
 
-/// Walks the first `count` cells of [`bresenham`]`(from, to)` as mask indices, without
-/// per-cell checks: the same cells, in the same order, as the callback form.
+/// Writes the first `out.len()` cells of [`bresenham`]`(from, to)` as mask indices into
+/// `out`: the same cells, in the same order, as the callback form. The mask is marked from
+/// this list in a second loop, which keeps both loops' state in registers.
 #[inline(always)]
-fn walk_mask<F: FnMut(usize)>(
-    from: Cell,
-    to: Cell,
-    count: i32,
-    layout: &MaskLayout<'_>,
-    mut visit: F,
-) {
+fn walk_mask(from: Cell, to: Cell, layout: &MaskLayout<'_>, out: &mut [u32]) {
     let (dx, dy) = ((to.i - from.i).abs(), (to.j - from.j).abs());
     let step_x: isize = if to.i >= from.i { 1 } else { -1 };
     let step_y: isize = if to.j >= from.j { 1 } else { -1 };
@@ -500,8 +498,8 @@ fn walk_mask<F: FnMut(usize)>(
     // Major axis: one step per cell; minor axis: when the error crosses half a cell.
     if dx >= dy {
         let mut err = 2 * dy - dx;
-        for _ in 0..count {
-            visit((xoff[x as usize] + yoff[y as usize]) as usize);
+        for o in out.iter_mut() {
+            *o = xoff[x as usize] + yoff[y as usize];
             if err > 0 {
                 y += step_y;
                 err -= 2 * dx;
@@ -511,8 +509,8 @@ fn walk_mask<F: FnMut(usize)>(
         }
     } else {
         let mut err = 2 * dx - dy;
-        for _ in 0..count {
-            visit((xoff[x as usize] + yoff[y as usize]) as usize);
+        for o in out.iter_mut() {
+            *o = xoff[x as usize] + yoff[y as usize];
             if err > 0 {
                 x += step_x;
                 err -= 2 * dy;
@@ -1187,6 +1185,7 @@ impl OccupancyGrid {
             touched,
             xoff,
             yoff,
+            cells,
             ..
         } = scratch;
         let layout = MaskLayout {
@@ -1228,10 +1227,15 @@ impl OccupancyGrid {
                 // per cell, so the cells the rule skips are the last ones: within `margin`
                 // of `end` (full ray), or the last one (partial ray: `clear_end`; `end` lies
                 // beyond it, hence not on the line).
-                let count = if partial { n } else { (n - margin).max(0) };
-                walk_mask(origin, clear_end, count, &layout, |k| {
-                    mark(mask, touched, &mut len, k, MARK_FREE);
-                });
+                let count = if partial { n } else { (n - margin).max(0) } as usize;
+                if cells.len() < count {
+                    cells.resize(count + 1024, 0);
+                }
+                let cells = &mut cells[..count];
+                walk_mask(origin, clear_end, &layout, cells);
+                for &k in cells.iter() {
+                    mark(mask, touched, &mut len, k as usize, MARK_FREE);
+                }
             }
             let want = if p.hit { MARK_OCCUPIED } else { MARK_FREE };
             mark(mask, touched, &mut len, flat(end), want);
@@ -1286,6 +1290,7 @@ impl OccupancyGrid {
             touched,
             mask,
             bits,
+            cells,
             xoff,
             yoff,
             ..
@@ -1340,16 +1345,19 @@ impl OccupancyGrid {
                     mark(hmask, touched, &mut len, flat(c), layer.bit(z));
                 });
             } else {
-                let count = if partial { n } else { (n - margin).max(0) };
-                if bits.len() < count as usize {
-                    bits.resize(count as usize + 1024, 0);
+                let count = if partial { n } else { (n - margin).max(0) } as usize;
+                if bits.len() < count {
+                    bits.resize(count + 1024, 0);
                 }
-                let bits = &mut bits[..count as usize];
+                if cells.len() < count {
+                    cells.resize(count + 1024, 0);
+                }
+                let (bits, cells) = (&mut bits[..count], &mut cells[..count]);
                 layer.fill_bits(z0, dz, bits);
-                let mut bit = bits.iter();
-                walk_mask(origin, clear_end, count, &layout, |k| {
-                    mark(hmask, touched, &mut len, k, bit.next().copied().unwrap_or(0));
-                });
+                walk_mask(origin, clear_end, &layout, cells);
+                for (&k, &bit) in cells.iter().zip(bits.iter()) {
+                    mark(hmask, touched, &mut len, k as usize, bit);
+                }
             }
             let bit = layer.bit(p.z_m);
             let want = if p.hit { bit << 16 } else { bit };
@@ -1682,6 +1690,25 @@ mod reference_tests {
                     short,
                     "{bins:?}"
                 );
+            }
+        }
+    }
+
+    #[test]
+    fn mask_layout_splits_into_tile_and_row_major_cell() {
+        // Every cell of a 3 x 3-tile mask: a distinct index below the mask's size, whose tile
+        // and in-tile cell are the cell's (row-major, as `Tile`).
+        let blocks = 3usize;
+        let side = (blocks * TILE_SIZE) as u32;
+        let mut seen = vec![false; blocks * blocks * TILE_CELLS];
+        for r in 0..side {
+            for c in 0..side {
+                let k = (mask_x(c) + mask_y(r, blocks)) as usize;
+                assert!(!std::mem::replace(&mut seen[k], true), "({c}, {r}) twice");
+                let (tc, tr) = ((c >> TILE_SHIFT) as usize, (r >> TILE_SHIFT) as usize);
+                assert_eq!(mask_tile(k), tr * blocks + tc);
+                let (lc, lr) = (c as usize % TILE_SIZE, r as usize % TILE_SIZE);
+                assert_eq!(local_of(k), lr * TILE_SIZE + lc);
             }
         }
     }
