@@ -521,6 +521,30 @@ fn walk_mask(from: Cell, to: Cell, layout: &MaskLayout<'_>, out: &mut [u32]) {
     }
 }
 
+/// Marks a ray's `cells` (mask indices) with `marks` (OR: occupied wins) and appends the
+/// newly touched ones to `touched` from `len` (room for all of them is the caller's);
+/// returns the new length. Its own function, on slices: the loop keeps the lengths and
+/// pointers in registers instead of reloading them through the scratch's vectors per cell.
+#[inline(never)]
+fn mark_cells<T>(
+    mask: &mut [T],
+    touched: &mut [u32],
+    mut len: usize,
+    cells: &[u32],
+    marks: impl Iterator<Item = T>,
+) -> usize
+where
+    T: Copy + Default + PartialEq + std::ops::BitOr<Output = T>,
+{
+    for (&k, m) in cells.iter().zip(marks) {
+        let old = mask[k as usize];
+        mask[k as usize] = old | m;
+        touched[len] = k;
+        len += usize::from(old == T::default());
+    }
+    len
+}
+
 /// A ray's end cell, the cell its free updates stop at, and whether they stop short of the
 /// end (a ray cleared only part of the way, `ScanPoint::free_to < 1`, clears free cells only).
 #[inline(always)]
@@ -1233,9 +1257,7 @@ impl OccupancyGrid {
                 }
                 let cells = &mut cells[..count];
                 walk_mask(origin, clear_end, &layout, cells);
-                for &k in cells.iter() {
-                    mark(mask, touched, &mut len, k as usize, MARK_FREE);
-                }
+                len = mark_cells(mask, touched, len, cells, std::iter::repeat(MARK_FREE));
             }
             let want = if p.hit { MARK_OCCUPIED } else { MARK_FREE };
             mark(mask, touched, &mut len, flat(end), want);
@@ -1355,9 +1377,7 @@ impl OccupancyGrid {
                 let (bits, cells) = (&mut bits[..count], &mut cells[..count]);
                 layer.fill_bits(z0, dz, bits);
                 walk_mask(origin, clear_end, &layout, cells);
-                for (&k, &bit) in cells.iter().zip(bits.iter()) {
-                    mark(hmask, touched, &mut len, k as usize, bit);
-                }
+                len = mark_cells(hmask, touched, len, cells, bits.iter().copied());
             }
             let bit = layer.bit(p.z_m);
             let want = if p.hit { bit << 16 } else { bit };
