@@ -465,8 +465,19 @@ fn mask_tile(k: usize) -> usize {
 /// block row (bits 8-11), block column (4-7), row in block (2-3), column in block (0-1).
 #[inline(always)]
 fn local_of(k: usize) -> usize {
-    (k & 0xf00) | (k & 0xc) << 4 | (k & 0xf0) >> 2 | (k & 3)
+    usize::from(LOCAL_OF_MASK_CELL[k & (TILE_CELLS - 1)])
 }
+
+/// [`local_of`] as a table (one load instead of the bit shuffle, for every touched cell).
+static LOCAL_OF_MASK_CELL: [u16; TILE_CELLS] = {
+    let mut t = [0u16; TILE_CELLS];
+    let mut k = 0;
+    while k < TILE_CELLS {
+        t[k] = ((k & 0xf00) | (k & 0xc) << 4 | (k & 0xf0) >> 2 | (k & 3)) as u16;
+        k += 1;
+    }
+    t
+};
 
 /// Cells -> mask indices of the mask placed with its first cell at `(mi0, mj0)`.
 #[derive(Clone, Copy)]
