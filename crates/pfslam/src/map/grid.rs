@@ -1784,7 +1784,11 @@ mod reference_tests {
             out.resize(n, 0);
             layer.fill_bits(z0, dz, &mut out);
             for (s, &b) in out.iter().enumerate() {
-                assert_eq!(b, layer.bit(z0 + s as i32 as f32 * dz), "{z0} {dz} step {s}");
+                assert_eq!(
+                    b,
+                    layer.bit(z0 + s as i32 as f32 * dz),
+                    "{z0} {dz} step {s}"
+                );
             }
         }
     }
