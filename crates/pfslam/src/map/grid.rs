@@ -503,32 +503,25 @@ fn walk_mask(from: Cell, to: Cell, layout: &MaskLayout<'_>, out: &mut [u32]) {
     let (dx, dy) = ((to.i - from.i).abs(), (to.j - from.j).abs());
     let step_x: isize = if to.i >= from.i { 1 } else { -1 };
     let step_y: isize = if to.j >= from.j { 1 } else { -1 };
-    let (xoff, yoff) = (layout.xoff, layout.yoff);
-    let mut x = (from.i - layout.mi0) as isize;
-    let mut y = (from.j - layout.mj0) as isize;
-    // Major axis: one step per cell; minor axis: when the error crosses half a cell.
-    if dx >= dy {
-        let mut err = 2 * dy - dx;
-        for o in out.iter_mut() {
-            *o = xoff[x as usize] + yoff[y as usize];
-            if err > 0 {
-                y += step_y;
-                err -= 2 * dx;
-            }
-            err += 2 * dy;
-            x += step_x;
+    let x = (from.i - layout.mi0) as isize;
+    let y = (from.j - layout.mj0) as isize;
+    // Major axis: one step per cell; minor axis: when the error crosses half a cell. The
+    // index is the sum of the two axes' offsets, whichever is major.
+    let (mut major, mut minor, d_major, d_minor, s_major, s_minor, off_major, off_minor) =
+        if dx >= dy {
+            (x, y, dx, dy, step_x, step_y, layout.xoff, layout.yoff)
+        } else {
+            (y, x, dy, dx, step_y, step_x, layout.yoff, layout.xoff)
+        };
+    let mut err = 2 * d_minor - d_major;
+    for o in out.iter_mut() {
+        *o = off_major[major as usize] + off_minor[minor as usize];
+        if err > 0 {
+            minor += s_minor;
+            err -= 2 * d_major;
         }
-    } else {
-        let mut err = 2 * dx - dy;
-        for o in out.iter_mut() {
-            *o = xoff[x as usize] + yoff[y as usize];
-            if err > 0 {
-                x += step_x;
-                err -= 2 * dy;
-            }
-            err += 2 * dx;
-            y += step_y;
-        }
+        err += 2 * d_minor;
+        major += s_major;
     }
 }
 
