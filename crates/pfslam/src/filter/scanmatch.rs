@@ -413,6 +413,14 @@ impl LikelihoodField {
         self.values.extend_from_slice(&[0; FIELD_PAD]);
     }
 
+    /// The vector kernel's preconditions: cell indices fit in i32 and the spare bytes are
+    /// there.
+    fn vector_ok(&self) -> bool {
+        self.w
+            .checked_mul(self.h)
+            .is_some_and(|n| n < i32::MAX as usize / 2 && self.values.len() >= n + FIELD_PAD)
+    }
+
     /// Field value of a cell (0 outside the window).
     #[inline]
     pub fn at(&self, cell: Cell) -> u8 {
@@ -512,8 +520,8 @@ impl LikelihoodField {
 #[derive(Debug, Clone, Default)]
 pub struct MatchScratch {
     base: Vec<usize>,
-    /// Refinement: the points rotated by the current yaw.
-    rotated: Vec<[f64; 4]>,
+    /// Refinement: the points rotated by the current yaw and by a one-off yaw.
+    rotated: (Rotation, Rotation),
     /// Coarse search: field sums per x/y offset for one yaw.
     sums: Vec<u32>,
 }
@@ -533,25 +541,227 @@ fn prior_penalty(p: &MatchParams, dx: f64, dy: f64, dyaw: f64) -> f64 {
     0.5 * ((dx * dx + dy * dy) * p.inv_var_xy + dyaw * dyaw * p.inv_var_yaw)
 }
 
-/// The body-frame points rotated by one yaw, `(c x, s y, s x, c y)` per point, kept while the
-/// refinement moves in x and y only: the products are those `field_sum` would compute, so
-/// the sums are bit-identical.
+/// Body-frame points rotated by one yaw: `(c x, s y, s x, c y)` per point, whole blocks of
+/// [`LANES`] points lane-wise (so a vector kernel loads each product of a block at once),
+/// the last `n % LANES` points apart.
+#[derive(Debug, Clone, Default)]
+struct Rotation {
+    blocks: Vec<[[f64; LANES]; 4]>,
+    tail: Vec<[f64; 4]>,
+}
+
+impl Rotation {
+    fn fill(&mut self, points_body: &[[f64; 2]], s: f64, c: f64) {
+        let rot = |p: &[f64; 2]| [c * p[0], s * p[1], s * p[0], c * p[1]];
+        let chunks = points_body.chunks_exact(LANES);
+        self.tail.clear();
+        self.tail.extend(chunks.remainder().iter().map(rot));
+        self.blocks.clear();
+        self.blocks.extend(chunks.map(|quad| {
+            let mut b = [[0.0; LANES]; 4];
+            for (k, p) in quad.iter().enumerate() {
+                for (lane, r) in b.iter_mut().zip(rot(p)) {
+                    lane[k] = r;
+                }
+            }
+            b
+        }));
+    }
+
+    /// Sum of bilinear field values of the points seen from `(x_m, y_m)`: per point
+    /// `pose.x_m + c * p[0] - s * p[1]` evaluated left to right as written, then
+    /// `cell_coords` and `bilinear`; summed left to right from -0.0 (as `Iterator::sum`).
+    fn sum(&self, field: &LikelihoodField, limits: &MapLimits, x_m: f64, y_m: f64) -> f64 {
+        #[cfg(target_arch = "x86_64")]
+        if field.vector_ok() && std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: AVX2 is present (checked above).
+            return unsafe { self.sum_avx2(field, limits, x_m, y_m) };
+        }
+        self.sum_portable(field, limits, x_m, y_m)
+    }
+
+    fn sum_portable(&self, field: &LikelihoodField, limits: &MapLimits, x_m: f64, y_m: f64) -> f64 {
+        let mut sum = -0.0;
+        for [r0, r1, r2, r3] in &self.blocks {
+            // Per lane the same operations in the same order as the tail below.
+            let mut u = [0.0; LANES];
+            let mut v = [0.0; LANES];
+            for k in 0..LANES {
+                (u[k], v[k]) = limits.cell_coords(x_m + r0[k] - r1[k], y_m + r2[k] + r3[k]);
+            }
+            for b in field.bilinear_lanes(&u, &v) {
+                sum += b;
+            }
+        }
+        self.sum_tail(field, limits, x_m, y_m, sum)
+    }
+
+    fn sum_tail(
+        &self,
+        field: &LikelihoodField,
+        limits: &MapLimits,
+        x_m: f64,
+        y_m: f64,
+        mut sum: f64,
+    ) -> f64 {
+        for r in &self.tail {
+            let (u, v) = limits.cell_coords(x_m + r[0] - r[1], y_m + r[2] + r[3]);
+            sum += field.bilinear(u, v);
+        }
+        sum
+    }
+
+    /// [`Self::sum_portable`] in AVX2: the same IEEE operations per lane (no FMA: Rust never
+    /// contracts), so the same bits; the four corner bytes of a point come from two 32-bit
+    /// gathers (the field keeps spare bytes after its last cell for the over-read).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn sum_avx2(
+        &self,
+        field: &LikelihoodField,
+        limits: &MapLimits,
+        x_m: f64,
+        y_m: f64,
+    ) -> f64 {
+        use std::arch::x86_64::*;
+        let (ox, oy) = (limits.origin_x_m(), limits.origin_y_m());
+        // The same division `MapLimits::new` caches for `cell_coords`: the same bits.
+        let inv = 1.0 / limits.resolution_m();
+        let (vx, vy) = (_mm256_set1_pd(x_m), _mm256_set1_pd(y_m));
+        let (vox, voy, vinv) = (_mm256_set1_pd(ox), _mm256_set1_pd(oy), _mm256_set1_pd(inv));
+        let half = _mm256_set1_pd(0.5);
+        let one = _mm256_set1_pd(1.0);
+        let lim = _mm256_set1_pd(1e9);
+        let sign = _mm256_set1_pd(-0.0);
+        let (i0, j0) = (_mm_set1_epi32(field.i0), _mm_set1_epi32(field.j0));
+        // `vector_ok` guarantees these fit in i32.
+        let (w, h) = (field.w as i32, field.h as i32);
+        let (vw, wm1, hm1) = (
+            _mm_set1_epi32(w),
+            _mm_set1_epi32(w - 1),
+            _mm_set1_epi32(h - 1),
+        );
+        let minus1 = _mm_set1_epi32(-1);
+        let byte = _mm_set1_epi32(0xff);
+        let base = field.values.as_ptr();
+        let mut sum = -0.0;
+        for [r0, r1, r2, r3] in &self.blocks {
+            // SAFETY: unaligned loads of whole `[f64; 4]` arrays.
+            let (r0, r1, r2, r3) = unsafe {
+                (
+                    _mm256_loadu_pd(r0.as_ptr()),
+                    _mm256_loadu_pd(r1.as_ptr()),
+                    _mm256_loadu_pd(r2.as_ptr()),
+                    _mm256_loadu_pd(r3.as_ptr()),
+                )
+            };
+            let wx = _mm256_sub_pd(_mm256_add_pd(vx, r0), r1);
+            let wy = _mm256_add_pd(_mm256_add_pd(vy, r2), r3);
+            let u = _mm256_mul_pd(_mm256_sub_pd(wx, vox), vinv);
+            let v = _mm256_mul_pd(_mm256_sub_pd(wy, voy), vinv);
+            let x = _mm256_sub_pd(u, half);
+            let y = _mm256_sub_pd(v, half);
+            let ok = _mm256_and_pd(
+                _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, x), lim),
+                _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, y), lim),
+            );
+            let out = if _mm256_movemask_pd(ok) != 0xf {
+                // A lane beyond the fast path's range (or NaN): the scalar path per lane.
+                let mut ua = [0.0; LANES];
+                let mut va = [0.0; LANES];
+                // SAFETY: stores into local arrays.
+                unsafe {
+                    _mm256_storeu_pd(ua.as_mut_ptr(), u);
+                    _mm256_storeu_pd(va.as_mut_ptr(), v);
+                }
+                std::array::from_fn(|k| field.bilinear(ua[k], va[k]))
+            } else {
+                // floor_to_i32: truncate, minus one where the truncation lies above.
+                let tx = _mm256_cvtepi32_pd(_mm256_cvttpd_epi32(x));
+                let ty = _mm256_cvtepi32_pd(_mm256_cvttpd_epi32(y));
+                let fx = _mm256_sub_pd(tx, _mm256_and_pd(_mm256_cmp_pd::<_CMP_GT_OQ>(tx, x), one));
+                let fy = _mm256_sub_pd(ty, _mm256_and_pd(_mm256_cmp_pd::<_CMP_GT_OQ>(ty, y), one));
+                let ax = _mm256_sub_pd(x, fx);
+                let ay = _mm256_sub_pd(y, fy);
+                let (i, j) = (_mm256_cvttpd_epi32(fx), _mm256_cvttpd_epi32(fy));
+                let (li, lj) = (_mm_sub_epi32(i, i0), _mm_sub_epi32(j, j0));
+                let inside = _mm_and_si128(
+                    _mm_and_si128(_mm_cmpgt_epi32(li, minus1), _mm_cmpgt_epi32(wm1, li)),
+                    _mm_and_si128(_mm_cmpgt_epi32(lj, minus1), _mm_cmpgt_epi32(hm1, lj)),
+                );
+                let (f00, f10, f01, f11) = if _mm_movemask_ps(_mm_castsi128_ps(inside)) == 0xf {
+                    let k = _mm_add_epi32(_mm_mullo_epi32(lj, vw), li);
+                    // SAFETY: all four corners lie inside the window, so the 4 bytes read
+                    // at `k` and `k + w` end at most 2 bytes past the last cell, inside
+                    // the field's spare bytes (`vector_ok`).
+                    let (d0, d1) = unsafe {
+                        (
+                            _mm_i32gather_epi32::<1>(base.cast(), k),
+                            _mm_i32gather_epi32::<1>(base.cast(), _mm_add_epi32(k, vw)),
+                        )
+                    };
+                    let lo = |d| _mm256_cvtepi32_pd(_mm_and_si128(d, byte));
+                    let hi = |d| _mm256_cvtepi32_pd(_mm_and_si128(_mm_srli_epi32::<8>(d), byte));
+                    (lo(d0), hi(d0), lo(d1), hi(d1))
+                } else {
+                    // A corner outside the window: `corners`' slow path per lane.
+                    let mut ia = [0i32; LANES];
+                    let mut ja = [0i32; LANES];
+                    // SAFETY: stores into local arrays.
+                    unsafe {
+                        _mm_storeu_si128(ia.as_mut_ptr().cast(), i);
+                        _mm_storeu_si128(ja.as_mut_ptr().cast(), j);
+                    }
+                    let f: [[f64; 4]; LANES] = std::array::from_fn(|k| field.corners(ia[k], ja[k]));
+                    let col = |c: usize| _mm256_setr_pd(f[0][c], f[1][c], f[2][c], f[3][c]);
+                    (col(0), col(1), col(2), col(3))
+                };
+                // `f00 * (1 - ax) + f10 * ax` etc., as `mix_lanes`.
+                let omx = _mm256_sub_pd(one, ax);
+                let bottom = _mm256_add_pd(_mm256_mul_pd(f00, omx), _mm256_mul_pd(f10, ax));
+                let top = _mm256_add_pd(_mm256_mul_pd(f01, omx), _mm256_mul_pd(f11, ax));
+                let mixed = _mm256_add_pd(
+                    _mm256_mul_pd(bottom, _mm256_sub_pd(one, ay)),
+                    _mm256_mul_pd(top, ay),
+                );
+                let mut out = [0.0; LANES];
+                // SAFETY: a store into a local array.
+                unsafe { _mm256_storeu_pd(out.as_mut_ptr(), mixed) };
+                out
+            };
+            for b in out {
+                sum += b;
+            }
+        }
+        self.sum_tail(field, limits, x_m, y_m, sum)
+    }
+}
+
+/// The rotation the refinement's x/y moves reuse (`kept`, of the yaw `yaw_bits`) and a
+/// scratch one for one-off yaws (the yaw candidates).
 struct RotatedPoints {
     yaw_bits: Option<u64>,
-    points: Vec<[f64; 4]>,
+    kept: Rotation,
+    once: Rotation,
 }
 
 impl RotatedPoints {
-    fn take(buf: &mut Vec<[f64; 4]>) -> Self {
+    fn take(buf: &mut (Rotation, Rotation)) -> Self {
+        let (kept, once) = std::mem::take(buf);
         RotatedPoints {
             yaw_bits: None,
-            points: std::mem::take(buf),
+            kept,
+            once,
         }
     }
 
-    /// Sum of bilinear field values of `points_body` seen from `pose`; the same left-to-right
-    /// fold as `Iterator::sum` for f64 (which starts at -0.0). `keep`: cache this yaw's
-    /// rotation (the yaw the x/y moves will reuse).
+    fn give_back(self, buf: &mut (Rotation, Rotation)) {
+        *buf = (self.kept, self.once);
+    }
+
+    /// Sum of bilinear field values of `points_body` seen from `pose` (see
+    /// [`Rotation::sum`]). `keep`: cache this yaw's rotation (the yaw the x/y moves will
+    /// reuse).
     fn field_sum(
         &mut self,
         field: &LikelihoodField,
@@ -560,49 +770,20 @@ impl RotatedPoints {
         pose: &Pose2,
         keep: bool,
     ) -> f64 {
-        let (s, c) = pose.yaw_rad.sin_cos();
-        if self.yaw_bits != Some(pose.yaw_rad.to_bits()) {
-            if !keep {
-                // A one-off yaw (a yaw candidate): not worth caching.
-                let mut sum = -0.0;
-                for p in points_body {
-                    let x = pose.x_m + c * p[0] - s * p[1];
-                    let y = pose.y_m + s * p[0] + c * p[1];
-                    let (u, v) = limits.cell_coords(x, y);
-                    sum += field.bilinear(u, v);
-                }
-                return sum;
+        let rotation = if self.yaw_bits == Some(pose.yaw_rad.to_bits()) {
+            &self.kept
+        } else {
+            let (s, c) = pose.yaw_rad.sin_cos();
+            if keep {
+                self.kept.fill(points_body, s, c);
+                self.yaw_bits = Some(pose.yaw_rad.to_bits());
+                &self.kept
+            } else {
+                self.once.fill(points_body, s, c);
+                &self.once
             }
-            self.points.clear();
-            self.points.extend(
-                points_body
-                    .iter()
-                    .map(|p| [c * p[0], s * p[1], s * p[0], c * p[1]]),
-            );
-            self.yaw_bits = Some(pose.yaw_rad.to_bits());
-        }
-        let mut sum = -0.0;
-        let mut chunks = self.points.chunks_exact(LANES);
-        for quad in &mut chunks {
-            // Per lane the same operations in the same order as the scalar tail below
-            // (`cell_coords`, then `bilinear`): the same bits, in vector registers.
-            let mut u = [0.0; LANES];
-            let mut v = [0.0; LANES];
-            for (k, r) in quad.iter().enumerate() {
-                // Evaluated as `pose.x_m + c * p[0] - s * p[1]` is: left to right.
-                (u[k], v[k]) = limits.cell_coords(pose.x_m + r[0] - r[1], pose.y_m + r[2] + r[3]);
-            }
-            for b in field.bilinear_lanes(&u, &v) {
-                sum += b;
-            }
-        }
-        for r in chunks.remainder() {
-            let x = pose.x_m + r[0] - r[1];
-            let y = pose.y_m + r[2] + r[3];
-            let (u, v) = limits.cell_coords(x, y);
-            sum += field.bilinear(u, v);
-        }
-        sum
+        };
+        rotation.sum(field, limits, pose.x_m, pose.y_m)
     }
 }
 
@@ -879,7 +1060,7 @@ fn refine_from(
         64,
         |at, same_yaw| eval(at[0], at[1], at[2], same_yaw),
     );
-    scratch.rotated = rot.points;
+    rot.give_back(&mut scratch.rotated);
     MatchResult {
         pose: Pose2::new(
             predicted.x_m + dx,
@@ -954,7 +1135,7 @@ pub fn field_curvature(
         return [[0.0; 3]; 3];
     };
     let steps = curvature_steps(params);
-    let mut rot = RotatedPoints::take(&mut Vec::new());
+    let mut rot = RotatedPoints::take(&mut Default::default());
     let mut f = |e: [f64; 3]| {
         let pose = Pose2::new(at.x_m + e[0], at.y_m + e[1], at.yaw_rad + e[2]);
         params.gain_per_unit * rot.field_sum(field, &limits, points_body, &pose, false)
@@ -1055,7 +1236,7 @@ pub fn member_match(
         member.y_m + off[1],
         member.yaw_rad + off[2],
     );
-    let mut rot = RotatedPoints::take(&mut Vec::new());
+    let mut rot = RotatedPoints::take(&mut Default::default());
     let sum = rot.field_sum(field, &limits, points_body, &pose, false);
     MatchResult {
         pose,
