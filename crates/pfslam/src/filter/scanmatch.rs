@@ -860,6 +860,47 @@ fn coarse_sums_swar<const S: usize>(values: &[u8], w: usize, base: &[usize], sum
     }
 }
 
+/// [`coarse_sums`] for sides up to 8 in AVX2: each row of the block is one 8-byte load
+/// widened to eight u16 lanes and added to that row's accumulator (u16 lanes cannot
+/// overflow within blocks of 257 points; lanes beyond `S` are ignored). Integer sums: the
+/// same values as the other kernels.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn coarse_sums_avx2<const S: usize>(values: &[u8], w: usize, base: &[usize], sums: &mut [u32]) {
+    use std::arch::x86_64::*;
+    for block in base.chunks(257) {
+        let mut acc = [_mm_setzero_si128(); S];
+        for &b in block {
+            for (oy, a) in acc.iter_mut().enumerate() {
+                let Some(bytes) = values[b + oy * w..].first_chunk::<8>() else {
+                    continue;
+                };
+                // SAFETY: an unaligned 8-byte load from a checked 8-byte slice.
+                let row = unsafe { _mm_loadl_epi64(bytes.as_ptr().cast()) };
+                *a = _mm_add_epi16(*a, _mm_cvtepu8_epi16(row));
+            }
+        }
+        for (sum_row, a) in sums.chunks_exact_mut(S).zip(&acc) {
+            let mut lanes = [0u16; 8];
+            // SAFETY: a store into a local array of 16 bytes.
+            unsafe { _mm_storeu_si128(lanes.as_mut_ptr().cast(), *a) };
+            for (s, &l) in sum_row.iter_mut().zip(&lanes) {
+                *s += u32::from(l);
+            }
+        }
+    }
+}
+
+/// [`coarse_sums_swar`], in AVX2 when the CPU has it.
+fn coarse_sums_fast<const S: usize>(values: &[u8], w: usize, base: &[usize], sums: &mut [u32]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: AVX2 is present (checked above).
+        return unsafe { coarse_sums_avx2::<S>(values, w, base, sums) };
+    }
+    coarse_sums_swar::<S>(values, w, base, sums)
+}
+
 /// [`coarse_sums`] for any side.
 fn coarse_sums_any(values: &[u8], w: usize, side: usize, base: &[usize], sums: &mut [u32]) {
     for &b in base {
@@ -867,6 +908,164 @@ fn coarse_sums_any(values: &[u8], w: usize, side: usize, base: &[usize], sums: &
             let row = &values[b + oy * w..][..side];
             for (acc, &v) in sum_row.iter_mut().zip(row) {
                 *acc += u32::from(v);
+            }
+        }
+    }
+}
+
+/// The coarse search's window indices for one yaw (`(s, c)` its sine and cosine): per point
+/// seen from `predicted` at that yaw, the index of the lower-left cell of its `2r+1` block
+/// of offsets, if the whole block lies in the window (else the point is left out), in
+/// point order (into `base`, cleared first).
+fn window_bases(
+    field: &LikelihoodField,
+    limits: &MapLimits,
+    points_body: &[[f64; 2]],
+    predicted: &Pose2,
+    (s, c): (f64, f64),
+    r: i32,
+    base: &mut Vec<usize>,
+) {
+    base.clear();
+    let chunks = points_body.chunks_exact(LANES);
+    let tail = chunks.remainder();
+    #[cfg(target_arch = "x86_64")]
+    if field.vector_ok() && std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: AVX2 is present (checked above).
+        unsafe { window_bases_avx2(field, limits, points_body, predicted, (s, c), r, base) };
+        window_bases_portable(field, limits, tail, predicted, (s, c), r, base);
+        return;
+    }
+    window_bases_portable(field, limits, points_body, predicted, (s, c), r, base);
+}
+
+fn window_bases_portable(
+    field: &LikelihoodField,
+    limits: &MapLimits,
+    points_body: &[[f64; 2]],
+    predicted: &Pose2,
+    (s, c): (f64, f64),
+    r: i32,
+    base: &mut Vec<usize>,
+) {
+    let (w, h) = (field.w as i32, field.h as i32);
+    let mut push = |cell: Cell| {
+        let (li, lj) = (cell.i - field.i0, cell.j - field.j0);
+        if li >= r && lj >= r && li < w - r && lj < h - r {
+            base.push((lj - r) as usize * field.w + (li - r) as usize);
+        }
+    };
+    let cell_of = |p: &[f64; 2]| {
+        let x = predicted.x_m + c * p[0] - s * p[1];
+        let y = predicted.y_m + s * p[0] + c * p[1];
+        limits.cell_of(x, y)
+    };
+    // Cells of four points at a time (the arithmetic vectorises), then kept in order.
+    let mut chunks = points_body.chunks_exact(LANES);
+    for quad in &mut chunks {
+        let mut cells = [Cell::new(0, 0); LANES];
+        for (cell, p) in cells.iter_mut().zip(quad) {
+            *cell = cell_of(p);
+        }
+        cells.into_iter().for_each(&mut push);
+    }
+    chunks.remainder().iter().map(cell_of).for_each(push);
+}
+
+/// [`window_bases_portable`] of the whole blocks of [`LANES`] points in AVX2 (the same
+/// floating-point operations per lane, so the same cells; a block with a coordinate beyond
+/// +-1e9 cells, or NaN, takes the portable path).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn window_bases_avx2(
+    field: &LikelihoodField,
+    limits: &MapLimits,
+    points_body: &[[f64; 2]],
+    predicted: &Pose2,
+    (s, c): (f64, f64),
+    r: i32,
+    base: &mut Vec<usize>,
+) {
+    use std::arch::x86_64::*;
+    let (vs, vc) = (_mm256_set1_pd(s), _mm256_set1_pd(c));
+    let (vx, vy) = (_mm256_set1_pd(predicted.x_m), _mm256_set1_pd(predicted.y_m));
+    let (vox, voy) = (
+        _mm256_set1_pd(limits.origin_x_m()),
+        _mm256_set1_pd(limits.origin_y_m()),
+    );
+    // The same division `MapLimits::new` caches for `cell_of`: the same bits.
+    let vinv = _mm256_set1_pd(1.0 / limits.resolution_m());
+    let one = _mm256_set1_pd(1.0);
+    let lim = _mm256_set1_pd(1e9);
+    let sign = _mm256_set1_pd(-0.0);
+    // `vector_ok` guarantees these fit in i32.
+    let (w, h) = (field.w as i32, field.h as i32);
+    // Inside: r <= li < w - r and r <= lj < h - r, with li = i - i0.
+    let (lo_i, hi_i) = (
+        _mm_set1_epi32(field.i0 + r - 1),
+        _mm_set1_epi32(field.i0 + w - r),
+    );
+    let (lo_j, hi_j) = (
+        _mm_set1_epi32(field.j0 + r - 1),
+        _mm_set1_epi32(field.j0 + h - r),
+    );
+    // Wrapping: the pushed lanes' indices are exact modulo 2^32 and small.
+    let corner = _mm_set1_epi32(
+        field
+            .i0
+            .wrapping_add(r)
+            .wrapping_add(field.j0.wrapping_add(r).wrapping_mul(w)),
+    );
+    let vw = _mm_set1_epi32(w);
+    for quad in points_body.chunks_exact(LANES) {
+        // SAFETY: two unaligned loads of 4 f64 each from a block of 4 `[f64; 2]`.
+        let (a, b) = unsafe {
+            let p = quad.as_ptr().cast::<f64>();
+            (_mm256_loadu_pd(p), _mm256_loadu_pd(p.add(4)))
+        };
+        // (x0 y0 x1 y1), (x2 y2 x3 y3) -> (x0 x1 x2 x3), (y0 y1 y2 y3).
+        let px = _mm256_permute4x64_pd::<0b11_01_10_00>(_mm256_unpacklo_pd(a, b));
+        let py = _mm256_permute4x64_pd::<0b11_01_10_00>(_mm256_unpackhi_pd(a, b));
+        let x = _mm256_sub_pd(
+            _mm256_add_pd(vx, _mm256_mul_pd(vc, px)),
+            _mm256_mul_pd(vs, py),
+        );
+        let y = _mm256_add_pd(
+            _mm256_add_pd(vy, _mm256_mul_pd(vs, px)),
+            _mm256_mul_pd(vc, py),
+        );
+        let u = _mm256_mul_pd(_mm256_sub_pd(x, vox), vinv);
+        let v = _mm256_mul_pd(_mm256_sub_pd(y, voy), vinv);
+        let ok = _mm256_and_pd(
+            _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, u), lim),
+            _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, v), lim),
+        );
+        if _mm256_movemask_pd(ok) != 0xf {
+            window_bases_portable(field, limits, quad, predicted, (s, c), r, base);
+            continue;
+        }
+        // floor_to_i32: truncate, minus one where the truncation lies above.
+        let tu = _mm256_cvtepi32_pd(_mm256_cvttpd_epi32(u));
+        let tv = _mm256_cvtepi32_pd(_mm256_cvttpd_epi32(v));
+        let fu = _mm256_sub_pd(tu, _mm256_and_pd(_mm256_cmp_pd::<_CMP_GT_OQ>(tu, u), one));
+        let fv = _mm256_sub_pd(tv, _mm256_and_pd(_mm256_cmp_pd::<_CMP_GT_OQ>(tv, v), one));
+        let (i, j) = (_mm256_cvttpd_epi32(fu), _mm256_cvttpd_epi32(fv));
+        let inside = _mm_and_si128(
+            _mm_and_si128(_mm_cmpgt_epi32(i, lo_i), _mm_cmpgt_epi32(hi_i, i)),
+            _mm_and_si128(_mm_cmpgt_epi32(j, lo_j), _mm_cmpgt_epi32(hi_j, j)),
+        );
+        let mask = _mm_movemask_ps(_mm_castsi128_ps(inside));
+        if mask == 0 {
+            continue;
+        }
+        // (j - j0 - r) w + (i - i0 - r) = j w + i - ((j0 + r) w + i0 + r).
+        let k = _mm_sub_epi32(_mm_add_epi32(_mm_mullo_epi32(j, vw), i), corner);
+        let mut ka = [0i32; LANES];
+        // SAFETY: a store into a local array of 16 bytes.
+        unsafe { _mm_storeu_si128(ka.as_mut_ptr().cast(), k) };
+        for (lane, &k) in ka.iter().enumerate() {
+            if mask & (1 << lane) != 0 {
+                base.push(k as usize);
             }
         }
     }
@@ -949,35 +1148,20 @@ pub fn match_scan(
     };
     let res = params.resolution_m;
     let r = params.xy_radius_cells.max(0);
-    let (w, h) = (field.w as i32, field.h as i32);
     let side = (2 * r + 1) as usize;
     // Coarse: per yaw, points to window indices once; x/y offsets are index shifts.
     let mut best = (f64::NEG_INFINITY, 0i32, 0i32, 0.0f64);
     for &dyaw in &params.yaw_offsets_rad {
         let (s, c) = (predicted.yaw_rad + dyaw).sin_cos();
-        scratch.base.clear();
-        let base = &mut scratch.base;
-        let mut push = |cell: Cell| {
-            let (li, lj) = (cell.i - field.i0, cell.j - field.j0);
-            if li >= r && lj >= r && li < w - r && lj < h - r {
-                base.push((lj - r) as usize * field.w + (li - r) as usize);
-            }
-        };
-        let cell_of = |p: &[f64; 2]| {
-            let x = predicted.x_m + c * p[0] - s * p[1];
-            let y = predicted.y_m + s * p[0] + c * p[1];
-            limits.cell_of(x, y)
-        };
-        // Cells of four points at a time (the arithmetic vectorises), then kept in order.
-        let mut chunks = points_body.chunks_exact(LANES);
-        for quad in &mut chunks {
-            let mut cells = [Cell::new(0, 0); LANES];
-            for (cell, p) in cells.iter_mut().zip(quad) {
-                *cell = cell_of(p);
-            }
-            cells.into_iter().for_each(&mut push);
-        }
-        chunks.remainder().iter().map(cell_of).for_each(push);
+        window_bases(
+            field,
+            &limits,
+            points_body,
+            predicted,
+            (s, c),
+            r,
+            &mut scratch.base,
+        );
         // Point by point, the side x side block of the field under it is added to the sums
         // of all offsets at once: contiguous rows instead of one scattered byte per point
         // and offset. Integer sums: the same values in any order.
@@ -987,9 +1171,9 @@ pub fn match_scan(
         let sums = &mut scratch.sums[..];
         match side {
             // Fixed sides: the accumulators live in registers.
-            3 => coarse_sums_swar::<3>(values, fw, base, sums),
-            5 => coarse_sums_swar::<5>(values, fw, base, sums),
-            7 => coarse_sums_swar::<7>(values, fw, base, sums),
+            3 => coarse_sums_fast::<3>(values, fw, base, sums),
+            5 => coarse_sums_fast::<5>(values, fw, base, sums),
+            7 => coarse_sums_fast::<7>(values, fw, base, sums),
             9 => coarse_sums::<9>(values, fw, base, sums),
             11 => coarse_sums::<11>(values, fw, base, sums),
             _ => coarse_sums_any(values, fw, side, base, sums),
