@@ -1071,8 +1071,11 @@ fn window_bases_avx2(
     }
 }
 
+/// Evaluations [`pattern_search`] remembers (the last ones).
+const MEMO: usize = 16;
+
 /// Pattern search with step halving (the sub-cell refinement of the matchers): from `start`
-/// (x, y, yaw; `first` = its objective and score), try +-`step_xy` in x and y and
+/// (x, y, yaw; `first` = its objective and score, i.e. `eval(start)`), try +-`step_xy` in x and y and
 /// +-`step_yaw` in yaw, move to the best strict improvement, halve the steps when none
 /// improves, `levels` times (at most `max_iterations` moves or halvings). `eval(at,
 /// same_yaw)` returns (objective, score); `same_yaw` says the candidate keeps the current
@@ -1091,9 +1094,13 @@ pub fn pattern_search(
     let (mut step_xy, mut step_yaw) = (step_xy, step_yaw);
     let mut level = 0;
     let mut iterations = 0;
-    // The position the last move came from: its objective is below the current one, so a
-    // candidate that lands exactly (bit for bit) on it cannot win and is not evaluated.
-    let mut previous: Option<[u64; 3]> = None;
+    // The last evaluations by position (bit patterns): a candidate that lands exactly on
+    // one (the position the last move came from, or a diagonal neighbour of an earlier
+    // position) reuses its value. `eval` is a pure function of the position, so this
+    // changes no result (~3 % fewer evaluations in the car's filter).
+    let mut memo = [([u64::MAX; 3], (0.0, 0.0)); MEMO];
+    memo[0] = (start.map(f64::to_bits), first);
+    let mut memo_len = 1usize;
     while level < levels && iterations < max_iterations {
         iterations += 1;
         let mut moved: Option<([f64; 3], (f64, f64))> = None;
@@ -1106,17 +1113,23 @@ pub fn pattern_search(
             (0.0, 0.0, -step_yaw),
         ] {
             let cand = [at[0] + ex, at[1] + ey, at[2] + eyaw];
-            if previous == Some(cand.map(f64::to_bits)) {
-                continue;
-            }
-            let value = eval(cand, eyaw == 0.0);
+            let key = cand.map(f64::to_bits);
+            let seen = memo[..memo_len.min(MEMO)].iter().find(|m| m.0 == key);
+            let value = match seen {
+                Some(&(_, value)) => value,
+                None => {
+                    let value = eval(cand, eyaw == 0.0);
+                    memo[memo_len % MEMO] = (key, value);
+                    memo_len += 1;
+                    value
+                }
+            };
             if value.0 > moved.map_or(best.0, |m| m.1.0) {
                 moved = Some((cand, value));
             }
         }
         match moved {
             Some((cand, value)) => {
-                previous = Some(at.map(f64::to_bits));
                 at = cand;
                 best = value;
             }
@@ -1946,6 +1959,82 @@ mod tests {
                     field.bilinear(u, v).to_bits(),
                     field.bilinear_reference(u, v).to_bits()
                 );
+            }
+        }
+    }
+
+    /// The AVX2 kernels against the portable ones, bit for bit: the refinement's field sum
+    /// and the coarse search's window indices and block sums, with points inside the window,
+    /// across its edges, far outside it (beyond the fast path's 1e9 cells) and NaN.
+    #[test]
+    fn vector_kernels_equal_the_portable_ones_bit_for_bit() {
+        use rand::{RngExt, SeedableRng};
+        #[cfg(target_arch = "x86_64")]
+        if !std::arch::is_x86_feature_detected!("avx2") {
+            eprintln!("SKIP: no AVX2 on this CPU");
+            return;
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            eprintln!("SKIP: not x86-64");
+            return;
+        }
+        #[cfg(target_arch = "x86_64")]
+        {
+            let (field, _) = room_field(0.0);
+            let limits = field.limits.unwrap();
+            assert!(field.vector_ok());
+            let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(11);
+            let mut rot = Rotation::default();
+            let (mut want, mut got) = (Vec::new(), Vec::new());
+            for case in 0..300 {
+                let n = if case % 10 == 0 {
+                    700
+                } else {
+                    rng.random_range(0..40)
+                };
+                let pts: Vec<[f64; 2]> = (0..n)
+                    .map(|_| match rng.random_range(0..40) {
+                        0 => [1e12, -3.0],
+                        1 => [f64::NAN, 1.0],
+                        2 => [rng.random_range(-30.0..30.0), rng.random_range(-30.0..30.0)],
+                        _ => [rng.random_range(-7.5..7.5), rng.random_range(-6.5..6.5)],
+                    })
+                    .collect();
+                let pose = Pose2::new(
+                    rng.random_range(-0.5..0.5),
+                    rng.random_range(-0.5..0.5),
+                    rng.random_range(-0.3..0.3),
+                );
+                let (s, c) = pose.yaw_rad.sin_cos();
+                rot.fill(&pts, s, c);
+                let portable = rot.sum_portable(&field, &limits, pose.x_m, pose.y_m);
+                // SAFETY: AVX2 is present (checked above).
+                let vector = unsafe { rot.sum_avx2(&field, &limits, pose.x_m, pose.y_m) };
+                assert_eq!(vector.to_bits(), portable.to_bits(), "case {case}");
+                let r = rng.random_range(0..5);
+                want.clear();
+                window_bases_portable(&field, &limits, &pts, &pose, (s, c), r, &mut want);
+                window_bases(&field, &limits, &pts, &pose, (s, c), r, &mut got);
+                assert_eq!(got, want, "case {case}");
+                let w = field.w;
+                macro_rules! sums {
+                    ($side:literal) => {
+                        if 2 * r + 1 == $side {
+                            let mut plain = vec![0u32; $side * $side];
+                            let mut vector = plain.clone();
+                            coarse_sums::<$side>(&field.values, w, &want, &mut plain);
+                            // SAFETY: AVX2 is present (checked above).
+                            unsafe {
+                                coarse_sums_avx2::<$side>(&field.values, w, &want, &mut vector)
+                            };
+                            assert_eq!(vector, plain, "case {case}");
+                        }
+                    };
+                }
+                sums!(3);
+                sums!(5);
+                sums!(7);
             }
         }
     }
