@@ -80,22 +80,31 @@ fn bench(c: &mut Criterion) {
     scan_match(c);
 }
 
-fn scan_match(c: &mut Criterion) {
-    use pfslam::filter::scanmatch::{LikelihoodField, MatchScratch, match_points, match_scan};
-    let config = Config::default();
-    let (grid, body, pose) = mapped_drive(&config, 1);
+/// The scan_match benches' map (the bench drive), the last scan's matching points, its true
+/// pose and the window the SLAM loop would use for particles within a few cells of it.
+fn scan_match_setup(
+    config: &Config,
+) -> (OccupancyGrid, Vec<[f64; 2]>, Pose2, pfslam::map::CellRect) {
+    use pfslam::filter::scanmatch::match_points;
+    let (grid, body, pose) = mapped_drive(config, 1);
     let sm = &config.filter.scan_match;
     let mut pts = Vec::new();
     match_points(&body, sm.match_range_max_m, sm.beam_decimation, &mut pts);
-    // The window the SLAM loop would use for particles within a few cells of the pose.
     let limits = *grid.limits();
-    let c0 = limits.cell_of(pose.x_m, pose.y_m);
-    let mut rect = pfslam::map::CellRect::around(c0);
+    let mut rect = pfslam::map::CellRect::around(limits.cell_of(pose.x_m, pose.y_m));
     for p in &pts {
         let (x, y) = pose.transform_point(p[0], p[1]);
         rect = rect.union(&pfslam::map::CellRect::around(limits.cell_of(x, y)));
     }
     let rect = rect.expanded(sm.xy_search_radius_cells as i32 + 4);
+    (grid, pts, pose, rect)
+}
+
+fn scan_match(c: &mut Criterion) {
+    use pfslam::filter::scanmatch::{LikelihoodField, MatchScratch, match_scan};
+    let config = Config::default();
+    let sm = &config.filter.scan_match;
+    let (grid, pts, pose, rect) = scan_match_setup(&config);
     let params = sm.params(config.map.resolution_m);
     let mut field = LikelihoodField::new();
     let mut g = c.benchmark_group("scan_match");
@@ -175,19 +184,10 @@ fn scan_match(c: &mut Criterion) {
 /// time (figures that hold on a loaded machine): the whole match, and the coarse search
 /// alone (`refine_levels = 0`); their difference is the refinement.
 fn scan_match_cpu(c: &mut Criterion<ThreadCpuTime>) {
-    use pfslam::filter::scanmatch::{LikelihoodField, MatchScratch, match_points, match_scan};
+    use pfslam::filter::scanmatch::{LikelihoodField, MatchScratch, match_scan};
     let config = Config::default();
-    let (grid, body, pose) = mapped_drive(&config, 1);
     let sm = &config.filter.scan_match;
-    let mut pts = Vec::new();
-    match_points(&body, sm.match_range_max_m, sm.beam_decimation, &mut pts);
-    let limits = *grid.limits();
-    let mut rect = pfslam::map::CellRect::around(limits.cell_of(pose.x_m, pose.y_m));
-    for p in &pts {
-        let (x, y) = pose.transform_point(p[0], p[1]);
-        rect = rect.union(&pfslam::map::CellRect::around(limits.cell_of(x, y)));
-    }
-    let rect = rect.expanded(sm.xy_search_radius_cells as i32 + 4);
+    let (grid, pts, pose, rect) = scan_match_setup(&config);
     let mut field = LikelihoodField::new();
     field.build(&grid, &rect, sm.field_sigma_m, sm.unknown_value);
     let predicted = Pose2::new(pose.x_m + 0.09, pose.y_m - 0.08, pose.yaw_rad + 0.005);

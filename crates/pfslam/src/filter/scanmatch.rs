@@ -913,159 +913,155 @@ fn coarse_sums_any(values: &[u8], w: usize, side: usize, base: &[usize], sums: &
     }
 }
 
-/// The coarse search's window indices for one yaw (`(s, c)` its sine and cosine): per point
-/// seen from `predicted` at that yaw, the index of the lower-left cell of its `2r+1` block
-/// of offsets, if the whole block lies in the window (else the point is left out), in
-/// point order (into `base`, cleared first).
-fn window_bases(
-    field: &LikelihoodField,
-    limits: &MapLimits,
-    points_body: &[[f64; 2]],
-    predicted: &Pose2,
-    (s, c): (f64, f64),
+/// One yaw of the coarse search: the field, the predicted pose, the yaw's sine and cosine
+/// and the search's half-width `r` (cells).
+#[derive(Clone, Copy)]
+struct CoarseYaw<'a> {
+    field: &'a LikelihoodField,
+    limits: &'a MapLimits,
+    predicted: &'a Pose2,
+    sin_cos: (f64, f64),
     r: i32,
-    base: &mut Vec<usize>,
-) {
-    base.clear();
-    let chunks = points_body.chunks_exact(LANES);
-    let tail = chunks.remainder();
-    #[cfg(target_arch = "x86_64")]
-    if field.vector_ok() && std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: AVX2 is present (checked above).
-        unsafe { window_bases_avx2(field, limits, points_body, predicted, (s, c), r, base) };
-        window_bases_portable(field, limits, tail, predicted, (s, c), r, base);
-        return;
-    }
-    window_bases_portable(field, limits, points_body, predicted, (s, c), r, base);
 }
 
-fn window_bases_portable(
-    field: &LikelihoodField,
-    limits: &MapLimits,
-    points_body: &[[f64; 2]],
-    predicted: &Pose2,
-    (s, c): (f64, f64),
-    r: i32,
-    base: &mut Vec<usize>,
-) {
-    let (w, h) = (field.w as i32, field.h as i32);
-    let mut push = |cell: Cell| {
-        let (li, lj) = (cell.i - field.i0, cell.j - field.j0);
-        if li >= r && lj >= r && li < w - r && lj < h - r {
-            base.push((lj - r) as usize * field.w + (li - r) as usize);
+impl CoarseYaw<'_> {
+    /// The window indices: per point seen from `predicted` at this yaw, the index of the
+    /// lower-left cell of its `2r+1` block of offsets, if the whole block lies in the window
+    /// (else the point is left out), in point order (into `base`, cleared first).
+    fn bases(&self, points_body: &[[f64; 2]], base: &mut Vec<usize>) {
+        base.clear();
+        #[cfg(target_arch = "x86_64")]
+        if self.field.vector_ok() && std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: AVX2 is present (checked above).
+            unsafe { self.bases_avx2(points_body, base) };
+            let tail = points_body.chunks_exact(LANES).remainder();
+            self.bases_portable(tail, base);
+            return;
         }
-    };
-    let cell_of = |p: &[f64; 2]| {
-        let x = predicted.x_m + c * p[0] - s * p[1];
-        let y = predicted.y_m + s * p[0] + c * p[1];
-        limits.cell_of(x, y)
-    };
-    // Cells of four points at a time (the arithmetic vectorises), then kept in order.
-    let mut chunks = points_body.chunks_exact(LANES);
-    for quad in &mut chunks {
-        let mut cells = [Cell::new(0, 0); LANES];
-        for (cell, p) in cells.iter_mut().zip(quad) {
-            *cell = cell_of(p);
-        }
-        cells.into_iter().for_each(&mut push);
+        self.bases_portable(points_body, base);
     }
-    chunks.remainder().iter().map(cell_of).for_each(push);
-}
 
-/// [`window_bases_portable`] of the whole blocks of [`LANES`] points in AVX2 (the same
-/// floating-point operations per lane, so the same cells; a block with a coordinate beyond
-/// +-1e9 cells, or NaN, takes the portable path).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn window_bases_avx2(
-    field: &LikelihoodField,
-    limits: &MapLimits,
-    points_body: &[[f64; 2]],
-    predicted: &Pose2,
-    (s, c): (f64, f64),
-    r: i32,
-    base: &mut Vec<usize>,
-) {
-    use std::arch::x86_64::*;
-    let (vs, vc) = (_mm256_set1_pd(s), _mm256_set1_pd(c));
-    let (vx, vy) = (_mm256_set1_pd(predicted.x_m), _mm256_set1_pd(predicted.y_m));
-    let (vox, voy) = (
-        _mm256_set1_pd(limits.origin_x_m()),
-        _mm256_set1_pd(limits.origin_y_m()),
-    );
-    // The same division `MapLimits::new` caches for `cell_of`: the same bits.
-    let vinv = _mm256_set1_pd(1.0 / limits.resolution_m());
-    let one = _mm256_set1_pd(1.0);
-    let lim = _mm256_set1_pd(1e9);
-    let sign = _mm256_set1_pd(-0.0);
-    // `vector_ok` guarantees these fit in i32.
-    let (w, h) = (field.w as i32, field.h as i32);
-    // Inside: r <= li < w - r and r <= lj < h - r, with li = i - i0.
-    let (lo_i, hi_i) = (
-        _mm_set1_epi32(field.i0 + r - 1),
-        _mm_set1_epi32(field.i0 + w - r),
-    );
-    let (lo_j, hi_j) = (
-        _mm_set1_epi32(field.j0 + r - 1),
-        _mm_set1_epi32(field.j0 + h - r),
-    );
-    // Wrapping: the pushed lanes' indices are exact modulo 2^32 and small.
-    let corner = _mm_set1_epi32(
-        field
-            .i0
-            .wrapping_add(r)
-            .wrapping_add(field.j0.wrapping_add(r).wrapping_mul(w)),
-    );
-    let vw = _mm_set1_epi32(w);
-    for quad in points_body.chunks_exact(LANES) {
-        // SAFETY: two unaligned loads of 4 f64 each from a block of 4 `[f64; 2]`.
-        let (a, b) = unsafe {
-            let p = quad.as_ptr().cast::<f64>();
-            (_mm256_loadu_pd(p), _mm256_loadu_pd(p.add(4)))
+    fn bases_portable(&self, points_body: &[[f64; 2]], base: &mut Vec<usize>) {
+        let CoarseYaw {
+            field,
+            limits,
+            predicted,
+            sin_cos: (s, c),
+            r,
+        } = *self;
+        let (w, h) = (field.w as i32, field.h as i32);
+        let mut push = |cell: Cell| {
+            let (li, lj) = (cell.i - field.i0, cell.j - field.j0);
+            if li >= r && lj >= r && li < w - r && lj < h - r {
+                base.push((lj - r) as usize * field.w + (li - r) as usize);
+            }
         };
-        // (x0 y0 x1 y1), (x2 y2 x3 y3) -> (x0 x1 x2 x3), (y0 y1 y2 y3).
-        let px = _mm256_permute4x64_pd::<0b11_01_10_00>(_mm256_unpacklo_pd(a, b));
-        let py = _mm256_permute4x64_pd::<0b11_01_10_00>(_mm256_unpackhi_pd(a, b));
-        let x = _mm256_sub_pd(
-            _mm256_add_pd(vx, _mm256_mul_pd(vc, px)),
-            _mm256_mul_pd(vs, py),
-        );
-        let y = _mm256_add_pd(
-            _mm256_add_pd(vy, _mm256_mul_pd(vs, px)),
-            _mm256_mul_pd(vc, py),
-        );
-        let u = _mm256_mul_pd(_mm256_sub_pd(x, vox), vinv);
-        let v = _mm256_mul_pd(_mm256_sub_pd(y, voy), vinv);
-        let ok = _mm256_and_pd(
-            _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, u), lim),
-            _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, v), lim),
-        );
-        if _mm256_movemask_pd(ok) != 0xf {
-            window_bases_portable(field, limits, quad, predicted, (s, c), r, base);
-            continue;
+        let cell_of = |p: &[f64; 2]| {
+            let x = predicted.x_m + c * p[0] - s * p[1];
+            let y = predicted.y_m + s * p[0] + c * p[1];
+            limits.cell_of(x, y)
+        };
+        // Cells of four points at a time (the arithmetic vectorises), then kept in order.
+        let mut chunks = points_body.chunks_exact(LANES);
+        for quad in &mut chunks {
+            let mut cells = [Cell::new(0, 0); LANES];
+            for (cell, p) in cells.iter_mut().zip(quad) {
+                *cell = cell_of(p);
+            }
+            cells.into_iter().for_each(&mut push);
         }
-        // floor_to_i32: truncate, minus one where the truncation lies above.
-        let tu = _mm256_cvtepi32_pd(_mm256_cvttpd_epi32(u));
-        let tv = _mm256_cvtepi32_pd(_mm256_cvttpd_epi32(v));
-        let fu = _mm256_sub_pd(tu, _mm256_and_pd(_mm256_cmp_pd::<_CMP_GT_OQ>(tu, u), one));
-        let fv = _mm256_sub_pd(tv, _mm256_and_pd(_mm256_cmp_pd::<_CMP_GT_OQ>(tv, v), one));
-        let (i, j) = (_mm256_cvttpd_epi32(fu), _mm256_cvttpd_epi32(fv));
-        let inside = _mm_and_si128(
-            _mm_and_si128(_mm_cmpgt_epi32(i, lo_i), _mm_cmpgt_epi32(hi_i, i)),
-            _mm_and_si128(_mm_cmpgt_epi32(j, lo_j), _mm_cmpgt_epi32(hi_j, j)),
+        chunks.remainder().iter().map(cell_of).for_each(push);
+    }
+
+    /// [`CoarseYaw::bases_portable`] of the whole blocks of [`LANES`] points in AVX2 (the same
+    /// floating-point operations per lane, so the same cells; a block with a coordinate beyond
+    /// +-1e9 cells, or NaN, takes the portable path).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn bases_avx2(&self, points_body: &[[f64; 2]], base: &mut Vec<usize>) {
+        let (field, limits, predicted, r) = (self.field, self.limits, self.predicted, self.r);
+        let (s, c) = self.sin_cos;
+        use std::arch::x86_64::*;
+        let (vs, vc) = (_mm256_set1_pd(s), _mm256_set1_pd(c));
+        let (vx, vy) = (_mm256_set1_pd(predicted.x_m), _mm256_set1_pd(predicted.y_m));
+        let (vox, voy) = (
+            _mm256_set1_pd(limits.origin_x_m()),
+            _mm256_set1_pd(limits.origin_y_m()),
         );
-        let mask = _mm_movemask_ps(_mm_castsi128_ps(inside));
-        if mask == 0 {
-            continue;
-        }
-        // (j - j0 - r) w + (i - i0 - r) = j w + i - ((j0 + r) w + i0 + r).
-        let k = _mm_sub_epi32(_mm_add_epi32(_mm_mullo_epi32(j, vw), i), corner);
-        let mut ka = [0i32; LANES];
-        // SAFETY: a store into a local array of 16 bytes.
-        unsafe { _mm_storeu_si128(ka.as_mut_ptr().cast(), k) };
-        for (lane, &k) in ka.iter().enumerate() {
-            if mask & (1 << lane) != 0 {
-                base.push(k as usize);
+        // The same division `MapLimits::new` caches for `cell_of`: the same bits.
+        let vinv = _mm256_set1_pd(1.0 / limits.resolution_m());
+        let one = _mm256_set1_pd(1.0);
+        let lim = _mm256_set1_pd(1e9);
+        let sign = _mm256_set1_pd(-0.0);
+        // `vector_ok` guarantees these fit in i32.
+        let (w, h) = (field.w as i32, field.h as i32);
+        // Inside: r <= li < w - r and r <= lj < h - r, with li = i - i0.
+        let (lo_i, hi_i) = (
+            _mm_set1_epi32(field.i0 + r - 1),
+            _mm_set1_epi32(field.i0 + w - r),
+        );
+        let (lo_j, hi_j) = (
+            _mm_set1_epi32(field.j0 + r - 1),
+            _mm_set1_epi32(field.j0 + h - r),
+        );
+        // Wrapping: the pushed lanes' indices are exact modulo 2^32 and small.
+        let corner = _mm_set1_epi32(
+            field
+                .i0
+                .wrapping_add(r)
+                .wrapping_add(field.j0.wrapping_add(r).wrapping_mul(w)),
+        );
+        let vw = _mm_set1_epi32(w);
+        for quad in points_body.chunks_exact(LANES) {
+            // SAFETY: two unaligned loads of 4 f64 each from a block of 4 `[f64; 2]`.
+            let (a, b) = unsafe {
+                let p = quad.as_ptr().cast::<f64>();
+                (_mm256_loadu_pd(p), _mm256_loadu_pd(p.add(4)))
+            };
+            // (x0 y0 x1 y1), (x2 y2 x3 y3) -> (x0 x1 x2 x3), (y0 y1 y2 y3).
+            let px = _mm256_permute4x64_pd::<0b11_01_10_00>(_mm256_unpacklo_pd(a, b));
+            let py = _mm256_permute4x64_pd::<0b11_01_10_00>(_mm256_unpackhi_pd(a, b));
+            let x = _mm256_sub_pd(
+                _mm256_add_pd(vx, _mm256_mul_pd(vc, px)),
+                _mm256_mul_pd(vs, py),
+            );
+            let y = _mm256_add_pd(
+                _mm256_add_pd(vy, _mm256_mul_pd(vs, px)),
+                _mm256_mul_pd(vc, py),
+            );
+            let u = _mm256_mul_pd(_mm256_sub_pd(x, vox), vinv);
+            let v = _mm256_mul_pd(_mm256_sub_pd(y, voy), vinv);
+            let ok = _mm256_and_pd(
+                _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, u), lim),
+                _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, v), lim),
+            );
+            if _mm256_movemask_pd(ok) != 0xf {
+                self.bases_portable(quad, base);
+                continue;
+            }
+            // floor_to_i32: truncate, minus one where the truncation lies above.
+            let tu = _mm256_cvtepi32_pd(_mm256_cvttpd_epi32(u));
+            let tv = _mm256_cvtepi32_pd(_mm256_cvttpd_epi32(v));
+            let fu = _mm256_sub_pd(tu, _mm256_and_pd(_mm256_cmp_pd::<_CMP_GT_OQ>(tu, u), one));
+            let fv = _mm256_sub_pd(tv, _mm256_and_pd(_mm256_cmp_pd::<_CMP_GT_OQ>(tv, v), one));
+            let (i, j) = (_mm256_cvttpd_epi32(fu), _mm256_cvttpd_epi32(fv));
+            let inside = _mm_and_si128(
+                _mm_and_si128(_mm_cmpgt_epi32(i, lo_i), _mm_cmpgt_epi32(hi_i, i)),
+                _mm_and_si128(_mm_cmpgt_epi32(j, lo_j), _mm_cmpgt_epi32(hi_j, j)),
+            );
+            let mask = _mm_movemask_ps(_mm_castsi128_ps(inside));
+            if mask == 0 {
+                continue;
+            }
+            // (j - j0 - r) w + (i - i0 - r) = j w + i - ((j0 + r) w + i0 + r).
+            let k = _mm_sub_epi32(_mm_add_epi32(_mm_mullo_epi32(j, vw), i), corner);
+            let mut ka = [0i32; LANES];
+            // SAFETY: a store into a local array of 16 bytes.
+            unsafe { _mm_storeu_si128(ka.as_mut_ptr().cast(), k) };
+            for (lane, &k) in ka.iter().enumerate() {
+                if mask & (1 << lane) != 0 {
+                    base.push(k as usize);
+                }
             }
         }
     }
@@ -1166,15 +1162,14 @@ pub fn match_scan(
     let mut best = (f64::NEG_INFINITY, 0i32, 0i32, 0.0f64);
     for &dyaw in &params.yaw_offsets_rad {
         let (s, c) = (predicted.yaw_rad + dyaw).sin_cos();
-        window_bases(
+        let coarse = CoarseYaw {
             field,
-            &limits,
-            points_body,
+            limits: &limits,
             predicted,
-            (s, c),
+            sin_cos: (s, c),
             r,
-            &mut scratch.base,
-        );
+        };
+        coarse.bases(points_body, &mut scratch.base);
         // Point by point, the side x side block of the field under it is added to the sums
         // of all offsets at once: contiguous rows instead of one scattered byte per point
         // and offset. Integer sums: the same values in any order.
@@ -2014,8 +2009,15 @@ mod tests {
                 assert_eq!(vector.to_bits(), portable.to_bits(), "case {case}");
                 let r = rng.random_range(0..5);
                 want.clear();
-                window_bases_portable(&field, &limits, &pts, &pose, (s, c), r, &mut want);
-                window_bases(&field, &limits, &pts, &pose, (s, c), r, &mut got);
+                let coarse = CoarseYaw {
+                    field: &field,
+                    limits: &limits,
+                    predicted: &pose,
+                    sin_cos: (s, c),
+                    r,
+                };
+                coarse.bases_portable(&pts, &mut want);
+                coarse.bases(&pts, &mut got);
                 assert_eq!(got, want, "case {case}");
                 let w = field.w;
                 macro_rules! sums {
