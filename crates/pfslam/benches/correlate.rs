@@ -2,8 +2,12 @@
 //! particles in parallel, against a grid built from simulated car scans (the `seed` mode);
 //! and the default `scan_match` mode's kernels: the likelihood field's build, one particle's
 //! match (7x7 cells x 7 yaws, then the sub-cell refinement), and the update of 40 / 100
-//! particles in parallel.
+//! particles in parallel; `scan_match_cpu`: 100 jittered particles matched serially, in the
+//! calling thread's CPU time (whole match and coarse search alone).
 
+mod cpu_time;
+
+use cpu_time::ThreadCpuTime;
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use pfslam::config::Config;
 use pfslam::filter::correlate::{CorrelationScratch, best_match};
@@ -77,22 +81,31 @@ fn bench(c: &mut Criterion) {
     scan_match(c);
 }
 
-fn scan_match(c: &mut Criterion) {
-    use pfslam::filter::scanmatch::{LikelihoodField, MatchScratch, match_points, match_scan};
-    let config = Config::default();
-    let (grid, body, pose) = mapped_drive(&config, 1);
+/// The scan_match benches' map (the bench drive), the last scan's matching points, its true
+/// pose and the window the SLAM loop would use for particles within a few cells of it.
+fn scan_match_setup(
+    config: &Config,
+) -> (OccupancyGrid, Vec<[f64; 2]>, Pose2, pfslam::map::CellRect) {
+    use pfslam::filter::scanmatch::match_points;
+    let (grid, body, pose) = mapped_drive(config, 1);
     let sm = &config.filter.scan_match;
     let mut pts = Vec::new();
     match_points(&body, sm.match_range_max_m, sm.beam_decimation, &mut pts);
-    // The window the SLAM loop would use for particles within a few cells of the pose.
     let limits = *grid.limits();
-    let c0 = limits.cell_of(pose.x_m, pose.y_m);
-    let mut rect = pfslam::map::CellRect::around(c0);
+    let mut rect = pfslam::map::CellRect::around(limits.cell_of(pose.x_m, pose.y_m));
     for p in &pts {
         let (x, y) = pose.transform_point(p[0], p[1]);
         rect = rect.union(&pfslam::map::CellRect::around(limits.cell_of(x, y)));
     }
     let rect = rect.expanded(sm.xy_search_radius_cells as i32 + 4);
+    (grid, pts, pose, rect)
+}
+
+fn scan_match(c: &mut Criterion) {
+    use pfslam::filter::scanmatch::{LikelihoodField, MatchScratch, match_scan};
+    let config = Config::default();
+    let sm = &config.filter.scan_match;
+    let (grid, pts, pose, rect) = scan_match_setup(&config);
     let params = sm.params(config.map.resolution_m);
     let mut field = LikelihoodField::new();
     let mut g = c.benchmark_group("scan_match");
@@ -167,5 +180,57 @@ fn scan_match(c: &mut Criterion) {
     g.finish();
 }
 
+/// One update's matching of a cloud of 100 particles as after resampling (jittered copies of
+/// one prediction), one particle after the other on the calling thread, in that thread's CPU
+/// time (figures that hold on a loaded machine): the whole match, and the coarse search
+/// alone (`refine_levels = 0`); their difference is the refinement.
+fn scan_match_cpu(c: &mut Criterion<ThreadCpuTime>) {
+    use pfslam::filter::scanmatch::{LikelihoodField, MatchScratch, match_scan};
+    let config = Config::default();
+    let sm = &config.filter.scan_match;
+    let (grid, pts, pose, rect) = scan_match_setup(&config);
+    let mut field = LikelihoodField::new();
+    field.build(&grid, &rect, sm.field_sigma_m, sm.unknown_value);
+    let predicted = Pose2::new(pose.x_m + 0.09, pose.y_m - 0.08, pose.yaw_rad + 0.005);
+    let mut pf = ParticleFilter::new(100, predicted, 1);
+    pf.jitter(
+        sm.proposal_sigma_xy_m,
+        sm.proposal_sigma_yaw_deg.to_radians(),
+    );
+    let cloud = pf.particles.poses.clone();
+    let mut g = c.benchmark_group("scan_match_cpu");
+    g.sample_size(20);
+    for (name, levels) in [
+        ("match_100_jittered", sm.refine_levels),
+        ("coarse_100_jittered", 0),
+    ] {
+        let params = pfslam::filter::scanmatch::ScanMatchOptions {
+            refine_levels: levels,
+            ..sm.clone()
+        }
+        .params(config.map.resolution_m);
+        let mut scratch = MatchScratch::default();
+        g.bench_function(name, |b| {
+            b.iter(|| {
+                for p in &cloud {
+                    black_box(match_scan(
+                        &field,
+                        black_box(&pts),
+                        p,
+                        &params,
+                        &mut scratch,
+                    ));
+                }
+            })
+        });
+    }
+    g.finish();
+}
+
 criterion_group!(benches, bench);
-criterion_main!(benches);
+criterion_group! {
+    name = cpu;
+    config = Criterion::default().with_measurement(ThreadCpuTime);
+    targets = scan_match_cpu
+}
+criterion_main!(benches, cpu);

@@ -68,6 +68,10 @@ pub struct PipelineResult {
     pub filter_cpu_s: Option<f64>,
     /// CPU seconds of the back end and the map rebuild; `None` off Linux.
     pub back_end_cpu_s: Option<f64>,
+    /// Wall seconds of the map rebuild alone (part of `back_end_s`; 0 when not rebuilt).
+    pub rebuild_s: f64,
+    /// CPU seconds of the map rebuild alone; `None` off Linux.
+    pub rebuild_cpu_s: Option<f64>,
 }
 
 /// CPU seconds (user + system, all threads) of this process so far; `None` where
@@ -117,6 +121,7 @@ pub fn run_pipeline(
     let front_end = result.trajectory.clone();
     let mut calibration = None;
     let mut back_end_input = None;
+    let mut rebuild = (0.0, Some(0.0));
     let graph = if config.graph.enabled {
         let mut which = options
             .back_end_input
@@ -169,8 +174,10 @@ pub fn run_pipeline(
         }
         let g = optimize_trajectory(recording, &config.map.scan, input, &graph_opts)?;
         if options.rebuild_map {
+            let t = Clock::start();
             let poses = Trajectory::new(g.trajectory.clone());
             result.map = map_with_poses(recording, &poses, &config.map)?.0;
+            rebuild = t.elapsed();
         }
         result.trajectory = g.trajectory;
         Some(g.stats)
@@ -188,5 +195,7 @@ pub fn run_pipeline(
         back_end_s,
         filter_cpu_s,
         back_end_cpu_s,
+        rebuild_s: rebuild.0,
+        rebuild_cpu_s: rebuild.1,
     })
 }

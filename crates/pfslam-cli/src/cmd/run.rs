@@ -160,7 +160,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // The back end's figures: its statistics, the wall time of the map rebuilt along its
     // trajectory, and its input (the filter's trajectory, or the dead reckoning).
     let result = pipeline.result;
-    let back_end_s = pipeline.back_end_s;
+    let rebuild_s = pipeline.rebuild_s;
     let front_end = match args.graph_on_odometry {
         true => result.dead_reckoning.clone(),
         false => pipeline.front_end,
@@ -170,10 +170,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "input": pipeline.back_end_input,
         "odometry_calibration": pipeline.calibration,
     });
-    let graph = pipeline
-        .graph
-        .map(|g| ((back_end_s - g.total_s).max(0.0), g))
-        .map(|(remap_s, g)| (g, remap_s, front_end));
+    let graph = pipeline.graph.map(|g| (g, rebuild_s, front_end));
     write_outputs(
         &args,
         &config,
@@ -343,14 +340,20 @@ fn write_outputs(
         s.timings.resample_s,
         s.timings.map_update_s
     );
-    if let Some((g, _, _)) = graph {
+    if let Some((g, remap_s, _)) = graph {
         println!(
-            "graph: {} keyframes, {} loop closures kept ({} candidates, {} removed as outliers), {:.2} s",
+            "graph: {} keyframes, {} loop closures kept ({} candidates, {} removed as outliers), \
+             {:.2} s (matching {:.2}, refinement {:.2}, optimiser {:.2}); map rebuilt along it \
+             in {:.2} s",
             g.nodes,
             g.loop_accepted - g.loop_removed_outliers,
             g.loop_candidates,
             g.loop_removed_outliers,
-            g.total_s
+            g.total_s,
+            g.matching_s,
+            g.refine_s,
+            g.optimize_s,
+            remap_s
         );
     }
     if let Some(c) = summary

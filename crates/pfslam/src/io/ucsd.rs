@@ -663,9 +663,18 @@ pub fn read_car_dataset(dir: &Path, opts: &ReadOptions) -> Result<CarDataset, Io
         });
     }
     let calibration = read_car_calibration(&dir.join(PARAM_DIR))?;
-    let encoder = read_encoder_csv(&dir.join(ENCODER_CSV), &calibration.encoder, opts)?;
-    let fog = read_fog_csv(&dir.join(FOG_CSV), opts)?;
-    let lidar = read_lidar_csv(&dir.join(LIDAR_CSV), calibration.lidar.beam_count, opts)?;
+    // The LiDAR file (the largest) is parsed beside the two others; the first error in the
+    // order encoder, FOG, LiDAR is reported, whichever thread finished first.
+    let ((encoder, fog), lidar) = rayon::join(
+        || {
+            (
+                read_encoder_csv(&dir.join(ENCODER_CSV), &calibration.encoder, opts),
+                read_fog_csv(&dir.join(FOG_CSV), opts),
+            )
+        },
+        || read_lidar_csv(&dir.join(LIDAR_CSV), calibration.lidar.beam_count, opts),
+    );
+    let (encoder, fog, lidar) = (encoder?, fog?, lidar?);
     let stereo_stamps_ns = read_stereo_stamps(dir)?;
     Ok(CarDataset {
         calibration,
