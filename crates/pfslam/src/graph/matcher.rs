@@ -14,7 +14,17 @@ use crate::filter::scanmatch::{LANES, mix_lanes};
 use crate::geometry::{Pose2, wrap_angle};
 use rayon::prelude::*;
 
+/// Cells per side of a storage tile (a power of two).
+const TILE: usize = 32;
+const TILE_SHIFT: u32 = TILE.trailing_zeros();
+const TILE_CELLS: usize = TILE * TILE;
+
 /// A likelihood-field window with max-pooled levels.
+///
+/// Stored sparsely in tiles of `TILE x TILE` cells: only tiles where some level can be
+/// non-zero (near a submap point) are stored; every other tile reads as the shared zero tile
+/// (slot 0), so a lookup reads exactly the value a dense field would hold (a loop closure's
+/// submap touched ~16 % of its window's tiles on the full-size car).
 #[derive(Debug, Clone)]
 pub struct PointField {
     origin_x_m: f64,
@@ -22,7 +32,12 @@ pub struct PointField {
     resolution_m: f64,
     w: usize,
     h: usize,
-    /// `levels[0]` = the field, `levels[k]` = max over `2^k x 2^k` blocks.
+    /// Tiles per row of the tile grid.
+    tw: usize,
+    /// Per tile (row-major): its slot in every level's storage; 0 = the zero tile.
+    slots: Vec<u32>,
+    /// `levels[0]` = the field, `levels[k]` = max over `2^k x 2^k` blocks; each slot-major
+    /// (`TILE_CELLS` per slot, row-major within a tile), slot 0 all zeros.
     levels: Vec<Vec<f32>>,
 }
 
@@ -79,6 +94,16 @@ fn floor_to_i64(v: f64) -> i64 {
     }
 }
 
+/// A row of zeros (reads outside the stored tiles).
+static ZERO_ROW: [f32; TILE] = [0.0; TILE];
+
+/// The larger of two field values, which are never NaN nor -0: the same value as
+/// `f32::max` in one `maxps` (the field's pooling vectorises).
+#[inline(always)]
+fn max_f32(a: f32, b: f32) -> f32 {
+    if a > b { a } else { b }
+}
+
 /// The prepared top level of a branch-and-bound search ([`PointField::bnb_start`]).
 #[derive(Debug, Clone)]
 pub struct BnbStart {
@@ -104,7 +129,6 @@ impl PointField {
     ) -> PointField {
         let w = (((max[0] - min[0]) / resolution_m).ceil().max(1.0) as usize).min(1 << 14);
         let h = (((max[1] - min[1]) / resolution_m).ceil().max(1.0) as usize).min(1 << 14);
-        let mut field = vec![0f32; w * h];
         let sigma_cells = (sigma_m / resolution_m).max(0.25);
         let r = (3.0 * sigma_cells).ceil() as i64;
         let mut kernel = Vec::new();
@@ -128,53 +152,123 @@ impl PointField {
             })
             .filter(|&(ci, cj)| !(ci < -r || cj < -r || ci >= wi + r || cj >= hi + r))
             .collect();
-        // Bands of rows in parallel, each taking the kernel cells of every point that fall
-        // in it: a cell's value is the maximum over the same values in any order.
-        const BAND_ROWS: usize = 32;
-        field
-            .par_chunks_mut(w * BAND_ROWS)
-            .enumerate()
-            .for_each(|(b, band)| {
-                let y0 = (b * BAND_ROWS) as i64;
-                let y1 = y0 + (band.len() / w) as i64;
-                for &(ci, cj) in &cells {
-                    if cj + r < y0 || cj - r >= y1 {
-                        continue;
-                    }
-                    for &(di, dj, v) in &kernel {
-                        let (x, y) = (ci + di, cj + dj);
-                        if x >= 0
-                            && y >= y0
-                            && x < wi
-                            && y < y1
-                            && let Some(slot) = band.get_mut(((y - y0) * wi + x) as usize)
-                            && v > *slot
+        // The tiles a point's kernel touches hold level 0's non-zero cells; a pooled level
+        // reaches `2^levels - 1` cells further left and down, so the tiles within that
+        // many tiles left and down of them are stored too.
+        let (tw, th) = (w.div_ceil(TILE), h.div_ceil(TILE));
+        let mut occupied = vec![false; tw * th];
+        for &(ci, cj) in &cells {
+            let (x0, x1) = ((ci - r).max(0), (ci + r).min(wi - 1));
+            let (y0, y1) = ((cj - r).max(0), (cj + r).min(hi - 1));
+            if x0 > x1 || y0 > y1 {
+                continue;
+            }
+            for ty in (y0 >> TILE_SHIFT)..=(y1 >> TILE_SHIFT) {
+                for tx in (x0 >> TILE_SHIFT)..=(x1 >> TILE_SHIFT) {
+                    occupied[ty as usize * tw + tx as usize] = true;
+                }
+            }
+        }
+        let reach = 1usize
+            .checked_shl(levels.min(31) as u32)
+            .map_or(usize::MAX, |v| v - 1)
+            .div_ceil(TILE);
+        let mut slots = vec![0u32; tw * th];
+        // Slots in row-major tile order; `row_start[ty]` = the first slot of tile row `ty`.
+        let mut row_start = Vec::with_capacity(th + 1);
+        let mut tile_xy = vec![(0usize, 0usize)];
+        for ty in 0..th {
+            row_start.push(tile_xy.len());
+            for tx in 0..tw {
+                let (ty1, tx1) = (
+                    ty.saturating_add(reach).min(th - 1),
+                    tx.saturating_add(reach).min(tw - 1),
+                );
+                let present =
+                    (ty..=ty1).any(|uy| occupied[uy * tw + tx..=uy * tw + tx1].contains(&true));
+                if present {
+                    slots[ty * tw + tx] = tile_xy.len() as u32;
+                    tile_xy.push((tx, ty));
+                }
+            }
+        }
+        row_start.push(tile_xy.len());
+        let mut field = vec![0f32; tile_xy.len() * TILE_CELLS];
+        // Tile rows in parallel, each taking the kernel cells of every point that fall in
+        // it: a cell's value is the maximum over the same values in any order.
+        let mut bands: Vec<(usize, &mut [f32])> = Vec::with_capacity(th);
+        let mut rest = &mut field[TILE_CELLS.min(tile_xy.len() * TILE_CELLS)..];
+        for ty in 0..th {
+            let (band, tail) = rest.split_at_mut((row_start[ty + 1] - row_start[ty]) * TILE_CELLS);
+            rest = tail;
+            if !band.is_empty() {
+                bands.push((ty, band));
+            }
+        }
+        let slots_ref = &slots;
+        bands.into_par_iter().for_each(|(ty, band)| {
+            let first = row_start[ty];
+            let y0 = (ty * TILE) as i64;
+            let y1 = (y0 + TILE as i64).min(hi);
+            let row_slots = &slots_ref[ty * tw..(ty + 1) * tw];
+            for &(ci, cj) in &cells {
+                if cj + r < y0 || cj - r >= y1 {
+                    continue;
+                }
+                for &(di, dj, v) in &kernel {
+                    let (x, y) = (ci + di, cj + dj);
+                    if x >= 0 && y >= y0 && x < wi && y < y1 {
+                        let slot = row_slots[(x >> TILE_SHIFT) as usize] as usize;
+                        let k = (slot.wrapping_sub(first) << (2 * TILE_SHIFT))
+                            | (((y - y0) as usize) << TILE_SHIFT)
+                            | (x as usize & (TILE - 1));
+                        if let Some(cell) = band.get_mut(k)
+                            && v > *cell
                         {
-                            *slot = v;
+                            *cell = v;
                         }
                     }
                 }
-            });
+            }
+        });
         let mut all = vec![field];
         for k in 1..=levels {
             let prev = &all[k - 1];
             let s = 1usize << (k - 1);
-            let mut next = prev.clone();
-            next.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-                for (x, out) in row.iter_mut().enumerate() {
-                    let mut m = prev[y * w + x];
-                    if x + s < w {
-                        m = m.max(prev[y * w + x + s]);
-                    }
-                    if y + s < h {
-                        m = m.max(prev[(y + s) * w + x]);
-                        if x + s < w {
-                            m = m.max(prev[(y + s) * w + x + s]);
+            let mut next = vec![0f32; prev.len()];
+            next.par_chunks_mut(TILE_CELLS)
+                .enumerate()
+                .skip(1)
+                .for_each(|(slot, out)| {
+                    let (tx, ty) = tile_xy[slot];
+                    // Row `y` of tile column `tx` (zeros outside the grid or stored tiles).
+                    let row = |tx: usize, y: usize| -> &[f32] {
+                        let t = (y >> TILE_SHIFT < th && tx < tw)
+                            .then(|| slots[(y >> TILE_SHIFT) * tw + tx] as usize)
+                            .unwrap_or(0);
+                        let o = (t << (2 * TILE_SHIFT)) | ((y & (TILE - 1)) << TILE_SHIFT);
+                        prev.get(o..o + TILE).unwrap_or(&ZERO_ROW)
+                    };
+                    // Row `y` from column `tx * TILE + s` on.
+                    let shifted = |y: usize| -> [f32; TILE] {
+                        let (t, o) = (tx.saturating_add(s >> TILE_SHIFT), s & (TILE - 1));
+                        let mut seg = [0f32; 2 * TILE];
+                        seg[..TILE].copy_from_slice(row(t, y));
+                        seg[TILE..].copy_from_slice(row(t.saturating_add(1), y));
+                        let mut out = [0f32; TILE];
+                        out.copy_from_slice(&seg[o..o + TILE]);
+                        out
+                    };
+                    for (yy, out_row) in out.chunks_exact_mut(TILE).enumerate() {
+                        let y = ty * TILE + yy;
+                        let ys = y.saturating_add(s);
+                        let (a0, a1) = (row(tx, y), shifted(y));
+                        let (b0, b1) = (row(tx, ys), shifted(ys));
+                        for x in 0..TILE {
+                            out_row[x] = max_f32(max_f32(a0[x], a1[x]), max_f32(b0[x], b1[x]));
                         }
                     }
-                    *out = m;
-                }
-            });
+                });
             all.push(next);
         }
         PointField {
@@ -183,6 +277,8 @@ impl PointField {
             resolution_m,
             w,
             h,
+            tw,
+            slots,
             levels: all,
         }
     }
@@ -192,12 +288,24 @@ impl PointField {
         self.levels.len() - 1
     }
 
+    /// Index in a level's storage of the cell `(x, y)` inside the window.
+    #[inline(always)]
+    fn index(&self, x: usize, y: usize) -> usize {
+        let t = self
+            .slots
+            .get((y >> TILE_SHIFT) * self.tw + (x >> TILE_SHIFT));
+        ((t.copied().unwrap_or(0) as usize) << (2 * TILE_SHIFT))
+            | ((y & (TILE - 1)) << TILE_SHIFT)
+            | (x & (TILE - 1))
+    }
+
     #[inline]
     fn at(&self, level: usize, i: i64, j: i64) -> f32 {
         if i < 0 || j < 0 || i >= self.w as i64 || j >= self.h as i64 {
             return 0.0;
         }
-        self.levels[level][j as usize * self.w + i as usize]
+        let k = self.index(i as usize, j as usize);
+        self.levels[level].get(k).copied().unwrap_or(0.0)
     }
 
     /// Bilinear interpolation between cell centres (0 outside).
@@ -268,15 +376,18 @@ impl PointField {
     #[inline(always)]
     fn corners(&self, i: i64, j: i64) -> [f32; 4] {
         let (w, h) = (self.w as i64, self.h as i64);
-        let block = (i >= 0 && j >= 0 && i + 1 < w && j + 1 < h)
-            .then(|| {
-                let k = (j * w + i) as usize;
-                let lv = &self.levels[0];
-                let row0 = lv.get(k..k + 2)?;
-                let row1 = lv.get(k + w as usize..k + w as usize + 2)?;
-                Some([row0[0], row0[1], row1[0], row1[1]])
-            })
-            .flatten();
+        let last = TILE as i64 - 1;
+        // The 2x2 block inside one tile.
+        let block =
+            (i >= 0 && j >= 0 && i + 1 < w && j + 1 < h && i & last != last && j & last != last)
+                .then(|| {
+                    let k = self.index(i as usize, j as usize);
+                    let lv = &self.levels[0];
+                    let row0 = lv.get(k..k + 2)?;
+                    let row1 = lv.get(k + TILE..k + TILE + 2)?;
+                    Some([row0[0], row0[1], row1[0], row1[1]])
+                })
+                .flatten();
         block.unwrap_or_else(|| {
             [(0, 0), (1, 0), (0, 1), (1, 1)].map(|(di, dj)| self.at(0, i + di, j + dj))
         })
@@ -370,7 +481,11 @@ impl PointField {
                 // One unsigned comparison per axis also rejects negatives.
                 let (x, y) = ((i + dx) as u64, (j + dy) as u64);
                 if x < w && y < h {
-                    f64::from(lv.get((y * w + x) as usize).copied().unwrap_or(0.0))
+                    f64::from(
+                        lv.get(self.index(x as usize, y as usize))
+                            .copied()
+                            .unwrap_or(0.0),
+                    )
                 } else {
                     0.0
                 }
@@ -750,6 +865,17 @@ mod tests {
         }
     }
 
+    /// Level `level` of `f` as a dense row-major `w x h` grid.
+    fn dense(f: &PointField, level: usize) -> Vec<f32> {
+        let mut out = Vec::with_capacity(f.w * f.h);
+        for j in 0..f.h as i64 {
+            for i in 0..f.w as i64 {
+                out.push(f.at(level, i, j));
+            }
+        }
+        out
+    }
+
     #[test]
     fn banded_build_equals_the_plain_splat() {
         let pts: Vec<[f64; 2]> = room_points().iter().step_by(3).copied().collect();
@@ -757,6 +883,9 @@ mod tests {
             ([-6.0, -5.0], [6.0, 5.0], 3),
             ([-1.3, -4.1], [2.2, 0.4], 1),
             ([3.9, -3.2], [4.4, 9.0], 0),
+            // Mostly empty windows: many tiles absent, the pooled reach across tiles.
+            ([-12.0, -9.0], [5.0, 4.0], 4),
+            ([-3.0, -20.0], [14.0, 3.5], 6),
         ] {
             let (res, sigma) = (0.05, 0.07);
             let f = PointField::build(&pts, min, max, res, sigma, levels);
@@ -780,9 +909,10 @@ mod tests {
                 }
             }
             assert!(plain.iter().any(|&v| v > 0.5));
-            assert_eq!(f.levels[0], plain);
+            assert_eq!(dense(&f, 0), plain);
             for k in 1..=levels {
                 let s = 1usize << k;
+                let got = dense(&f, k);
                 for y in 0..f.h {
                     for x in 0..f.w {
                         let mut m = 0f32;
@@ -791,7 +921,7 @@ mod tests {
                                 m = m.max(plain[yy * f.w + xx]);
                             }
                         }
-                        assert_eq!(f.levels[k][y * f.w + x], m, "level {k} ({x}, {y})");
+                        assert_eq!(got[y * f.w + x], m, "level {k} ({x}, {y})");
                     }
                 }
             }
