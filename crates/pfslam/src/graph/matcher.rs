@@ -131,16 +131,19 @@ impl PointField {
         let h = (((max[1] - min[1]) / resolution_m).ceil().max(1.0) as usize).min(1 << 14);
         let sigma_cells = (sigma_m / resolution_m).max(0.25);
         let r = (3.0 * sigma_cells).ceil() as i64;
-        let mut kernel = Vec::new();
-        for dj in -r..=r {
-            for di in -r..=r {
-                let d2 = (di * di + dj * dj) as f64;
-                let v = (-0.5 * d2 / (sigma_cells * sigma_cells)).exp() as f32;
-                if v > 0.01 {
-                    kernel.push((di, dj, v));
-                }
-            }
-        }
+        // Per kernel row `dj = -r..=r`: the values above 0.01, a run `-a..=a` centred on the
+        // point's column (the Gaussian falls with |di|).
+        let kernel_rows: Vec<Vec<f32>> = (-r..=r)
+            .map(|dj| {
+                (-r..=r)
+                    .map(|di| {
+                        let d2 = (di * di + dj * dj) as f64;
+                        (-0.5 * d2 / (sigma_cells * sigma_cells)).exp() as f32
+                    })
+                    .filter(|&v| v > 0.01)
+                    .collect()
+            })
+            .collect();
         let (wi, hi) = (w as i64, h as i64);
         let cells: Vec<(i64, i64)> = points
             .iter()
@@ -215,18 +218,30 @@ impl PointField {
                 if cj + r < y0 || cj - r >= y1 {
                     continue;
                 }
-                for &(di, dj, v) in &kernel {
-                    let (x, y) = (ci + di, cj + dj);
-                    if x >= 0 && y >= y0 && x < wi && y < y1 {
+                for (dj, values) in (-r..=r).zip(&kernel_rows) {
+                    let y = cj + dj;
+                    if y < y0 || y >= y1 || values.is_empty() {
+                        continue;
+                    }
+                    // The row's cells `ci - a ..= ci + a`, cut to the window, tile by tile.
+                    let a = (values.len() / 2) as i64;
+                    let (mut x, x_end) = ((ci - a).max(0), (ci + a).min(wi - 1));
+                    while x <= x_end {
+                        let seg_end = x_end.min(x | (TILE as i64 - 1));
                         let slot = row_slots[(x >> TILE_SHIFT) as usize] as usize;
                         let k = (slot.wrapping_sub(first) << (2 * TILE_SHIFT))
                             | (((y - y0) as usize) << TILE_SHIFT)
                             | (x as usize & (TILE - 1));
-                        if let Some(cell) = band.get_mut(k)
-                            && v > *cell
+                        let len = (seg_end - x + 1) as usize;
+                        let from = (x - (ci - a)) as usize;
+                        if let (Some(cells), Some(vals)) =
+                            (band.get_mut(k..k + len), values.get(from..from + len))
                         {
-                            *cell = v;
+                            for (c, &v) in cells.iter_mut().zip(vals) {
+                                *c = max_f32(v, *c);
+                            }
                         }
+                        x = seg_end + 1;
                     }
                 }
             }
@@ -558,6 +573,9 @@ impl PointField {
             cells.push(c);
             cands.extend(k);
         }
+        // Sorted as `branch` sorts them (stable, best first): each search's own sort then
+        // finds one run, the same order.
+        cands.sort_by(|a, b| b.score.total_cmp(&a.score));
         Some(BnbStart {
             centre: *centre,
             yaws,
