@@ -652,87 +652,67 @@ pub fn optimize_trajectory_look_ahead(
             && kf.path_m - last_ambiguous_path_m >= opts.loop_ambiguous_gap_m;
         stats.loop_skipped_keyframes += usize::from(due && !gap_ok);
         if due && gap_ok {
-            let tried = loop_candidates(&keyframes, &graph.poses, k, &pose, opts);
-            stats.loop_candidates += tried.len();
-            let cached = if tried.is_empty() { None } else { ahead.take() }
-                .filter(|a| a.generation == generation)
-                .and_then(|mut a| {
-                    let at = a.jobs.iter().position(|j| j.k == k)?;
-                    let job = a.jobs.swap_remove(at);
-                    ahead = Some(a);
-                    (job.pose == pose && job.tried == tried).then_some(job.verdicts)
-                });
-            let verdicts = match cached {
-                Some(v) => v,
-                None if tried.is_empty() => Vec::new(),
+            // A look-ahead job computed before any optimisation since, at the same pose:
+            // the same candidates (the earlier keyframes' poses are the same bits).
+            let cached = match &mut ahead {
+                Some(a) if a.generation == generation => a
+                    .jobs
+                    .iter()
+                    .position(|j| j.k == k && j.pose == pose)
+                    .map(|at| a.jobs.swap_remove(at)),
+                _ => None,
+            };
+            let (tried, verdicts) = match cached {
+                Some(job) => (job.tried, job.verdicts),
                 None => {
-                    // This keyframe's candidates and, without sequential matching (where
-                    // the next keyframes' poses follow from this one by the front end's
-                    // motion alone, exactly as below), those of the next keyframes due for
-                    // a search: all independent, verified in parallel. The look-ahead's
-                    // verdicts are used only if the graph was not optimised meanwhile and
-                    // the keyframe's pose and candidates are the same bits.
-                    let mut jobs = vec![AheadJob {
-                        k,
-                        pose,
-                        tried: tried.clone(),
-                        verdicts: Vec::new(),
-                    }];
-                    let mut poses_ahead = Vec::new();
-                    if !seq_matching && look_ahead > 1 {
-                        poses_ahead.extend_from_slice(&graph.poses);
-                        let mut p = pose;
-                        for m in k + 1..keyframes.len() {
-                            if jobs.len() >= look_ahead {
-                                break;
-                            }
-                            let rel = keyframes[m - 1]
-                                .front_pose
-                                .between(&keyframes[m].front_pose);
-                            p = p.compose(&rel);
-                            poses_ahead.push(p);
-                            if m % opts.loop_every_keyframes == 0
-                                && keyframes[m].points_body.len() >= opts.min_points
-                            {
-                                let tried = loop_candidates(&keyframes, &poses_ahead, m, &p, opts);
-                                if !tried.is_empty() {
-                                    jobs.push(AheadJob {
-                                        k: m,
-                                        pose: p,
-                                        tried,
-                                        verdicts: Vec::new(),
-                                    });
-                                }
-                            }
-                        }
-                    }
-                    let poses: &[Pose2] = if poses_ahead.is_empty() {
-                        &graph.poses
+                    let tried = loop_candidates(&keyframes, &graph.poses, k, &pose, opts);
+                    if tried.is_empty() {
+                        (tried, Vec::new())
                     } else {
-                        &poses_ahead
-                    };
-                    let pairs: Vec<(usize, usize)> = jobs
-                        .iter()
-                        .enumerate()
-                        .flat_map(|(a, job)| job.tried.iter().map(move |&j| (a, j)))
-                        .collect();
-                    let found: Vec<Verdict> = pairs
-                        .par_iter()
-                        .map(|&(a, j)| {
-                            let job = &jobs[a];
-                            verify_candidate(
-                                &keyframes, poses, job.k, j, &job.pose, &loop_win, opts,
-                            )
-                        })
-                        .collect();
-                    for (&(a, _), v) in pairs.iter().zip(found) {
-                        jobs[a].verdicts.push(v);
+                        let (mut jobs, poses_ahead) = if !seq_matching && look_ahead > 1 {
+                            look_ahead_jobs(&keyframes, &graph.poses, k, pose, look_ahead, opts)
+                        } else {
+                            (Vec::new(), Vec::new())
+                        };
+                        jobs.insert(
+                            0,
+                            AheadJob {
+                                k,
+                                pose,
+                                tried: tried.clone(),
+                                verdicts: Vec::new(),
+                            },
+                        );
+                        let poses: &[Pose2] = if poses_ahead.is_empty() {
+                            &graph.poses
+                        } else {
+                            &poses_ahead
+                        };
+                        // All independent: verified in parallel, collected in order.
+                        let pairs: Vec<(usize, usize)> = jobs
+                            .iter()
+                            .enumerate()
+                            .flat_map(|(a, job)| job.tried.iter().map(move |&j| (a, j)))
+                            .collect();
+                        let found: Vec<Verdict> = pairs
+                            .par_iter()
+                            .map(|&(a, j)| {
+                                let job = &jobs[a];
+                                verify_candidate(
+                                    &keyframes, poses, job.k, j, &job.pose, &loop_win, opts,
+                                )
+                            })
+                            .collect();
+                        for (&(a, _), v) in pairs.iter().zip(found) {
+                            jobs[a].verdicts.push(v);
+                        }
+                        let own = jobs.swap_remove(0).verdicts;
+                        ahead = Some(LookAhead { generation, jobs });
+                        (tried, own)
                     }
-                    let own = jobs.swap_remove(0).verdicts;
-                    ahead = Some(LookAhead { generation, jobs });
-                    own
                 }
             };
+            stats.loop_candidates += tried.len();
             if !tried.is_empty() && verdicts.iter().all(|v| *v == Verdict::Ambiguous) {
                 last_ambiguous_path_m = kf.path_m;
             }
@@ -863,6 +843,47 @@ struct AheadJob {
 struct LookAhead {
     generation: usize,
     jobs: Vec<AheadJob>,
+}
+
+/// The loop searches of the keyframes after `k` (at `pose`, the graph at `poses`, keyframes
+/// `0..=k`) until `look_ahead - 1` of them have candidates, for a graph without sequential
+/// matching: each later keyframe's pose follows from the previous one by the front end's
+/// motion alone, composed exactly as `optimize_trajectory_look_ahead` does, so until the
+/// next optimisation these are the bits it will find. Returns the jobs (verdicts empty) and
+/// the poses extended to the last keyframe looked at.
+fn look_ahead_jobs(
+    keyframes: &[Keyframe],
+    poses: &[Pose2],
+    k: usize,
+    pose: Pose2,
+    look_ahead: usize,
+    opts: &GraphOptions,
+) -> (Vec<AheadJob>, Vec<Pose2>) {
+    let mut jobs = Vec::new();
+    let mut poses_ahead = poses.to_vec();
+    let mut p = pose;
+    let mut searches = 1;
+    for m in k + 1..keyframes.len() {
+        if searches >= look_ahead {
+            break;
+        }
+        let rel = keyframes[m - 1]
+            .front_pose
+            .between(&keyframes[m].front_pose);
+        p = p.compose(&rel);
+        poses_ahead.push(p);
+        if m % opts.loop_every_keyframes == 0 && keyframes[m].points_body.len() >= opts.min_points {
+            let tried = loop_candidates(keyframes, &poses_ahead, m, &p, opts);
+            searches += usize::from(!tried.is_empty());
+            jobs.push(AheadJob {
+                k: m,
+                pose: p,
+                tried,
+                verdicts: Vec::new(),
+            });
+        }
+    }
+    (jobs, poses_ahead)
 }
 
 /// The loop-closure candidates of keyframe `k` at `pose`: earlier keyframes (at `poses`)
