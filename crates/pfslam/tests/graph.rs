@@ -373,8 +373,16 @@ fn simulated_car_loop_closes_on_dead_reckoning() {
     assert_eq!(one.trajectory, g.trajectory);
     assert_eq!(one.loop_edges, g.loop_edges);
     assert_eq!(
-        (one.stats.loop_candidates, one.stats.loop_accepted, one.stats.optimizations),
-        (g.stats.loop_candidates, g.stats.loop_accepted, g.stats.optimizations)
+        (
+            one.stats.loop_candidates,
+            one.stats.loop_accepted,
+            one.stats.optimizations
+        ),
+        (
+            g.stats.loop_candidates,
+            g.stats.loop_accepted,
+            g.stats.optimizations
+        )
     );
     assert_eq!(one.stats.final_cost.to_bits(), g.stats.final_cost.to_bits());
     // `loop_closure_gap_m`: no loop search within 5 m of path after an accepted closure, so

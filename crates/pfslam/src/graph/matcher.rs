@@ -340,10 +340,15 @@ impl PointField {
 
     /// Mean interpolated field value (0..1) of `points_body` seen from `pose`.
     pub fn score(&self, points_body: &[[f64; 2]], pose: &Pose2) -> f64 {
+        let (s, c) = pose.yaw_rad.sin_cos();
+        self.score_rotated(points_body, pose, s, c)
+    }
+
+    /// [`Self::score`] with `(s, c)` = `pose.yaw_rad.sin_cos()` given.
+    fn score_rotated(&self, points_body: &[[f64; 2]], pose: &Pose2, s: f64, c: f64) -> f64 {
         if points_body.is_empty() {
             return 0.0;
         }
-        let (s, c) = pose.yaw_rad.sin_cos();
         // The same left-to-right fold as `Iterator::sum` (from -0.0), four points at a time:
         // per lane the operations of `bilinear`, so the same bits, in vector registers.
         let mut sum = -0.0;
@@ -769,8 +774,15 @@ impl PointField {
         prior: Option<&Prior>,
     ) -> (Pose2, f64) {
         let n_pts = points_body.len().max(1) as f64;
+        // Most steps of the pattern search keep the yaw: its sine and cosine once per yaw.
+        let last_yaw = std::cell::Cell::new((f64::NAN, 0.0, 0.0));
         let objective = |p: &Pose2| {
-            let s = self.score(points_body, p);
+            let (yaw, mut sin, mut cos) = last_yaw.get();
+            if yaw.to_bits() != p.yaw_rad.to_bits() {
+                (sin, cos) = p.yaw_rad.sin_cos();
+                last_yaw.set((p.yaw_rad, sin, cos));
+            }
+            let s = self.score_rotated(points_body, p, sin, cos);
             (s * n_pts - prior.map_or(0.0, |q| q.penalty(p)), s)
         };
         let ([x_m, y_m, yaw_rad], (_, score)) = crate::filter::scanmatch::pattern_search(
