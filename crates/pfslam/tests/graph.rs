@@ -339,7 +339,7 @@ fn simulated_car_loop_closes_on_dead_reckoning() {
     let gt = Trajectory::new(sim.ground_truth.clone());
     let assoc = Association::Nearest { tolerance_ns: 0 };
     let before = ate(&Trajectory::new(front.clone()), &gt, assoc).unwrap();
-    let after = ate(&Trajectory::new(g.trajectory), &gt, assoc).unwrap();
+    let after = ate(&Trajectory::new(g.trajectory.clone()), &gt, assoc).unwrap();
     eprintln!(
         "simulated loop, dead reckoning {:.3} m -> back end {:.3} m, {:?}",
         before.aligned_m.rmse, after.aligned_m.rmse, g.stats
