@@ -17,14 +17,13 @@ use rayon::prelude::*;
 /// Cells per side of a storage tile (a power of two).
 const TILE: usize = 32;
 const TILE_SHIFT: u32 = TILE.trailing_zeros();
-const TILE_CELLS: usize = TILE * TILE;
 
 /// A likelihood-field window with max-pooled levels.
 ///
-/// Stored sparsely in tiles of `TILE x TILE` cells: only tiles where some level can be
-/// non-zero (near a submap point) are stored; every other tile reads as the shared zero tile
-/// (slot 0), so a lookup reads exactly the value a dense field would hold (a loop closure's
-/// submap touched ~16 % of its window's tiles on the full-size car).
+/// Dense (`w x h` per level), but only the `TILE x TILE` tiles where some level can be
+/// non-zero (near a submap point; a loop closure's submap touched ~16 % of its window's
+/// tiles on the full-size car) are written: the buffers come from a per-thread pool, and a
+/// reused buffer gets only the cells its last use wrote set back to zero.
 #[derive(Debug, Clone)]
 pub struct PointField {
     origin_x_m: f64,
@@ -32,13 +31,67 @@ pub struct PointField {
     resolution_m: f64,
     w: usize,
     h: usize,
-    /// Tiles per row of the tile grid.
-    tw: usize,
-    /// Per tile (row-major): its slot in every level's storage; 0 = the zero tile.
-    slots: Vec<u32>,
-    /// `levels[0]` = the field, `levels[k]` = max over `2^k x 2^k` blocks; each slot-major
-    /// (`TILE_CELLS` per slot, row-major within a tile), slot 0 all zeros.
-    levels: Vec<Vec<f32>>,
+    /// `levels[0]` = the field, `levels[k]` = max over `2^k x 2^k` blocks.
+    levels: Vec<Buffer>,
+}
+
+/// A level's cells (row-major, at least `w * h`; zero outside the written runs) and the runs
+/// `(start, len)` written.
+#[derive(Debug, Clone, Default)]
+struct Buffer {
+    cells: Vec<f32>,
+    written: Vec<(usize, usize)>,
+}
+
+/// Buffers kept per thread for the next fields.
+const POOL_BUFFERS: usize = 8;
+
+thread_local! {
+    static POOL: std::cell::RefCell<Vec<Buffer>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+impl Buffer {
+    /// A buffer of at least `n` zeros (from the pool when one is large enough).
+    fn zeroed(n: usize) -> Buffer {
+        let pooled = POOL
+            .try_with(|p| {
+                let mut p = p.borrow_mut();
+                let at = p.iter().position(|b| b.cells.len() >= n)?;
+                Some(p.swap_remove(at))
+            })
+            .ok()
+            .flatten();
+        match pooled {
+            Some(mut b) => {
+                for &(start, len) in &b.written {
+                    if let Some(run) = b.cells.get_mut(start..start + len) {
+                        run.fill(0.0);
+                    }
+                }
+                b.written.clear();
+                b
+            }
+            None => Buffer {
+                cells: vec![0.0; n],
+                written: Vec::new(),
+            },
+        }
+    }
+}
+
+impl Drop for PointField {
+    fn drop(&mut self) {
+        let levels = std::mem::take(&mut self.levels);
+        // At thread exit the pool is gone: the buffers are freed.
+        let _ = POOL.try_with(|p| {
+            let mut p = p.borrow_mut();
+            for b in levels {
+                if p.len() < POOL_BUFFERS {
+                    p.push(b);
+                }
+            }
+        });
+    }
 }
 
 /// A search window around a centre pose.
@@ -94,14 +147,19 @@ fn floor_to_i64(v: f64) -> i64 {
     }
 }
 
-/// A row of zeros (reads outside the stored tiles).
-static ZERO_ROW: [f32; TILE] = [0.0; TILE];
-
 /// The larger of two field values, which are never NaN nor -0: the same value as
 /// `f32::max` in one `maxps` (the field's pooling vectorises).
 #[inline(always)]
 fn max_f32(a: f32, b: f32) -> f32 {
     if a > b { a } else { b }
+}
+
+/// `out = max(a0, a1)` elementwise (one pooling step over a run of cells).
+#[inline]
+fn pool_run(out: &mut [f32], a0: &[f32], a1: &[f32]) {
+    for (o, (&p, &q)) in out.iter_mut().zip(a0.iter().zip(a1)) {
+        *o = max_f32(p, q);
+    }
 }
 
 /// The prepared top level of a branch-and-bound search ([`PointField::bnb_start`]).
@@ -176,114 +234,103 @@ impl PointField {
             .checked_shl(levels.min(31) as u32)
             .map_or(usize::MAX, |v| v - 1)
             .div_ceil(TILE);
-        let mut slots = vec![0u32; tw * th];
-        // Slots in row-major tile order; `row_start[ty]` = the first slot of tile row `ty`.
-        let mut row_start = Vec::with_capacity(th + 1);
-        let mut tile_xy = vec![(0usize, 0usize)];
-        for ty in 0..th {
-            row_start.push(tile_xy.len());
+        // Per tile row: the columns of the tiles written.
+        let mut present: Vec<Vec<usize>> = vec![Vec::new(); th];
+        for (ty, row) in present.iter_mut().enumerate() {
             for tx in 0..tw {
                 let (ty1, tx1) = (
                     ty.saturating_add(reach).min(th - 1),
                     tx.saturating_add(reach).min(tw - 1),
                 );
-                let present =
-                    (ty..=ty1).any(|uy| occupied[uy * tw + tx..=uy * tw + tx1].contains(&true));
-                if present {
-                    slots[ty * tw + tx] = tile_xy.len() as u32;
-                    tile_xy.push((tx, ty));
+                if (ty..=ty1).any(|uy| occupied[uy * tw + tx..=uy * tw + tx1].contains(&true)) {
+                    row.push(tx);
                 }
             }
         }
-        row_start.push(tile_xy.len());
-        let mut field = vec![0f32; tile_xy.len() * TILE_CELLS];
-        // Tile rows in parallel, each taking the kernel cells of every point that fall in
-        // it: a cell's value is the maximum over the same values in any order.
-        let mut bands: Vec<(usize, &mut [f32])> = Vec::with_capacity(th);
-        let mut rest = &mut field[TILE_CELLS.min(tile_xy.len() * TILE_CELLS)..];
-        for ty in 0..th {
-            let (band, tail) = rest.split_at_mut((row_start[ty + 1] - row_start[ty]) * TILE_CELLS);
-            rest = tail;
-            if !band.is_empty() {
-                bands.push((ty, band));
+        // The row runs of the written tiles, the same for every level.
+        let mut written = Vec::new();
+        for (ty, row) in present.iter().enumerate() {
+            for y in ty * TILE..((ty + 1) * TILE).min(h) {
+                for &tx in row {
+                    let x0 = tx * TILE;
+                    written.push((y * w + x0, TILE.min(w - x0)));
+                }
             }
         }
-        let slots_ref = &slots;
-        bands.into_par_iter().for_each(|(ty, band)| {
-            let first = row_start[ty];
-            let y0 = (ty * TILE) as i64;
-            let y1 = (y0 + TILE as i64).min(hi);
-            let row_slots = &slots_ref[ty * tw..(ty + 1) * tw];
-            for &(ci, cj) in &cells {
-                if cj + r < y0 || cj - r >= y1 {
-                    continue;
-                }
-                for (dj, values) in (-r..=r).zip(&kernel_rows) {
-                    let y = cj + dj;
-                    if y < y0 || y >= y1 || values.is_empty() {
+        let mut field = Buffer::zeroed(w * h);
+        // Bands of tile rows in parallel, each taking the kernel cells of every point that
+        // fall in it: a cell's value is the maximum over the same values in any order.
+        field.cells[..w * h]
+            .par_chunks_mut(w * TILE)
+            .enumerate()
+            .for_each(|(ty, band)| {
+                let y0 = (ty * TILE) as i64;
+                let y1 = y0 + (band.len() / w) as i64;
+                for &(ci, cj) in &cells {
+                    if cj + r < y0 || cj - r >= y1 {
                         continue;
                     }
-                    // The row's cells `ci - a ..= ci + a`, cut to the window, tile by tile.
-                    let a = (values.len() / 2) as i64;
-                    let (mut x, x_end) = ((ci - a).max(0), (ci + a).min(wi - 1));
-                    while x <= x_end {
-                        let seg_end = x_end.min(x | (TILE as i64 - 1));
-                        let slot = row_slots[(x >> TILE_SHIFT) as usize] as usize;
-                        let k = (slot.wrapping_sub(first) << (2 * TILE_SHIFT))
-                            | (((y - y0) as usize) << TILE_SHIFT)
-                            | (x as usize & (TILE - 1));
-                        let len = (seg_end - x + 1) as usize;
+                    for (dj, values) in (-r..=r).zip(&kernel_rows) {
+                        let y = cj + dj;
+                        if y < y0 || y >= y1 || values.is_empty() {
+                            continue;
+                        }
+                        // The row's cells `ci - a ..= ci + a`, cut to the window.
+                        let a = (values.len() / 2) as i64;
+                        let (x, x_end) = ((ci - a).max(0), (ci + a).min(wi - 1));
+                        if x > x_end {
+                            continue;
+                        }
+                        let k = (y - y0) as usize * w + x as usize;
+                        let len = (x_end - x + 1) as usize;
                         let from = (x - (ci - a)) as usize;
-                        if let (Some(cells), Some(vals)) =
+                        if let (Some(run), Some(vals)) =
                             (band.get_mut(k..k + len), values.get(from..from + len))
                         {
-                            for (c, &v) in cells.iter_mut().zip(vals) {
+                            for (c, &v) in run.iter_mut().zip(vals) {
                                 *c = max_f32(v, *c);
                             }
                         }
-                        x = seg_end + 1;
                     }
                 }
-            }
-        });
+            });
+        field.written.clone_from(&written);
         let mut all = vec![field];
         for k in 1..=levels {
-            let prev = &all[k - 1];
+            let prev = &all[k - 1].cells[..];
             let s = 1usize << (k - 1);
-            let mut next = vec![0f32; prev.len()];
-            next.par_chunks_mut(TILE_CELLS)
+            let mut next = Buffer::zeroed(w * h);
+            next.cells[..w * h]
+                .par_chunks_mut(w * TILE)
                 .enumerate()
-                .skip(1)
-                .for_each(|(slot, out)| {
-                    let (tx, ty) = tile_xy[slot];
-                    // Row `y` of tile column `tx` (zeros outside the grid or stored tiles).
-                    let row = |tx: usize, y: usize| -> &[f32] {
-                        let t = (y >> TILE_SHIFT < th && tx < tw)
-                            .then(|| slots[(y >> TILE_SHIFT) * tw + tx] as usize)
-                            .unwrap_or(0);
-                        let o = (t << (2 * TILE_SHIFT)) | ((y & (TILE - 1)) << TILE_SHIFT);
-                        prev.get(o..o + TILE).unwrap_or(&ZERO_ROW)
-                    };
-                    // Row `y` from column `tx * TILE + s` on.
-                    let shifted = |y: usize| -> [f32; TILE] {
-                        let (t, o) = (tx.saturating_add(s >> TILE_SHIFT), s & (TILE - 1));
-                        let mut seg = [0f32; 2 * TILE];
-                        seg[..TILE].copy_from_slice(row(t, y));
-                        seg[TILE..].copy_from_slice(row(t.saturating_add(1), y));
-                        let mut out = [0f32; TILE];
-                        out.copy_from_slice(&seg[o..o + TILE]);
-                        out
-                    };
-                    for (yy, out_row) in out.chunks_exact_mut(TILE).enumerate() {
+                .for_each(|(ty, band)| {
+                    for (yy, out) in band.chunks_exact_mut(w).enumerate() {
                         let y = ty * TILE + yy;
-                        let ys = y.saturating_add(s);
-                        let (a0, a1) = (row(tx, y), shifted(y));
-                        let (b0, b1) = (row(tx, ys), shifted(ys));
-                        for x in 0..TILE {
-                            out_row[x] = max_f32(max_f32(a0[x], a1[x]), max_f32(b0[x], b1[x]));
+                        let a = &prev[y * w..(y + 1) * w];
+                        // Row `y + s` (none above the window: the maximum over the rest).
+                        let b = prev.get((y + s) * w..(y + s + 1) * w).filter(|_| y + s < h);
+                        for &tx in &present[ty] {
+                            let (x0, x1) = (tx * TILE, ((tx + 1) * TILE).min(w));
+                            // Cells whose right neighbour `x + s` lies in the window.
+                            let xm = x1.min(w.saturating_sub(s)).max(x0);
+                            if xm > x0 {
+                                pool_run(&mut out[x0..xm], &a[x0..xm], &a[x0 + s..xm + s]);
+                            }
+                            for x in xm..x1 {
+                                out[x] = b.map_or(a[x], |b| max_f32(a[x], b[x]));
+                            }
+                            if let Some(b) = b.filter(|_| xm > x0) {
+                                for (o, (&b0, &b1)) in out[x0..xm]
+                                    .iter_mut()
+                                    .zip(b[x0..xm].iter().zip(&b[x0 + s..xm + s]))
+                                {
+                                    *o = max_f32(*o, max_f32(b0, b1));
+                                }
+                            }
                         }
                     }
                 });
+            next.written.clone_from(&written);
             all.push(next);
         }
         PointField {
@@ -292,8 +339,6 @@ impl PointField {
             resolution_m,
             w,
             h,
-            tw,
-            slots,
             levels: all,
         }
     }
@@ -303,24 +348,13 @@ impl PointField {
         self.levels.len() - 1
     }
 
-    /// Index in a level's storage of the cell `(x, y)` inside the window.
-    #[inline(always)]
-    fn index(&self, x: usize, y: usize) -> usize {
-        let t = self
-            .slots
-            .get((y >> TILE_SHIFT) * self.tw + (x >> TILE_SHIFT));
-        ((t.copied().unwrap_or(0) as usize) << (2 * TILE_SHIFT))
-            | ((y & (TILE - 1)) << TILE_SHIFT)
-            | (x & (TILE - 1))
-    }
-
     #[inline]
     fn at(&self, level: usize, i: i64, j: i64) -> f32 {
         if i < 0 || j < 0 || i >= self.w as i64 || j >= self.h as i64 {
             return 0.0;
         }
-        let k = self.index(i as usize, j as usize);
-        self.levels[level].get(k).copied().unwrap_or(0.0)
+        let k = j as usize * self.w + i as usize;
+        self.levels[level].cells.get(k).copied().unwrap_or(0.0)
     }
 
     /// Bilinear interpolation between cell centres (0 outside).
@@ -396,18 +430,15 @@ impl PointField {
     #[inline(always)]
     fn corners(&self, i: i64, j: i64) -> [f32; 4] {
         let (w, h) = (self.w as i64, self.h as i64);
-        let last = TILE as i64 - 1;
-        // The 2x2 block inside one tile.
-        let block =
-            (i >= 0 && j >= 0 && i + 1 < w && j + 1 < h && i & last != last && j & last != last)
-                .then(|| {
-                    let k = self.index(i as usize, j as usize);
-                    let lv = &self.levels[0];
-                    let row0 = lv.get(k..k + 2)?;
-                    let row1 = lv.get(k + TILE..k + TILE + 2)?;
-                    Some([row0[0], row0[1], row1[0], row1[1]])
-                })
-                .flatten();
+        let block = (i >= 0 && j >= 0 && i + 1 < w && j + 1 < h)
+            .then(|| {
+                let k = (j * w + i) as usize;
+                let lv = &self.levels[0].cells;
+                let row0 = lv.get(k..k + 2)?;
+                let row1 = lv.get(k + w as usize..k + w as usize + 2)?;
+                Some([row0[0], row0[1], row1[0], row1[1]])
+            })
+            .flatten();
         block.unwrap_or_else(|| {
             [(0, 0), (1, 0), (0, 1), (1, 1)].map(|(di, dj)| self.at(0, i + di, j + dj))
         })
@@ -493,7 +524,7 @@ impl PointField {
 
     /// Sum of level `level` over `cells` shifted by `(dx, dy)` (0 outside), in point order.
     fn cell_sum(&self, cells: &[(i64, i64)], level: usize, dx: i64, dy: i64) -> f64 {
-        let lv = &self.levels[level][..];
+        let lv = &self.levels[level].cells[..];
         let (w, h) = (self.w as u64, self.h as u64);
         cells
             .iter()
@@ -501,11 +532,7 @@ impl PointField {
                 // One unsigned comparison per axis also rejects negatives.
                 let (x, y) = ((i + dx) as u64, (j + dy) as u64);
                 if x < w && y < h {
-                    f64::from(
-                        lv.get(self.index(x as usize, y as usize))
-                            .copied()
-                            .unwrap_or(0.0),
-                    )
+                    f64::from(lv.get((y * w + x) as usize).copied().unwrap_or(0.0))
                 } else {
                     0.0
                 }
@@ -909,14 +936,17 @@ mod tests {
     #[test]
     fn banded_build_equals_the_plain_splat() {
         let pts: Vec<[f64; 2]> = room_points().iter().step_by(3).copied().collect();
-        for (min, max, levels) in [
+        let cases = [
             ([-6.0, -5.0], [6.0, 5.0], 3),
             ([-1.3, -4.1], [2.2, 0.4], 1),
             ([3.9, -3.2], [4.4, 9.0], 0),
             // Mostly empty windows: many tiles absent, the pooled reach across tiles.
             ([-12.0, -9.0], [5.0, 4.0], 4),
             ([-3.0, -20.0], [14.0, 3.5], 6),
-        ] {
+        ];
+        // Twice, the second time in reverse: every field but the first reuses buffers of
+        // other shapes from the pool.
+        for &(min, max, levels) in cases.iter().chain(cases.iter().rev()) {
             let (res, sigma) = (0.05, 0.07);
             let f = PointField::build(&pts, min, max, res, sigma, levels);
             // Plain: every point splats the truncated Gaussian, cells keep the maximum.
