@@ -45,18 +45,24 @@ struct Buffer {
 
 /// Buffers kept per thread for the next fields.
 const POOL_BUFFERS: usize = 8;
+/// ... each of at most this many cells (64 MB).
+const POOL_MAX_CELLS: usize = 1 << 24;
 
 thread_local! {
     static POOL: std::cell::RefCell<Vec<Buffer>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
 impl Buffer {
-    /// A buffer of at least `n` zeros (from the pool when one is large enough).
+    /// A buffer of at least `n` zeros: from the pool when it has one (the first large
+    /// enough, else the largest, grown), else new.
     fn zeroed(n: usize) -> Buffer {
         let pooled = POOL
             .try_with(|p| {
                 let mut p = p.borrow_mut();
-                let at = p.iter().position(|b| b.cells.len() >= n)?;
+                let at = p
+                    .iter()
+                    .position(|b| b.cells.len() >= n)
+                    .or_else(|| (0..p.len()).max_by_key(|&i| p[i].cells.len()))?;
                 Some(p.swap_remove(at))
             })
             .ok()
@@ -69,6 +75,9 @@ impl Buffer {
                     }
                 }
                 b.written.clear();
+                if b.cells.len() < n {
+                    b.cells.resize(n, 0.0);
+                }
                 b
             }
             None => Buffer {
@@ -86,7 +95,8 @@ impl Drop for PointField {
         let _ = POOL.try_with(|p| {
             let mut p = p.borrow_mut();
             for b in levels {
-                if p.len() < POOL_BUFFERS {
+                // A huge window's buffers are not kept.
+                if p.len() < POOL_BUFFERS && b.cells.len() <= POOL_MAX_CELLS {
                     p.push(b);
                 }
             }
