@@ -14,7 +14,16 @@ use crate::filter::scanmatch::{LANES, mix_lanes};
 use crate::geometry::{Pose2, wrap_angle};
 use rayon::prelude::*;
 
+/// Cells per side of a storage tile (a power of two).
+const TILE: usize = 32;
+const TILE_SHIFT: u32 = TILE.trailing_zeros();
+
 /// A likelihood-field window with max-pooled levels.
+///
+/// Dense (`w x h` per level), but only the `TILE x TILE` tiles where some level can be
+/// non-zero (near a submap point; a loop closure's submap touched ~16 % of its window's
+/// tiles on the full-size car) are written: the buffers come from a per-thread pool, and a
+/// reused buffer gets only the cells its last use wrote set back to zero.
 #[derive(Debug, Clone)]
 pub struct PointField {
     origin_x_m: f64,
@@ -23,7 +32,76 @@ pub struct PointField {
     w: usize,
     h: usize,
     /// `levels[0]` = the field, `levels[k]` = max over `2^k x 2^k` blocks.
-    levels: Vec<Vec<f32>>,
+    levels: Vec<Buffer>,
+}
+
+/// A level's cells (row-major, at least `w * h`; zero outside the written runs) and the runs
+/// `(start, len)` written.
+#[derive(Debug, Clone, Default)]
+struct Buffer {
+    cells: Vec<f32>,
+    written: Vec<(usize, usize)>,
+}
+
+/// Buffers kept per thread for the next fields.
+const POOL_BUFFERS: usize = 8;
+/// ... each of at most this many cells (64 MB).
+const POOL_MAX_CELLS: usize = 1 << 24;
+
+thread_local! {
+    static POOL: std::cell::RefCell<Vec<Buffer>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+impl Buffer {
+    /// A buffer of at least `n` zeros: from the pool when it has one (the first large
+    /// enough, else the largest, grown), else new.
+    fn zeroed(n: usize) -> Buffer {
+        let pooled = POOL
+            .try_with(|p| {
+                let mut p = p.borrow_mut();
+                let at = p
+                    .iter()
+                    .position(|b| b.cells.len() >= n)
+                    .or_else(|| (0..p.len()).max_by_key(|&i| p[i].cells.len()))?;
+                Some(p.swap_remove(at))
+            })
+            .ok()
+            .flatten();
+        match pooled {
+            Some(mut b) => {
+                for &(start, len) in &b.written {
+                    if let Some(run) = b.cells.get_mut(start..start + len) {
+                        run.fill(0.0);
+                    }
+                }
+                b.written.clear();
+                if b.cells.len() < n {
+                    b.cells.resize(n, 0.0);
+                }
+                b
+            }
+            None => Buffer {
+                cells: vec![0.0; n],
+                written: Vec::new(),
+            },
+        }
+    }
+}
+
+impl Drop for PointField {
+    fn drop(&mut self) {
+        let levels = std::mem::take(&mut self.levels);
+        // At thread exit the pool is gone: the buffers are freed.
+        let _ = POOL.try_with(|p| {
+            let mut p = p.borrow_mut();
+            for b in levels {
+                // A huge window's buffers are not kept.
+                if p.len() < POOL_BUFFERS && b.cells.len() <= POOL_MAX_CELLS {
+                    p.push(b);
+                }
+            }
+        });
+    }
 }
 
 /// A search window around a centre pose.
@@ -79,6 +157,21 @@ fn floor_to_i64(v: f64) -> i64 {
     }
 }
 
+/// The larger of two field values, which are never NaN nor -0: the same value as
+/// `f32::max` in one `maxps` (the field's pooling vectorises).
+#[inline(always)]
+fn max_f32(a: f32, b: f32) -> f32 {
+    if a > b { a } else { b }
+}
+
+/// `out = max(a0, a1)` elementwise (one pooling step over a run of cells).
+#[inline]
+fn pool_run(out: &mut [f32], a0: &[f32], a1: &[f32]) {
+    for (o, (&p, &q)) in out.iter_mut().zip(a0.iter().zip(a1)) {
+        *o = max_f32(p, q);
+    }
+}
+
 /// The prepared top level of a branch-and-bound search ([`PointField::bnb_start`]).
 #[derive(Debug, Clone)]
 pub struct BnbStart {
@@ -104,19 +197,21 @@ impl PointField {
     ) -> PointField {
         let w = (((max[0] - min[0]) / resolution_m).ceil().max(1.0) as usize).min(1 << 14);
         let h = (((max[1] - min[1]) / resolution_m).ceil().max(1.0) as usize).min(1 << 14);
-        let mut field = vec![0f32; w * h];
         let sigma_cells = (sigma_m / resolution_m).max(0.25);
         let r = (3.0 * sigma_cells).ceil() as i64;
-        let mut kernel = Vec::new();
-        for dj in -r..=r {
-            for di in -r..=r {
-                let d2 = (di * di + dj * dj) as f64;
-                let v = (-0.5 * d2 / (sigma_cells * sigma_cells)).exp() as f32;
-                if v > 0.01 {
-                    kernel.push((di, dj, v));
-                }
-            }
-        }
+        // Per kernel row `dj = -r..=r`: the values above 0.01, a run `-a..=a` centred on the
+        // point's column (the Gaussian falls with |di|).
+        let kernel_rows: Vec<Vec<f32>> = (-r..=r)
+            .map(|dj| {
+                (-r..=r)
+                    .map(|di| {
+                        let d2 = (di * di + dj * dj) as f64;
+                        (-0.5 * d2 / (sigma_cells * sigma_cells)).exp() as f32
+                    })
+                    .filter(|&v| v > 0.01)
+                    .collect()
+            })
+            .collect();
         let (wi, hi) = (w as i64, h as i64);
         let cells: Vec<(i64, i64)> = points
             .iter()
@@ -128,53 +223,124 @@ impl PointField {
             })
             .filter(|&(ci, cj)| !(ci < -r || cj < -r || ci >= wi + r || cj >= hi + r))
             .collect();
-        // Bands of rows in parallel, each taking the kernel cells of every point that fall
-        // in it: a cell's value is the maximum over the same values in any order.
-        const BAND_ROWS: usize = 32;
-        field
-            .par_chunks_mut(w * BAND_ROWS)
+        // The tiles a point's kernel touches hold level 0's non-zero cells; a pooled level
+        // reaches `2^levels - 1` cells further left and down, so the tiles within that
+        // many tiles left and down of them are stored too.
+        let (tw, th) = (w.div_ceil(TILE), h.div_ceil(TILE));
+        let mut occupied = vec![false; tw * th];
+        for &(ci, cj) in &cells {
+            let (x0, x1) = ((ci - r).max(0), (ci + r).min(wi - 1));
+            let (y0, y1) = ((cj - r).max(0), (cj + r).min(hi - 1));
+            if x0 > x1 || y0 > y1 {
+                continue;
+            }
+            for ty in (y0 >> TILE_SHIFT)..=(y1 >> TILE_SHIFT) {
+                for tx in (x0 >> TILE_SHIFT)..=(x1 >> TILE_SHIFT) {
+                    occupied[ty as usize * tw + tx as usize] = true;
+                }
+            }
+        }
+        let reach = 1usize
+            .checked_shl(levels.min(31) as u32)
+            .map_or(usize::MAX, |v| v - 1)
+            .div_ceil(TILE);
+        // Per tile row: the columns of the tiles written.
+        let mut present: Vec<Vec<usize>> = vec![Vec::new(); th];
+        for (ty, row) in present.iter_mut().enumerate() {
+            for tx in 0..tw {
+                let (ty1, tx1) = (
+                    ty.saturating_add(reach).min(th - 1),
+                    tx.saturating_add(reach).min(tw - 1),
+                );
+                if (ty..=ty1).any(|uy| occupied[uy * tw + tx..=uy * tw + tx1].contains(&true)) {
+                    row.push(tx);
+                }
+            }
+        }
+        // The row runs of the written tiles, the same for every level.
+        let mut written = Vec::new();
+        for (ty, row) in present.iter().enumerate() {
+            for y in ty * TILE..((ty + 1) * TILE).min(h) {
+                for &tx in row {
+                    let x0 = tx * TILE;
+                    written.push((y * w + x0, TILE.min(w - x0)));
+                }
+            }
+        }
+        let mut field = Buffer::zeroed(w * h);
+        // Bands of tile rows in parallel, each taking the kernel cells of every point that
+        // fall in it: a cell's value is the maximum over the same values in any order.
+        field.cells[..w * h]
+            .par_chunks_mut(w * TILE)
             .enumerate()
-            .for_each(|(b, band)| {
-                let y0 = (b * BAND_ROWS) as i64;
+            .for_each(|(ty, band)| {
+                let y0 = (ty * TILE) as i64;
                 let y1 = y0 + (band.len() / w) as i64;
                 for &(ci, cj) in &cells {
                     if cj + r < y0 || cj - r >= y1 {
                         continue;
                     }
-                    for &(di, dj, v) in &kernel {
-                        let (x, y) = (ci + di, cj + dj);
-                        if x >= 0
-                            && y >= y0
-                            && x < wi
-                            && y < y1
-                            && let Some(slot) = band.get_mut(((y - y0) * wi + x) as usize)
-                            && v > *slot
+                    for (dj, values) in (-r..=r).zip(&kernel_rows) {
+                        let y = cj + dj;
+                        if y < y0 || y >= y1 || values.is_empty() {
+                            continue;
+                        }
+                        // The row's cells `ci - a ..= ci + a`, cut to the window.
+                        let a = (values.len() / 2) as i64;
+                        let (x, x_end) = ((ci - a).max(0), (ci + a).min(wi - 1));
+                        if x > x_end {
+                            continue;
+                        }
+                        let k = (y - y0) as usize * w + x as usize;
+                        let len = (x_end - x + 1) as usize;
+                        let from = (x - (ci - a)) as usize;
+                        if let (Some(run), Some(vals)) =
+                            (band.get_mut(k..k + len), values.get(from..from + len))
                         {
-                            *slot = v;
+                            for (c, &v) in run.iter_mut().zip(vals) {
+                                *c = max_f32(v, *c);
+                            }
                         }
                     }
                 }
             });
+        field.written.clone_from(&written);
         let mut all = vec![field];
         for k in 1..=levels {
-            let prev = &all[k - 1];
+            let prev = &all[k - 1].cells[..];
             let s = 1usize << (k - 1);
-            let mut next = prev.clone();
-            next.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-                for (x, out) in row.iter_mut().enumerate() {
-                    let mut m = prev[y * w + x];
-                    if x + s < w {
-                        m = m.max(prev[y * w + x + s]);
-                    }
-                    if y + s < h {
-                        m = m.max(prev[(y + s) * w + x]);
-                        if x + s < w {
-                            m = m.max(prev[(y + s) * w + x + s]);
+            let mut next = Buffer::zeroed(w * h);
+            next.cells[..w * h]
+                .par_chunks_mut(w * TILE)
+                .enumerate()
+                .for_each(|(ty, band)| {
+                    for (yy, out) in band.chunks_exact_mut(w).enumerate() {
+                        let y = ty * TILE + yy;
+                        let a = &prev[y * w..(y + 1) * w];
+                        // Row `y + s` (none above the window: the maximum over the rest).
+                        let b = prev.get((y + s) * w..(y + s + 1) * w).filter(|_| y + s < h);
+                        for &tx in &present[ty] {
+                            let (x0, x1) = (tx * TILE, ((tx + 1) * TILE).min(w));
+                            // Cells whose right neighbour `x + s` lies in the window.
+                            let xm = x1.min(w.saturating_sub(s)).max(x0);
+                            if xm > x0 {
+                                pool_run(&mut out[x0..xm], &a[x0..xm], &a[x0 + s..xm + s]);
+                            }
+                            for x in xm..x1 {
+                                out[x] = b.map_or(a[x], |b| max_f32(a[x], b[x]));
+                            }
+                            if let Some(b) = b.filter(|_| xm > x0) {
+                                for (o, (&b0, &b1)) in out[x0..xm]
+                                    .iter_mut()
+                                    .zip(b[x0..xm].iter().zip(&b[x0 + s..xm + s]))
+                                {
+                                    *o = max_f32(*o, max_f32(b0, b1));
+                                }
+                            }
                         }
                     }
-                    *out = m;
-                }
-            });
+                });
+            next.written.clone_from(&written);
             all.push(next);
         }
         PointField {
@@ -197,7 +363,8 @@ impl PointField {
         if i < 0 || j < 0 || i >= self.w as i64 || j >= self.h as i64 {
             return 0.0;
         }
-        self.levels[level][j as usize * self.w + i as usize]
+        let k = j as usize * self.w + i as usize;
+        self.levels[level].cells.get(k).copied().unwrap_or(0.0)
     }
 
     /// Bilinear interpolation between cell centres (0 outside).
@@ -217,10 +384,15 @@ impl PointField {
 
     /// Mean interpolated field value (0..1) of `points_body` seen from `pose`.
     pub fn score(&self, points_body: &[[f64; 2]], pose: &Pose2) -> f64 {
+        let (s, c) = pose.yaw_rad.sin_cos();
+        self.score_rotated(points_body, pose, s, c)
+    }
+
+    /// [`Self::score`] with `(s, c)` = `pose.yaw_rad.sin_cos()` given.
+    fn score_rotated(&self, points_body: &[[f64; 2]], pose: &Pose2, s: f64, c: f64) -> f64 {
         if points_body.is_empty() {
             return 0.0;
         }
-        let (s, c) = pose.yaw_rad.sin_cos();
         // The same left-to-right fold as `Iterator::sum` (from -0.0), four points at a time:
         // per lane the operations of `bilinear`, so the same bits, in vector registers.
         let mut sum = -0.0;
@@ -271,7 +443,7 @@ impl PointField {
         let block = (i >= 0 && j >= 0 && i + 1 < w && j + 1 < h)
             .then(|| {
                 let k = (j * w + i) as usize;
-                let lv = &self.levels[0];
+                let lv = &self.levels[0].cells;
                 let row0 = lv.get(k..k + 2)?;
                 let row1 = lv.get(k + w as usize..k + w as usize + 2)?;
                 Some([row0[0], row0[1], row1[0], row1[1]])
@@ -362,7 +534,7 @@ impl PointField {
 
     /// Sum of level `level` over `cells` shifted by `(dx, dy)` (0 outside), in point order.
     fn cell_sum(&self, cells: &[(i64, i64)], level: usize, dx: i64, dy: i64) -> f64 {
-        let lv = &self.levels[level][..];
+        let lv = &self.levels[level].cells[..];
         let (w, h) = (self.w as u64, self.h as u64);
         cells
             .iter()
@@ -443,6 +615,9 @@ impl PointField {
             cells.push(c);
             cands.extend(k);
         }
+        // Sorted as `branch` sorts them (stable, best first): each search's own sort then
+        // finds one run, the same order.
+        cands.sort_by(|a, b| b.score.total_cmp(&a.score));
         Some(BnbStart {
             centre: *centre,
             yaws,
@@ -636,8 +811,15 @@ impl PointField {
         prior: Option<&Prior>,
     ) -> (Pose2, f64) {
         let n_pts = points_body.len().max(1) as f64;
+        // Most steps of the pattern search keep the yaw: its sine and cosine once per yaw.
+        let last_yaw = std::cell::Cell::new((f64::NAN, 0.0, 0.0));
         let objective = |p: &Pose2| {
-            let s = self.score(points_body, p);
+            let (yaw, mut sin, mut cos) = last_yaw.get();
+            if yaw.to_bits() != p.yaw_rad.to_bits() {
+                (sin, cos) = p.yaw_rad.sin_cos();
+                last_yaw.set((p.yaw_rad, sin, cos));
+            }
+            let s = self.score_rotated(points_body, p, sin, cos);
             (s * n_pts - prior.map_or(0.0, |q| q.penalty(p)), s)
         };
         let ([x_m, y_m, yaw_rad], (_, score)) = crate::filter::scanmatch::pattern_search(
@@ -750,14 +932,31 @@ mod tests {
         }
     }
 
+    /// Level `level` of `f` as a dense row-major `w x h` grid.
+    fn dense(f: &PointField, level: usize) -> Vec<f32> {
+        let mut out = Vec::with_capacity(f.w * f.h);
+        for j in 0..f.h as i64 {
+            for i in 0..f.w as i64 {
+                out.push(f.at(level, i, j));
+            }
+        }
+        out
+    }
+
     #[test]
     fn banded_build_equals_the_plain_splat() {
         let pts: Vec<[f64; 2]> = room_points().iter().step_by(3).copied().collect();
-        for (min, max, levels) in [
+        let cases = [
             ([-6.0, -5.0], [6.0, 5.0], 3),
             ([-1.3, -4.1], [2.2, 0.4], 1),
             ([3.9, -3.2], [4.4, 9.0], 0),
-        ] {
+            // Mostly empty windows: many tiles absent, the pooled reach across tiles.
+            ([-12.0, -9.0], [5.0, 4.0], 4),
+            ([-3.0, -20.0], [14.0, 3.5], 6),
+        ];
+        // Twice, the second time in reverse: every field but the first reuses buffers of
+        // other shapes from the pool.
+        for &(min, max, levels) in cases.iter().chain(cases.iter().rev()) {
             let (res, sigma) = (0.05, 0.07);
             let f = PointField::build(&pts, min, max, res, sigma, levels);
             // Plain: every point splats the truncated Gaussian, cells keep the maximum.
@@ -780,9 +979,10 @@ mod tests {
                 }
             }
             assert!(plain.iter().any(|&v| v > 0.5));
-            assert_eq!(f.levels[0], plain);
+            assert_eq!(dense(&f, 0), plain);
             for k in 1..=levels {
                 let s = 1usize << k;
+                let got = dense(&f, k);
                 for y in 0..f.h {
                     for x in 0..f.w {
                         let mut m = 0f32;
@@ -791,7 +991,7 @@ mod tests {
                                 m = m.max(plain[yy * f.w + xx]);
                             }
                         }
-                        assert_eq!(f.levels[k][y * f.w + x], m, "level {k} ({x}, {y})");
+                        assert_eq!(got[y * f.w + x], m, "level {k} ({x}, {y})");
                     }
                 }
             }

@@ -478,6 +478,20 @@ pub fn optimize_trajectory(
     trajectory: &[StampedPose2],
     opts: &GraphOptions,
 ) -> Result<GraphResult, GraphError> {
+    optimize_trajectory_look_ahead(recording, scan_opts, trajectory, opts, LOOK_AHEAD_SEARCHES)
+}
+
+/// [`optimize_trajectory`] verifying the loop searches of up to `look_ahead` keyframes in
+/// one parallel batch (the default [`LOOK_AHEAD_SEARCHES`]; 1 = one keyframe at a time):
+/// the same result for any value (tested).
+#[doc(hidden)]
+pub fn optimize_trajectory_look_ahead(
+    recording: &Recording,
+    scan_opts: &ScanOptions,
+    trajectory: &[StampedPose2],
+    opts: &GraphOptions,
+    look_ahead: usize,
+) -> Result<GraphResult, GraphError> {
     opts.validate().map_err(GraphError::Options)?;
     let t_start = Instant::now();
     let mut stats = GraphStats::default();
@@ -506,6 +520,9 @@ pub fn optimize_trajectory(
     let mut urgent = false;
     let mut last_opt = 0usize;
     let mut submap_pts: Vec<[f64; 2]> = Vec::new();
+    // Loop searches verified ahead, valid while the graph is not optimised.
+    let mut ahead: Option<LookAhead> = None;
+    let mut generation = 0usize;
     // `auto`: sequential matching for a level LiDAR fixed on the body (the recordings `auto`
     // runs `rbpf` on); odometry-yaw edges for a LiDAR fixed on the body.
     let level_and_fixed =
@@ -635,55 +652,67 @@ pub fn optimize_trajectory(
             && kf.path_m - last_ambiguous_path_m >= opts.loop_ambiguous_gap_m;
         stats.loop_skipped_keyframes += usize::from(due && !gap_ok);
         if due && gap_ok {
-            let mut cands: Vec<(f64, usize)> = (0..k)
-                .filter(|&j| kf.path_m - keyframes[j].path_m >= opts.loop_min_path_m)
-                .filter_map(|j| {
-                    let d = graph.poses[j].between(&pose).translation_norm_m();
-                    (d <= opts.loop_search_radius_m).then_some((d, j))
-                })
-                .collect();
-            cands.sort_by(|a, b| a.0.total_cmp(&b.0));
-            let mut tried: Vec<usize> = Vec::new();
-            for &(_, j) in &cands {
-                if tried.len() >= opts.loop_max_candidates {
-                    break;
-                }
-                // Candidates next to one already tried would test the same submap.
-                if tried
+            // A look-ahead job computed before any optimisation since, at the same pose:
+            // the same candidates (the earlier keyframes' poses are the same bits).
+            let cached = match &mut ahead {
+                Some(a) if a.generation == generation => a
+                    .jobs
                     .iter()
-                    .any(|&t| t.abs_diff(j) <= opts.loop_submap_keyframes)
-                {
-                    continue;
+                    .position(|j| j.k == k && j.pose == pose)
+                    .map(|at| a.jobs.swap_remove(at)),
+                _ => None,
+            };
+            let (tried, verdicts) = match cached {
+                Some(job) => (job.tried, job.verdicts),
+                None => {
+                    let tried = loop_candidates(&keyframes, &graph.poses, k, &pose, opts);
+                    if tried.is_empty() {
+                        (tried, Vec::new())
+                    } else {
+                        let (mut jobs, poses_ahead) = if !seq_matching && look_ahead > 1 {
+                            look_ahead_jobs(&keyframes, &graph.poses, k, pose, look_ahead, opts)
+                        } else {
+                            (Vec::new(), Vec::new())
+                        };
+                        jobs.insert(
+                            0,
+                            AheadJob {
+                                k,
+                                pose,
+                                tried: tried.clone(),
+                                verdicts: Vec::new(),
+                            },
+                        );
+                        let poses: &[Pose2] = if poses_ahead.is_empty() {
+                            &graph.poses
+                        } else {
+                            &poses_ahead
+                        };
+                        // All independent: verified in parallel, collected in order.
+                        let pairs: Vec<(usize, usize)> = jobs
+                            .iter()
+                            .enumerate()
+                            .flat_map(|(a, job)| job.tried.iter().map(move |&j| (a, j)))
+                            .collect();
+                        let found: Vec<Verdict> = pairs
+                            .par_iter()
+                            .map(|&(a, j)| {
+                                let job = &jobs[a];
+                                verify_candidate(
+                                    &keyframes, poses, job.k, j, &job.pose, &loop_win, opts,
+                                )
+                            })
+                            .collect();
+                        for (&(a, _), v) in pairs.iter().zip(found) {
+                            jobs[a].verdicts.push(v);
+                        }
+                        let own = jobs.swap_remove(0).verdicts;
+                        ahead = Some(LookAhead { generation, jobs });
+                        (tried, own)
+                    }
                 }
-                tried.push(j);
-            }
+            };
             stats.loop_candidates += tried.len();
-            // The candidates are independent: verify them in parallel, add them in order.
-            let poses = &graph.poses;
-            let verdicts: Vec<Verdict> = tried
-                .par_iter()
-                .map(|&j| {
-                    let lo = j.saturating_sub(opts.loop_submap_keyframes);
-                    let hi = (j + opts.loop_submap_keyframes + 1).min(k);
-                    let mut submap = Vec::new();
-                    gather_points(&keyframes, poses, lo..hi, &mut submap);
-                    let margin = opts.loop_window_m + 3.0 * opts.field_sigma_m + opts.resolution_m;
-                    let Some((blo, bhi)) = bounds_around(&kf.points_body, &pose, margin)
-                        .and_then(|b| clip_to_points(b, &submap, 3.0 * opts.field_sigma_m))
-                    else {
-                        return Verdict::LowScore;
-                    };
-                    let field = PointField::build(
-                        &submap,
-                        blo,
-                        bhi,
-                        opts.resolution_m,
-                        opts.field_sigma_m,
-                        levels_for(opts.loop_window_m, opts.resolution_m),
-                    );
-                    verify_closure(&field, &kf.points_body, &pose, &loop_win, opts)
-                })
-                .collect();
             if !tried.is_empty() && verdicts.iter().all(|v| *v == Verdict::Ambiguous) {
                 last_ambiguous_path_m = kf.path_m;
             }
@@ -718,6 +747,7 @@ pub fn optimize_trajectory(
         if urgent || (closures_pending && k - last_opt >= opts.optimize_every_keyframes) {
             let t = Instant::now();
             let r = graph.optimize(&opt_opts);
+            generation += 1;
             stats.optimizations += 1;
             stats.iterations += r.iterations;
             stats.optimize_s += t.elapsed().as_secs_f64();
@@ -794,6 +824,135 @@ pub fn optimize_trajectory(
         loop_edges: loop_pairs,
         stats,
     })
+}
+
+/// Keyframes due for a loop search verified in one parallel batch: the loop-closure
+/// verifications of a keyframe with one candidate left a core idle in the serial parts
+/// (branch and bound, refinement).
+pub const LOOK_AHEAD_SEARCHES: usize = 4;
+
+/// One keyframe's loop search verified ahead.
+struct AheadJob {
+    k: usize,
+    pose: Pose2,
+    tried: Vec<usize>,
+    verdicts: Vec<Verdict>,
+}
+
+/// The look-ahead verdicts and the optimisation count they were computed at.
+struct LookAhead {
+    generation: usize,
+    jobs: Vec<AheadJob>,
+}
+
+/// The loop searches of the keyframes after `k` (at `pose`, the graph at `poses`, keyframes
+/// `0..=k`) until `look_ahead - 1` of them have candidates, for a graph without sequential
+/// matching: each later keyframe's pose follows from the previous one by the front end's
+/// motion alone, composed exactly as `optimize_trajectory_look_ahead` does, so until the
+/// next optimisation these are the bits it will find. Returns the jobs (verdicts empty) and
+/// the poses extended to the last keyframe looked at.
+fn look_ahead_jobs(
+    keyframes: &[Keyframe],
+    poses: &[Pose2],
+    k: usize,
+    pose: Pose2,
+    look_ahead: usize,
+    opts: &GraphOptions,
+) -> (Vec<AheadJob>, Vec<Pose2>) {
+    let mut jobs = Vec::new();
+    let mut poses_ahead = poses.to_vec();
+    let mut p = pose;
+    let mut searches = 1;
+    for m in k + 1..keyframes.len() {
+        if searches >= look_ahead {
+            break;
+        }
+        let rel = keyframes[m - 1]
+            .front_pose
+            .between(&keyframes[m].front_pose);
+        p = p.compose(&rel);
+        poses_ahead.push(p);
+        if m % opts.loop_every_keyframes == 0 && keyframes[m].points_body.len() >= opts.min_points {
+            let tried = loop_candidates(keyframes, &poses_ahead, m, &p, opts);
+            searches += usize::from(!tried.is_empty());
+            jobs.push(AheadJob {
+                k: m,
+                pose: p,
+                tried,
+                verdicts: Vec::new(),
+            });
+        }
+    }
+    (jobs, poses_ahead)
+}
+
+/// The loop-closure candidates of keyframe `k` at `pose`: earlier keyframes (at `poses`)
+/// within `loop_search_radius_m` and at least `loop_min_path_m` back along the path, the
+/// nearest first, at most `loop_max_candidates`, no two within `loop_submap_keyframes`.
+fn loop_candidates(
+    keyframes: &[Keyframe],
+    poses: &[Pose2],
+    k: usize,
+    pose: &Pose2,
+    opts: &GraphOptions,
+) -> Vec<usize> {
+    let path_m = keyframes[k].path_m;
+    let mut cands: Vec<(f64, usize)> = (0..k)
+        .filter(|&j| path_m - keyframes[j].path_m >= opts.loop_min_path_m)
+        .filter_map(|j| {
+            let d = poses[j].between(pose).translation_norm_m();
+            (d <= opts.loop_search_radius_m).then_some((d, j))
+        })
+        .collect();
+    cands.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut tried: Vec<usize> = Vec::new();
+    for &(_, j) in &cands {
+        if tried.len() >= opts.loop_max_candidates {
+            break;
+        }
+        // Candidates next to one already tried would test the same submap.
+        if tried
+            .iter()
+            .any(|&t| t.abs_diff(j) <= opts.loop_submap_keyframes)
+        {
+            continue;
+        }
+        tried.push(j);
+    }
+    tried
+}
+
+/// Verifies keyframe `k` (at `pose`) against the submap around candidate `j` (keyframes at
+/// `poses`, only those before `k`).
+fn verify_candidate(
+    keyframes: &[Keyframe],
+    poses: &[Pose2],
+    k: usize,
+    j: usize,
+    pose: &Pose2,
+    loop_win: &SearchWindow,
+    opts: &GraphOptions,
+) -> Verdict {
+    let kf = &keyframes[k];
+    let lo = j.saturating_sub(opts.loop_submap_keyframes);
+    let hi = (j + opts.loop_submap_keyframes + 1).min(k);
+    let mut submap = Vec::new();
+    gather_points(keyframes, poses, lo..hi, &mut submap);
+    let margin = opts.loop_window_m + 3.0 * opts.field_sigma_m + opts.resolution_m;
+    let Some((blo, bhi)) = bounds_around(&kf.points_body, pose, margin)
+        .and_then(|b| clip_to_points(b, &submap, 3.0 * opts.field_sigma_m))
+    else {
+        return Verdict::LowScore;
+    };
+    let field = PointField::build(
+        &submap,
+        blo,
+        bhi,
+        opts.resolution_m,
+        opts.field_sigma_m,
+        levels_for(opts.loop_window_m, opts.resolution_m),
+    );
+    verify_closure(&field, &kf.points_body, pose, loop_win, opts)
 }
 
 /// The outcome of a loop-closure verification.
