@@ -1264,12 +1264,9 @@ fn refine_from(
         )
     };
     let ([dx, dy, dyaw], (obj, sum)) = if params.refine_method == RefineMethod::GaussNewton {
-        drop(eval);
-        let [max_xy, max_yaw] = steps.map(|s| 2.0 * s);
         let (at, obj, sum) = if levels == 0 {
-            let pose = offset_pose(predicted, start);
-            let sum = rot.field_sum(field, limits, points_body, &pose, true);
-            (start, params.gain_per_unit * sum - prior_penalty(params, dx, dy, dyaw), sum)
+            let (obj, sum) = eval(dx, dy, dyaw, true);
+            (start, obj, sum)
         } else {
             gauss_newton(
                 field,
@@ -1279,7 +1276,7 @@ fn refine_from(
                 params,
                 &mut rot,
                 start,
-                [max_xy, max_yaw],
+                steps.map(|s| 2.0 * s),
             )
         };
         (at, (obj, sum))
@@ -1422,8 +1419,13 @@ fn gauss_newton(
     let inv_res = 1.0 / params.resolution_m;
     let objective = |d: [f64; 3], sum: f64| g * sum - prior_penalty(params, d[0], d[1], d[2]);
     let mut at = start;
-    let (mut sum, mut grad, mut outer) =
-        field_terms(field, limits, points_body, &offset_pose(predicted, at), inv_res);
+    let (mut sum, mut grad, mut outer) = field_terms(
+        field,
+        limits,
+        points_body,
+        &offset_pose(predicted, at),
+        inv_res,
+    );
     let mut obj = objective(at, sum);
     let mut lambda = 0.0;
     for pass in 1..GN_PASSES {
@@ -1447,7 +1449,8 @@ fn gauss_newton(
         }
         // Converged (far below the pattern search's finest step): stop. Not much coarser:
         // the odometry's scale error is corrected by sub-mm moves per update.
-        if step[0].abs().max(step[1].abs()) < max_step[0] * 1e-3 && step[2].abs() < max_step[1] * 1e-3
+        if step[0].abs().max(step[1].abs()) < max_step[0] * 1e-3
+            && step[2].abs() < max_step[1] * 1e-3
         {
             break;
         }
@@ -1867,6 +1870,18 @@ mod tests {
     }
 
     #[test]
+    fn refine_method_parses_and_defaults_to_the_pattern_search() {
+        assert_eq!(
+            ScanMatchOptions::default().refine_method,
+            RefineMethod::Pattern
+        );
+        let o: ScanMatchOptions = toml::from_str("refine_method = \"gauss_newton\"").unwrap();
+        assert_eq!(o.refine_method, RefineMethod::GaussNewton);
+        assert_eq!(o.params(0.1).refine_method, RefineMethod::GaussNewton);
+        assert!(toml::from_str::<ScanMatchOptions>("refine_method = \"newton\"").is_err());
+    }
+
+    #[test]
     fn gauss_newton_recovers_sub_cell_offsets_as_well_as_the_pattern_search() {
         let (field, pts) = room_field(0.0);
         for wide_prior in [true, false] {
@@ -1894,7 +1909,10 @@ mod tests {
             let (mut err_p, mut err_g, mut gain_p, mut gain_g) = (0.0, 0.0, 0.0, 0.0);
             for k in 0..40 {
                 let kf = f64::from(k);
-                let (dx, dy) = ((kf * 0.618).fract() * 0.2 - 0.1, (kf * 0.381).fract() * 0.2 - 0.1);
+                let (dx, dy) = (
+                    (kf * 0.618).fract() * 0.2 - 0.1,
+                    (kf * 0.381).fract() * 0.2 - 0.1,
+                );
                 let dyaw = ((kf * 0.271).fract() - 0.5).to_radians();
                 let predicted = Pose2::new(dx, dy, dyaw);
                 let p = match_scan(&field, &pts, &predicted, &pattern, &mut ms);
