@@ -1252,11 +1252,7 @@ fn refine_from(
     let [dx, dy, dyaw] = start;
     let mut rot = RotatedPoints::take(&mut scratch.rotated);
     let mut eval = |dx: f64, dy: f64, dyaw: f64, keep: bool| {
-        let pose = Pose2::new(
-            predicted.x_m + dx,
-            predicted.y_m + dy,
-            predicted.yaw_rad + dyaw,
-        );
+        let pose = offset_pose(predicted, [dx, dy, dyaw]);
         let sum = rot.field_sum(field, limits, points_body, &pose, keep);
         (
             params.gain_per_unit * sum - prior_penalty(params, dx, dy, dyaw),
@@ -1295,11 +1291,7 @@ fn refine_from(
     };
     rot.give_back(&mut scratch.rotated);
     MatchResult {
-        pose: Pose2::new(
-            predicted.x_m + dx,
-            predicted.y_m + dy,
-            predicted.yaw_rad + dyaw,
-        ),
+        pose: offset_pose(predicted, [dx, dy, dyaw]),
         objective: obj,
         fit: sum / (255.0 * n),
     }
