@@ -3,7 +3,8 @@
 //! and the default `scan_match` mode's kernels: the likelihood field's build, one particle's
 //! match (7x7 cells x 7 yaws, then the sub-cell refinement), and the update of 40 / 100
 //! particles in parallel; `scan_match_cpu`: 100 jittered particles matched serially, in the
-//! calling thread's CPU time (whole match and coarse search alone).
+//! calling thread's CPU time (whole match, with `refine_method = "gauss_newton"`, and the
+//! coarse search alone).
 
 mod cpu_time;
 
@@ -200,12 +201,23 @@ fn scan_match_cpu(c: &mut Criterion<ThreadCpuTime>) {
     let cloud = pf.particles.poses.clone();
     let mut g = c.benchmark_group("scan_match_cpu");
     g.sample_size(20);
-    for (name, levels) in [
-        ("match_100_jittered", sm.refine_levels),
-        ("coarse_100_jittered", 0),
+    use pfslam::filter::scanmatch::RefineMethod;
+    for (name, levels, refine_method) in [
+        (
+            "match_100_jittered",
+            sm.refine_levels,
+            RefineMethod::Pattern,
+        ),
+        (
+            "match_100_jittered_gn",
+            sm.refine_levels,
+            RefineMethod::GaussNewton,
+        ),
+        ("coarse_100_jittered", 0, RefineMethod::Pattern),
     ] {
         let params = pfslam::filter::scanmatch::ScanMatchOptions {
             refine_levels: levels,
+            refine_method,
             ..sm.clone()
         }
         .params(config.map.resolution_m);

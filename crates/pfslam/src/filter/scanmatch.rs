@@ -55,6 +55,13 @@ pub struct ScanMatchOptions {
     pub resample_threshold: f64,
     /// Halvings of the step in the sub-cell refinement (0 = coarse search only).
     pub refine_levels: u32,
+    /// How the sub-cell refinement climbs from the coarse optimum: `"pattern"` (the
+    /// default: a pattern search with `refine_levels` step halvings, ~21 field sums per
+    /// match) or `"gauss_newton"` (Levenberg-Marquardt steps on the analytic gradient of the
+    /// bilinear field, Hector-SLAM style, a step kept only when the exact objective
+    /// improves; at most 4 passes over the points; `refine_levels = 0` still means no
+    /// refinement). See PERFORMANCE.md for its accuracy against the pattern search.
+    pub refine_method: RefineMethod,
     /// Particles are sampled around their match with this standard deviation in x and y
     /// (m); the prediction itself composes the odometry without noise (the match, not the
     /// motion noise, is the proposal). Small, because the best particle changes from update
@@ -153,6 +160,7 @@ impl Default for ScanMatchOptions {
             weight_temperature: 10.0,
             resample_threshold: 0.5,
             refine_levels: 3,
+            refine_method: RefineMethod::Pattern,
             proposal_sigma_xy_m: 0.003,
             proposal_sigma_yaw_deg: 0.02,
             field_occupied_prob: 0.0,
@@ -251,12 +259,24 @@ impl ScanMatchOptions {
             inv_var_yaw: 1.0 / self.prior_sigma_yaw_deg.to_radians().powi(2),
             gain_per_unit: self.point_gain / 255.0,
             refine_levels: self.refine_levels,
+            refine_method: self.refine_method,
             share_radius_xy_m: self.shared_match_radius_m,
             share_radius_yaw_rad: self.shared_match_radius_deg.to_radians(),
             share_refine_levels: self.shared_match_refine_levels.min(self.refine_levels),
             share_linear_start: self.shared_match_linear_start,
         }
     }
+}
+
+/// The sub-cell refinement of [`match_scan`] (`[filter.scan_match] refine_method`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RefineMethod {
+    /// Pattern search with step halving (see [`pattern_search`]).
+    #[default]
+    Pattern,
+    /// Levenberg-Marquardt on the analytic gradient of the bilinear field.
+    GaussNewton,
 }
 
 /// Search parameters derived from [`ScanMatchOptions`] once per run.
@@ -278,6 +298,8 @@ pub struct MatchParams {
     pub gain_per_unit: f64,
     /// Step halvings of the refinement.
     pub refine_levels: u32,
+    /// The refinement's method.
+    pub refine_method: RefineMethod,
     /// Shared matching's box half-width in x and y (m; 0 = off).
     pub share_radius_xy_m: f64,
     /// Shared matching's box half-width in yaw (rad).
@@ -1230,38 +1252,223 @@ fn refine_from(
     let [dx, dy, dyaw] = start;
     let mut rot = RotatedPoints::take(&mut scratch.rotated);
     let mut eval = |dx: f64, dy: f64, dyaw: f64, keep: bool| {
-        let pose = Pose2::new(
-            predicted.x_m + dx,
-            predicted.y_m + dy,
-            predicted.yaw_rad + dyaw,
-        );
+        let pose = offset_pose(predicted, [dx, dy, dyaw]);
         let sum = rot.field_sum(field, limits, points_body, &pose, keep);
         (
             params.gain_per_unit * sum - prior_penalty(params, dx, dy, dyaw),
             sum,
         )
     };
-    let first = eval(dx, dy, dyaw, true);
-    // Refinement: pattern search with step halving on the interpolated field.
-    let ([dx, dy, dyaw], (obj, sum)) = pattern_search(
-        [dx, dy, dyaw],
-        first,
-        steps[0],
-        steps[1],
-        levels,
-        64,
-        |at, same_yaw| eval(at[0], at[1], at[2], same_yaw),
-    );
+    let ([dx, dy, dyaw], (obj, sum)) = if params.refine_method == RefineMethod::GaussNewton {
+        let (at, obj, sum) = if levels == 0 {
+            let (obj, sum) = eval(dx, dy, dyaw, true);
+            (start, obj, sum)
+        } else {
+            gauss_newton(
+                field,
+                limits,
+                points_body,
+                predicted,
+                params,
+                &mut rot,
+                start,
+                steps.map(|s| 2.0 * s),
+            )
+        };
+        (at, (obj, sum))
+    } else {
+        let first = eval(dx, dy, dyaw, true);
+        // Refinement: pattern search with step halving on the interpolated field.
+        pattern_search(
+            [dx, dy, dyaw],
+            first,
+            steps[0],
+            steps[1],
+            levels,
+            64,
+            |at, same_yaw| eval(at[0], at[1], at[2], same_yaw),
+        )
+    };
     rot.give_back(&mut scratch.rotated);
     MatchResult {
-        pose: Pose2::new(
-            predicted.x_m + dx,
-            predicted.y_m + dy,
-            predicted.yaw_rad + dyaw,
-        ),
+        pose: offset_pose(predicted, [dx, dy, dyaw]),
         objective: obj,
         fit: sum / (255.0 * n),
     }
+}
+
+/// `predicted` moved by the offset `d` (x m, y m, yaw rad), as every refinement forms it.
+fn offset_pose(predicted: &Pose2, d: [f64; 3]) -> Pose2 {
+    Pose2::new(
+        predicted.x_m + d[0],
+        predicted.y_m + d[1],
+        predicted.yaw_rad + d[2],
+    )
+}
+
+/// Passes over the points of [`gauss_newton`] (the start's included).
+const GN_PASSES: u32 = 4;
+
+/// The field term at `pose`: the sum of bilinear field values of the points (the same
+/// operations per point, in the same order, as [`Rotation::sum`], so the same bits), its
+/// gradient with respect to (x m, y m, yaw rad) of the pose, and the sum of the outer
+/// products of the per-point gradients (upper triangle: xx, xy, xt, yy, yt, tt).
+fn field_terms(
+    field: &LikelihoodField,
+    limits: &MapLimits,
+    points_body: &[[f64; 2]],
+    pose: &Pose2,
+    inv_res: f64,
+) -> (f64, [f64; 3], [f64; 6]) {
+    const LIM: f64 = 1e9;
+    let (s, c) = pose.yaw_rad.sin_cos();
+    let mut sum = -0.0;
+    let mut grad = [0.0; 3];
+    let mut outer = [0.0; 6];
+    for p in points_body {
+        let (r0, r1, r2, r3) = (c * p[0], s * p[1], s * p[0], c * p[1]);
+        let (u, v) = limits.cell_coords(pose.x_m + r0 - r1, pose.y_m + r2 + r3);
+        let (x, y) = (u - 0.5, v - 0.5);
+        if !(x.abs() < LIM && y.abs() < LIM) {
+            sum += field.bilinear_reference(u, v);
+            continue;
+        }
+        let (i, j) = (floor_to_i32(x), floor_to_i32(y));
+        let (ax, ay) = (x - f64::from(i), y - f64::from(j));
+        let [f00, f10, f01, f11] = field.corners(i, j);
+        let bottom = f00 * (1.0 - ax) + f10 * ax;
+        let top = f01 * (1.0 - ax) + f11 * ax;
+        let value = bottom * (1.0 - ay) + top * ay;
+        sum += value;
+        // The bilinear's partial derivatives (per cell), chained through the rotation:
+        // d(world x)/d yaw = -(s px + c py), d(world y)/d yaw = c px - s py.
+        let gx = ((1.0 - ay) * (f10 - f00) + ay * (f11 - f01)) * inv_res;
+        let gy = ((1.0 - ax) * (f01 - f00) + ax * (f11 - f10)) * inv_res;
+        let gt = gy * (r0 - r1) - gx * (r2 + r3);
+        grad[0] += gx;
+        grad[1] += gy;
+        grad[2] += gt;
+        // Curvature weight 1 / (255 - f): where the interpolated field is a tent (a wall
+        // cell's neighbourhood) the step `g / (g^2 w)` reaches its ridge in one go (the
+        // outer product alone vanishes on a wall); near a smooth Gaussian ridge, half way.
+        let wk = 1.0 / (256.0 - value);
+        let (wx, wy, wt) = (wk * gx, wk * gy, wk * gt);
+        outer[0] += wx * gx;
+        outer[1] += wx * gy;
+        outer[2] += wx * gt;
+        outer[3] += wy * gy;
+        outer[4] += wy * gt;
+        outer[5] += wt * gt;
+    }
+    (sum, grad, outer)
+}
+
+/// Solves the symmetric 3x3 system `h x = b` (upper triangle of `h` as in [`field_terms`])
+/// by Cramer's rule; `None` when singular or not finite.
+fn solve_sym3(h: &[f64; 6], b: &[f64; 3]) -> Option<[f64; 3]> {
+    let [a, d, e, bb, f, cc] = *h;
+    // Cofactors of [[a d e] [d bb f] [e f cc]].
+    let c00 = bb * cc - f * f;
+    let c01 = e * f - d * cc;
+    let c02 = d * f - bb * e;
+    let c11 = a * cc - e * e;
+    let c12 = d * e - a * f;
+    let c22 = a * bb - d * d;
+    let det = a * c00 + d * c01 + e * c02;
+    if !(det.is_finite() && det > 0.0) {
+        return None;
+    }
+    let x = [
+        (c00 * b[0] + c01 * b[1] + c02 * b[2]) / det,
+        (c01 * b[0] + c11 * b[1] + c12 * b[2]) / det,
+        (c02 * b[0] + c12 * b[1] + c22 * b[2]) / det,
+    ];
+    x.iter().all(|v| v.is_finite()).then_some(x)
+}
+
+/// The Gauss-Newton refinement (`refine_method = "gauss_newton"`): from the offset `start`,
+/// Levenberg-Marquardt steps on the objective `gain * sum_k f(T p_k) - prior`. The
+/// gradient is exact (the bilinear's); the curvature is approximated Hector-SLAM style by
+/// `gain / 255 * sum_k g_k g_k^T` (for a Gaussian field the outer products at one sigma
+/// from a wall equal the curvature on it) plus the prior's precision. A step is clamped to
+/// `max_step` (x/y m, yaw rad) and kept only when the exact objective improves; otherwise
+/// the damping grows. At most [`GN_PASSES`] passes over the points (the last candidate is
+/// only evaluated). Returns the offset, its objective and its field sum; the objective is
+/// never below the start's.
+#[allow(clippy::too_many_arguments)]
+fn gauss_newton(
+    field: &LikelihoodField,
+    limits: &MapLimits,
+    points_body: &[[f64; 2]],
+    predicted: &Pose2,
+    params: &MatchParams,
+    rot: &mut RotatedPoints,
+    start: [f64; 3],
+    max_step: [f64; 2],
+) -> ([f64; 3], f64, f64) {
+    let g = params.gain_per_unit;
+    let w = [params.inv_var_xy, params.inv_var_xy, params.inv_var_yaw];
+    let inv_res = 1.0 / params.resolution_m;
+    let objective = |d: [f64; 3], sum: f64| g * sum - prior_penalty(params, d[0], d[1], d[2]);
+    let mut at = start;
+    let (mut sum, mut grad, mut outer) = field_terms(
+        field,
+        limits,
+        points_body,
+        &offset_pose(predicted, at),
+        inv_res,
+    );
+    let mut obj = objective(at, sum);
+    let mut lambda = 0.0;
+    for pass in 1..GN_PASSES {
+        let b = [
+            g * grad[0] - w[0] * at[0],
+            g * grad[1] - w[1] * at[1],
+            g * grad[2] - w[2] * at[2],
+        ];
+        let mut h = outer.map(|o| g * o);
+        for (idx, wi) in [(0, w[0]), (3, w[1]), (5, w[2])] {
+            h[idx] = (h[idx] + wi) * (1.0 + lambda);
+        }
+        let Some(mut step) = solve_sym3(&h, &b) else {
+            break;
+        };
+        let over = (step[0].abs() / max_step[0])
+            .max(step[1].abs() / max_step[0])
+            .max(step[2].abs() / max_step[1]);
+        if over > 1.0 {
+            step = step.map(|v| v / over);
+        }
+        // Converged (far below the pattern search's finest step): stop. Not much coarser:
+        // the odometry's scale error is corrected by sub-mm moves per update.
+        if step[0].abs().max(step[1].abs()) < max_step[0] * 1e-3
+            && step[2].abs() < max_step[1] * 1e-3
+        {
+            break;
+        }
+        let cand = [at[0] + step[0], at[1] + step[1], at[2] + step[2]];
+        let pose = offset_pose(predicted, cand);
+        let improved = if pass + 1 == GN_PASSES {
+            let cand_sum = rot.field_sum(field, limits, points_body, &pose, true);
+            let cand_obj = objective(cand, cand_sum);
+            (cand_obj > obj).then(|| {
+                (at, sum, obj) = (cand, cand_sum, cand_obj);
+            })
+        } else {
+            let terms = field_terms(field, limits, points_body, &pose, inv_res);
+            let cand_obj = objective(cand, terms.0);
+            (cand_obj > obj).then(|| {
+                (at, obj) = (cand, cand_obj);
+                (sum, grad, outer) = terms;
+            })
+        };
+        lambda = match improved {
+            Some(()) => lambda * 0.25,
+            None if lambda == 0.0 => 1.0,
+            None => lambda * 4.0,
+        };
+    }
+    (at, obj, sum)
 }
 
 /// Which particles shared matching searches in full: `anchor_of[i] == i` for an anchor, else
@@ -1651,6 +1858,79 @@ mod tests {
             );
             assert!(m.pose.yaw_rad.abs() < 0.15f64.to_radians(), "{m:?}");
             assert!(m.fit > 0.8, "{m:?}");
+        }
+    }
+
+    #[test]
+    fn refine_method_parses_and_defaults_to_the_pattern_search() {
+        assert_eq!(
+            ScanMatchOptions::default().refine_method,
+            RefineMethod::Pattern
+        );
+        let o: ScanMatchOptions = toml::from_str("refine_method = \"gauss_newton\"").unwrap();
+        assert_eq!(o.refine_method, RefineMethod::GaussNewton);
+        assert_eq!(o.params(0.1).refine_method, RefineMethod::GaussNewton);
+        assert!(toml::from_str::<ScanMatchOptions>("refine_method = \"newton\"").is_err());
+    }
+
+    #[test]
+    fn gauss_newton_recovers_sub_cell_offsets_as_well_as_the_pattern_search() {
+        let (field, pts) = room_field(0.0);
+        for wide_prior in [true, false] {
+            let base = if wide_prior {
+                ScanMatchOptions {
+                    prior_sigma_xy_m: 10.0,
+                    prior_sigma_yaw_deg: 50.0,
+                    ..ScanMatchOptions::default()
+                }
+            } else {
+                ScanMatchOptions::default()
+            };
+            let with = |refine_method, refine_levels| {
+                ScanMatchOptions {
+                    refine_method,
+                    refine_levels,
+                    ..base.clone()
+                }
+                .params(0.1)
+            };
+            let pattern = with(RefineMethod::Pattern, 3);
+            let gn = with(RefineMethod::GaussNewton, 3);
+            let coarse = with(RefineMethod::Pattern, 0);
+            let mut ms = MatchScratch::default();
+            let (mut err_p, mut err_g, mut gain_p, mut gain_g) = (0.0, 0.0, 0.0, 0.0);
+            for k in 0..40 {
+                let kf = f64::from(k);
+                let (dx, dy) = (
+                    (kf * 0.618).fract() * 0.2 - 0.1,
+                    (kf * 0.381).fract() * 0.2 - 0.1,
+                );
+                let dyaw = ((kf * 0.271).fract() - 0.5).to_radians();
+                let predicted = Pose2::new(dx, dy, dyaw);
+                let p = match_scan(&field, &pts, &predicted, &pattern, &mut ms);
+                let g = match_scan(&field, &pts, &predicted, &gn, &mut ms);
+                let c = match_scan(&field, &pts, &predicted, &coarse, &mut ms);
+                // The same coarse search, then only improvements: never below its optimum.
+                assert!(g.objective >= c.objective, "{g:?} {c:?}");
+                // The objective reported is the exact one at the pose returned.
+                let mut rot = RotatedPoints::take(&mut ms.rotated);
+                let limits = field.limits.unwrap();
+                let sum = rot.field_sum(&field, &limits, &pts, &g.pose, true);
+                rot.give_back(&mut ms.rotated);
+                assert_eq!(g.fit, sum / (255.0 * pts.len() as f64));
+                err_p += p.pose.translation_norm_m().powi(2) / 40.0;
+                err_g += g.pose.translation_norm_m().powi(2) / 40.0;
+                gain_p += (p.objective - c.objective) / 40.0;
+                gain_g += (g.objective - c.objective) / 40.0;
+            }
+            let (rms_p, rms_g) = (err_p.sqrt(), err_g.sqrt());
+            eprintln!("wide {wide_prior}: rms pattern {rms_p} gn {rms_g}, gain {gain_p} {gain_g}");
+            if wide_prior {
+                // The truth is the optimum: both land within a fraction of a cell of it.
+                assert!(rms_g < 0.015 && rms_g < 1.25 * rms_p, "{rms_g} vs {rms_p}");
+            }
+            // Most of the pattern search's improvement over the coarse optimum.
+            assert!(gain_g > 0.8 * gain_p, "{gain_g} vs {gain_p}");
         }
     }
 
