@@ -565,6 +565,17 @@ pub struct MatchResult {
     pub fit: f64,
 }
 
+impl MatchResult {
+    /// The result without a field to match against: the pose as given, nothing gained.
+    fn unmatched(pose: Pose2) -> Self {
+        MatchResult {
+            pose,
+            objective: 0.0,
+            fit: 0.0,
+        }
+    }
+}
+
 fn prior_penalty(p: &MatchParams, dx: f64, dy: f64, dyaw: f64) -> f64 {
     0.5 * ((dx * dx + dy * dy) * p.inv_var_xy + dyaw * dyaw * p.inv_var_yaw)
 }
@@ -1177,11 +1188,7 @@ pub fn match_scan(
     scratch: &mut MatchScratch,
 ) -> MatchResult {
     let Some(limits) = field.limits else {
-        return MatchResult {
-            pose: *predicted,
-            objective: 0.0,
-            fit: 0.0,
-        };
+        return MatchResult::unmatched(*predicted);
     };
     let res = params.resolution_m;
     let r = params.xy_radius_cells.max(0);
@@ -1628,11 +1635,7 @@ pub fn member_match(
     params: &MatchParams,
 ) -> MatchResult {
     let Some(limits) = field.limits else {
-        return MatchResult {
-            pose: *member,
-            objective: 0.0,
-            fit: 0.0,
-        };
+        return MatchResult::unmatched(*member);
     };
     let n = points_body.len().max(1) as f64;
     let off = offset;
@@ -1662,11 +1665,7 @@ pub fn member_refined(
     scratch: &mut MatchScratch,
 ) -> MatchResult {
     let Some(limits) = field.limits else {
-        return MatchResult {
-            pose: *member,
-            objective: 0.0,
-            fit: 0.0,
-        };
+        return MatchResult::unmatched(*member);
     };
     let levels = params.share_refine_levels.min(params.refine_levels);
     let halvings = params.refine_levels - levels;
@@ -1725,11 +1724,7 @@ pub fn match_particles(
         &mut share.order,
         &mut share.anchor_of,
     );
-    let unmatched = MatchResult {
-        pose: Pose2::IDENTITY,
-        objective: 0.0,
-        fit: 0.0,
-    };
+    let unmatched = MatchResult::unmatched(Pose2::IDENTITY);
     share.anchors.clear();
     share.anchors.extend(
         (0..predicted.len())
