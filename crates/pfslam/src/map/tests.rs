@@ -383,7 +383,7 @@ fn map_with_poses_sequential(
         ScanProjector::new(&recording.lidar, &recording.body_from_lidar, &opts.scan).unwrap();
     let mut ins = ScanInserter::new(projector);
     let mut stats = MappingStats::default();
-    for k in (0..recording.scans.len()).step_by(opts.scan_step) {
+    for k in scans_to_map(recording, poses, opts) {
         let Some(pose) = poses.pose_at(recording.scans.stamps_ns[k]) else {
             stats.scans_without_pose += 1;
             continue;
@@ -469,10 +469,15 @@ fn batched_parallel_mapping_equals_sequential_insertion_for_any_thread_count() {
         scan_step: 3,
         ..MapOptions::default()
     };
+    let thinned = MapOptions {
+        min_scan_travel_m: 0.15,
+        ..MapOptions::default()
+    };
     let cases = [
         ("heights", &car, MapOptions::default()),
         ("flat", &car, flat),
         ("margin, step 3", &car, margin),
+        ("motion filter", &car, thinned),
         ("moving mount", &nodding, MapOptions::default()),
     ];
     for (name, rec, opts) in cases {
@@ -489,6 +494,63 @@ fn batched_parallel_mapping_equals_sequential_insertion_for_any_thread_count() {
             assert_eq!(stats, want_stats, "{what}");
             assert_eq!(last, want_last, "{what}");
             assert_same_grid(&got, &want, &what);
+        }
+    }
+}
+
+#[test]
+fn motion_filter_keeps_scans_spaced_by_travel_or_turn() {
+    use crate::sim::{SimOptions, World, simulate_car};
+    let sim_opts = SimOptions {
+        duration_s: 20.0,
+        ..SimOptions::noise_free()
+    };
+    let world = World::builtin(sim_opts.world_name()).unwrap();
+    let out = simulate_car(&world, &sim_opts).unwrap();
+    let car = out
+        .recording(&crate::motion::MotionOptions::default())
+        .unwrap();
+    let poses = Trajectory::new(out.ground_truth.clone());
+    let n = car.scans.len();
+    let every = MapOptions::default();
+    assert_eq!(
+        scans_to_map(&car, &poses, &every),
+        (0..n).collect::<Vec<_>>()
+    );
+    let step = MapOptions {
+        scan_step: 3,
+        ..MapOptions::default()
+    };
+    assert_eq!(
+        scans_to_map(&car, &poses, &step),
+        (0..n).step_by(3).collect::<Vec<_>>()
+    );
+    for (travel_m, turn_deg) in [(0.1, 1.0), (0.3, 0.0), (0.3, 2.0)] {
+        let opts = MapOptions {
+            min_scan_travel_m: travel_m,
+            min_scan_turn_deg: turn_deg,
+            ..MapOptions::default()
+        };
+        let kept = scans_to_map(&car, &poses, &opts);
+        assert!(
+            kept.len() > 10 && kept.len() < n / 2,
+            "{travel_m}: {}",
+            kept.len()
+        );
+        assert_eq!(kept[0], 0);
+        let pose = |k: usize| poses.pose_at(car.scans.stamps_ns[k]).unwrap();
+        let passes = |from: usize, to: usize| {
+            let d = pose(from).between(&pose(to));
+            d.translation_norm_m() >= travel_m
+                || (turn_deg > 0.0 && d.yaw_rad.abs() >= turn_deg.to_radians())
+        };
+        // Every kept scan passes the filter against the previous kept one, and every
+        // dropped scan fails it against the last kept one before it.
+        for w in kept.windows(2) {
+            assert!(passes(w[0], w[1]), "{travel_m}: scan {}", w[1]);
+            for k in w[0] + 1..w[1] {
+                assert!(!passes(w[0], k), "{travel_m}: scan {k} dropped");
+            }
         }
     }
 }
