@@ -669,10 +669,20 @@ pub fn optimize_trajectory_look_ahead(
                     if tried.is_empty() {
                         (tried, Vec::new())
                     } else {
-                        let (mut jobs, poses_ahead) = if !seq_matching && look_ahead > 1 {
-                            look_ahead_jobs(&keyframes, &graph.poses, k, pose, look_ahead, opts)
+                        // The look-ahead's predicted poses go onto the graph's (removed
+                        // after the batch): no copy of the whole path per batch.
+                        let mut jobs = if !seq_matching && look_ahead > 1 {
+                            // No periodic optimisation before `last_opt + every`: up to
+                            // there the look-ahead cannot be overtaken by one.
+                            let bound = last_opt + opts.optimize_every_keyframes;
+                            let (searches, last) = if k < bound {
+                                (look_ahead, bound)
+                            } else {
+                                (look_ahead.min(LOOK_AHEAD_UNBOUNDED), usize::MAX)
+                            };
+                            look_ahead_jobs(&keyframes, &mut graph.poses, k, searches, last, opts)
                         } else {
-                            (Vec::new(), Vec::new())
+                            Vec::new()
                         };
                         jobs.insert(
                             0,
@@ -683,11 +693,7 @@ pub fn optimize_trajectory_look_ahead(
                                 verdicts: Vec::new(),
                             },
                         );
-                        let poses: &[Pose2] = if poses_ahead.is_empty() {
-                            &graph.poses
-                        } else {
-                            &poses_ahead
-                        };
+                        let poses: &[Pose2] = &graph.poses;
                         // All independent: verified in parallel, collected in order.
                         let pairs: Vec<(usize, usize)> = jobs
                             .iter()
@@ -706,6 +712,7 @@ pub fn optimize_trajectory_look_ahead(
                         for (&(a, _), v) in pairs.iter().zip(found) {
                             jobs[a].verdicts.push(v);
                         }
+                        graph.poses.truncate(k + 1);
                         let own = jobs.swap_remove(0).verdicts;
                         ahead = Some(LookAhead { generation, jobs });
                         (tried, own)
@@ -826,10 +833,15 @@ pub fn optimize_trajectory_look_ahead(
     })
 }
 
-/// Keyframes due for a loop search verified in one parallel batch: the loop-closure
-/// verifications of a keyframe with one candidate left a core idle in the serial parts
-/// (branch and bound, refinement).
-pub const LOOK_AHEAD_SEARCHES: usize = 4;
+/// Keyframes due for a loop search verified in one parallel batch, up to the next periodic
+/// optimisation: the loop-closure verifications of a keyframe with one candidate left a
+/// core idle in the serial parts (branch and bound, refinement), and a small batch leaves
+/// one idle at its end (the full-size car: 4 searches a batch, 900 batches; 16, 285).
+pub const LOOK_AHEAD_SEARCHES: usize = 16;
+
+/// ... but at most this many when an optimisation may come at any accepted closure (after
+/// `optimize_every_keyframes` without one): a look-ahead past it is discarded.
+const LOOK_AHEAD_UNBOUNDED: usize = 4;
 
 /// One keyframe's loop search verified ahead.
 struct AheadJob {
@@ -845,25 +857,25 @@ struct LookAhead {
     jobs: Vec<AheadJob>,
 }
 
-/// The loop searches of the keyframes after `k` (at `pose`, the graph at `poses`, keyframes
-/// `0..=k`) until `look_ahead - 1` of them have candidates, for a graph without sequential
-/// matching: each later keyframe's pose follows from the previous one by the front end's
-/// motion alone, composed exactly as `optimize_trajectory_look_ahead` does, so until the
-/// next optimisation these are the bits it will find. Returns the jobs (verdicts empty) and
-/// the poses extended to the last keyframe looked at.
+/// The loop searches of the keyframes after `k` (the graph's last pose, `poses` = keyframes
+/// `0..=k`) up to keyframe `last` until `look_ahead - 1` of them have candidates, for a
+/// graph without sequential matching: each later keyframe's pose follows from the previous
+/// one by the front end's motion alone, composed exactly as
+/// `optimize_trajectory_look_ahead` does, so until the next optimisation these are the bits
+/// it will find. Returns the jobs (verdicts empty); `poses` is extended to the last
+/// keyframe looked at.
 fn look_ahead_jobs(
     keyframes: &[Keyframe],
-    poses: &[Pose2],
+    poses: &mut Vec<Pose2>,
     k: usize,
-    pose: Pose2,
     look_ahead: usize,
+    last: usize,
     opts: &GraphOptions,
-) -> (Vec<AheadJob>, Vec<Pose2>) {
+) -> Vec<AheadJob> {
     let mut jobs = Vec::new();
-    let mut poses_ahead = poses.to_vec();
-    let mut p = pose;
+    let mut p = poses[k];
     let mut searches = 1;
-    for m in k + 1..keyframes.len() {
+    for m in k + 1..keyframes.len().min(last.saturating_add(1)) {
         if searches >= look_ahead {
             break;
         }
@@ -871,9 +883,9 @@ fn look_ahead_jobs(
             .front_pose
             .between(&keyframes[m].front_pose);
         p = p.compose(&rel);
-        poses_ahead.push(p);
+        poses.push(p);
         if m % opts.loop_every_keyframes == 0 && keyframes[m].points_body.len() >= opts.min_points {
-            let tried = loop_candidates(keyframes, &poses_ahead, m, &p, opts);
+            let tried = loop_candidates(keyframes, poses, m, &p, opts);
             searches += usize::from(!tried.is_empty());
             jobs.push(AheadJob {
                 k: m,
@@ -883,7 +895,7 @@ fn look_ahead_jobs(
             });
         }
     }
-    (jobs, poses_ahead)
+    jobs
 }
 
 /// The loop-closure candidates of keyframe `k` at `pose`: earlier keyframes (at `poses`)
@@ -897,11 +909,23 @@ fn loop_candidates(
     opts: &GraphOptions,
 ) -> Vec<usize> {
     let path_m = keyframes[k].path_m;
+    let radius = opts.loop_search_radius_m;
+    let near = pose.x_m.abs() + pose.y_m.abs() + radius + 1.0;
     let mut cands: Vec<(f64, usize)> = (0..k)
         .filter(|&j| path_m - keyframes[j].path_m >= opts.loop_min_path_m)
         .filter_map(|j| {
-            let d = poses[j].between(pose).translation_norm_m();
-            (d <= opts.loop_search_radius_m).then_some((d, j))
+            let q = &poses[j];
+            // The distance is `between`'s (its rounding decides ties and the radius), but
+            // only worth computing (a `sin_cos` and a `hypot`) near the radius: the plain
+            // difference differs from it by rounding alone (~1e-15 of the coordinates),
+            // far inside this margin. NaN never skips.
+            let (dx, dy) = (pose.x_m - q.x_m, pose.y_m - q.y_m);
+            let reach = radius + 1e-9 * (near + q.x_m.abs() + q.y_m.abs());
+            if dx * dx + dy * dy > reach * reach {
+                return None;
+            }
+            let d = q.between(pose).translation_norm_m();
+            (d <= radius).then_some((d, j))
         })
         .collect();
     cands.sort_by(|a, b| a.0.total_cmp(&b.0));

@@ -11,6 +11,11 @@
 
 use crate::geometry::{Pose2, wrap_angle};
 use nalgebra::{Matrix2, Matrix3, Vector2, Vector3};
+use rayon::prelude::*;
+
+/// Graphs with at least this many edges evaluate their cost's terms in parallel (summed in
+/// order, so the same bits); smaller ones are not worth the threads.
+const PARALLEL_COST_EDGES: usize = 4096;
 
 /// One constraint: `measurement` is node `to`'s pose in the frame of node `from`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -88,11 +93,16 @@ pub struct OptimizeReport {
     pub final_cost: f64,
 }
 
-/// Error, and Jacobians with respect to `x_i` and `x_j`, of one edge.
-fn linearise(xi: &Pose2, xj: &Pose2, z: &Pose2) -> (Vector3<f64>, Matrix3<f64>, Matrix3<f64>) {
+/// Error, and Jacobians with respect to `x_i` and `x_j`, of one edge; `rz` = `rot(z.yaw_rad)`
+/// (the same for every iteration: computed once per optimisation).
+fn linearise(
+    xi: &Pose2,
+    xj: &Pose2,
+    z: &Pose2,
+    rz: &Matrix2<f64>,
+) -> (Vector3<f64>, Matrix3<f64>, Matrix3<f64>) {
     let (s, c) = xi.yaw_rad.sin_cos();
     let ri = Matrix2::new(c, -s, s, c);
-    let rz = rot(z.yaw_rad);
     let dt = Vector2::new(xj.x_m - xi.x_m, xj.y_m - xi.y_m);
     let rzt_rit = rz.transpose() * ri.transpose();
     // The same expressions as `edge_error` (the same bits).
@@ -116,9 +126,8 @@ fn linearise(xi: &Pose2, xj: &Pose2, z: &Pose2) -> (Vector3<f64>, Matrix3<f64>, 
 }
 
 /// The error of [`linearise`] without the Jacobians (the cost's inner loop).
-fn edge_error(xi: &Pose2, xj: &Pose2, z: &Pose2) -> Vector3<f64> {
+fn edge_error(xi: &Pose2, xj: &Pose2, z: &Pose2, rz: &Matrix2<f64>) -> Vector3<f64> {
     let ri = rot(xi.yaw_rad);
-    let rz = rot(z.yaw_rad);
     let dt = Vector2::new(xj.x_m - xi.x_m, xj.y_m - xi.y_m);
     let et = rz.transpose() * (ri.transpose() * dt - Vector2::new(z.x_m, z.y_m));
     let eyaw = wrap_angle(xj.yaw_rad - xi.yaw_rad - z.yaw_rad);
@@ -145,21 +154,55 @@ impl PoseGraph {
     /// The squared whitened error `e^T Omega e` of edge `k`.
     pub fn edge_chi2(&self, k: usize) -> f64 {
         let e = &self.edges[k];
-        let err = edge_error(&self.poses[e.from], &self.poses[e.to], &e.measurement);
-        (err.transpose() * e.information * err)[(0, 0)]
+        self.chi2_of(e, &rot(e.measurement.yaw_rad))
+    }
+
+    /// `e^T Omega e` of `edge` (its measurement's rotation `rz`).
+    fn chi2_of(&self, edge: &Edge, rz: &Matrix2<f64>) -> f64 {
+        let err = edge_error(
+            &self.poses[edge.from],
+            &self.poses[edge.to],
+            &edge.measurement,
+            rz,
+        );
+        (err.transpose() * edge.information * err)[(0, 0)]
     }
 
     /// The robust cost of the whole graph.
     pub fn cost(&self) -> f64 {
-        (0..self.edges.len())
-            .map(|k| robust(self.edge_chi2(k), self.edges[k].robust_width).0)
-            .sum()
+        self.cost_with(&self.measurement_rotations())
+    }
+
+    /// Each edge's `rot(measurement.yaw_rad)`.
+    fn measurement_rotations(&self) -> Vec<Matrix2<f64>> {
+        self.edges
+            .iter()
+            .map(|e| rot(e.measurement.yaw_rad))
+            .collect()
+    }
+
+    /// [`Self::cost`] with the measurements' rotations given: the terms in parallel on a
+    /// large graph, summed in edge order as the serial sum does (the same bits).
+    fn cost_with(&self, rz: &[Matrix2<f64>]) -> f64 {
+        let term = |(e, r): (&Edge, &Matrix2<f64>)| robust(self.chi2_of(e, r), e.robust_width).0;
+        if self.edges.len() < PARALLEL_COST_EDGES {
+            return self.edges.iter().zip(rz).map(term).sum();
+        }
+        let terms: Vec<f64> = self
+            .edges
+            .par_iter()
+            .zip(rz)
+            .with_min_len(PARALLEL_COST_EDGES / 4)
+            .map(term)
+            .collect();
+        terms.into_iter().sum()
     }
 
     /// Levenberg-Marquardt with node 0 fixed. Edges naming a node beyond `poses` are ignored.
     pub fn optimize(&mut self, opts: &OptimizeOptions) -> OptimizeReport {
         let n = self.poses.len();
-        let initial_cost = self.cost();
+        let rz = self.measurement_rotations();
+        let initial_cost = self.cost_with(&rz);
         let mut report = OptimizeReport {
             iterations: 0,
             initial_cost,
@@ -180,7 +223,12 @@ impl PoseGraph {
                 if e.from >= n || e.to >= n {
                     continue;
                 }
-                let (err, a, b) = linearise(&self.poses[e.from], &self.poses[e.to], &e.measurement);
+                let (err, a, b) = linearise(
+                    &self.poses[e.from],
+                    &self.poses[e.to],
+                    &e.measurement,
+                    &rz[k],
+                );
                 let chi2 = (err.transpose() * e.information * err)[(0, 0)];
                 let w = robust(chi2, e.robust_width).1;
                 let omega = e.information * w;
@@ -203,7 +251,7 @@ impl PoseGraph {
                     let p = &mut self.poses[node];
                     *p = Pose2::new(p.x_m + dx, p.y_m + dy, p.yaw_rad + dyaw);
                 }
-                let new_cost = self.cost();
+                let new_cost = self.cost_with(&rz);
                 if new_cost < cost {
                     let rel = (cost - new_cost) / cost.max(1e-300);
                     cost = new_cost;
@@ -783,7 +831,7 @@ mod tests {
         let xi = Pose2::new(1.0, -2.0, 0.7);
         let xj = Pose2::new(2.5, 0.3, -2.9);
         let z = Pose2::new(0.4, 1.1, 0.2);
-        let (e0, a, b) = linearise(&xi, &xj, &z);
+        let (e0, a, b) = linearise(&xi, &xj, &z, &rot(z.yaw_rad));
         // The cost's error is the linearisation's, bit for bit.
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(3);
         let mut pose = || {
@@ -795,7 +843,8 @@ mod tests {
         };
         for _ in 0..2000 {
             let (p, q, r) = (pose(), pose(), pose());
-            let (fast, slow) = (edge_error(&p, &q, &r), linearise(&p, &q, &r).0);
+            let rr = rot(r.yaw_rad);
+            let (fast, slow) = (edge_error(&p, &q, &r, &rr), linearise(&p, &q, &r, &rr).0);
             for k in 0..3 {
                 assert_eq!(fast[k].to_bits(), slow[k].to_bits());
             }
@@ -807,8 +856,8 @@ mod tests {
                 v[k] += h;
                 Pose2::new(v[0], v[1], v[2])
             };
-            let (ei, _, _) = linearise(&bump(&xi), &xj, &z);
-            let (ej, _, _) = linearise(&xi, &bump(&xj), &z);
+            let (ei, _, _) = linearise(&bump(&xi), &xj, &z, &rot(z.yaw_rad));
+            let (ej, _, _) = linearise(&xi, &bump(&xj), &z, &rot(z.yaw_rad));
             for r in 0..3 {
                 assert!(((ei[r] - e0[r]) / h - a[(r, k)]).abs() < 1e-4, "A {r} {k}");
                 assert!(((ej[r] - e0[r]) / h - b[(r, k)]).abs() < 1e-4, "B {r} {k}");
@@ -1003,8 +1052,31 @@ mod tests {
     }
 
     #[test]
+    fn parallel_cost_is_the_serial_sum() {
+        // 5,000 nodes, 6,250 edges: the parallel branch; 400 nodes: the serial one.
+        for graph in [lapped_graph(1000, 5), lapped_graph(100, 4)] {
+            let serial: f64 = (0..graph.edges.len())
+                .map(|k| robust(graph.edge_chi2(k), graph.edges[k].robust_width).0)
+                .sum();
+            for threads in [1, 2, 3] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .expect("pool");
+                assert_eq!(pool.install(|| graph.cost()).to_bits(), serial.to_bits());
+            }
+            assert!(serial > 1.0);
+        }
+    }
+
+    #[test]
     fn optimisation_has_the_same_bits_on_any_thread_count() {
-        let graph = lapped_graph(100, 4);
+        for graph in [lapped_graph(100, 4), lapped_graph(1000, 5)] {
+            same_bits_on_any_thread_count(&graph);
+        }
+    }
+
+    fn same_bits_on_any_thread_count(graph: &PoseGraph) {
         let run = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
