@@ -548,8 +548,8 @@ impl LikelihoodField {
 #[derive(Debug, Clone, Default)]
 pub struct MatchScratch {
     base: Vec<usize>,
-    /// Refinement: the points rotated by the current yaw and by a one-off yaw.
-    rotated: (Rotation, Rotation),
+    /// Refinement: the points rotated by the current yaw and by one-off yaws.
+    rotated: RotationBuffers,
     /// Coarse search: field sums per x/y offset for one yaw.
     sums: Vec<u32>,
 }
@@ -607,22 +607,68 @@ impl Rotation {
         }));
     }
 
-    /// Sum of bilinear field values of the points seen from `(x_m, y_m)`: per point
-    /// `pose.x_m + c * p[0] - s * p[1]` evaluated left to right as written, then
-    /// `cell_coords` and `bilinear`; summed left to right from -0.0 (as `Iterator::sum`).
-    fn sum(&self, field: &LikelihoodField, limits: &MapLimits, x_m: f64, y_m: f64) -> f64 {
+    /// Sums of bilinear field values of the points seen from `at[k]` (x m, y m) with the
+    /// rotation `rots[k]`, `K` candidates in one pass over the points: per point
+    /// `x_m + c * p[0] - s * p[1]` evaluated left to right as written, then `cell_coords`
+    /// and `bilinear`; summed left to right from -0.0 (as `Iterator::sum`). Each candidate
+    /// has its own accumulator and adds its own values in its own order, so each result is
+    /// the bits of the candidate summed alone (`K = 1`); one chain of dependent additions
+    /// is latency-bound, several independent ones fill the pipeline. The rotations hold the
+    /// same points (of different yaws, or one rotation repeated).
+    fn sums<const K: usize>(
+        rots: [&Rotation; K],
+        at: [[f64; 2]; K],
+        field: &LikelihoodField,
+        limits: &MapLimits,
+    ) -> [f64; K] {
         #[cfg(target_arch = "x86_64")]
         if field.vector_ok() && std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: AVX2 is present (checked above).
-            return unsafe { self.sum_avx2(field, limits, x_m, y_m) };
+            return unsafe { Rotation::sums_avx2(rots, at, field, limits) };
         }
-        self.sum_portable(field, limits, x_m, y_m)
+        Rotation::sums_portable(rots, at, field, limits)
     }
 
+    /// Whole blocks every rotation of a batch has (all the same: they rotate the same
+    /// points; the minimum keeps a mismatch from indexing out of bounds).
+    fn common_blocks(rots: &[&Rotation]) -> usize {
+        debug_assert!(rots.iter().all(|r| {
+            r.blocks.len() == rots[0].blocks.len() && r.tail.len() == rots[0].tail.len()
+        }));
+        rots.iter().map(|r| r.blocks.len()).min().unwrap_or(0)
+    }
+
+    fn sums_portable<const K: usize>(
+        rots: [&Rotation; K],
+        at: [[f64; 2]; K],
+        field: &LikelihoodField,
+        limits: &MapLimits,
+    ) -> [f64; K] {
+        let mut sums = [-0.0; K];
+        for b in 0..Rotation::common_blocks(&rots) {
+            for k in 0..K {
+                let [r0, r1, r2, r3] = &rots[k].blocks[b];
+                let [x_m, y_m] = at[k];
+                // Per lane the same operations in the same order as `sum_tail`.
+                let mut u = [0.0; LANES];
+                let mut v = [0.0; LANES];
+                for l in 0..LANES {
+                    (u[l], v[l]) = limits.cell_coords(x_m + r0[l] - r1[l], y_m + r2[l] + r3[l]);
+                }
+                for value in field.bilinear_lanes(&u, &v) {
+                    sums[k] += value;
+                }
+            }
+        }
+        std::array::from_fn(|k| rots[k].sum_tail(field, limits, at[k][0], at[k][1], sums[k]))
+    }
+
+    /// The single-candidate portable sum as first written (before the batched kernels):
+    /// the reference the batched ones must equal.
+    #[cfg(test)]
     fn sum_portable(&self, field: &LikelihoodField, limits: &MapLimits, x_m: f64, y_m: f64) -> f64 {
         let mut sum = -0.0;
         for [r0, r1, r2, r3] in &self.blocks {
-            // Per lane the same operations in the same order as the tail below.
             let mut u = [0.0; LANES];
             let mut v = [0.0; LANES];
             for k in 0..LANES {
@@ -633,6 +679,21 @@ impl Rotation {
             }
         }
         self.sum_tail(field, limits, x_m, y_m, sum)
+    }
+
+    /// The AVX2 kernel for one candidate.
+    #[cfg(all(test, target_arch = "x86_64"))]
+    #[target_feature(enable = "avx2")]
+    unsafe fn sum_avx2(
+        &self,
+        field: &LikelihoodField,
+        limits: &MapLimits,
+        x_m: f64,
+        y_m: f64,
+    ) -> f64 {
+        // SAFETY: the caller guarantees AVX2.
+        let [sum] = unsafe { Rotation::sums_avx2([self], [[x_m, y_m]], field, limits) };
+        sum
     }
 
     fn sum_tail(
@@ -650,23 +711,21 @@ impl Rotation {
         sum
     }
 
-    /// [`Self::sum_portable`] in AVX2: the same IEEE operations per lane (no FMA: Rust never
-    /// contracts), so the same bits; the four corner bytes of a point come from two 32-bit
-    /// gathers (the field keeps spare bytes after its last cell for the over-read).
+    /// [`Self::sums_portable`] in AVX2: the same IEEE operations per lane (no FMA: Rust
+    /// never contracts), so the same bits; the four corner bytes of a point come from two
+    /// 32-bit gathers (the field keeps spare bytes after its last cell for the over-read).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn sum_avx2(
-        &self,
+    unsafe fn sums_avx2<const K: usize>(
+        rots: [&Rotation; K],
+        at: [[f64; 2]; K],
         field: &LikelihoodField,
         limits: &MapLimits,
-        x_m: f64,
-        y_m: f64,
-    ) -> f64 {
+    ) -> [f64; K] {
         use std::arch::x86_64::*;
         let (ox, oy) = (limits.origin_x_m(), limits.origin_y_m());
         // The same division `MapLimits::new` caches for `cell_coords`: the same bits.
         let inv = 1.0 / limits.resolution_m();
-        let (vx, vy) = (_mm256_set1_pd(x_m), _mm256_set1_pd(y_m));
         let (vox, voy, vinv) = (_mm256_set1_pd(ox), _mm256_set1_pd(oy), _mm256_set1_pd(inv));
         let half = _mm256_set1_pd(0.5);
         let one = _mm256_set1_pd(1.0);
@@ -683,123 +742,170 @@ impl Rotation {
         let minus1 = _mm_set1_epi32(-1);
         let byte = _mm_set1_epi32(0xff);
         let base = field.values.as_ptr();
-        let mut sum = -0.0;
-        for [r0, r1, r2, r3] in &self.blocks {
-            // SAFETY: unaligned loads of whole `[f64; 4]` arrays.
-            let (r0, r1, r2, r3) = unsafe {
-                (
-                    _mm256_loadu_pd(r0.as_ptr()),
-                    _mm256_loadu_pd(r1.as_ptr()),
-                    _mm256_loadu_pd(r2.as_ptr()),
-                    _mm256_loadu_pd(r3.as_ptr()),
-                )
-            };
-            let wx = _mm256_sub_pd(_mm256_add_pd(vx, r0), r1);
-            let wy = _mm256_add_pd(_mm256_add_pd(vy, r2), r3);
-            let u = _mm256_mul_pd(_mm256_sub_pd(wx, vox), vinv);
-            let v = _mm256_mul_pd(_mm256_sub_pd(wy, voy), vinv);
-            let x = _mm256_sub_pd(u, half);
-            let y = _mm256_sub_pd(v, half);
-            let ok = _mm256_and_pd(
-                _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, x), lim),
-                _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, y), lim),
-            );
-            let out = if _mm256_movemask_pd(ok) != 0xf {
-                // A lane beyond the fast path's range (or NaN): the scalar path per lane.
-                let mut ua = [0.0; LANES];
-                let mut va = [0.0; LANES];
-                // SAFETY: stores into local arrays.
-                unsafe {
-                    _mm256_storeu_pd(ua.as_mut_ptr(), u);
-                    _mm256_storeu_pd(va.as_mut_ptr(), v);
-                }
-                std::array::from_fn(|k| field.bilinear(ua[k], va[k]))
-            } else {
-                // floor_to_i32: truncate, minus one where the truncation lies above.
-                let tx = _mm256_cvtepi32_pd(_mm256_cvttpd_epi32(x));
-                let ty = _mm256_cvtepi32_pd(_mm256_cvttpd_epi32(y));
-                let fx = _mm256_sub_pd(tx, _mm256_and_pd(_mm256_cmp_pd::<_CMP_GT_OQ>(tx, x), one));
-                let fy = _mm256_sub_pd(ty, _mm256_and_pd(_mm256_cmp_pd::<_CMP_GT_OQ>(ty, y), one));
-                let ax = _mm256_sub_pd(x, fx);
-                let ay = _mm256_sub_pd(y, fy);
-                let (i, j) = (_mm256_cvttpd_epi32(fx), _mm256_cvttpd_epi32(fy));
-                let (li, lj) = (_mm_sub_epi32(i, i0), _mm_sub_epi32(j, j0));
-                let inside = _mm_and_si128(
-                    _mm_and_si128(_mm_cmpgt_epi32(li, minus1), _mm_cmpgt_epi32(wm1, li)),
-                    _mm_and_si128(_mm_cmpgt_epi32(lj, minus1), _mm_cmpgt_epi32(hm1, lj)),
+        let vx: [__m256d; K] = std::array::from_fn(|k| _mm256_set1_pd(at[k][0]));
+        let vy: [__m256d; K] = std::array::from_fn(|k| _mm256_set1_pd(at[k][1]));
+        let mut sums = [-0.0; K];
+        for b in 0..Rotation::common_blocks(&rots) {
+            for k in 0..K {
+                let [r0, r1, r2, r3] = &rots[k].blocks[b];
+                // SAFETY: unaligned loads of whole `[f64; 4]` arrays.
+                let (r0, r1, r2, r3) = unsafe {
+                    (
+                        _mm256_loadu_pd(r0.as_ptr()),
+                        _mm256_loadu_pd(r1.as_ptr()),
+                        _mm256_loadu_pd(r2.as_ptr()),
+                        _mm256_loadu_pd(r3.as_ptr()),
+                    )
+                };
+                let wx = _mm256_sub_pd(_mm256_add_pd(vx[k], r0), r1);
+                let wy = _mm256_add_pd(_mm256_add_pd(vy[k], r2), r3);
+                let u = _mm256_mul_pd(_mm256_sub_pd(wx, vox), vinv);
+                let v = _mm256_mul_pd(_mm256_sub_pd(wy, voy), vinv);
+                let x = _mm256_sub_pd(u, half);
+                let y = _mm256_sub_pd(v, half);
+                let ok = _mm256_and_pd(
+                    _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, x), lim),
+                    _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, y), lim),
                 );
-                let (f00, f10, f01, f11) = if _mm_movemask_ps(_mm_castsi128_ps(inside)) == 0xf {
-                    let k = _mm_add_epi32(_mm_mullo_epi32(lj, vw), li);
-                    // SAFETY: all four corners lie inside the window, so the 4 bytes read
-                    // at `k` and `k + w` end at most 2 bytes past the last cell, inside
-                    // the field's spare bytes (`vector_ok`).
-                    let (d0, d1) = unsafe {
-                        (
-                            _mm_i32gather_epi32::<1>(base.cast(), k),
-                            _mm_i32gather_epi32::<1>(base.cast(), _mm_add_epi32(k, vw)),
-                        )
-                    };
-                    let lo = |d| _mm256_cvtepi32_pd(_mm_and_si128(d, byte));
-                    let hi = |d| _mm256_cvtepi32_pd(_mm_and_si128(_mm_srli_epi32::<8>(d), byte));
-                    (lo(d0), hi(d0), lo(d1), hi(d1))
-                } else {
-                    // A corner outside the window: `corners`' slow path per lane.
-                    let mut ia = [0i32; LANES];
-                    let mut ja = [0i32; LANES];
+                let out = if _mm256_movemask_pd(ok) != 0xf {
+                    // A lane beyond the fast path's range (or NaN): the scalar path per lane.
+                    let mut ua = [0.0; LANES];
+                    let mut va = [0.0; LANES];
                     // SAFETY: stores into local arrays.
                     unsafe {
-                        _mm_storeu_si128(ia.as_mut_ptr().cast(), i);
-                        _mm_storeu_si128(ja.as_mut_ptr().cast(), j);
+                        _mm256_storeu_pd(ua.as_mut_ptr(), u);
+                        _mm256_storeu_pd(va.as_mut_ptr(), v);
                     }
-                    let f: [[f64; 4]; LANES] = std::array::from_fn(|k| field.corners(ia[k], ja[k]));
-                    let col = |c: usize| _mm256_setr_pd(f[0][c], f[1][c], f[2][c], f[3][c]);
-                    (col(0), col(1), col(2), col(3))
+                    std::array::from_fn(|l| field.bilinear(ua[l], va[l]))
+                } else {
+                    // floor_to_i32: truncate, minus one where the truncation lies above.
+                    let tx = _mm256_cvtepi32_pd(_mm256_cvttpd_epi32(x));
+                    let ty = _mm256_cvtepi32_pd(_mm256_cvttpd_epi32(y));
+                    let fx =
+                        _mm256_sub_pd(tx, _mm256_and_pd(_mm256_cmp_pd::<_CMP_GT_OQ>(tx, x), one));
+                    let fy =
+                        _mm256_sub_pd(ty, _mm256_and_pd(_mm256_cmp_pd::<_CMP_GT_OQ>(ty, y), one));
+                    let ax = _mm256_sub_pd(x, fx);
+                    let ay = _mm256_sub_pd(y, fy);
+                    let (i, j) = (_mm256_cvttpd_epi32(fx), _mm256_cvttpd_epi32(fy));
+                    let (li, lj) = (_mm_sub_epi32(i, i0), _mm_sub_epi32(j, j0));
+                    let inside = _mm_and_si128(
+                        _mm_and_si128(_mm_cmpgt_epi32(li, minus1), _mm_cmpgt_epi32(wm1, li)),
+                        _mm_and_si128(_mm_cmpgt_epi32(lj, minus1), _mm_cmpgt_epi32(hm1, lj)),
+                    );
+                    let (f00, f10, f01, f11) = if _mm_movemask_ps(_mm_castsi128_ps(inside)) == 0xf {
+                        let k = _mm_add_epi32(_mm_mullo_epi32(lj, vw), li);
+                        // SAFETY: all four corners lie inside the window, so the 4
+                        // bytes read at `k` and `k + w` end at most 2 bytes past the
+                        // last cell, inside the field's spare bytes (`vector_ok`).
+                        let (d0, d1) = unsafe {
+                            (
+                                _mm_i32gather_epi32::<1>(base.cast(), k),
+                                _mm_i32gather_epi32::<1>(base.cast(), _mm_add_epi32(k, vw)),
+                            )
+                        };
+                        let lo = |d| _mm256_cvtepi32_pd(_mm_and_si128(d, byte));
+                        let hi =
+                            |d| _mm256_cvtepi32_pd(_mm_and_si128(_mm_srli_epi32::<8>(d), byte));
+                        (lo(d0), hi(d0), lo(d1), hi(d1))
+                    } else {
+                        // A corner outside the window: `corners`' slow path per lane.
+                        let mut ia = [0i32; LANES];
+                        let mut ja = [0i32; LANES];
+                        // SAFETY: stores into local arrays.
+                        unsafe {
+                            _mm_storeu_si128(ia.as_mut_ptr().cast(), i);
+                            _mm_storeu_si128(ja.as_mut_ptr().cast(), j);
+                        }
+                        let f: [[f64; 4]; LANES] =
+                            std::array::from_fn(|l| field.corners(ia[l], ja[l]));
+                        let col = |c: usize| _mm256_setr_pd(f[0][c], f[1][c], f[2][c], f[3][c]);
+                        (col(0), col(1), col(2), col(3))
+                    };
+                    // `f00 * (1 - ax) + f10 * ax` etc., as `mix_lanes`.
+                    let omx = _mm256_sub_pd(one, ax);
+                    let bottom = _mm256_add_pd(_mm256_mul_pd(f00, omx), _mm256_mul_pd(f10, ax));
+                    let top = _mm256_add_pd(_mm256_mul_pd(f01, omx), _mm256_mul_pd(f11, ax));
+                    let mixed = _mm256_add_pd(
+                        _mm256_mul_pd(bottom, _mm256_sub_pd(one, ay)),
+                        _mm256_mul_pd(top, ay),
+                    );
+                    let mut out = [0.0; LANES];
+                    // SAFETY: a store into a local array.
+                    unsafe { _mm256_storeu_pd(out.as_mut_ptr(), mixed) };
+                    out
                 };
-                // `f00 * (1 - ax) + f10 * ax` etc., as `mix_lanes`.
-                let omx = _mm256_sub_pd(one, ax);
-                let bottom = _mm256_add_pd(_mm256_mul_pd(f00, omx), _mm256_mul_pd(f10, ax));
-                let top = _mm256_add_pd(_mm256_mul_pd(f01, omx), _mm256_mul_pd(f11, ax));
-                let mixed = _mm256_add_pd(
-                    _mm256_mul_pd(bottom, _mm256_sub_pd(one, ay)),
-                    _mm256_mul_pd(top, ay),
-                );
-                let mut out = [0.0; LANES];
-                // SAFETY: a store into a local array.
-                unsafe { _mm256_storeu_pd(out.as_mut_ptr(), mixed) };
-                out
-            };
-            for b in out {
-                sum += b;
+                for value in out {
+                    sums[k] += value;
+                }
             }
         }
-        self.sum_tail(field, limits, x_m, y_m, sum)
+        std::array::from_fn(|k| rots[k].sum_tail(field, limits, at[k][0], at[k][1], sums[k]))
     }
 }
 
-/// The rotation the refinement's x/y moves reuse (`kept`, of the yaw `yaw_bits`) and a
-/// scratch one for one-off yaws (the yaw candidates).
+/// The sums of [`Rotation::sums`] for any number of candidates (`rots[i]` seen from
+/// `at[i]`, into `out[i]`), [`NEIGHBOURS`] per pass at most.
+fn sums_batched(
+    rots: &[&Rotation],
+    at: &[[f64; 2]],
+    field: &LikelihoodField,
+    limits: &MapLimits,
+    out: &mut [f64],
+) {
+    let chunks = rots.chunks(NEIGHBOURS).zip(at.chunks(NEIGHBOURS));
+    for ((r, a), o) in chunks.zip(out.chunks_mut(NEIGHBOURS)) {
+        macro_rules! pass {
+            ($k:literal) => {{
+                let sums = Rotation::sums::<$k>(
+                    std::array::from_fn(|i| r[i]),
+                    std::array::from_fn(|i| a[i]),
+                    field,
+                    limits,
+                );
+                o.copy_from_slice(&sums);
+            }};
+        }
+        match r.len().min(a.len()).min(o.len()) {
+            1 => pass!(1),
+            2 => pass!(2),
+            3 => pass!(3),
+            4 => pass!(4),
+            5 => pass!(5),
+            _ => pass!(6),
+        }
+    }
+}
+
+/// Caller-owned buffers of [`RotatedPoints`].
+#[derive(Debug, Clone, Default)]
+struct RotationBuffers {
+    kept: Rotation,
+    once: [Rotation; 2],
+}
+
+/// The rotation the refinement's x/y moves reuse (`kept`, of the yaw `yaw_bits`) and two
+/// scratch ones for one-off yaws (a pattern-search iteration's two yaw candidates, summed
+/// in the same pass as its x/y moves).
 struct RotatedPoints {
     yaw_bits: Option<u64>,
-    kept: Rotation,
-    once: Rotation,
+    buf: RotationBuffers,
 }
 
 impl RotatedPoints {
-    fn take(buf: &mut (Rotation, Rotation)) -> Self {
-        let (kept, once) = std::mem::take(buf);
+    fn take(buf: &mut RotationBuffers) -> Self {
         RotatedPoints {
             yaw_bits: None,
-            kept,
-            once,
+            buf: std::mem::take(buf),
         }
     }
 
-    fn give_back(self, buf: &mut (Rotation, Rotation)) {
-        *buf = (self.kept, self.once);
+    fn give_back(self, buf: &mut RotationBuffers) {
+        *buf = self.buf;
     }
 
     /// Sum of bilinear field values of `points_body` seen from `pose` (see
-    /// [`Rotation::sum`]). `keep`: cache this yaw's rotation (the yaw the x/y moves will
+    /// [`Rotation::sums`]). `keep`: cache this yaw's rotation (the yaw the x/y moves will
     /// reuse).
     fn field_sum(
         &mut self,
@@ -809,22 +915,74 @@ impl RotatedPoints {
         pose: &Pose2,
         keep: bool,
     ) -> f64 {
-        let rotation = if self.yaw_bits == Some(pose.yaw_rad.to_bits()) {
-            &self.kept
-        } else {
-            let (s, c) = pose.yaw_rad.sin_cos();
-            if keep {
-                self.kept.fill(points_body, s, c);
-                self.yaw_bits = Some(pose.yaw_rad.to_bits());
-                &self.kept
-            } else {
-                self.once.fill(points_body, s, c);
-                &self.once
+        let mut sum = [0.0];
+        self.field_sums(field, limits, points_body, &[(*pose, keep)], &mut sum);
+        sum[0]
+    }
+
+    /// [`Self::field_sum`] of several candidates (pose, `keep`) into `sums`, in as few
+    /// passes over the points as the rotation buffers allow: a candidate's sum is a pure
+    /// function of its pose (its rotation depends on the yaw's bits only), so each is the
+    /// bits of its own [`Self::field_sum`].
+    fn field_sums(
+        &mut self,
+        field: &LikelihoodField,
+        limits: &MapLimits,
+        points_body: &[[f64; 2]],
+        cands: &[(Pose2, bool)],
+        sums: &mut [f64],
+    ) {
+        let mut start = 0;
+        while start < cands.len().min(sums.len()) {
+            // One pass: candidates while a rotation buffer is free for their yaw. Slot 0
+            // is `kept`, 1 and 2 the one-off buffers; `kept` is refilled only before this
+            // pass uses it.
+            let mut slot = [0usize; NEIGHBOURS];
+            let mut once_bits: [Option<u64>; 2] = [None; 2];
+            let mut kept_used = false;
+            let mut end = start;
+            while end < cands.len().min(sums.len()) && end - start < NEIGHBOURS {
+                let (pose, keep) = &cands[end];
+                let bits = pose.yaw_rad.to_bits();
+                slot[end - start] = if self.yaw_bits == Some(bits) {
+                    kept_used = true;
+                    0
+                } else if let Some(k) = once_bits.iter().position(|&b| b == Some(bits)) {
+                    k + 1
+                } else if *keep && !kept_used {
+                    let (s, c) = pose.yaw_rad.sin_cos();
+                    self.buf.kept.fill(points_body, s, c);
+                    self.yaw_bits = Some(bits);
+                    kept_used = true;
+                    0
+                } else if let Some(k) = once_bits.iter().position(Option::is_none) {
+                    let (s, c) = pose.yaw_rad.sin_cos();
+                    self.buf.once[k].fill(points_body, s, c);
+                    once_bits[k] = Some(bits);
+                    k + 1
+                } else {
+                    break;
+                };
+                end += 1;
             }
-        };
-        rotation.sum(field, limits, pose.x_m, pose.y_m)
+            let n = end - start;
+            let buf = &self.buf;
+            let rot_of = |s: usize| if s == 0 { &buf.kept } else { &buf.once[s - 1] };
+            let rots: [&Rotation; NEIGHBOURS] = std::array::from_fn(|i| rot_of(slot[i]));
+            let at: [[f64; 2]; NEIGHBOURS] = std::array::from_fn(|i| {
+                cands
+                    .get(start + i)
+                    .map_or([0.0; 2], |(p, _)| [p.x_m, p.y_m])
+            });
+            sums_batched(&rots[..n], &at[..n], field, limits, &mut sums[start..end]);
+            start = end;
+        }
     }
 }
+
+/// Candidates of one pattern-search iteration (+-x, +-y, +-yaw): the most one batched
+/// pass sums.
+const NEIGHBOURS: usize = 6;
 
 /// Points per batch of the interpolations (here and in the back end's matcher).
 pub(crate) const LANES: usize = 4;
@@ -1110,12 +1268,18 @@ impl CoarseYaw<'_> {
 const MEMO: usize = 16;
 
 /// Pattern search with step halving (the sub-cell refinement of the matchers): from `start`
-/// (x, y, yaw; `first` = its objective and score, i.e. `eval(start)`), try +-`step_xy` in x and y and
-/// +-`step_yaw` in yaw, move to the best strict improvement, halve the steps when none
-/// improves, `levels` times (at most `max_iterations` moves or halvings). `eval(at,
-/// same_yaw)` returns (objective, score); `same_yaw` says the candidate keeps the current
-/// yaw (so rotated points can be reused). Returns the final position with its objective and
-/// score.
+/// (x, y, yaw; `first` = its objective and score, i.e. the value of `start`), try
+/// +-`step_xy` in x and y and +-`step_yaw` in yaw, move to the best strict improvement
+/// (ties: the first in that order), halve the steps when none improves, `levels` times (at
+/// most `max_iterations` moves or halvings). Returns the final position with its objective
+/// and score.
+///
+/// `eval(cands, values)` writes (objective, score) of each candidate `(at, same_yaw)` into
+/// `values` (as many as candidates, at most six); `same_yaw` says the candidate keeps the
+/// current yaw (so rotated points can be reused). Every candidate of an iteration that is
+/// not remembered goes to one call, so the evaluator can sum them in one pass; `eval` must
+/// be a pure function of each position, and then the search moves exactly as it would
+/// evaluating the candidates one at a time.
 pub fn pattern_search(
     start: [f64; 3],
     first: (f64, f64),
@@ -1123,7 +1287,7 @@ pub fn pattern_search(
     step_yaw: f64,
     levels: u32,
     max_iterations: u32,
-    mut eval: impl FnMut([f64; 3], bool) -> (f64, f64),
+    mut eval: impl FnMut(&[([f64; 3], bool)], &mut [(f64, f64)]),
 ) -> ([f64; 3], (f64, f64)) {
     let (mut at, mut best) = (start, first);
     let (mut step_xy, mut step_yaw) = (step_xy, step_yaw);
@@ -1131,36 +1295,59 @@ pub fn pattern_search(
     let mut iterations = 0;
     // The last evaluations by position (bit patterns): a candidate that lands exactly on
     // one (the position the last move came from, or a diagonal neighbour of an earlier
-    // position) reuses its value. `eval` is a pure function of the position, so this
-    // changes no result (~3 % fewer evaluations in the car's filter).
+    // position) reuses its value (~3 % fewer evaluations in the car's filter). Entries are
+    // added in candidate order, as evaluating one candidate after the other would.
     let mut memo = [([u64::MAX; 3], (0.0, 0.0)); MEMO];
     memo[0] = (start.map(f64::to_bits), first);
     let mut memo_len = 1usize;
     while level < levels && iterations < max_iterations {
         iterations += 1;
-        let mut moved: Option<([f64; 3], (f64, f64))> = None;
-        for (ex, ey, eyaw) in [
+        let moves = [
             (step_xy, 0.0, 0.0),
             (-step_xy, 0.0, 0.0),
             (0.0, step_xy, 0.0),
             (0.0, -step_xy, 0.0),
             (0.0, 0.0, step_yaw),
             (0.0, 0.0, -step_yaw),
-        ] {
-            let cand = [at[0] + ex, at[1] + ey, at[2] + eyaw];
+        ];
+        let cands = moves.map(|(ex, ey, eyaw)| [at[0] + ex, at[1] + ey, at[2] + eyaw]);
+        // Per candidate: its value if remembered, else its index among the new ones. A
+        // remembered value is read now (a later insertion of this iteration may reuse its
+        // slot); a repeat of a new candidate of this iteration shares its evaluation.
+        let mut values = [(0.0, 0.0); NEIGHBOURS];
+        let mut new_of: [Option<usize>; NEIGHBOURS] = [None; NEIGHBOURS];
+        let mut todo = [([0.0; 3], false); NEIGHBOURS];
+        let mut todo_slot = [0usize; NEIGHBOURS];
+        let mut n_todo = 0;
+        for (i, (cand, &(_, _, eyaw))) in cands.iter().zip(&moves).enumerate() {
             let key = cand.map(f64::to_bits);
-            let seen = memo[..memo_len.min(MEMO)].iter().find(|m| m.0 == key);
-            let value = match seen {
-                Some(&(_, value)) => value,
+            let seen = memo[..memo_len.min(MEMO)].iter().position(|m| m.0 == key);
+            match seen.map(|pos| (pos, todo_slot[..n_todo].iter().position(|&s| s == pos))) {
+                Some((_, Some(t))) => new_of[i] = Some(t),
+                Some((pos, None)) => values[i] = memo[pos].1,
                 None => {
-                    let value = eval(cand, eyaw == 0.0);
-                    memo[memo_len % MEMO] = (key, value);
+                    let pos = memo_len % MEMO;
+                    memo[pos].0 = key;
                     memo_len += 1;
-                    value
+                    todo[n_todo] = (*cand, eyaw == 0.0);
+                    todo_slot[n_todo] = pos;
+                    new_of[i] = Some(n_todo);
+                    n_todo += 1;
                 }
-            };
+            }
+        }
+        let mut evaluated = [(0.0, 0.0); NEIGHBOURS];
+        if n_todo > 0 {
+            eval(&todo[..n_todo], &mut evaluated[..n_todo]);
+        }
+        for t in 0..n_todo {
+            memo[todo_slot[t]].1 = evaluated[t];
+        }
+        let mut moved: Option<([f64; 3], (f64, f64))> = None;
+        for i in 0..NEIGHBOURS {
+            let value = new_of[i].map_or(values[i], |t| evaluated[t]);
             if value.0 > moved.map_or(best.0, |m| m.1.0) {
-                moved = Some((cand, value));
+                moved = Some((cands[i], value));
             }
         }
         match moved {
@@ -1264,12 +1451,18 @@ fn refine_from(
     let n = points_body.len().max(1) as f64;
     let [dx, dy, dyaw] = start;
     let mut rot = RotatedPoints::take(&mut scratch.rotated);
+    // (objective, field sum) at the offset `d` with field sum `sum`.
+    let value = |d: [f64; 3], sum: f64| {
+        (
+            params.gain_per_unit * sum - prior_penalty(params, d[0], d[1], d[2]),
+            sum,
+        )
+    };
     let mut eval = |dx: f64, dy: f64, dyaw: f64, keep: bool| {
         let pose = offset_pose(predicted, [dx, dy, dyaw]);
-        let sum = rot.field_sum(field, limits, points_body, &pose, keep);
-        (
-            params.gain_per_unit * sum - prior_penalty(params, dx, dy, dyaw),
-            sum,
+        value(
+            [dx, dy, dyaw],
+            rot.field_sum(field, limits, points_body, &pose, keep),
         )
     };
     let ([dx, dy, dyaw], (obj, sum)) = if params.refine_method == RefineMethod::GaussNewton {
@@ -1291,7 +1484,8 @@ fn refine_from(
         (at, (obj, sum))
     } else {
         let first = eval(dx, dy, dyaw, true);
-        // Refinement: pattern search with step halving on the interpolated field.
+        // Refinement: pattern search with step halving on the interpolated field, an
+        // iteration's candidates summed in one pass.
         pattern_search(
             [dx, dy, dyaw],
             first,
@@ -1299,7 +1493,20 @@ fn refine_from(
             steps[1],
             levels,
             64,
-            |at, same_yaw| eval(at[0], at[1], at[2], same_yaw),
+            |cands, values| {
+                for (cands, values) in cands.chunks(NEIGHBOURS).zip(values.chunks_mut(NEIGHBOURS)) {
+                    let mut poses = [(Pose2::default(), false); NEIGHBOURS];
+                    let mut sums = [0.0; NEIGHBOURS];
+                    for (p, &(d, keep)) in poses.iter_mut().zip(cands) {
+                        *p = (offset_pose(predicted, d), keep);
+                    }
+                    let n = cands.len();
+                    rot.field_sums(field, limits, points_body, &poses[..n], &mut sums[..n]);
+                    for ((v, &(d, _)), sum) in values.iter_mut().zip(cands).zip(sums) {
+                        *v = value(d, sum);
+                    }
+                }
+            },
         )
     };
     rot.give_back(&mut scratch.rotated);
@@ -1323,7 +1530,7 @@ fn offset_pose(predicted: &Pose2, d: [f64; 3]) -> Pose2 {
 const GN_PASSES: u32 = 4;
 
 /// The field term at `pose`: the sum of bilinear field values of the points (the same
-/// operations per point, in the same order, as [`Rotation::sum`], so the same bits), its
+/// operations per point, in the same order, as [`Rotation::sums`], so the same bits), its
 /// gradient with respect to (x m, y m, yaw rad) of the pose, and the sum of the outer
 /// products of the per-point gradients (upper triangle: xx, xy, xt, yy, yt, tt).
 fn field_terms(

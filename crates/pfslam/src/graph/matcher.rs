@@ -390,33 +390,86 @@ impl PointField {
 
     /// [`Self::score`] with `(s, c)` = `pose.yaw_rad.sin_cos()` given.
     fn score_rotated(&self, points_body: &[[f64; 2]], pose: &Pose2, s: f64, c: f64) -> f64 {
+        let [score] = self.scores_rotated(points_body, [*pose], [(s, c)]);
+        score
+    }
+
+    /// [`Self::score_rotated`] of `K` poses (`sin_cos[k]` of `poses[k]`'s yaw) in one pass
+    /// over the points. Each pose has its own accumulator and adds its own values in its
+    /// own order, so each score is the bits of its [`Self::score_rotated`]; one chain of
+    /// dependent additions is latency-bound, several independent ones overlap.
+    fn scores_rotated<const K: usize>(
+        &self,
+        points_body: &[[f64; 2]],
+        poses: [Pose2; K],
+        sin_cos: [(f64, f64); K],
+    ) -> [f64; K] {
         if points_body.is_empty() {
-            return 0.0;
+            return [0.0; K];
         }
         // The same left-to-right fold as `Iterator::sum` (from -0.0), four points at a time:
         // per lane the operations of `bilinear`, so the same bits, in vector registers.
-        let mut sum = -0.0;
+        let mut sums = [-0.0; K];
         let mut chunks = points_body.chunks_exact(LANES);
         for quad in &mut chunks {
-            let mut u = [0.0; LANES];
-            let mut v = [0.0; LANES];
-            for (k, p) in quad.iter().enumerate() {
-                let x = pose.x_m + c * p[0] - s * p[1];
-                let y = pose.y_m + s * p[0] + c * p[1];
-                u[k] = (x - self.origin_x_m) / self.resolution_m - 0.5;
-                v[k] = (y - self.origin_y_m) / self.resolution_m - 0.5;
-            }
-            for b in self.bilinear_lanes(&u, &v) {
-                sum += b;
+            for k in 0..K {
+                let (pose, (s, c)) = (&poses[k], sin_cos[k]);
+                let mut u = [0.0; LANES];
+                let mut v = [0.0; LANES];
+                for (l, p) in quad.iter().enumerate() {
+                    let x = pose.x_m + c * p[0] - s * p[1];
+                    let y = pose.y_m + s * p[0] + c * p[1];
+                    u[l] = (x - self.origin_x_m) / self.resolution_m - 0.5;
+                    v[l] = (y - self.origin_y_m) / self.resolution_m - 0.5;
+                }
+                for b in self.bilinear_lanes(&u, &v) {
+                    sums[k] += b;
+                }
             }
         }
         for p in chunks.remainder() {
-            sum += self.bilinear(
-                pose.x_m + c * p[0] - s * p[1],
-                pose.y_m + s * p[0] + c * p[1],
-            );
+            for k in 0..K {
+                let (pose, (s, c)) = (&poses[k], sin_cos[k]);
+                sums[k] += self.bilinear(
+                    pose.x_m + c * p[0] - s * p[1],
+                    pose.y_m + s * p[0] + c * p[1],
+                );
+            }
         }
-        sum / points_body.len() as f64
+        sums.map(|sum| sum / points_body.len() as f64)
+    }
+
+    /// [`Self::scores_rotated`] of any number of poses into `out`, up to six per pass (a
+    /// pattern-search iteration's candidates).
+    fn scores_batched(
+        &self,
+        points_body: &[[f64; 2]],
+        poses: &[Pose2],
+        sin_cos: &[(f64, f64)],
+        out: &mut [f64],
+    ) {
+        const MOST: usize = 6;
+        let chunks = poses.chunks(MOST).zip(sin_cos.chunks(MOST));
+        for ((p, sc), o) in chunks.zip(out.chunks_mut(MOST)) {
+            macro_rules! pass {
+                ($k:literal) => {{
+                    let scores = self.scores_rotated::<$k>(
+                        points_body,
+                        std::array::from_fn(|i| p[i]),
+                        std::array::from_fn(|i| sc[i]),
+                    );
+                    o.copy_from_slice(&scores);
+                }};
+            }
+            match p.len().min(sc.len()).min(o.len()) {
+                1 => pass!(1),
+                2 => pass!(2),
+                3 => pass!(3),
+                4 => pass!(4),
+                5 => pass!(5),
+                _ => pass!(6),
+            }
+        }
     }
 
     /// [`Self::bilinear`] of `LANES` points given as cell coordinates minus one half (`u`,
@@ -812,24 +865,45 @@ impl PointField {
     ) -> (Pose2, f64) {
         let n_pts = points_body.len().max(1) as f64;
         // Most steps of the pattern search keep the yaw: its sine and cosine once per yaw.
-        let last_yaw = std::cell::Cell::new((f64::NAN, 0.0, 0.0));
-        let objective = |p: &Pose2| {
-            let (yaw, mut sin, mut cos) = last_yaw.get();
-            if yaw.to_bits() != p.yaw_rad.to_bits() {
-                (sin, cos) = p.yaw_rad.sin_cos();
-                last_yaw.set((p.yaw_rad, sin, cos));
+        let mut kept_yaw = (f64::NAN.to_bits(), 0.0, 0.0);
+        let mut sin_cos = |yaw: f64, keep: bool| {
+            if kept_yaw.0 == yaw.to_bits() {
+                return (kept_yaw.1, kept_yaw.2);
             }
-            let s = self.score_rotated(points_body, p, sin, cos);
-            (s * n_pts - prior.map_or(0.0, |q| q.penalty(p)), s)
+            let (s, c) = yaw.sin_cos();
+            if keep {
+                kept_yaw = (yaw.to_bits(), s, c);
+            }
+            (s, c)
         };
+        let value = |p: &Pose2, s: f64| (s * n_pts - prior.map_or(0.0, |q| q.penalty(p)), s);
+        let (s, c) = sin_cos(start.yaw_rad, true);
+        let first = value(start, self.score_rotated(points_body, start, s, c));
         let ([x_m, y_m, yaw_rad], (_, score)) = crate::filter::scanmatch::pattern_search(
             [start.x_m, start.y_m, start.yaw_rad],
-            objective(start),
+            first,
             0.5 * self.resolution_m,
             0.5 * yaw_step_rad,
             levels,
             100,
-            |at, _| objective(&Pose2::new(at[0], at[1], at[2])),
+            // An iteration's candidates scored in one pass.
+            |cands, values| {
+                const MOST: usize = 6;
+                for (cands, values) in cands.chunks(MOST).zip(values.chunks_mut(MOST)) {
+                    let n = cands.len();
+                    let mut poses = [Pose2::default(); MOST];
+                    let mut sc = [(0.0, 0.0); MOST];
+                    for ((p, sc), &(at, keep)) in poses.iter_mut().zip(&mut sc).zip(cands) {
+                        *p = Pose2::new(at[0], at[1], at[2]);
+                        *sc = sin_cos(p.yaw_rad, keep);
+                    }
+                    let mut scores = [0.0; MOST];
+                    self.scores_batched(points_body, &poses[..n], &sc[..n], &mut scores[..n]);
+                    for ((v, p), s) in values.iter_mut().zip(&poses).zip(scores) {
+                        *v = value(p, s);
+                    }
+                }
+            },
         );
         (Pose2::new(x_m, y_m, yaw_rad), score)
     }
