@@ -645,6 +645,7 @@ impl Rotation {
         limits: &MapLimits,
     ) -> [f64; K] {
         let mut sums = [-0.0; K];
+        let mut values = [[0.0; LANES]; K];
         for b in 0..Rotation::common_blocks(&rots) {
             for k in 0..K {
                 let [r0, r1, r2, r3] = &rots[k].blocks[b];
@@ -655,8 +656,11 @@ impl Rotation {
                 for l in 0..LANES {
                     (u[l], v[l]) = limits.cell_coords(x_m + r0[l] - r1[l], y_m + r2[l] + r3[l]);
                 }
-                for value in field.bilinear_lanes(&u, &v) {
-                    sums[k] += value;
+                values[k] = field.bilinear_lanes(&u, &v);
+            }
+            for (sum, values) in sums.iter_mut().zip(&values) {
+                for value in values {
+                    *sum += value;
                 }
             }
         }
@@ -745,6 +749,7 @@ impl Rotation {
         let vx: [__m256d; K] = std::array::from_fn(|k| _mm256_set1_pd(at[k][0]));
         let vy: [__m256d; K] = std::array::from_fn(|k| _mm256_set1_pd(at[k][1]));
         let mut sums = [-0.0; K];
+        let mut values = [[0.0; LANES]; K];
         for b in 0..Rotation::common_blocks(&rots) {
             for k in 0..K {
                 let [r0, r1, r2, r3] = &rots[k].blocks[b];
@@ -778,13 +783,10 @@ impl Rotation {
                     }
                     std::array::from_fn(|l| field.bilinear(ua[l], va[l]))
                 } else {
-                    // floor_to_i32: truncate, minus one where the truncation lies above.
-                    let tx = _mm256_cvtepi32_pd(_mm256_cvttpd_epi32(x));
-                    let ty = _mm256_cvtepi32_pd(_mm256_cvttpd_epi32(y));
-                    let fx =
-                        _mm256_sub_pd(tx, _mm256_and_pd(_mm256_cmp_pd::<_CMP_GT_OQ>(tx, x), one));
-                    let fy =
-                        _mm256_sub_pd(ty, _mm256_and_pd(_mm256_cmp_pd::<_CMP_GT_OQ>(ty, y), one));
+                    // `floor_to_i32` as a float: the same value (the lanes are finite and
+                    // within 1e9; `x`, `y` are never -0.0, as `u - 0.5` cannot be).
+                    let fx = _mm256_floor_pd(x);
+                    let fy = _mm256_floor_pd(y);
                     let ax = _mm256_sub_pd(x, fx);
                     let ay = _mm256_sub_pd(y, fy);
                     let (i, j) = (_mm256_cvttpd_epi32(fx), _mm256_cvttpd_epi32(fy));
@@ -835,8 +837,13 @@ impl Rotation {
                     unsafe { _mm256_storeu_pd(out.as_mut_ptr(), mixed) };
                     out
                 };
-                for value in out {
-                    sums[k] += value;
+                values[k] = out;
+            }
+            // Apart from the loop above (which stays a loop): unrolled, so that the
+            // accumulators stay in registers and the chains overlap.
+            for (sum, values) in sums.iter_mut().zip(&values) {
+                for value in values {
+                    *sum += value;
                 }
             }
         }
@@ -1348,6 +1355,71 @@ pub fn pattern_search(
             let value = new_of[i].map_or(values[i], |t| evaluated[t]);
             if value.0 > moved.map_or(best.0, |m| m.1.0) {
                 moved = Some((cands[i], value));
+            }
+        }
+        match moved {
+            Some((cand, value)) => {
+                at = cand;
+                best = value;
+            }
+            None => {
+                step_xy *= 0.5;
+                step_yaw *= 0.5;
+                level += 1;
+            }
+        }
+    }
+    (at, best)
+}
+
+/// [`pattern_search`] as it was before the batched evaluation: one candidate evaluated
+/// after the other, `eval(at, same_yaw)`. The reference the batched search must follow.
+#[cfg(test)]
+pub(crate) fn pattern_search_sequential(
+    start: [f64; 3],
+    first: (f64, f64),
+    step_xy: f64,
+    step_yaw: f64,
+    levels: u32,
+    max_iterations: u32,
+    mut eval: impl FnMut([f64; 3], bool) -> (f64, f64),
+) -> ([f64; 3], (f64, f64)) {
+    let (mut at, mut best) = (start, first);
+    let (mut step_xy, mut step_yaw) = (step_xy, step_yaw);
+    let mut level = 0;
+    let mut iterations = 0;
+    // The last evaluations by position (bit patterns): a candidate that lands exactly on
+    // one (the position the last move came from, or a diagonal neighbour of an earlier
+    // position) reuses its value. `eval` is a pure function of the position, so this
+    // changes no result (~3 % fewer evaluations in the car's filter).
+    let mut memo = [([u64::MAX; 3], (0.0, 0.0)); MEMO];
+    memo[0] = (start.map(f64::to_bits), first);
+    let mut memo_len = 1usize;
+    while level < levels && iterations < max_iterations {
+        iterations += 1;
+        let mut moved: Option<([f64; 3], (f64, f64))> = None;
+        for (ex, ey, eyaw) in [
+            (step_xy, 0.0, 0.0),
+            (-step_xy, 0.0, 0.0),
+            (0.0, step_xy, 0.0),
+            (0.0, -step_xy, 0.0),
+            (0.0, 0.0, step_yaw),
+            (0.0, 0.0, -step_yaw),
+        ] {
+            let cand = [at[0] + ex, at[1] + ey, at[2] + eyaw];
+            let key = cand.map(f64::to_bits);
+            let seen = memo[..memo_len.min(MEMO)].iter().find(|m| m.0 == key);
+            let value = match seen {
+                Some(&(_, value)) => value,
+                None => {
+                    let value = eval(cand, eyaw == 0.0);
+                    memo[memo_len % MEMO] = (key, value);
+                    memo_len += 1;
+                    value
+                }
+            };
+            if value.0 > moved.map_or(best.0, |m| m.1.0) {
+                moved = Some((cand, value));
             }
         }
         match moved {
@@ -2476,14 +2548,7 @@ mod tests {
                 } else {
                     rng.random_range(0..40)
                 };
-                let pts: Vec<[f64; 2]> = (0..n)
-                    .map(|_| match rng.random_range(0..40) {
-                        0 => [1e12, -3.0],
-                        1 => [f64::NAN, 1.0],
-                        2 => [rng.random_range(-30.0..30.0), rng.random_range(-30.0..30.0)],
-                        _ => [rng.random_range(-7.5..7.5), rng.random_range(-6.5..6.5)],
-                    })
-                    .collect();
+                let pts = kernel_points(&mut rng, n);
                 let pose = Pose2::new(
                     rng.random_range(-0.5..0.5),
                     rng.random_range(-0.5..0.5),
@@ -2526,6 +2591,198 @@ mod tests {
                 sums!(5);
                 sums!(7);
             }
+        }
+    }
+
+    /// Random body points for the kernel tests: mostly inside the room's field, some across
+    /// its edges, far outside it (beyond the fast path's 1e9 cells) and NaN.
+    fn kernel_points(rng: &mut rand_xoshiro::Xoshiro256PlusPlus, n: usize) -> Vec<[f64; 2]> {
+        use rand::RngExt;
+        (0..n)
+            .map(|_| match rng.random_range(0..40) {
+                0 => [1e12, -3.0],
+                1 => [f64::NAN, 1.0],
+                2 => [rng.random_range(-30.0..30.0), rng.random_range(-30.0..30.0)],
+                _ => [rng.random_range(-7.5..7.5), rng.random_range(-6.5..6.5)],
+            })
+            .collect()
+    }
+
+    /// The batched field sums (1..=6 candidates per pass, the portable and the AVX2 kernel,
+    /// candidates sharing a rotation or not) against the single-candidate sum as first
+    /// written, bit for bit; and `RotatedPoints::field_sums` (any number of candidates,
+    /// any mix of yaws and `keep` flags) against `field_sum` one candidate at a time.
+    #[test]
+    fn batched_field_sums_equal_the_single_candidate_ones_bit_for_bit() {
+        use rand::{RngExt, SeedableRng};
+        let (field, _) = room_field(0.0);
+        let limits = field.limits.unwrap();
+        #[cfg(target_arch = "x86_64")]
+        let avx2 = field.vector_ok() && std::arch::is_x86_feature_detected!("avx2");
+        #[cfg(not(target_arch = "x86_64"))]
+        let avx2 = false;
+        if !avx2 {
+            eprintln!("SKIP (AVX2 part only): no AVX2 on this CPU");
+        }
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(23);
+        let mut rotations: Vec<Rotation> = (0..3).map(|_| Rotation::default()).collect();
+        let mut fresh = RotatedPoints::take(&mut RotationBuffers::default());
+        let mut batched = RotatedPoints::take(&mut RotationBuffers::default());
+        for case in 0..300 {
+            let n = if case % 10 == 0 {
+                700
+            } else {
+                rng.random_range(0..40)
+            };
+            let pts = kernel_points(&mut rng, n);
+            for r in &mut rotations {
+                let (s, c) = rng.random_range(-0.3..0.3f64).sin_cos();
+                r.fill(&pts, s, c);
+            }
+            let k = 1 + case % NEIGHBOURS;
+            // Candidates: a rotation each (often the same one, as the x/y moves) and a
+            // position, some of them far outside.
+            let rots: Vec<&Rotation> = (0..k)
+                .map(|_| &rotations[rng.random_range(0..rotations.len())])
+                .collect();
+            let at: Vec<[f64; 2]> = (0..k)
+                .map(|_| match rng.random_range(0..20) {
+                    0 => [2e9, 0.0],
+                    _ => [rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5)],
+                })
+                .collect();
+            let want: Vec<u64> = rots
+                .iter()
+                .zip(&at)
+                .map(|(r, a)| r.sum_portable(&field, &limits, a[0], a[1]).to_bits())
+                .collect();
+            macro_rules! check {
+                ($k:literal) => {
+                    if k == $k {
+                        let r: [&Rotation; $k] = std::array::from_fn(|i| rots[i]);
+                        let a: [[f64; 2]; $k] = std::array::from_fn(|i| at[i]);
+                        let got = Rotation::sums_portable(r, a, &field, &limits);
+                        assert_eq!(got.map(f64::to_bits).to_vec(), want, "case {case}");
+                        #[cfg(target_arch = "x86_64")]
+                        if avx2 {
+                            // SAFETY: AVX2 is present (checked above).
+                            let got = unsafe { Rotation::sums_avx2(r, a, &field, &limits) };
+                            assert_eq!(got.map(f64::to_bits).to_vec(), want, "case {case}");
+                        }
+                        let got = Rotation::sums(r, a, &field, &limits);
+                        assert_eq!(got.map(f64::to_bits).to_vec(), want, "case {case}");
+                    }
+                };
+            }
+            check!(1);
+            check!(2);
+            check!(3);
+            check!(4);
+            check!(5);
+            check!(6);
+            // Whole candidate lists through the rotation buffers: a pattern-search
+            // iteration's shape (four x/y moves at one yaw, two yaw moves) and random mixes
+            // of up to 9 candidates over up to 5 yaws (more one-off yaws than buffers).
+            let base_yaw = rng.random_range(-0.3..0.3);
+            let m = rng.random_range(1..10);
+            let cands: Vec<(Pose2, bool)> = (0..m)
+                .map(|i| {
+                    let (x, y) = (rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5));
+                    if case % 2 == 0 && m >= NEIGHBOURS {
+                        let yaw = [0.0, 0.0, 0.0, 0.0, 0.002, -0.002][i % NEIGHBOURS];
+                        (Pose2::new(x, y, base_yaw + yaw), i % NEIGHBOURS < 4)
+                    } else {
+                        let yaw = base_yaw + 0.01 * f64::from(rng.random_range(0..5));
+                        (Pose2::new(x, y, yaw), rng.random_bool(0.5))
+                    }
+                })
+                .collect();
+            let mut got = vec![0.0; m];
+            batched.field_sums(&field, &limits, &pts, &cands, &mut got);
+            for (i, (pose, keep)) in cands.iter().enumerate() {
+                let one = fresh.field_sum(&field, &limits, &pts, pose, *keep);
+                assert_eq!(got[i].to_bits(), one.to_bits(), "case {case} cand {i}");
+            }
+        }
+    }
+
+    /// The batched pattern search evaluates the same positions in the same order (the
+    /// memo's hits, repeats within an iteration included) and returns the same bits as the
+    /// sequential one, on pure objectives with ties, NaN values and degenerate steps.
+    #[test]
+    fn batched_pattern_search_moves_as_the_sequential_one() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(5);
+        for case in 0..3000 {
+            let centre: [f64; 3] = std::array::from_fn(|_| rng.random_range(-1.0..1.0));
+            let quantum = [0.0, 1e-3, 0.1, 1.0][case % 4];
+            let nan_at = rng.random_range(0..30u64);
+            let f = |p: [f64; 3]| -> (f64, f64) {
+                let d = (p[0] - centre[0]).powi(2)
+                    + (p[1] - centre[1]).powi(2)
+                    + 4.0 * (p[2] - centre[2]).powi(2);
+                // Plateaus (ties) when quantised; NaN at some positions.
+                let o = if quantum > 0.0 {
+                    (-d / quantum).round() * quantum
+                } else {
+                    -d
+                };
+                let hash = p.iter().fold(0u64, |h, v| h.rotate_left(7) ^ v.to_bits());
+                let o = if hash % 31 == nan_at { f64::NAN } else { o };
+                (o, d)
+            };
+            let start: [f64; 3] = match case % 7 {
+                // Everything on a lattice of exact steps: many repeated positions.
+                0 => [0.0, -0.0, 0.0],
+                1 => [1e20, 0.5, -0.0],
+                _ => std::array::from_fn(|_| rng.random_range(-1.0..1.0)),
+            };
+            let steps = match case % 5 {
+                0 => (0.0, 0.0),
+                1 => (1e-30, 0.25),
+                2 => (0.25, 0.0),
+                _ => (rng.random_range(0.01..0.5), rng.random_range(0.001..0.1)),
+            };
+            let levels = rng.random_range(0..6);
+            let max_iterations = rng.random_range(1..80);
+            let mut seq_calls = Vec::new();
+            let want = pattern_search_sequential(
+                start,
+                f(start),
+                steps.0,
+                steps.1,
+                levels,
+                max_iterations,
+                |at, same_yaw| {
+                    seq_calls.push((at.map(f64::to_bits), same_yaw));
+                    f(at)
+                },
+            );
+            let mut batch_calls = Vec::new();
+            let got = pattern_search(
+                start,
+                f(start),
+                steps.0,
+                steps.1,
+                levels,
+                max_iterations,
+                |cands, values| {
+                    assert!(!cands.is_empty() && cands.len() <= NEIGHBOURS);
+                    assert_eq!(cands.len(), values.len());
+                    for (&(at, same_yaw), v) in cands.iter().zip(values) {
+                        batch_calls.push((at.map(f64::to_bits), same_yaw));
+                        *v = f(at);
+                    }
+                },
+            );
+            assert_eq!(batch_calls, seq_calls, "case {case}");
+            assert_eq!(
+                got.0.map(f64::to_bits),
+                want.0.map(f64::to_bits),
+                "case {case}"
+            );
+            assert_eq!(got.1.0.to_bits(), want.1.0.to_bits(), "case {case}");
+            assert_eq!(got.1.1.to_bits(), want.1.1.to_bits(), "case {case}");
         }
     }
 

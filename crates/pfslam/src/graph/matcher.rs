@@ -1072,6 +1072,84 @@ mod tests {
         }
     }
 
+    /// The refinement as it was before the batched scores: the sequential pattern search,
+    /// one plain score at a time.
+    fn refine_sequential(
+        f: &PointField,
+        points_body: &[[f64; 2]],
+        start: &Pose2,
+        yaw_step_rad: f64,
+        levels: u32,
+        prior: Option<&Prior>,
+    ) -> (Pose2, f64) {
+        let n_pts = points_body.len().max(1) as f64;
+        let objective = |p: &Pose2| {
+            let s = score_plain(f, points_body, p);
+            (s * n_pts - prior.map_or(0.0, |q| q.penalty(p)), s)
+        };
+        let ([x_m, y_m, yaw_rad], (_, score)) = crate::filter::scanmatch::pattern_search_sequential(
+            [start.x_m, start.y_m, start.yaw_rad],
+            objective(start),
+            0.5 * f.resolution_m,
+            0.5 * yaw_step_rad,
+            levels,
+            100,
+            |at, _| objective(&Pose2::new(at[0], at[1], at[2])),
+        );
+        (Pose2::new(x_m, y_m, yaw_rad), score)
+    }
+
+    /// The batched scores (1..=6 poses per pass, and more over several passes) equal each
+    /// pose's plain score, and `refine` (an iteration's candidates scored in one pass)
+    /// returns the bits of the sequential refinement.
+    #[test]
+    fn batched_scores_and_refine_give_the_sequential_bits() {
+        let pts = room_points();
+        let f = PointField::build(&pts, [-6.0, -5.0], [6.0, 5.0], 0.05, 0.08, 3);
+        let body: Vec<[f64; 2]> = pts.iter().step_by(5).copied().collect();
+        for k in 0..160usize {
+            let t = k as f64;
+            // Poses that push points across the field's edges (outside cells count 0),
+            // some sharing a yaw as the x/y moves do.
+            let poses: Vec<Pose2> = (0..1 + k % 9)
+                .map(|i| {
+                    let u = t + i as f64;
+                    let yaw = if i % 3 == 0 { t * 0.05 } else { u * 0.05 };
+                    Pose2::new((u * 0.37).sin() * 3.0, (u * 0.23).cos() * 2.5, yaw)
+                })
+                .collect();
+            let sc: Vec<(f64, f64)> = poses.iter().map(|p| p.yaw_rad.sin_cos()).collect();
+            // Every remainder of the four-point batches.
+            let part = &body[..body.len() - k % 4];
+            let mut got = vec![0.0; poses.len()];
+            f.scores_batched(part, &poses, &sc, &mut got);
+            for (p, g) in poses.iter().zip(&got) {
+                assert_eq!(g.to_bits(), score_plain(&f, part, p).to_bits(), "{k} {p:?}");
+            }
+        }
+        for k in 0..40u32 {
+            let t = f64::from(k);
+            let start = Pose2::new(
+                0.1 * (t * 0.7).sin(),
+                0.1 * (t * 1.3).cos(),
+                0.04 * (t * 0.9).sin(),
+            );
+            let prior = Prior {
+                pose: Pose2::new(0.02, -0.01, 0.01),
+                sigma_xy_m: 0.05 + 0.1 * t,
+                sigma_yaw_rad: 0.02,
+            };
+            let prior = (k % 2 == 0).then_some(&prior);
+            let (yaw_step, levels) = (0.01 + 0.001 * t, k % 5);
+            let got = f.refine(&body, &start, yaw_step, levels, prior);
+            let want = refine_sequential(&f, &body, &start, yaw_step, levels, prior);
+            assert_eq!(got.0.x_m.to_bits(), want.0.x_m.to_bits(), "{k}");
+            assert_eq!(got.0.y_m.to_bits(), want.0.y_m.to_bits(), "{k}");
+            assert_eq!(got.0.yaw_rad.to_bits(), want.0.yaw_rad.to_bits(), "{k}");
+            assert_eq!(got.1.to_bits(), want.1.to_bits(), "{k}");
+        }
+    }
+
     #[test]
     fn bnb_equals_exhaustive_on_the_cell_grid() {
         let pts = room_points();
