@@ -612,9 +612,9 @@ impl Rotation {
     /// `x_m + c * p[0] - s * p[1]` evaluated left to right as written, then `cell_coords`
     /// and `bilinear`; summed left to right from -0.0 (as `Iterator::sum`). Each candidate
     /// has its own accumulator and adds its own values in its own order, so each result is
-    /// the bits of the candidate summed alone (`K = 1`); one chain of dependent additions
-    /// is latency-bound, several independent ones fill the pipeline. The rotations hold the
-    /// same points (of different yaws, or one rotation repeated).
+    /// the bits of the candidate summed alone (`K = 1`); the independent chains of
+    /// additions can overlap. The rotations hold the same points (of different yaws, or one
+    /// rotation repeated).
     fn sums<const K: usize>(
         rots: [&Rotation; K],
         at: [[f64; 2]; K],
@@ -862,27 +862,51 @@ fn sums_batched(
 ) {
     let chunks = rots.chunks(NEIGHBOURS).zip(at.chunks(NEIGHBOURS));
     for ((r, a), o) in chunks.zip(out.chunks_mut(NEIGHBOURS)) {
-        macro_rules! pass {
-            ($k:literal) => {{
-                let sums = Rotation::sums::<$k>(
-                    std::array::from_fn(|i| r[i]),
-                    std::array::from_fn(|i| a[i]),
-                    field,
-                    limits,
-                );
-                o.copy_from_slice(&sums);
-            }};
-        }
-        match r.len().min(a.len()).min(o.len()) {
-            1 => pass!(1),
-            2 => pass!(2),
-            3 => pass!(3),
-            4 => pass!(4),
-            5 => pass!(5),
-            _ => pass!(6),
-        }
+        by_count!(r.len().min(a.len()).min(o.len()), K => {
+            let sums = Rotation::sums::<K>(
+                std::array::from_fn(|i| r[i]),
+                std::array::from_fn(|i| a[i]),
+                field,
+                limits,
+            );
+            o.copy_from_slice(&sums);
+        });
     }
 }
+
+/// Runs `$body` with the const `$k` = `$n` (1..=6; larger counts as 6): a batched kernel's
+/// candidate count as a const generic.
+macro_rules! by_count {
+    ($n:expr, $k:ident => $body:block) => {
+        match $n {
+            1 => {
+                const $k: usize = 1;
+                $body
+            }
+            2 => {
+                const $k: usize = 2;
+                $body
+            }
+            3 => {
+                const $k: usize = 3;
+                $body
+            }
+            4 => {
+                const $k: usize = 4;
+                $body
+            }
+            5 => {
+                const $k: usize = 5;
+                $body
+            }
+            _ => {
+                const $k: usize = 6;
+                $body
+            }
+        }
+    };
+}
+pub(crate) use by_count;
 
 /// Caller-owned buffers of [`RotatedPoints`].
 #[derive(Debug, Clone, Default)]

@@ -136,6 +136,9 @@ impl Prior {
     }
 }
 
+/// Poses scored in one pass by the refinement (a pattern-search iteration's candidates).
+const PASS: usize = 6;
+
 #[derive(Debug, Clone, Copy)]
 struct Candidate {
     yaw_index: usize,
@@ -396,8 +399,8 @@ impl PointField {
 
     /// [`Self::score_rotated`] of `K` poses (`sin_cos[k]` of `poses[k]`'s yaw) in one pass
     /// over the points. Each pose has its own accumulator and adds its own values in its
-    /// own order, so each score is the bits of its [`Self::score_rotated`]; one chain of
-    /// dependent additions is latency-bound, several independent ones overlap.
+    /// own order, so each score is the bits of its [`Self::score_rotated`]; the independent
+    /// chains of additions can overlap.
     fn scores_rotated<const K: usize>(
         &self,
         points_body: &[[f64; 2]],
@@ -410,6 +413,7 @@ impl PointField {
         // The same left-to-right fold as `Iterator::sum` (from -0.0), four points at a time:
         // per lane the operations of `bilinear`, so the same bits, in vector registers.
         let mut sums = [-0.0; K];
+        let mut values = [[0.0; LANES]; K];
         let mut chunks = points_body.chunks_exact(LANES);
         for quad in &mut chunks {
             for k in 0..K {
@@ -422,8 +426,12 @@ impl PointField {
                     u[l] = (x - self.origin_x_m) / self.resolution_m - 0.5;
                     v[l] = (y - self.origin_y_m) / self.resolution_m - 0.5;
                 }
-                for b in self.bilinear_lanes(&u, &v) {
-                    sums[k] += b;
+                values[k] = self.bilinear_lanes(&u, &v);
+            }
+            // Apart from the loop above: unrolled, the accumulators stay in registers.
+            for (sum, values) in sums.iter_mut().zip(&values) {
+                for value in values {
+                    *sum += value;
                 }
             }
         }
@@ -439,7 +447,7 @@ impl PointField {
         sums.map(|sum| sum / points_body.len() as f64)
     }
 
-    /// [`Self::scores_rotated`] of any number of poses into `out`, up to six per pass (a
+    /// [`Self::scores_rotated`] of any number of poses into `out`, up to [`PASS`] per pass (a
     /// pattern-search iteration's candidates).
     fn scores_batched(
         &self,
@@ -448,27 +456,16 @@ impl PointField {
         sin_cos: &[(f64, f64)],
         out: &mut [f64],
     ) {
-        const MOST: usize = 6;
-        let chunks = poses.chunks(MOST).zip(sin_cos.chunks(MOST));
-        for ((p, sc), o) in chunks.zip(out.chunks_mut(MOST)) {
-            macro_rules! pass {
-                ($k:literal) => {{
-                    let scores = self.scores_rotated::<$k>(
-                        points_body,
-                        std::array::from_fn(|i| p[i]),
-                        std::array::from_fn(|i| sc[i]),
-                    );
-                    o.copy_from_slice(&scores);
-                }};
-            }
-            match p.len().min(sc.len()).min(o.len()) {
-                1 => pass!(1),
-                2 => pass!(2),
-                3 => pass!(3),
-                4 => pass!(4),
-                5 => pass!(5),
-                _ => pass!(6),
-            }
+        let chunks = poses.chunks(PASS).zip(sin_cos.chunks(PASS));
+        for ((p, sc), o) in chunks.zip(out.chunks_mut(PASS)) {
+            crate::filter::scanmatch::by_count!(p.len().min(sc.len()).min(o.len()), K => {
+                let scores = self.scores_rotated::<K>(
+                    points_body,
+                    std::array::from_fn(|i| p[i]),
+                    std::array::from_fn(|i| sc[i]),
+                );
+                o.copy_from_slice(&scores);
+            });
         }
     }
 
@@ -888,16 +885,15 @@ impl PointField {
             100,
             // An iteration's candidates scored in one pass.
             |cands, values| {
-                const MOST: usize = 6;
-                for (cands, values) in cands.chunks(MOST).zip(values.chunks_mut(MOST)) {
+                for (cands, values) in cands.chunks(PASS).zip(values.chunks_mut(PASS)) {
                     let n = cands.len();
-                    let mut poses = [Pose2::default(); MOST];
-                    let mut sc = [(0.0, 0.0); MOST];
+                    let mut poses = [Pose2::default(); PASS];
+                    let mut sc = [(0.0, 0.0); PASS];
                     for ((p, sc), &(at, keep)) in poses.iter_mut().zip(&mut sc).zip(cands) {
                         *p = Pose2::new(at[0], at[1], at[2]);
                         *sc = sin_cos(p.yaw_rad, keep);
                     }
-                    let mut scores = [0.0; MOST];
+                    let mut scores = [0.0; PASS];
                     self.scores_batched(points_body, &poses[..n], &sc[..n], &mut scores[..n]);
                     for ((v, p), s) in values.iter_mut().zip(&poses).zip(scores) {
                         *v = value(p, s);
