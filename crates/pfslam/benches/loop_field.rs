@@ -2,7 +2,8 @@
 //! [`PointField`] (41 keyframes x 200 points within 30 m, +-1.5 m window at 0.05 m, 3 pooled
 //! levels, as `[graph]`'s defaults on the full-size car) and verifying a closure in it (the
 //! branch and bound, its ambiguity test and the sub-cell refinement), and a per-scan
-//! refinement field (11 keyframes, level 0 only). Run on a one-thread pool that includes the
+//! refinement field (11 keyframes, level 0 only) and the sub-cell refinement in it (the
+//! pattern search of `refine_scans`). Run on a one-thread pool that includes the
 //! calling thread, so the calling thread's CPU time is the kernel's whole CPU time.
 
 mod cpu_time;
@@ -183,6 +184,14 @@ fn bench(c: &mut Criterion<ThreadCpuTime>) {
                     sigma,
                     0,
                 ))
+            })
+        });
+        // From a cell-grid optimum's distance (as after `refine_scans`' exhaustive search).
+        let refine_field = PointField::build(&refine_submap, rlo, rhi, res, sigma, 0);
+        let start = truth.compose(&Pose2::new(0.03, -0.02, 0.2f64.to_radians()));
+        g.bench_function("refine", |b| {
+            b.iter(|| {
+                black_box(refine_field.refine(black_box(&body), &start, win.yaw_step_rad, 4, None))
             })
         });
     }

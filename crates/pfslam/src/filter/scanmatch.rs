@@ -548,8 +548,8 @@ impl LikelihoodField {
 #[derive(Debug, Clone, Default)]
 pub struct MatchScratch {
     base: Vec<usize>,
-    /// Refinement: the points rotated by the current yaw and by a one-off yaw.
-    rotated: (Rotation, Rotation),
+    /// Refinement: the points rotated by the current yaw and by one-off yaws.
+    rotated: RotationBuffers,
     /// Coarse search: field sums per x/y offset for one yaw.
     sums: Vec<u32>,
 }
@@ -607,22 +607,72 @@ impl Rotation {
         }));
     }
 
-    /// Sum of bilinear field values of the points seen from `(x_m, y_m)`: per point
-    /// `pose.x_m + c * p[0] - s * p[1]` evaluated left to right as written, then
-    /// `cell_coords` and `bilinear`; summed left to right from -0.0 (as `Iterator::sum`).
-    fn sum(&self, field: &LikelihoodField, limits: &MapLimits, x_m: f64, y_m: f64) -> f64 {
+    /// Sums of bilinear field values of the points seen from `at[k]` (x m, y m) with the
+    /// rotation `rots[k]`, `K` candidates in one pass over the points: per point
+    /// `x_m + c * p[0] - s * p[1]` evaluated left to right as written, then `cell_coords`
+    /// and `bilinear`; summed left to right from -0.0 (as `Iterator::sum`). Each candidate
+    /// has its own accumulator and adds its own values in its own order, so each result is
+    /// the bits of the candidate summed alone (`K = 1`); the independent chains of
+    /// additions can overlap. The rotations hold the same points (of different yaws, or one
+    /// rotation repeated).
+    fn sums<const K: usize>(
+        rots: [&Rotation; K],
+        at: [[f64; 2]; K],
+        field: &LikelihoodField,
+        limits: &MapLimits,
+    ) -> [f64; K] {
         #[cfg(target_arch = "x86_64")]
         if field.vector_ok() && std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: AVX2 is present (checked above).
-            return unsafe { self.sum_avx2(field, limits, x_m, y_m) };
+            return unsafe { Rotation::sums_avx2(rots, at, field, limits) };
         }
-        self.sum_portable(field, limits, x_m, y_m)
+        Rotation::sums_portable(rots, at, field, limits)
     }
 
+    /// Whole blocks every rotation of a batch has (all the same: they rotate the same
+    /// points; the minimum keeps a mismatch from indexing out of bounds).
+    fn common_blocks(rots: &[&Rotation]) -> usize {
+        debug_assert!(rots.iter().all(|r| {
+            r.blocks.len() == rots[0].blocks.len() && r.tail.len() == rots[0].tail.len()
+        }));
+        rots.iter().map(|r| r.blocks.len()).min().unwrap_or(0)
+    }
+
+    fn sums_portable<const K: usize>(
+        rots: [&Rotation; K],
+        at: [[f64; 2]; K],
+        field: &LikelihoodField,
+        limits: &MapLimits,
+    ) -> [f64; K] {
+        let mut sums = [-0.0; K];
+        let mut values = [[0.0; LANES]; K];
+        for b in 0..Rotation::common_blocks(&rots) {
+            for k in 0..K {
+                let [r0, r1, r2, r3] = &rots[k].blocks[b];
+                let [x_m, y_m] = at[k];
+                // Per lane the same operations in the same order as `sum_tail`.
+                let mut u = [0.0; LANES];
+                let mut v = [0.0; LANES];
+                for l in 0..LANES {
+                    (u[l], v[l]) = limits.cell_coords(x_m + r0[l] - r1[l], y_m + r2[l] + r3[l]);
+                }
+                values[k] = field.bilinear_lanes(&u, &v);
+            }
+            for (sum, values) in sums.iter_mut().zip(&values) {
+                for value in values {
+                    *sum += value;
+                }
+            }
+        }
+        std::array::from_fn(|k| rots[k].sum_tail(field, limits, at[k][0], at[k][1], sums[k]))
+    }
+
+    /// The single-candidate portable sum as first written (before the batched kernels):
+    /// the reference the batched ones must equal.
+    #[cfg(test)]
     fn sum_portable(&self, field: &LikelihoodField, limits: &MapLimits, x_m: f64, y_m: f64) -> f64 {
         let mut sum = -0.0;
         for [r0, r1, r2, r3] in &self.blocks {
-            // Per lane the same operations in the same order as the tail below.
             let mut u = [0.0; LANES];
             let mut v = [0.0; LANES];
             for k in 0..LANES {
@@ -633,6 +683,21 @@ impl Rotation {
             }
         }
         self.sum_tail(field, limits, x_m, y_m, sum)
+    }
+
+    /// The AVX2 kernel for one candidate.
+    #[cfg(all(test, target_arch = "x86_64"))]
+    #[target_feature(enable = "avx2")]
+    unsafe fn sum_avx2(
+        &self,
+        field: &LikelihoodField,
+        limits: &MapLimits,
+        x_m: f64,
+        y_m: f64,
+    ) -> f64 {
+        // SAFETY: the caller guarantees AVX2.
+        let [sum] = unsafe { Rotation::sums_avx2([self], [[x_m, y_m]], field, limits) };
+        sum
     }
 
     fn sum_tail(
@@ -650,23 +715,21 @@ impl Rotation {
         sum
     }
 
-    /// [`Self::sum_portable`] in AVX2: the same IEEE operations per lane (no FMA: Rust never
-    /// contracts), so the same bits; the four corner bytes of a point come from two 32-bit
-    /// gathers (the field keeps spare bytes after its last cell for the over-read).
+    /// [`Self::sums_portable`] in AVX2: the same IEEE operations per lane (no FMA: Rust
+    /// never contracts), so the same bits; the four corner bytes of a point come from two
+    /// 32-bit gathers (the field keeps spare bytes after its last cell for the over-read).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn sum_avx2(
-        &self,
+    unsafe fn sums_avx2<const K: usize>(
+        rots: [&Rotation; K],
+        at: [[f64; 2]; K],
         field: &LikelihoodField,
         limits: &MapLimits,
-        x_m: f64,
-        y_m: f64,
-    ) -> f64 {
+    ) -> [f64; K] {
         use std::arch::x86_64::*;
         let (ox, oy) = (limits.origin_x_m(), limits.origin_y_m());
         // The same division `MapLimits::new` caches for `cell_coords`: the same bits.
         let inv = 1.0 / limits.resolution_m();
-        let (vx, vy) = (_mm256_set1_pd(x_m), _mm256_set1_pd(y_m));
         let (vox, voy, vinv) = (_mm256_set1_pd(ox), _mm256_set1_pd(oy), _mm256_set1_pd(inv));
         let half = _mm256_set1_pd(0.5);
         let one = _mm256_set1_pd(1.0);
@@ -683,123 +746,197 @@ impl Rotation {
         let minus1 = _mm_set1_epi32(-1);
         let byte = _mm_set1_epi32(0xff);
         let base = field.values.as_ptr();
-        let mut sum = -0.0;
-        for [r0, r1, r2, r3] in &self.blocks {
-            // SAFETY: unaligned loads of whole `[f64; 4]` arrays.
-            let (r0, r1, r2, r3) = unsafe {
-                (
-                    _mm256_loadu_pd(r0.as_ptr()),
-                    _mm256_loadu_pd(r1.as_ptr()),
-                    _mm256_loadu_pd(r2.as_ptr()),
-                    _mm256_loadu_pd(r3.as_ptr()),
-                )
-            };
-            let wx = _mm256_sub_pd(_mm256_add_pd(vx, r0), r1);
-            let wy = _mm256_add_pd(_mm256_add_pd(vy, r2), r3);
-            let u = _mm256_mul_pd(_mm256_sub_pd(wx, vox), vinv);
-            let v = _mm256_mul_pd(_mm256_sub_pd(wy, voy), vinv);
-            let x = _mm256_sub_pd(u, half);
-            let y = _mm256_sub_pd(v, half);
-            let ok = _mm256_and_pd(
-                _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, x), lim),
-                _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, y), lim),
-            );
-            let out = if _mm256_movemask_pd(ok) != 0xf {
-                // A lane beyond the fast path's range (or NaN): the scalar path per lane.
-                let mut ua = [0.0; LANES];
-                let mut va = [0.0; LANES];
-                // SAFETY: stores into local arrays.
-                unsafe {
-                    _mm256_storeu_pd(ua.as_mut_ptr(), u);
-                    _mm256_storeu_pd(va.as_mut_ptr(), v);
-                }
-                std::array::from_fn(|k| field.bilinear(ua[k], va[k]))
-            } else {
-                // floor_to_i32: truncate, minus one where the truncation lies above.
-                let tx = _mm256_cvtepi32_pd(_mm256_cvttpd_epi32(x));
-                let ty = _mm256_cvtepi32_pd(_mm256_cvttpd_epi32(y));
-                let fx = _mm256_sub_pd(tx, _mm256_and_pd(_mm256_cmp_pd::<_CMP_GT_OQ>(tx, x), one));
-                let fy = _mm256_sub_pd(ty, _mm256_and_pd(_mm256_cmp_pd::<_CMP_GT_OQ>(ty, y), one));
-                let ax = _mm256_sub_pd(x, fx);
-                let ay = _mm256_sub_pd(y, fy);
-                let (i, j) = (_mm256_cvttpd_epi32(fx), _mm256_cvttpd_epi32(fy));
-                let (li, lj) = (_mm_sub_epi32(i, i0), _mm_sub_epi32(j, j0));
-                let inside = _mm_and_si128(
-                    _mm_and_si128(_mm_cmpgt_epi32(li, minus1), _mm_cmpgt_epi32(wm1, li)),
-                    _mm_and_si128(_mm_cmpgt_epi32(lj, minus1), _mm_cmpgt_epi32(hm1, lj)),
+        let vx: [__m256d; K] = std::array::from_fn(|k| _mm256_set1_pd(at[k][0]));
+        let vy: [__m256d; K] = std::array::from_fn(|k| _mm256_set1_pd(at[k][1]));
+        let mut sums = [-0.0; K];
+        let mut values = [[0.0; LANES]; K];
+        for b in 0..Rotation::common_blocks(&rots) {
+            for k in 0..K {
+                let [r0, r1, r2, r3] = &rots[k].blocks[b];
+                // SAFETY: unaligned loads of whole `[f64; 4]` arrays.
+                let (r0, r1, r2, r3) = unsafe {
+                    (
+                        _mm256_loadu_pd(r0.as_ptr()),
+                        _mm256_loadu_pd(r1.as_ptr()),
+                        _mm256_loadu_pd(r2.as_ptr()),
+                        _mm256_loadu_pd(r3.as_ptr()),
+                    )
+                };
+                let wx = _mm256_sub_pd(_mm256_add_pd(vx[k], r0), r1);
+                let wy = _mm256_add_pd(_mm256_add_pd(vy[k], r2), r3);
+                let u = _mm256_mul_pd(_mm256_sub_pd(wx, vox), vinv);
+                let v = _mm256_mul_pd(_mm256_sub_pd(wy, voy), vinv);
+                let x = _mm256_sub_pd(u, half);
+                let y = _mm256_sub_pd(v, half);
+                let ok = _mm256_and_pd(
+                    _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, x), lim),
+                    _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_andnot_pd(sign, y), lim),
                 );
-                let (f00, f10, f01, f11) = if _mm_movemask_ps(_mm_castsi128_ps(inside)) == 0xf {
-                    let k = _mm_add_epi32(_mm_mullo_epi32(lj, vw), li);
-                    // SAFETY: all four corners lie inside the window, so the 4 bytes read
-                    // at `k` and `k + w` end at most 2 bytes past the last cell, inside
-                    // the field's spare bytes (`vector_ok`).
-                    let (d0, d1) = unsafe {
-                        (
-                            _mm_i32gather_epi32::<1>(base.cast(), k),
-                            _mm_i32gather_epi32::<1>(base.cast(), _mm_add_epi32(k, vw)),
-                        )
-                    };
-                    let lo = |d| _mm256_cvtepi32_pd(_mm_and_si128(d, byte));
-                    let hi = |d| _mm256_cvtepi32_pd(_mm_and_si128(_mm_srli_epi32::<8>(d), byte));
-                    (lo(d0), hi(d0), lo(d1), hi(d1))
-                } else {
-                    // A corner outside the window: `corners`' slow path per lane.
-                    let mut ia = [0i32; LANES];
-                    let mut ja = [0i32; LANES];
+                let out = if _mm256_movemask_pd(ok) != 0xf {
+                    // A lane beyond the fast path's range (or NaN): the scalar path per lane.
+                    let mut ua = [0.0; LANES];
+                    let mut va = [0.0; LANES];
                     // SAFETY: stores into local arrays.
                     unsafe {
-                        _mm_storeu_si128(ia.as_mut_ptr().cast(), i);
-                        _mm_storeu_si128(ja.as_mut_ptr().cast(), j);
+                        _mm256_storeu_pd(ua.as_mut_ptr(), u);
+                        _mm256_storeu_pd(va.as_mut_ptr(), v);
                     }
-                    let f: [[f64; 4]; LANES] = std::array::from_fn(|k| field.corners(ia[k], ja[k]));
-                    let col = |c: usize| _mm256_setr_pd(f[0][c], f[1][c], f[2][c], f[3][c]);
-                    (col(0), col(1), col(2), col(3))
+                    std::array::from_fn(|l| field.bilinear(ua[l], va[l]))
+                } else {
+                    // `floor_to_i32` as a float: the same value (the lanes are finite and
+                    // within 1e9; `x`, `y` are never -0.0, as `u - 0.5` cannot be).
+                    let fx = _mm256_floor_pd(x);
+                    let fy = _mm256_floor_pd(y);
+                    let ax = _mm256_sub_pd(x, fx);
+                    let ay = _mm256_sub_pd(y, fy);
+                    let (i, j) = (_mm256_cvttpd_epi32(fx), _mm256_cvttpd_epi32(fy));
+                    let (li, lj) = (_mm_sub_epi32(i, i0), _mm_sub_epi32(j, j0));
+                    let inside = _mm_and_si128(
+                        _mm_and_si128(_mm_cmpgt_epi32(li, minus1), _mm_cmpgt_epi32(wm1, li)),
+                        _mm_and_si128(_mm_cmpgt_epi32(lj, minus1), _mm_cmpgt_epi32(hm1, lj)),
+                    );
+                    let (f00, f10, f01, f11) = if _mm_movemask_ps(_mm_castsi128_ps(inside)) == 0xf {
+                        let k = _mm_add_epi32(_mm_mullo_epi32(lj, vw), li);
+                        // SAFETY: all four corners lie inside the window, so the 4
+                        // bytes read at `k` and `k + w` end at most 2 bytes past the
+                        // last cell, inside the field's spare bytes (`vector_ok`).
+                        let (d0, d1) = unsafe {
+                            (
+                                _mm_i32gather_epi32::<1>(base.cast(), k),
+                                _mm_i32gather_epi32::<1>(base.cast(), _mm_add_epi32(k, vw)),
+                            )
+                        };
+                        let lo = |d| _mm256_cvtepi32_pd(_mm_and_si128(d, byte));
+                        let hi =
+                            |d| _mm256_cvtepi32_pd(_mm_and_si128(_mm_srli_epi32::<8>(d), byte));
+                        (lo(d0), hi(d0), lo(d1), hi(d1))
+                    } else {
+                        // A corner outside the window: `corners`' slow path per lane.
+                        let mut ia = [0i32; LANES];
+                        let mut ja = [0i32; LANES];
+                        // SAFETY: stores into local arrays.
+                        unsafe {
+                            _mm_storeu_si128(ia.as_mut_ptr().cast(), i);
+                            _mm_storeu_si128(ja.as_mut_ptr().cast(), j);
+                        }
+                        let f: [[f64; 4]; LANES] =
+                            std::array::from_fn(|l| field.corners(ia[l], ja[l]));
+                        let col = |c: usize| _mm256_setr_pd(f[0][c], f[1][c], f[2][c], f[3][c]);
+                        (col(0), col(1), col(2), col(3))
+                    };
+                    // `f00 * (1 - ax) + f10 * ax` etc., as `mix_lanes`.
+                    let omx = _mm256_sub_pd(one, ax);
+                    let bottom = _mm256_add_pd(_mm256_mul_pd(f00, omx), _mm256_mul_pd(f10, ax));
+                    let top = _mm256_add_pd(_mm256_mul_pd(f01, omx), _mm256_mul_pd(f11, ax));
+                    let mixed = _mm256_add_pd(
+                        _mm256_mul_pd(bottom, _mm256_sub_pd(one, ay)),
+                        _mm256_mul_pd(top, ay),
+                    );
+                    let mut out = [0.0; LANES];
+                    // SAFETY: a store into a local array.
+                    unsafe { _mm256_storeu_pd(out.as_mut_ptr(), mixed) };
+                    out
                 };
-                // `f00 * (1 - ax) + f10 * ax` etc., as `mix_lanes`.
-                let omx = _mm256_sub_pd(one, ax);
-                let bottom = _mm256_add_pd(_mm256_mul_pd(f00, omx), _mm256_mul_pd(f10, ax));
-                let top = _mm256_add_pd(_mm256_mul_pd(f01, omx), _mm256_mul_pd(f11, ax));
-                let mixed = _mm256_add_pd(
-                    _mm256_mul_pd(bottom, _mm256_sub_pd(one, ay)),
-                    _mm256_mul_pd(top, ay),
-                );
-                let mut out = [0.0; LANES];
-                // SAFETY: a store into a local array.
-                unsafe { _mm256_storeu_pd(out.as_mut_ptr(), mixed) };
-                out
-            };
-            for b in out {
-                sum += b;
+                values[k] = out;
+            }
+            // Apart from the loop above (which stays a loop): unrolled, so that the
+            // accumulators stay in registers and the chains overlap.
+            for (sum, values) in sums.iter_mut().zip(&values) {
+                for value in values {
+                    *sum += value;
+                }
             }
         }
-        self.sum_tail(field, limits, x_m, y_m, sum)
+        std::array::from_fn(|k| rots[k].sum_tail(field, limits, at[k][0], at[k][1], sums[k]))
     }
 }
 
-/// The rotation the refinement's x/y moves reuse (`kept`, of the yaw `yaw_bits`) and a
-/// scratch one for one-off yaws (the yaw candidates).
+/// The sums of [`Rotation::sums`] for any number of candidates (`rots[i]` seen from
+/// `at[i]`, into `out[i]`), [`NEIGHBOURS`] per pass at most.
+fn sums_batched(
+    rots: &[&Rotation],
+    at: &[[f64; 2]],
+    field: &LikelihoodField,
+    limits: &MapLimits,
+    out: &mut [f64],
+) {
+    let chunks = rots.chunks(NEIGHBOURS).zip(at.chunks(NEIGHBOURS));
+    for ((r, a), o) in chunks.zip(out.chunks_mut(NEIGHBOURS)) {
+        by_count!(r.len().min(a.len()).min(o.len()), K => {
+            let sums = Rotation::sums::<K>(
+                std::array::from_fn(|i| r[i]),
+                std::array::from_fn(|i| a[i]),
+                field,
+                limits,
+            );
+            o.copy_from_slice(&sums);
+        });
+    }
+}
+
+/// Runs `$body` with the const `$k` = `$n` (1..=6; larger counts as 6): a batched kernel's
+/// candidate count as a const generic.
+macro_rules! by_count {
+    ($n:expr, $k:ident => $body:block) => {
+        match $n {
+            1 => {
+                const $k: usize = 1;
+                $body
+            }
+            2 => {
+                const $k: usize = 2;
+                $body
+            }
+            3 => {
+                const $k: usize = 3;
+                $body
+            }
+            4 => {
+                const $k: usize = 4;
+                $body
+            }
+            5 => {
+                const $k: usize = 5;
+                $body
+            }
+            _ => {
+                const $k: usize = 6;
+                $body
+            }
+        }
+    };
+}
+pub(crate) use by_count;
+
+/// Caller-owned buffers of [`RotatedPoints`].
+#[derive(Debug, Clone, Default)]
+struct RotationBuffers {
+    kept: Rotation,
+    once: [Rotation; 2],
+}
+
+/// The rotation the refinement's x/y moves reuse (`kept`, of the yaw `yaw_bits`) and two
+/// scratch ones for one-off yaws (a pattern-search iteration's two yaw candidates, summed
+/// in the same pass as its x/y moves).
 struct RotatedPoints {
     yaw_bits: Option<u64>,
-    kept: Rotation,
-    once: Rotation,
+    buf: RotationBuffers,
 }
 
 impl RotatedPoints {
-    fn take(buf: &mut (Rotation, Rotation)) -> Self {
-        let (kept, once) = std::mem::take(buf);
+    fn take(buf: &mut RotationBuffers) -> Self {
         RotatedPoints {
             yaw_bits: None,
-            kept,
-            once,
+            buf: std::mem::take(buf),
         }
     }
 
-    fn give_back(self, buf: &mut (Rotation, Rotation)) {
-        *buf = (self.kept, self.once);
+    fn give_back(self, buf: &mut RotationBuffers) {
+        *buf = self.buf;
     }
 
     /// Sum of bilinear field values of `points_body` seen from `pose` (see
-    /// [`Rotation::sum`]). `keep`: cache this yaw's rotation (the yaw the x/y moves will
+    /// [`Rotation::sums`]). `keep`: cache this yaw's rotation (the yaw the x/y moves will
     /// reuse).
     fn field_sum(
         &mut self,
@@ -809,22 +946,74 @@ impl RotatedPoints {
         pose: &Pose2,
         keep: bool,
     ) -> f64 {
-        let rotation = if self.yaw_bits == Some(pose.yaw_rad.to_bits()) {
-            &self.kept
-        } else {
-            let (s, c) = pose.yaw_rad.sin_cos();
-            if keep {
-                self.kept.fill(points_body, s, c);
-                self.yaw_bits = Some(pose.yaw_rad.to_bits());
-                &self.kept
-            } else {
-                self.once.fill(points_body, s, c);
-                &self.once
+        let mut sum = [0.0];
+        self.field_sums(field, limits, points_body, &[(*pose, keep)], &mut sum);
+        sum[0]
+    }
+
+    /// [`Self::field_sum`] of several candidates (pose, `keep`) into `sums`, in as few
+    /// passes over the points as the rotation buffers allow: a candidate's sum is a pure
+    /// function of its pose (its rotation depends on the yaw's bits only), so each is the
+    /// bits of its own [`Self::field_sum`].
+    fn field_sums(
+        &mut self,
+        field: &LikelihoodField,
+        limits: &MapLimits,
+        points_body: &[[f64; 2]],
+        cands: &[(Pose2, bool)],
+        sums: &mut [f64],
+    ) {
+        let mut start = 0;
+        while start < cands.len().min(sums.len()) {
+            // One pass: candidates while a rotation buffer is free for their yaw. Slot 0
+            // is `kept`, 1 and 2 the one-off buffers; `kept` is refilled only before this
+            // pass uses it.
+            let mut slot = [0usize; NEIGHBOURS];
+            let mut once_bits: [Option<u64>; 2] = [None; 2];
+            let mut kept_used = false;
+            let mut end = start;
+            while end < cands.len().min(sums.len()) && end - start < NEIGHBOURS {
+                let (pose, keep) = &cands[end];
+                let bits = pose.yaw_rad.to_bits();
+                slot[end - start] = if self.yaw_bits == Some(bits) {
+                    kept_used = true;
+                    0
+                } else if let Some(k) = once_bits.iter().position(|&b| b == Some(bits)) {
+                    k + 1
+                } else if *keep && !kept_used {
+                    let (s, c) = pose.yaw_rad.sin_cos();
+                    self.buf.kept.fill(points_body, s, c);
+                    self.yaw_bits = Some(bits);
+                    kept_used = true;
+                    0
+                } else if let Some(k) = once_bits.iter().position(Option::is_none) {
+                    let (s, c) = pose.yaw_rad.sin_cos();
+                    self.buf.once[k].fill(points_body, s, c);
+                    once_bits[k] = Some(bits);
+                    k + 1
+                } else {
+                    break;
+                };
+                end += 1;
             }
-        };
-        rotation.sum(field, limits, pose.x_m, pose.y_m)
+            let n = end - start;
+            let buf = &self.buf;
+            let rot_of = |s: usize| if s == 0 { &buf.kept } else { &buf.once[s - 1] };
+            let rots: [&Rotation; NEIGHBOURS] = std::array::from_fn(|i| rot_of(slot[i]));
+            let at: [[f64; 2]; NEIGHBOURS] = std::array::from_fn(|i| {
+                cands
+                    .get(start + i)
+                    .map_or([0.0; 2], |(p, _)| [p.x_m, p.y_m])
+            });
+            sums_batched(&rots[..n], &at[..n], field, limits, &mut sums[start..end]);
+            start = end;
+        }
     }
 }
+
+/// Candidates of one pattern-search iteration (+-x, +-y, +-yaw): the most one batched
+/// pass sums.
+const NEIGHBOURS: usize = 6;
 
 /// Points per batch of the interpolations (here and in the back end's matcher).
 pub(crate) const LANES: usize = 4;
@@ -1110,13 +1299,107 @@ impl CoarseYaw<'_> {
 const MEMO: usize = 16;
 
 /// Pattern search with step halving (the sub-cell refinement of the matchers): from `start`
-/// (x, y, yaw; `first` = its objective and score, i.e. `eval(start)`), try +-`step_xy` in x and y and
-/// +-`step_yaw` in yaw, move to the best strict improvement, halve the steps when none
-/// improves, `levels` times (at most `max_iterations` moves or halvings). `eval(at,
-/// same_yaw)` returns (objective, score); `same_yaw` says the candidate keeps the current
-/// yaw (so rotated points can be reused). Returns the final position with its objective and
-/// score.
+/// (x, y, yaw; `first` = its objective and score, i.e. the value of `start`), try
+/// +-`step_xy` in x and y and +-`step_yaw` in yaw, move to the best strict improvement
+/// (ties: the first in that order), halve the steps when none improves, `levels` times (at
+/// most `max_iterations` moves or halvings). Returns the final position with its objective
+/// and score.
+///
+/// `eval(cands, values)` writes (objective, score) of each candidate `(at, same_yaw)` into
+/// `values` (as many as candidates, at most six); `same_yaw` says the candidate keeps the
+/// current yaw (so rotated points can be reused). Every candidate of an iteration that is
+/// not remembered goes to one call, so the evaluator can sum them in one pass; `eval` must
+/// be a pure function of each position, and then the search moves exactly as it would
+/// evaluating the candidates one at a time.
 pub fn pattern_search(
+    start: [f64; 3],
+    first: (f64, f64),
+    step_xy: f64,
+    step_yaw: f64,
+    levels: u32,
+    max_iterations: u32,
+    mut eval: impl FnMut(&[([f64; 3], bool)], &mut [(f64, f64)]),
+) -> ([f64; 3], (f64, f64)) {
+    let (mut at, mut best) = (start, first);
+    let (mut step_xy, mut step_yaw) = (step_xy, step_yaw);
+    let mut level = 0;
+    let mut iterations = 0;
+    // The last evaluations by position (bit patterns): a candidate that lands exactly on
+    // one (the position the last move came from, or a diagonal neighbour of an earlier
+    // position) reuses its value (~3 % fewer evaluations in the car's filter). Entries are
+    // added in candidate order, as evaluating one candidate after the other would.
+    let mut memo = [([u64::MAX; 3], (0.0, 0.0)); MEMO];
+    memo[0] = (start.map(f64::to_bits), first);
+    let mut memo_len = 1usize;
+    while level < levels && iterations < max_iterations {
+        iterations += 1;
+        let moves = [
+            (step_xy, 0.0, 0.0),
+            (-step_xy, 0.0, 0.0),
+            (0.0, step_xy, 0.0),
+            (0.0, -step_xy, 0.0),
+            (0.0, 0.0, step_yaw),
+            (0.0, 0.0, -step_yaw),
+        ];
+        let cands = moves.map(|(ex, ey, eyaw)| [at[0] + ex, at[1] + ey, at[2] + eyaw]);
+        // Per candidate: its value if remembered, else its index among the new ones. A
+        // remembered value is read now (a later insertion of this iteration may reuse its
+        // slot); a repeat of a new candidate of this iteration shares its evaluation.
+        let mut values = [(0.0, 0.0); NEIGHBOURS];
+        let mut new_of: [Option<usize>; NEIGHBOURS] = [None; NEIGHBOURS];
+        let mut todo = [([0.0; 3], false); NEIGHBOURS];
+        let mut todo_slot = [0usize; NEIGHBOURS];
+        let mut n_todo = 0;
+        for (i, (cand, &(_, _, eyaw))) in cands.iter().zip(&moves).enumerate() {
+            let key = cand.map(f64::to_bits);
+            let seen = memo[..memo_len.min(MEMO)].iter().position(|m| m.0 == key);
+            match seen.map(|pos| (pos, todo_slot[..n_todo].iter().position(|&s| s == pos))) {
+                Some((_, Some(t))) => new_of[i] = Some(t),
+                Some((pos, None)) => values[i] = memo[pos].1,
+                None => {
+                    let pos = memo_len % MEMO;
+                    memo[pos].0 = key;
+                    memo_len += 1;
+                    todo[n_todo] = (*cand, eyaw == 0.0);
+                    todo_slot[n_todo] = pos;
+                    new_of[i] = Some(n_todo);
+                    n_todo += 1;
+                }
+            }
+        }
+        let mut evaluated = [(0.0, 0.0); NEIGHBOURS];
+        if n_todo > 0 {
+            eval(&todo[..n_todo], &mut evaluated[..n_todo]);
+        }
+        for t in 0..n_todo {
+            memo[todo_slot[t]].1 = evaluated[t];
+        }
+        let mut moved: Option<([f64; 3], (f64, f64))> = None;
+        for i in 0..NEIGHBOURS {
+            let value = new_of[i].map_or(values[i], |t| evaluated[t]);
+            if value.0 > moved.map_or(best.0, |m| m.1.0) {
+                moved = Some((cands[i], value));
+            }
+        }
+        match moved {
+            Some((cand, value)) => {
+                at = cand;
+                best = value;
+            }
+            None => {
+                step_xy *= 0.5;
+                step_yaw *= 0.5;
+                level += 1;
+            }
+        }
+    }
+    (at, best)
+}
+
+/// [`pattern_search`] as it was before the batched evaluation: one candidate evaluated
+/// after the other, `eval(at, same_yaw)`. The reference the batched search must follow.
+#[cfg(test)]
+pub(crate) fn pattern_search_sequential(
     start: [f64; 3],
     first: (f64, f64),
     step_xy: f64,
@@ -1264,12 +1547,18 @@ fn refine_from(
     let n = points_body.len().max(1) as f64;
     let [dx, dy, dyaw] = start;
     let mut rot = RotatedPoints::take(&mut scratch.rotated);
+    // (objective, field sum) at the offset `d` with field sum `sum`.
+    let value = |d: [f64; 3], sum: f64| {
+        (
+            params.gain_per_unit * sum - prior_penalty(params, d[0], d[1], d[2]),
+            sum,
+        )
+    };
     let mut eval = |dx: f64, dy: f64, dyaw: f64, keep: bool| {
         let pose = offset_pose(predicted, [dx, dy, dyaw]);
-        let sum = rot.field_sum(field, limits, points_body, &pose, keep);
-        (
-            params.gain_per_unit * sum - prior_penalty(params, dx, dy, dyaw),
-            sum,
+        value(
+            [dx, dy, dyaw],
+            rot.field_sum(field, limits, points_body, &pose, keep),
         )
     };
     let ([dx, dy, dyaw], (obj, sum)) = if params.refine_method == RefineMethod::GaussNewton {
@@ -1291,7 +1580,8 @@ fn refine_from(
         (at, (obj, sum))
     } else {
         let first = eval(dx, dy, dyaw, true);
-        // Refinement: pattern search with step halving on the interpolated field.
+        // Refinement: pattern search with step halving on the interpolated field, an
+        // iteration's candidates summed in one pass.
         pattern_search(
             [dx, dy, dyaw],
             first,
@@ -1299,7 +1589,20 @@ fn refine_from(
             steps[1],
             levels,
             64,
-            |at, same_yaw| eval(at[0], at[1], at[2], same_yaw),
+            |cands, values| {
+                for (cands, values) in cands.chunks(NEIGHBOURS).zip(values.chunks_mut(NEIGHBOURS)) {
+                    let mut poses = [(Pose2::default(), false); NEIGHBOURS];
+                    let mut sums = [0.0; NEIGHBOURS];
+                    for (p, &(d, keep)) in poses.iter_mut().zip(cands) {
+                        *p = (offset_pose(predicted, d), keep);
+                    }
+                    let n = cands.len();
+                    rot.field_sums(field, limits, points_body, &poses[..n], &mut sums[..n]);
+                    for ((v, &(d, _)), sum) in values.iter_mut().zip(cands).zip(sums) {
+                        *v = value(d, sum);
+                    }
+                }
+            },
         )
     };
     rot.give_back(&mut scratch.rotated);
@@ -1323,7 +1626,7 @@ fn offset_pose(predicted: &Pose2, d: [f64; 3]) -> Pose2 {
 const GN_PASSES: u32 = 4;
 
 /// The field term at `pose`: the sum of bilinear field values of the points (the same
-/// operations per point, in the same order, as [`Rotation::sum`], so the same bits), its
+/// operations per point, in the same order, as [`Rotation::sums`], so the same bits), its
 /// gradient with respect to (x m, y m, yaw rad) of the pose, and the sum of the outer
 /// products of the per-point gradients (upper triangle: xx, xy, xt, yy, yt, tt).
 fn field_terms(
@@ -2269,14 +2572,7 @@ mod tests {
                 } else {
                     rng.random_range(0..40)
                 };
-                let pts: Vec<[f64; 2]> = (0..n)
-                    .map(|_| match rng.random_range(0..40) {
-                        0 => [1e12, -3.0],
-                        1 => [f64::NAN, 1.0],
-                        2 => [rng.random_range(-30.0..30.0), rng.random_range(-30.0..30.0)],
-                        _ => [rng.random_range(-7.5..7.5), rng.random_range(-6.5..6.5)],
-                    })
-                    .collect();
+                let pts = kernel_points(&mut rng, n);
                 let pose = Pose2::new(
                     rng.random_range(-0.5..0.5),
                     rng.random_range(-0.5..0.5),
@@ -2319,6 +2615,198 @@ mod tests {
                 sums!(5);
                 sums!(7);
             }
+        }
+    }
+
+    /// Random body points for the kernel tests: mostly inside the room's field, some across
+    /// its edges, far outside it (beyond the fast path's 1e9 cells) and NaN.
+    fn kernel_points(rng: &mut rand_xoshiro::Xoshiro256PlusPlus, n: usize) -> Vec<[f64; 2]> {
+        use rand::RngExt;
+        (0..n)
+            .map(|_| match rng.random_range(0..40) {
+                0 => [1e12, -3.0],
+                1 => [f64::NAN, 1.0],
+                2 => [rng.random_range(-30.0..30.0), rng.random_range(-30.0..30.0)],
+                _ => [rng.random_range(-7.5..7.5), rng.random_range(-6.5..6.5)],
+            })
+            .collect()
+    }
+
+    /// The batched field sums (1..=6 candidates per pass, the portable and the AVX2 kernel,
+    /// candidates sharing a rotation or not) against the single-candidate sum as first
+    /// written, bit for bit; and `RotatedPoints::field_sums` (any number of candidates,
+    /// any mix of yaws and `keep` flags) against `field_sum` one candidate at a time.
+    #[test]
+    fn batched_field_sums_equal_the_single_candidate_ones_bit_for_bit() {
+        use rand::{RngExt, SeedableRng};
+        let (field, _) = room_field(0.0);
+        let limits = field.limits.unwrap();
+        #[cfg(target_arch = "x86_64")]
+        let avx2 = field.vector_ok() && std::arch::is_x86_feature_detected!("avx2");
+        #[cfg(not(target_arch = "x86_64"))]
+        let avx2 = false;
+        if !avx2 {
+            eprintln!("SKIP (AVX2 part only): no AVX2 on this CPU");
+        }
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(23);
+        let mut rotations: Vec<Rotation> = (0..3).map(|_| Rotation::default()).collect();
+        let mut fresh = RotatedPoints::take(&mut RotationBuffers::default());
+        let mut batched = RotatedPoints::take(&mut RotationBuffers::default());
+        for case in 0..300 {
+            let n = if case % 10 == 0 {
+                700
+            } else {
+                rng.random_range(0..40)
+            };
+            let pts = kernel_points(&mut rng, n);
+            for r in &mut rotations {
+                let (s, c) = rng.random_range(-0.3..0.3f64).sin_cos();
+                r.fill(&pts, s, c);
+            }
+            let k = 1 + case % NEIGHBOURS;
+            // Candidates: a rotation each (often the same one, as the x/y moves) and a
+            // position, some of them far outside.
+            let rots: Vec<&Rotation> = (0..k)
+                .map(|_| &rotations[rng.random_range(0..rotations.len())])
+                .collect();
+            let at: Vec<[f64; 2]> = (0..k)
+                .map(|_| match rng.random_range(0..20) {
+                    0 => [2e9, 0.0],
+                    _ => [rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5)],
+                })
+                .collect();
+            let want: Vec<u64> = rots
+                .iter()
+                .zip(&at)
+                .map(|(r, a)| r.sum_portable(&field, &limits, a[0], a[1]).to_bits())
+                .collect();
+            macro_rules! check {
+                ($k:literal) => {
+                    if k == $k {
+                        let r: [&Rotation; $k] = std::array::from_fn(|i| rots[i]);
+                        let a: [[f64; 2]; $k] = std::array::from_fn(|i| at[i]);
+                        let got = Rotation::sums_portable(r, a, &field, &limits);
+                        assert_eq!(got.map(f64::to_bits).to_vec(), want, "case {case}");
+                        #[cfg(target_arch = "x86_64")]
+                        if avx2 {
+                            // SAFETY: AVX2 is present (checked above).
+                            let got = unsafe { Rotation::sums_avx2(r, a, &field, &limits) };
+                            assert_eq!(got.map(f64::to_bits).to_vec(), want, "case {case}");
+                        }
+                        let got = Rotation::sums(r, a, &field, &limits);
+                        assert_eq!(got.map(f64::to_bits).to_vec(), want, "case {case}");
+                    }
+                };
+            }
+            check!(1);
+            check!(2);
+            check!(3);
+            check!(4);
+            check!(5);
+            check!(6);
+            // Whole candidate lists through the rotation buffers: a pattern-search
+            // iteration's shape (four x/y moves at one yaw, two yaw moves) and random mixes
+            // of up to 9 candidates over up to 5 yaws (more one-off yaws than buffers).
+            let base_yaw = rng.random_range(-0.3..0.3);
+            let m = rng.random_range(1..10);
+            let cands: Vec<(Pose2, bool)> = (0..m)
+                .map(|i| {
+                    let (x, y) = (rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5));
+                    if case % 2 == 0 && m >= NEIGHBOURS {
+                        let yaw = [0.0, 0.0, 0.0, 0.0, 0.002, -0.002][i % NEIGHBOURS];
+                        (Pose2::new(x, y, base_yaw + yaw), i % NEIGHBOURS < 4)
+                    } else {
+                        let yaw = base_yaw + 0.01 * f64::from(rng.random_range(0..5));
+                        (Pose2::new(x, y, yaw), rng.random_bool(0.5))
+                    }
+                })
+                .collect();
+            let mut got = vec![0.0; m];
+            batched.field_sums(&field, &limits, &pts, &cands, &mut got);
+            for (i, (pose, keep)) in cands.iter().enumerate() {
+                let one = fresh.field_sum(&field, &limits, &pts, pose, *keep);
+                assert_eq!(got[i].to_bits(), one.to_bits(), "case {case} cand {i}");
+            }
+        }
+    }
+
+    /// The batched pattern search evaluates the same positions in the same order (the
+    /// memo's hits, repeats within an iteration included) and returns the same bits as the
+    /// sequential one, on pure objectives with ties, NaN values and degenerate steps.
+    #[test]
+    fn batched_pattern_search_moves_as_the_sequential_one() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(5);
+        for case in 0..3000 {
+            let centre: [f64; 3] = std::array::from_fn(|_| rng.random_range(-1.0..1.0));
+            let quantum = [0.0, 1e-3, 0.1, 1.0][case % 4];
+            let nan_at = rng.random_range(0..30u64);
+            let f = |p: [f64; 3]| -> (f64, f64) {
+                let d = (p[0] - centre[0]).powi(2)
+                    + (p[1] - centre[1]).powi(2)
+                    + 4.0 * (p[2] - centre[2]).powi(2);
+                // Plateaus (ties) when quantised; NaN at some positions.
+                let o = if quantum > 0.0 {
+                    (-d / quantum).round() * quantum
+                } else {
+                    -d
+                };
+                let hash = p.iter().fold(0u64, |h, v| h.rotate_left(7) ^ v.to_bits());
+                let o = if hash % 31 == nan_at { f64::NAN } else { o };
+                (o, d)
+            };
+            let start: [f64; 3] = match case % 7 {
+                // Everything on a lattice of exact steps: many repeated positions.
+                0 => [0.0, -0.0, 0.0],
+                1 => [1e20, 0.5, -0.0],
+                _ => std::array::from_fn(|_| rng.random_range(-1.0..1.0)),
+            };
+            let steps = match case % 5 {
+                0 => (0.0, 0.0),
+                1 => (1e-30, 0.25),
+                2 => (0.25, 0.0),
+                _ => (rng.random_range(0.01..0.5), rng.random_range(0.001..0.1)),
+            };
+            let levels = rng.random_range(0..6);
+            let max_iterations = rng.random_range(1..80);
+            let mut seq_calls = Vec::new();
+            let want = pattern_search_sequential(
+                start,
+                f(start),
+                steps.0,
+                steps.1,
+                levels,
+                max_iterations,
+                |at, same_yaw| {
+                    seq_calls.push((at.map(f64::to_bits), same_yaw));
+                    f(at)
+                },
+            );
+            let mut batch_calls = Vec::new();
+            let got = pattern_search(
+                start,
+                f(start),
+                steps.0,
+                steps.1,
+                levels,
+                max_iterations,
+                |cands, values| {
+                    assert!(!cands.is_empty() && cands.len() <= NEIGHBOURS);
+                    assert_eq!(cands.len(), values.len());
+                    for (&(at, same_yaw), v) in cands.iter().zip(values) {
+                        batch_calls.push((at.map(f64::to_bits), same_yaw));
+                        *v = f(at);
+                    }
+                },
+            );
+            assert_eq!(batch_calls, seq_calls, "case {case}");
+            assert_eq!(
+                got.0.map(f64::to_bits),
+                want.0.map(f64::to_bits),
+                "case {case}"
+            );
+            assert_eq!(got.1.0.to_bits(), want.1.0.to_bits(), "case {case}");
+            assert_eq!(got.1.1.to_bits(), want.1.1.to_bits(), "case {case}");
         }
     }
 

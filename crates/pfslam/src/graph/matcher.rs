@@ -136,6 +136,9 @@ impl Prior {
     }
 }
 
+/// Poses scored in one pass by the refinement (a pattern-search iteration's candidates).
+const PASS: usize = 6;
+
 #[derive(Debug, Clone, Copy)]
 struct Candidate {
     yaw_index: usize,
@@ -402,33 +405,80 @@ impl PointField {
 
     /// [`Self::score`] with `(s, c)` = `pose.yaw_rad.sin_cos()` given.
     fn score_rotated(&self, points_body: &[[f64; 2]], pose: &Pose2, s: f64, c: f64) -> f64 {
+        let [score] = self.scores_rotated(points_body, [*pose], [(s, c)]);
+        score
+    }
+
+    /// [`Self::score_rotated`] of `K` poses (`sin_cos[k]` of `poses[k]`'s yaw) in one pass
+    /// over the points. Each pose has its own accumulator and adds its own values in its
+    /// own order, so each score is the bits of its [`Self::score_rotated`]; the independent
+    /// chains of additions can overlap.
+    fn scores_rotated<const K: usize>(
+        &self,
+        points_body: &[[f64; 2]],
+        poses: [Pose2; K],
+        sin_cos: [(f64, f64); K],
+    ) -> [f64; K] {
         if points_body.is_empty() {
-            return 0.0;
+            return [0.0; K];
         }
         // The same left-to-right fold as `Iterator::sum` (from -0.0), four points at a time:
         // per lane the operations of `bilinear`, so the same bits, in vector registers.
-        let mut sum = -0.0;
+        let mut sums = [-0.0; K];
+        let mut values = [[0.0; LANES]; K];
         let mut chunks = points_body.chunks_exact(LANES);
         for quad in &mut chunks {
-            let mut u = [0.0; LANES];
-            let mut v = [0.0; LANES];
-            for (k, p) in quad.iter().enumerate() {
-                let x = pose.x_m + c * p[0] - s * p[1];
-                let y = pose.y_m + s * p[0] + c * p[1];
-                u[k] = (x - self.origin_x_m) / self.resolution_m - 0.5;
-                v[k] = (y - self.origin_y_m) / self.resolution_m - 0.5;
+            for k in 0..K {
+                let (pose, (s, c)) = (&poses[k], sin_cos[k]);
+                let mut u = [0.0; LANES];
+                let mut v = [0.0; LANES];
+                for (l, p) in quad.iter().enumerate() {
+                    let x = pose.x_m + c * p[0] - s * p[1];
+                    let y = pose.y_m + s * p[0] + c * p[1];
+                    u[l] = (x - self.origin_x_m) / self.resolution_m - 0.5;
+                    v[l] = (y - self.origin_y_m) / self.resolution_m - 0.5;
+                }
+                values[k] = self.bilinear_lanes(&u, &v);
             }
-            for b in self.bilinear_lanes(&u, &v) {
-                sum += b;
+            // Apart from the loop above: unrolled, the accumulators stay in registers.
+            for (sum, values) in sums.iter_mut().zip(&values) {
+                for value in values {
+                    *sum += value;
+                }
             }
         }
         for p in chunks.remainder() {
-            sum += self.bilinear(
-                pose.x_m + c * p[0] - s * p[1],
-                pose.y_m + s * p[0] + c * p[1],
-            );
+            for k in 0..K {
+                let (pose, (s, c)) = (&poses[k], sin_cos[k]);
+                sums[k] += self.bilinear(
+                    pose.x_m + c * p[0] - s * p[1],
+                    pose.y_m + s * p[0] + c * p[1],
+                );
+            }
         }
-        sum / points_body.len() as f64
+        sums.map(|sum| sum / points_body.len() as f64)
+    }
+
+    /// [`Self::scores_rotated`] of any number of poses into `out`, up to [`PASS`] per pass (a
+    /// pattern-search iteration's candidates).
+    fn scores_batched(
+        &self,
+        points_body: &[[f64; 2]],
+        poses: &[Pose2],
+        sin_cos: &[(f64, f64)],
+        out: &mut [f64],
+    ) {
+        let chunks = poses.chunks(PASS).zip(sin_cos.chunks(PASS));
+        for ((p, sc), o) in chunks.zip(out.chunks_mut(PASS)) {
+            crate::filter::scanmatch::by_count!(p.len().min(sc.len()).min(o.len()), K => {
+                let scores = self.scores_rotated::<K>(
+                    points_body,
+                    std::array::from_fn(|i| p[i]),
+                    std::array::from_fn(|i| sc[i]),
+                );
+                o.copy_from_slice(&scores);
+            });
+        }
     }
 
     /// [`Self::bilinear`] of `LANES` points given as cell coordinates minus one half (`u`,
@@ -824,24 +874,44 @@ impl PointField {
     ) -> (Pose2, f64) {
         let n_pts = points_body.len().max(1) as f64;
         // Most steps of the pattern search keep the yaw: its sine and cosine once per yaw.
-        let last_yaw = std::cell::Cell::new((f64::NAN, 0.0, 0.0));
-        let objective = |p: &Pose2| {
-            let (yaw, mut sin, mut cos) = last_yaw.get();
-            if yaw.to_bits() != p.yaw_rad.to_bits() {
-                (sin, cos) = p.yaw_rad.sin_cos();
-                last_yaw.set((p.yaw_rad, sin, cos));
+        let mut kept_yaw = (f64::NAN.to_bits(), 0.0, 0.0);
+        let mut sin_cos = |yaw: f64, keep: bool| {
+            if kept_yaw.0 == yaw.to_bits() {
+                return (kept_yaw.1, kept_yaw.2);
             }
-            let s = self.score_rotated(points_body, p, sin, cos);
-            (s * n_pts - prior.map_or(0.0, |q| q.penalty(p)), s)
+            let (s, c) = yaw.sin_cos();
+            if keep {
+                kept_yaw = (yaw.to_bits(), s, c);
+            }
+            (s, c)
         };
+        let value = |p: &Pose2, s: f64| (s * n_pts - prior.map_or(0.0, |q| q.penalty(p)), s);
+        let (s, c) = sin_cos(start.yaw_rad, true);
+        let first = value(start, self.score_rotated(points_body, start, s, c));
         let ([x_m, y_m, yaw_rad], (_, score)) = crate::filter::scanmatch::pattern_search(
             [start.x_m, start.y_m, start.yaw_rad],
-            objective(start),
+            first,
             0.5 * self.resolution_m,
             0.5 * yaw_step_rad,
             levels,
             100,
-            |at, _| objective(&Pose2::new(at[0], at[1], at[2])),
+            // An iteration's candidates scored in one pass.
+            |cands, values| {
+                for (cands, values) in cands.chunks(PASS).zip(values.chunks_mut(PASS)) {
+                    let n = cands.len();
+                    let mut poses = [Pose2::default(); PASS];
+                    let mut sc = [(0.0, 0.0); PASS];
+                    for ((p, sc), &(at, keep)) in poses.iter_mut().zip(&mut sc).zip(cands) {
+                        *p = Pose2::new(at[0], at[1], at[2]);
+                        *sc = sin_cos(p.yaw_rad, keep);
+                    }
+                    let mut scores = [0.0; PASS];
+                    self.scores_batched(points_body, &poses[..n], &sc[..n], &mut scores[..n]);
+                    for ((v, p), s) in values.iter_mut().zip(&poses).zip(scores) {
+                        *v = value(p, s);
+                    }
+                }
+            },
         );
         (Pose2::new(x_m, y_m, yaw_rad), score)
     }
@@ -1015,6 +1085,84 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// The refinement as it was before the batched scores: the sequential pattern search,
+    /// one plain score at a time.
+    fn refine_sequential(
+        f: &PointField,
+        points_body: &[[f64; 2]],
+        start: &Pose2,
+        yaw_step_rad: f64,
+        levels: u32,
+        prior: Option<&Prior>,
+    ) -> (Pose2, f64) {
+        let n_pts = points_body.len().max(1) as f64;
+        let objective = |p: &Pose2| {
+            let s = score_plain(f, points_body, p);
+            (s * n_pts - prior.map_or(0.0, |q| q.penalty(p)), s)
+        };
+        let ([x_m, y_m, yaw_rad], (_, score)) = crate::filter::scanmatch::pattern_search_sequential(
+            [start.x_m, start.y_m, start.yaw_rad],
+            objective(start),
+            0.5 * f.resolution_m,
+            0.5 * yaw_step_rad,
+            levels,
+            100,
+            |at, _| objective(&Pose2::new(at[0], at[1], at[2])),
+        );
+        (Pose2::new(x_m, y_m, yaw_rad), score)
+    }
+
+    /// The batched scores (1..=6 poses per pass, and more over several passes) equal each
+    /// pose's plain score, and `refine` (an iteration's candidates scored in one pass)
+    /// returns the bits of the sequential refinement.
+    #[test]
+    fn batched_scores_and_refine_give_the_sequential_bits() {
+        let pts = room_points();
+        let f = PointField::build(&pts, [-6.0, -5.0], [6.0, 5.0], 0.05, 0.08, 3);
+        let body: Vec<[f64; 2]> = pts.iter().step_by(5).copied().collect();
+        for k in 0..160usize {
+            let t = k as f64;
+            // Poses that push points across the field's edges (outside cells count 0),
+            // some sharing a yaw as the x/y moves do.
+            let poses: Vec<Pose2> = (0..1 + k % 9)
+                .map(|i| {
+                    let u = t + i as f64;
+                    let yaw = if i % 3 == 0 { t * 0.05 } else { u * 0.05 };
+                    Pose2::new((u * 0.37).sin() * 3.0, (u * 0.23).cos() * 2.5, yaw)
+                })
+                .collect();
+            let sc: Vec<(f64, f64)> = poses.iter().map(|p| p.yaw_rad.sin_cos()).collect();
+            // Every remainder of the four-point batches.
+            let part = &body[..body.len() - k % 4];
+            let mut got = vec![0.0; poses.len()];
+            f.scores_batched(part, &poses, &sc, &mut got);
+            for (p, g) in poses.iter().zip(&got) {
+                assert_eq!(g.to_bits(), score_plain(&f, part, p).to_bits(), "{k} {p:?}");
+            }
+        }
+        for k in 0..40u32 {
+            let t = f64::from(k);
+            let start = Pose2::new(
+                0.1 * (t * 0.7).sin(),
+                0.1 * (t * 1.3).cos(),
+                0.04 * (t * 0.9).sin(),
+            );
+            let prior = Prior {
+                pose: Pose2::new(0.02, -0.01, 0.01),
+                sigma_xy_m: 0.05 + 0.1 * t,
+                sigma_yaw_rad: 0.02,
+            };
+            let prior = (k % 2 == 0).then_some(&prior);
+            let (yaw_step, levels) = (0.01 + 0.001 * t, k % 5);
+            let got = f.refine(&body, &start, yaw_step, levels, prior);
+            let want = refine_sequential(&f, &body, &start, yaw_step, levels, prior);
+            assert_eq!(got.0.x_m.to_bits(), want.0.x_m.to_bits(), "{k}");
+            assert_eq!(got.0.y_m.to_bits(), want.0.y_m.to_bits(), "{k}");
+            assert_eq!(got.0.yaw_rad.to_bits(), want.0.yaw_rad.to_bits(), "{k}");
+            assert_eq!(got.1.to_bits(), want.1.to_bits(), "{k}");
         }
     }
 
