@@ -1952,30 +1952,9 @@ mod reference_tests {
             for _ in 0..4 {
                 let (sx, sy) = (rng.random_range(-30.0..30.0), rng.random_range(-30.0..30.0));
                 let range_max = rng.random_range(0.5..40.0);
-                let points = (0..rng.random_range(0..200))
-                    .map(|_| {
-                        let a = rng.random_range(-3.2..3.2f64);
-                        let r = rng.random_range(0.0..range_max);
-                        ScanPoint {
-                            x_m: sx + r * a.cos(),
-                            y_m: sy + r * a.sin(),
-                            hit: rng.random_range(0..5) > 0,
-                            free_to: if rng.random_range(0..3) == 0 {
-                                rng.random_range(-0.1..1.0)
-                            } else {
-                                1.0
-                            },
-                            z_m: rng.random_range(-1.0..5.0),
-                        }
-                    })
-                    .collect();
                 // Cases 16-31 carry heights (a tilted scanner): the height-bin insertion.
-                let scan = PlanarScan {
-                    sensor_x_m: sx,
-                    sensor_y_m: sy,
-                    sensor_z_m: ((case / 16) % 2 == 1).then_some(1.76),
-                    points,
-                };
+                let heights = (case / 16) % 2 == 1;
+                let scan = random_scan(&mut rng, (sx, sy), range_max, heights, [200, 5, 3]);
                 let a = fast.insert_scan(&scan, &mut scratch).unwrap();
                 let b = if scan.sensor_z_m.is_some() {
                     insert_reference_heights(&mut slow, &mut slow_bins, &scan)
@@ -2002,23 +1981,25 @@ mod reference_tests {
         }
     }
 
-    /// A random world scan around `(sx, sy)`: hits and no-returns, some partial clearing
-    /// rays, heights on when `heights`.
+    /// A random world scan around `(sx, sy)`: below `points` points, one in `no_return`
+    /// without a return, one in `partial` clearing only part of its ray; heights on when
+    /// `heights` (a sensor at 1.76 m).
     fn random_scan(
         rng: &mut rand_xoshiro::Xoshiro256PlusPlus,
         (sx, sy): (f64, f64),
         range_max: f64,
         heights: bool,
+        [points, no_return, partial]: [i32; 3],
     ) -> PlanarScan {
-        let points = (0..rng.random_range(0..150))
+        let points = (0..rng.random_range(0..points))
             .map(|_| {
                 let a = rng.random_range(-3.2..3.2f64);
                 let r = rng.random_range(0.0..range_max);
                 ScanPoint {
                     x_m: sx + r * a.cos(),
                     y_m: sy + r * a.sin(),
-                    hit: rng.random_range(0..3) > 0,
-                    free_to: if rng.random_range(0..4) == 0 {
+                    hit: rng.random_range(0..no_return) > 0,
+                    free_to: if rng.random_range(0..partial) == 0 {
                         rng.random_range(-0.1..1.0)
                     } else {
                         1.0
@@ -2083,7 +2064,7 @@ mod reference_tests {
                     let centre = (rng.random_range(-2.0..2.0), rng.random_range(-2.0..2.0));
                     let heights = rng.random_range(0..3) > 0;
                     let range_max = rng.random_range(0.5..12.0);
-                    random_scan(&mut rng, centre, range_max, heights)
+                    random_scan(&mut rng, centre, range_max, heights, [150, 3, 4])
                 })
                 .collect();
             let mut seq = OccupancyGrid::new(&opts).unwrap();
