@@ -328,11 +328,11 @@ pub fn map_with_poses(
     let scans: Vec<usize> = (0..recording.scans.len()).step_by(opts.scan_step).collect();
     // Scratches (a mask of megabytes each) are reused: at most one per running task.
     let pool: std::sync::Mutex<Vec<ScanInserter>> = std::sync::Mutex::new(Vec::new());
-    // Tracing reads only the grid's geometry and options, never its cells: it runs against
-    // an empty grid of the same options while the previous batch is applied to `grid`.
-    let tracer = OccupancyGrid::new(opts)?;
-    let trace_batch = |slots: &mut Vec<(ScanUpdates, Traced)>, batch: &[usize]| {
+    let mut slots: Vec<(ScanUpdates, Traced)> = Vec::new();
+    let mut last = None;
+    for batch in scans.chunks(MAP_BATCH_SCANS) {
         slots.resize_with(batch.len(), || (ScanUpdates::new(), Traced::NoPose));
+        let grid_ref = &grid;
         slots[..batch.len()]
             .par_chunks_mut(MAP_TASK_SCANS)
             .zip(batch.par_chunks(MAP_TASK_SCANS))
@@ -351,7 +351,7 @@ pub fn map_with_poses(
                                 ins.projector
                                     .set_mount(&recording.lidar, recording.body_from_lidar_at(k));
                             }
-                            match ins.trace(&tracer, recording.scans.ranges(k), &pose, updates) {
+                            match ins.trace(grid_ref, recording.scans.ranges(k), &pose, updates) {
                                 Ok(_) => Traced::Inserted,
                                 Err(e) => Traced::Failed(e),
                             }
@@ -362,19 +362,9 @@ pub fn map_with_poses(
                     p.push(ins);
                 }
             });
-    };
-    let batches: Vec<&[usize]> = scans.chunks(MAP_BATCH_SCANS).collect();
-    // Two sets of slots: one batch applied while the next is traced.
-    let mut slots: Vec<(ScanUpdates, Traced)> = Vec::new();
-    let mut next_slots: Vec<(ScanUpdates, Traced)> = Vec::new();
-    if let Some(first) = batches.first() {
-        trace_batch(&mut slots, first);
-    }
-    let mut last = None;
-    for (b, batch) in batches.iter().enumerate() {
         // In scan order: the first failure is the one sequential insertion would report.
         let mut done = Vec::with_capacity(batch.len());
-        for ((updates, traced), &k) in slots.iter_mut().zip(batch.iter()) {
+        for ((updates, traced), &k) in slots.iter_mut().zip(batch) {
             match std::mem::replace(traced, Traced::NoPose) {
                 Traced::NoPose => stats.scans_without_pose += 1,
                 Traced::Failed(e) => return Err(e),
@@ -386,17 +376,7 @@ pub fn map_with_poses(
                 }
             }
         }
-        match batches.get(b + 1) {
-            Some(next) => {
-                rayon::join(
-                    || grid.apply_updates(&done),
-                    || trace_batch(&mut next_slots, next),
-                );
-            }
-            None => grid.apply_updates(&done),
-        }
-        drop(done);
-        std::mem::swap(&mut slots, &mut next_slots);
+        grid.apply_updates(&done);
     }
     let Some(k) = last else {
         return Err(MapError::NoScanInserted);
