@@ -96,10 +96,12 @@ pub trait MapPolicy: ParticleMaps {
 
 /// The seeds' policy: one map, updated with the best particle's pose.
 ///
-/// Scans are queued (in the world frame) and inserted at [`MapPolicy::flush`]: the scans
-/// between two updates are traced in parallel and applied in their order
-/// ([`OccupancyGrid::trace_updates`] / [`OccupancyGrid::apply_updates`]), which leaves the
-/// grid exactly as inserting them one by one would. `grid` is complete after a flush.
+/// Scans are queued (in the world frame) and inserted at [`MapPolicy::flush`]: the rays of
+/// the scans between two updates are cut into one run of about equal work per thread (a scan
+/// may be split between two), traced in parallel and applied in scan order, tile by tile in
+/// parallel ([`OccupancyGrid::trace_updates_part`] / [`OccupancyGrid::apply_updates`]), which
+/// leaves the grid exactly as inserting them one by one would. `grid` is complete after a
+/// flush.
 #[derive(Debug, Clone)]
 pub struct BestParticleMap {
     /// The map.
@@ -110,6 +112,8 @@ pub struct BestParticleMap {
     pending: Vec<PlanarScan>,
     queued: usize,
     traced: Vec<ScanUpdates>,
+    /// Cumulative cells to walk per ray of a scan cut between two threads ([`split_rays`]).
+    weights: Vec<u64>,
 }
 
 impl BestParticleMap {
@@ -121,6 +125,7 @@ impl BestParticleMap {
             pending: Vec::new(),
             queued: 0,
             traced: Vec::new(),
+            weights: Vec::new(),
         }
     }
 }
@@ -163,38 +168,122 @@ impl MapPolicy for BestParticleMap {
         if n == 0 {
             return Ok(());
         }
-        if n == 1 {
+        let threads = rayon::current_num_threads().max(1);
+        if n == 1 && threads == 1 {
             self.grid
                 .insert_scan(&self.pending[0], &mut self.scratches[0])?;
             return Ok(());
         }
-        // Contiguous runs of scans, one task (and scratch) each; tracing reads the grid only,
-        // so the runs are independent, and the updates are applied in scan order.
-        let tasks = rayon::current_num_threads().clamp(1, n);
-        let per_task = n.div_ceil(tasks);
-        let tasks = n.div_ceil(per_task);
-        if self.scratches.len() < tasks {
-            self.scratches.resize_with(tasks, InsertScratch::new);
+        // Run on a pool thread: one hand-over to the pool per flush instead of one per
+        // parallel phase (tracing, applying).
+        rayon::scope(|_| self.flush_queued(n, threads))
+    }
+}
+
+impl BestParticleMap {
+    /// [`MapPolicy::flush`] of the `n` queued scans on `threads` threads.
+    fn flush_queued(&mut self, n: usize, threads: usize) -> Result<(), MapError> {
+        // The scans' rays, in order, cut into one contiguous run per thread with about the
+        // same number of cells to walk (a scan may be cut in two: its pieces are applied as
+        // the whole scan). Tracing reads the grid's geometry only, so the runs are
+        // independent; the updates are applied in scan order.
+        let pieces = split_rays(&self.grid, &self.pending[..n], threads, &mut self.weights);
+        if self.scratches.len() < pieces.len() {
+            self.scratches.resize_with(pieces.len(), InsertScratch::new);
         }
-        if self.traced.len() < n {
-            self.traced.resize_with(n, ScanUpdates::new);
+        let total: usize = pieces.iter().map(Vec::len).sum();
+        if self.traced.len() < total {
+            self.traced.resize_with(total, ScanUpdates::new);
+        }
+        let mut outs: Vec<&mut [ScanUpdates]> = Vec::with_capacity(pieces.len());
+        let mut rest = &mut self.traced[..total];
+        for run in &pieces {
+            let (head, tail) = rest.split_at_mut(run.len());
+            outs.push(head);
+            rest = tail;
         }
         let grid = &self.grid;
-        let traced: Result<(), MapError> = self.traced[..n]
-            .par_chunks_mut(per_task)
-            .zip(self.pending[..n].par_chunks(per_task))
+        let scans = &self.pending[..n];
+        let traced: Result<(), MapError> = outs
+            .into_par_iter()
+            .zip(pieces.par_iter())
             .zip(self.scratches.par_iter_mut())
-            .try_for_each(|((out, scans), scratch)| {
-                for (updates, scan) in out.iter_mut().zip(scans) {
-                    grid.trace_updates(scan, scratch, updates)?;
+            .try_for_each(|((out, run), scratch)| {
+                for (updates, (k, rays)) in out.iter_mut().zip(run) {
+                    grid.trace_updates_part(&scans[*k], rays.clone(), scratch, updates)?;
                 }
                 Ok(())
             });
         traced?;
-        let updates: Vec<&ScanUpdates> = self.traced[..n].iter().collect();
+        let updates: Vec<&ScanUpdates> = self.traced[..total].iter().collect();
         self.grid.apply_updates(&updates);
         Ok(())
     }
+}
+
+/// Cuts the rays of `scans`, in order, into `parts` contiguous runs of about the same work;
+/// returns each run as (scan, ray range) pieces, a scan cut between two runs giving one piece
+/// to each; empty runs are dropped. The scans between two updates are alike (consecutive
+/// sweeps of the same place), so each counts as one unit of work, and within a scan that is
+/// cut the rays are weighed by the cells they walk (Chebyshev length in cells, plus one for
+/// the end cell: left and right halves of a sweep can differ a lot). `cum` is a reusable
+/// buffer.
+fn split_rays(
+    grid: &OccupancyGrid,
+    scans: &[PlanarScan],
+    parts: usize,
+    cum: &mut Vec<u64>,
+) -> Vec<Vec<(usize, std::ops::Range<usize>)>> {
+    let parts = parts.max(1);
+    let n = scans.len();
+    // Where each run ends: (scan, ray) with the ray exclusive; the last run ends after all.
+    let mut cuts = Vec::with_capacity(parts);
+    for t in 1..parts {
+        // Cut at n * t / parts scans: scan `k`, the fraction `num / parts` of its work.
+        let (k, num) = ((n * t) / parts, (n * t) % parts);
+        if k >= n {
+            cuts.push((n, 0));
+            continue;
+        }
+        let scan = &scans[k];
+        let ray = if num == 0 {
+            0
+        } else {
+            cum.clear();
+            let o = grid.cell_of(scan.sensor_x_m, scan.sensor_y_m);
+            let mut total = 0u64;
+            for p in &scan.points {
+                let c = grid.cell_of(p.x_m, p.y_m);
+                total += u64::from((c.i - o.i).unsigned_abs().max((c.j - o.j).unsigned_abs())) + 1;
+                cum.push(total);
+            }
+            let share = total * num as u64 / parts as u64;
+            cum.partition_point(|&w| w <= share)
+        };
+        cuts.push((k, ray));
+    }
+    cuts.push((n, 0));
+    let mut runs = Vec::with_capacity(parts);
+    let mut at = (0usize, 0usize);
+    for &cut in &cuts {
+        let mut run = Vec::new();
+        while at < cut {
+            let (k, ray) = at;
+            let end = if k == cut.0 {
+                cut.1
+            } else {
+                scans[k].points.len()
+            };
+            if end > ray {
+                run.push((k, ray..end));
+            }
+            at = if k == cut.0 { cut } else { (k + 1, 0) };
+        }
+        if !run.is_empty() {
+            runs.push(run);
+        }
+    }
+    runs
 }
 
 /// Wall-clock seconds spent per stage.
@@ -715,5 +804,165 @@ mod tests {
         let want = crate::geometry::wrap_angle(3.1 + 0.25 * (2.0 * std::f64::consts::PI - 6.2));
         assert!((b.yaw_rad - want).abs() < 1e-12, "{b:?}");
         assert_eq!(blend(&from, &to, 1.0).x_m, to.x_m);
+    }
+}
+
+#[cfg(test)]
+mod flush_tests {
+    use super::*;
+    use crate::map::{MapOptions, ScanPoint};
+    use rand::{RngExt, SeedableRng};
+
+    fn random_body_scan(rng: &mut Xoshiro256PlusPlus, points: usize, heights: bool) -> PlanarScan {
+        let range_max = rng.random_range(0.5..12.0);
+        PlanarScan {
+            sensor_x_m: 0.3,
+            sensor_y_m: 0.0,
+            sensor_z_m: heights.then_some(1.5),
+            points: (0..points)
+                .map(|_| {
+                    let a = rng.random_range(-3.2..3.2f64);
+                    let r = rng.random_range(0.0..range_max);
+                    ScanPoint {
+                        x_m: 0.3 + r * a.cos(),
+                        y_m: r * a.sin(),
+                        hit: rng.random_range(0..3) > 0,
+                        free_to: if rng.random_range(0..4) == 0 {
+                            rng.random_range(0.0..1.0)
+                        } else {
+                            1.0
+                        },
+                        z_m: rng.random_range(-1.0..4.0),
+                    }
+                })
+                .collect(),
+        }
+    }
+
+    /// Same allocated tiles, cells and bins.
+    fn assert_same_grid(a: &OccupancyGrid, b: &OccupancyGrid, label: &str) {
+        assert_eq!(a.tile_count(), b.tile_count(), "{label}");
+        assert_eq!(a.height_tile_count(), b.height_tile_count(), "{label}");
+        assert_eq!(a.memory_bytes(), b.memory_bytes(), "{label}");
+        let r = a.allocated_bounds();
+        assert_eq!(r, b.allocated_bounds(), "{label}");
+        let Some(r) = r else { return };
+        let (mut va, mut vb) = (Vec::new(), Vec::new());
+        a.copy_rect_fixed(&r, &mut va);
+        b.copy_rect_fixed(&r, &mut vb);
+        assert!(va == vb, "{label}: cells differ");
+        for j in r.min_j..=r.max_j {
+            for i in r.min_i..=r.max_i {
+                let c = crate::map::Cell { i, j };
+                assert_eq!(a.height_bins(c), b.height_bins(c), "{label}: bins of {c:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn split_rays_cover_every_ray_once_in_order() {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(5);
+        let grid = OccupancyGrid::new(&MapOptions::default()).unwrap();
+        let mut cum = Vec::new();
+        for case in 0..200 {
+            let n = rng.random_range(0..8);
+            let scans: Vec<PlanarScan> = (0..n)
+                .map(|_| {
+                    let k = rng.random_range(0..40);
+                    random_body_scan(&mut rng, k, false)
+                })
+                .collect();
+            let parts = rng.random_range(1..5);
+            let runs = split_rays(&grid, &scans, parts, &mut cum);
+            assert!(runs.len() <= parts, "case {case}");
+            let mut flat = Vec::new();
+            for run in &runs {
+                assert!(!run.is_empty(), "case {case}");
+                for (k, rays) in run {
+                    assert!(!rays.is_empty(), "case {case}");
+                    flat.extend(rays.clone().map(|r| (*k, r)));
+                }
+            }
+            let want: Vec<(usize, usize)> = scans
+                .iter()
+                .enumerate()
+                .flat_map(|(k, s)| (0..s.points.len()).map(move |r| (k, r)))
+                .collect();
+            assert_eq!(flat, want, "case {case}");
+        }
+        // Five like scans on two threads: two and a half each, the middle scan cut.
+        let scan = random_body_scan(&mut rng, 100, false);
+        let scans = vec![scan; 5];
+        let runs = split_rays(&grid, &scans, 2, &mut cum);
+        assert_eq!(runs.len(), 2);
+        assert_eq!(runs[0].len(), 3);
+        assert_eq!(runs[1].len(), 3);
+        assert_eq!(runs[0][2].0, 2);
+        assert_eq!(runs[1][0].0, 2);
+        assert_eq!(runs[0][2].1.end, runs[1][0].1.start);
+    }
+
+    #[test]
+    fn flush_equals_inserting_the_scans_one_by_one_for_any_thread_count() {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(6);
+        for case in 0..12 {
+            let mut opts = MapOptions {
+                resolution_m: [0.1, 0.25][case % 2],
+                free_margin_m: [0.0, 0.2][(case / 2) % 2],
+                ..MapOptions::default()
+            };
+            opts.height.enabled = (case / 4) % 3 == 1;
+            // Clamping-heavy cases: a cell reaches a bound in two updates, so the order of
+            // its updates decides its value.
+            if (case / 4) % 3 == 2 {
+                opts.log_odds.hit = 20.0;
+                opts.log_odds.miss = -20.0;
+                opts.log_odds.clamp_min = -40.0;
+                opts.log_odds.clamp_max = 40.0;
+            }
+            let heights = opts.height.enabled;
+            // Flushes of 1 to 7 scans from poses near each other (as between two updates).
+            let mut flushes = Vec::new();
+            for _ in 0..8 {
+                let k = rng.random_range(1..8);
+                let scans: Vec<(Pose2, PlanarScan)> = (0..k)
+                    .map(|_| {
+                        let pose = Pose2::new(
+                            rng.random_range(-1.0..1.0),
+                            rng.random_range(-1.0..1.0),
+                            rng.random_range(-3.0..3.0),
+                        );
+                        let points = rng.random_range(0..120);
+                        (pose, random_body_scan(&mut rng, points, heights))
+                    })
+                    .collect();
+                flushes.push(scans);
+            }
+            let mut want = OccupancyGrid::new(&opts).unwrap();
+            let mut scratch = InsertScratch::new();
+            let mut world = PlanarScan::default();
+            for (pose, scan) in flushes.iter().flatten() {
+                to_world(scan, pose, &mut world);
+                want.insert_scan(&world, &mut scratch).unwrap();
+            }
+            for threads in [1, 2, 3] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let mut policy = BestParticleMap::new(OccupancyGrid::new(&opts).unwrap());
+                for scans in &flushes {
+                    for (pose, scan) in scans {
+                        policy.integrate_at(pose, scan).unwrap();
+                    }
+                    pool.install(|| policy.flush()).unwrap();
+                }
+                assert_same_grid(
+                    &want,
+                    &policy.grid,
+                    &format!("case {case}, {threads} threads"),
+                );
+            }
+        }
     }
 }

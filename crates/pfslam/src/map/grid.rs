@@ -631,6 +631,9 @@ pub struct ScanUpdates {
     /// With `heights`, per cell: the bins passed free (low 16 bits) and hit (high 16 bits).
     bin_marks: Vec<u32>,
     stats: InsertStats,
+    /// A piece of a scan after its first ray ([`OccupancyGrid::trace_updates_part`]): the
+    /// same scan as the entry before it in [`OccupancyGrid::apply_updates`].
+    continues: bool,
 }
 
 /// Bit of a 2-D update in [`ScanUpdates`]: the cell is occupied.
@@ -649,6 +652,7 @@ impl ScanUpdates {
         self.bin_marks.clear();
         self.stats = InsertStats::default();
         self.heights = false;
+        self.continues = false;
     }
 
     /// What the insertion of these updates does (as [`OccupancyGrid::insert_scan`] reports).
@@ -683,6 +687,67 @@ struct TileJob {
     htile: Option<Arc<HeightTile>>,
     /// Its range of the sorted (slot, scan, group) list.
     entries: std::ops::Range<usize>,
+}
+
+/// Per-thread buffers of [`OccupancyGrid::apply_updates`] merging a split scan's pieces in a
+/// tile: marks ORed per cell (left zeroed) and the cells in first-seen order.
+struct MergeScratch {
+    acc: Box<[u32; TILE_CELLS]>,
+    order: Box<[u16; TILE_CELLS]>,
+}
+
+thread_local! {
+    static MERGE: std::cell::RefCell<MergeScratch> = std::cell::RefCell::new(MergeScratch {
+        acc: Box::new([0; TILE_CELLS]),
+        order: Box::new([0; TILE_CELLS]),
+    });
+}
+
+/// One scan's updates of one tile ([`OccupancyGrid::apply_updates`]).
+struct TileRun<'a> {
+    tile: &'a mut Tile,
+    htile: Option<&'a mut HeightTile>,
+    /// Cells whose 2-D value awaits the projection of their bins.
+    stale: &'a mut [bool; TILE_CELLS],
+    /// The grid's bin model (when it has bins).
+    model: Option<BinLogOdds>,
+    /// The scan's marks are height bins.
+    heights: bool,
+    f: &'a FixedLogOdds,
+}
+
+impl TileRun<'_> {
+    /// The marks are height bins (the scan has heights and the tile has bins).
+    fn heights(&self) -> bool {
+        self.heights && self.model.is_some() && self.htile.is_some()
+    }
+
+    /// Applies (cell, mark) pairs, each cell once: bin marks when [`Self::heights`], else
+    /// 1 = occupied, 0 = free.
+    #[inline(always)]
+    fn apply(&mut self, marks: impl Iterator<Item = (usize, u32)>) {
+        let heights = self.heights();
+        match (self.htile.as_deref_mut(), self.model) {
+            (Some(ht), Some(model)) if heights => {
+                for (local, m) in marks {
+                    update_bins(&mut ht.bins[local], m, &model);
+                    self.stale[local] = true;
+                }
+            }
+            (ht, _) => {
+                for (local, occupied) in marks {
+                    if self.stale[local]
+                        && let (Some(ht), Some(model)) = (ht.as_deref(), self.model)
+                    {
+                        self.stale[local] = false;
+                        self.tile.cells[local] =
+                            project_column(&ht.bins[local], &model, self.f.occupied);
+                    }
+                    apply_mark(&mut self.tile.cells[local], occupied != 0, self.f);
+                }
+            }
+        }
+    }
 }
 
 /// One scan's update of a cell: the occupied update when `occupied`, else the free one.
@@ -897,7 +962,7 @@ impl OccupancyGrid {
         world_scan: &PlanarScan,
         scratch: &mut InsertScratch,
     ) -> Result<InsertStats, MapError> {
-        let traced = self.trace_scan(world_scan, scratch)?;
+        let traced = self.trace_scan(world_scan, &world_scan.points, scratch)?;
         let mut stats = InsertStats {
             rays: world_scan.points.len(),
             ..InsertStats::default()
@@ -962,8 +1027,28 @@ impl OccupancyGrid {
         scratch: &mut InsertScratch,
         out: &mut ScanUpdates,
     ) -> Result<InsertStats, MapError> {
+        self.trace_updates_part(world_scan, 0..world_scan.points.len(), scratch, out)
+    }
+
+    /// [`Self::trace_updates`] of the rays `rays` of `world_scan` only (clamped to its
+    /// points): one piece of a scan split over several tasks. Pieces of one scan, traced in
+    /// ray order and passed one after another to [`Self::apply_updates`], are applied as the
+    /// whole scan (their marks merged per cell: one update per cell, occupied winning). A
+    /// piece that does not start at ray 0 continues the scan of the entry before it. Its
+    /// stats count the piece's rays and cells (a cell on two pieces counts in both).
+    pub fn trace_updates_part(
+        &self,
+        world_scan: &PlanarScan,
+        rays: std::ops::Range<usize>,
+        scratch: &mut InsertScratch,
+        out: &mut ScanUpdates,
+    ) -> Result<InsertStats, MapError> {
         out.clear();
-        let traced = self.trace_scan(world_scan, scratch)?;
+        let end = rays.end.min(world_scan.points.len());
+        let start = rays.start.min(end);
+        let points = &world_scan.points[start..end];
+        out.continues = start > 0;
+        let traced = self.trace_scan(world_scan, points, scratch)?;
         let blocks = scratch.blocks;
         let InsertScratch {
             mask,
@@ -1021,7 +1106,7 @@ impl OccupancyGrid {
             out.bin_marks.resize(touched.len(), 0);
         }
         let mut stats = InsertStats {
-            rays: world_scan.points.len(),
+            rays: points.len(),
             ..InsertStats::default()
         };
         let (mut cur, mut pos) = (usize::MAX, 0usize);
@@ -1059,8 +1144,10 @@ impl OccupancyGrid {
     /// whatever the thread count. Tiles are created (or copied when shared) serially in the
     /// sequential order, then updated in parallel, one task per tile applying its updates scan
     /// by scan: an update reads and writes only its own cell (and bins), so the tiles are
-    /// independent and each cell sees its updates in scan order. The updates must come from
-    /// this grid (or a clone with the same options) and be applied once, in scan order.
+    /// independent and each cell sees its updates in scan order. Consecutive pieces of one
+    /// scan ([`Self::trace_updates_part`]) are merged per tile first (marks ORed per cell, as
+    /// one mask would), so each cell still gets one update per scan. The updates must come
+    /// from this grid (or a clone with the same options) and be applied once, in scan order.
     pub fn apply_updates(&mut self, scans: &[&ScanUpdates]) {
         // Create the tiles in the order sequential insertion would (the directory grows alike).
         for su in scans {
@@ -1114,7 +1201,16 @@ impl OccupancyGrid {
         }
         let f = self.fixed;
         let model = self.height.as_ref().map(|l| l.model);
-        let entries = &entries;
+        // Pieces of one scan ([`Self::trace_updates_part`]) share the number of its first.
+        let mut scan_of: Vec<u32> = Vec::with_capacity(scans.len());
+        for (p, su) in scans.iter().enumerate() {
+            let first = match scan_of.last() {
+                Some(&prev) if su.continues => prev,
+                _ => p as u32,
+            };
+            scan_of.push(first);
+        }
+        let (entries, scan_of) = (&entries, &scan_of);
         let apply = |job: &mut TileJob| {
             let Some(tile) = job.tile.as_mut().map(Arc::make_mut) else {
                 return;
@@ -1125,38 +1221,87 @@ impl OccupancyGrid {
             // (once per batch instead of once per scan; the same value).
             // One byte per cell: flagging neighbours makes no chain of stores to one word.
             let mut stale = [false; TILE_CELLS];
-            for &(_, s, g) in &entries[job.entries.clone()] {
-                let su = scans[s as usize];
+            let job_entries = &entries[job.entries.clone()];
+            let group = |&(_, p, g): &(u32, u32, u32)| {
+                let su = scans[p as usize];
                 let g = g as usize;
                 let from = if g == 0 {
                     0
                 } else {
                     su.tiles[g - 1].2 as usize
                 };
-                let range = from..su.tiles[g].2 as usize;
-                let updates = &su.updates[range.clone()];
-                match (&mut htile, model) {
-                    (Some(ht), Some(model)) if su.heights => {
-                        for (&u, &m) in updates.iter().zip(&su.bin_marks[range]) {
-                            let local = usize::from(u) & (TILE_CELLS - 1);
-                            update_bins(&mut ht.bins[local], m, &model);
-                            stale[local] = true;
-                        }
-                    }
-                    _ => {
-                        for &u in updates {
-                            let local = usize::from(u) & (TILE_CELLS - 1);
-                            if stale[local]
-                                && let (Some(ht), Some(model)) = (&htile, model)
-                            {
-                                stale[local] = false;
-                                tile.cells[local] =
-                                    project_column(&ht.bins[local], &model, f.occupied);
-                            }
-                            apply_mark(&mut tile.cells[local], u & UPDATE_OCCUPIED != 0, &f);
-                        }
-                    }
+                (su, from..su.tiles[g].2 as usize)
+            };
+            let mut e = 0;
+            while e < job_entries.len() {
+                // This tile's entries of one scan: one piece, or several to merge.
+                let scan = scan_of[job_entries[e].1 as usize];
+                let mut end = e + 1;
+                while end < job_entries.len() && scan_of[job_entries[end].1 as usize] == scan {
+                    end += 1;
                 }
+                let heights = scans[job_entries[e].1 as usize].heights;
+                let mut run = TileRun {
+                    tile: &mut *tile,
+                    htile: htile.as_deref_mut(),
+                    stale: &mut stale,
+                    model,
+                    heights,
+                    f: &f,
+                };
+                if end == e + 1 {
+                    let (su, range) = group(&job_entries[e]);
+                    let updates = &su.updates[range.clone()];
+                    if run.heights() {
+                        run.apply(
+                            updates
+                                .iter()
+                                .zip(&su.bin_marks[range])
+                                .map(|(&u, &m)| (usize::from(u) & (TILE_CELLS - 1), m)),
+                        );
+                    } else {
+                        run.apply(updates.iter().map(|&u| {
+                            (
+                                usize::from(u) & (TILE_CELLS - 1),
+                                u32::from(u & UPDATE_OCCUPIED != 0),
+                            )
+                        }));
+                    }
+                } else {
+                    // Marks ORed per cell as one mask would (occupied wins, bins united),
+                    // then applied once per cell.
+                    MERGE.with_borrow_mut(|m| {
+                        let MergeScratch { acc, order } = m;
+                        let mut n = 0;
+                        let mut add = |local: usize, mark: u32| {
+                            if acc[local] == 0 {
+                                order[n] = local as u16;
+                                n += 1;
+                            }
+                            acc[local] |= mark;
+                        };
+                        for entry in &job_entries[e..end] {
+                            let (su, range) = group(entry);
+                            let updates = &su.updates[range.clone()];
+                            if su.heights {
+                                for (&u, &m) in updates.iter().zip(&su.bin_marks[range]) {
+                                    add(usize::from(u) & (TILE_CELLS - 1), m);
+                                }
+                            } else {
+                                for &u in updates {
+                                    let occupied = u32::from(u & UPDATE_OCCUPIED != 0);
+                                    add(usize::from(u) & (TILE_CELLS - 1), 1 | occupied << 1);
+                                }
+                            }
+                        }
+                        let shift = if heights { 0 } else { 1 };
+                        run.apply(order[..n].iter().map(|&l| {
+                            let l = usize::from(l);
+                            (l, std::mem::take(&mut acc[l]) >> shift)
+                        }));
+                    });
+                }
+                e = end;
             }
             if let (Some(ht), Some(model)) = (&htile, model) {
                 for (local, _) in stale.iter().enumerate().filter(|s| *s.1) {
@@ -1179,18 +1324,19 @@ impl OccupancyGrid {
     fn trace_scan(
         &self,
         world_scan: &PlanarScan,
+        points: &[ScanPoint],
         scratch: &mut InsertScratch,
     ) -> Result<Traced, MapError> {
-        let origin = self.scan_origin(world_scan, scratch)?;
+        let origin = self.scan_origin(world_scan, points, scratch)?;
         let sh = scratch.half;
         // Tile coordinates of the mask's first tile, and its first cell.
         let (t0i, t0j) = ((origin.i - sh) >> TILE_SHIFT, (origin.j - sh) >> TILE_SHIFT);
         let (mi0, mj0) = (t0i << TILE_SHIFT, t0j << TILE_SHIFT);
         let len = match (world_scan.sensor_z_m, self.height.as_ref()) {
             (Some(z), Some(layer)) => {
-                self.trace_heights(world_scan, z, layer, origin, (mi0, mj0), scratch)
+                self.trace_heights(world_scan, points, z, layer, origin, (mi0, mj0), scratch)
             }
-            _ => self.trace_planar(world_scan, origin, (mi0, mj0), scratch),
+            _ => self.trace_planar(world_scan, points, origin, (mi0, mj0), scratch),
         };
         Ok(Traced {
             t0i,
@@ -1204,6 +1350,7 @@ impl OccupancyGrid {
     fn trace_planar(
         &self,
         world_scan: &PlanarScan,
+        points: &[ScanPoint],
         origin: Cell,
         (mi0, mj0): (i32, i32),
         scratch: &mut InsertScratch,
@@ -1232,7 +1379,7 @@ impl OccupancyGrid {
             touched[*len] = k as u32;
             *len += usize::from(old == MARK_NONE);
         };
-        for p in &world_scan.points {
+        for p in points {
             let (end, clear_end, partial) = ray_cells(&self.limits, world_scan, p);
             let margin = if p.hit { self.free_margin_cells } else { 0 };
             let n = (clear_end.i - origin.i)
@@ -1274,13 +1421,14 @@ impl OccupancyGrid {
     fn scan_origin(
         &self,
         world_scan: &PlanarScan,
+        points: &[ScanPoint],
         scratch: &mut InsertScratch,
     ) -> Result<Cell, MapError> {
         let origin = self.cell_of(world_scan.sensor_x_m, world_scan.sensor_y_m);
         Self::check_cell(origin)?;
         // Mask half-size: the farthest end cell (Chebyshev), so every ray fits.
         let mut half = 0i32;
-        for p in &world_scan.points {
+        for p in points {
             let c = self.cell_of(p.x_m, p.y_m);
             Self::check_cell(c)?;
             half = half.max((c.i - origin.i).abs()).max((c.j - origin.j).abs());
@@ -1305,6 +1453,7 @@ impl OccupancyGrid {
     fn trace_heights(
         &self,
         world_scan: &PlanarScan,
+        points: &[ScanPoint],
         sensor_z_m: f64,
         layer: &HeightLayer,
         origin: Cell,
@@ -1342,7 +1491,7 @@ impl OccupancyGrid {
         let limits = self.limits;
         let z0 = sensor_z_m as f32;
         let margin_cells = self.free_margin_cells;
-        for p in &world_scan.points {
+        for p in points {
             let (end, clear_end, partial) = ray_cells(&limits, world_scan, p);
             let margin = if p.hit { margin_cells } else { 0 };
             let n_full = (end.i - origin.i).abs().max((end.j - origin.j).abs());
@@ -1803,30 +1952,9 @@ mod reference_tests {
             for _ in 0..4 {
                 let (sx, sy) = (rng.random_range(-30.0..30.0), rng.random_range(-30.0..30.0));
                 let range_max = rng.random_range(0.5..40.0);
-                let points = (0..rng.random_range(0..200))
-                    .map(|_| {
-                        let a = rng.random_range(-3.2..3.2f64);
-                        let r = rng.random_range(0.0..range_max);
-                        ScanPoint {
-                            x_m: sx + r * a.cos(),
-                            y_m: sy + r * a.sin(),
-                            hit: rng.random_range(0..5) > 0,
-                            free_to: if rng.random_range(0..3) == 0 {
-                                rng.random_range(-0.1..1.0)
-                            } else {
-                                1.0
-                            },
-                            z_m: rng.random_range(-1.0..5.0),
-                        }
-                    })
-                    .collect();
                 // Cases 16-31 carry heights (a tilted scanner): the height-bin insertion.
-                let scan = PlanarScan {
-                    sensor_x_m: sx,
-                    sensor_y_m: sy,
-                    sensor_z_m: ((case / 16) % 2 == 1).then_some(1.76),
-                    points,
-                };
+                let heights = (case / 16) % 2 == 1;
+                let scan = random_scan(&mut rng, (sx, sy), range_max, heights, [200, 5, 3]);
                 let a = fast.insert_scan(&scan, &mut scratch).unwrap();
                 let b = if scan.sensor_z_m.is_some() {
                     insert_reference_heights(&mut slow, &mut slow_bins, &scan)
@@ -1850,6 +1978,134 @@ mod reference_tests {
                 scratch.mask.iter().all(|&m| m == MARK_NONE),
                 "mask left dirty"
             );
+        }
+    }
+
+    /// A random world scan around `(sx, sy)`: below `points` points, one in `no_return`
+    /// without a return, one in `partial` clearing only part of its ray; heights on when
+    /// `heights` (a sensor at 1.76 m).
+    fn random_scan(
+        rng: &mut rand_xoshiro::Xoshiro256PlusPlus,
+        (sx, sy): (f64, f64),
+        range_max: f64,
+        heights: bool,
+        [points, no_return, partial]: [i32; 3],
+    ) -> PlanarScan {
+        let points = (0..rng.random_range(0..points))
+            .map(|_| {
+                let a = rng.random_range(-3.2..3.2f64);
+                let r = rng.random_range(0.0..range_max);
+                ScanPoint {
+                    x_m: sx + r * a.cos(),
+                    y_m: sy + r * a.sin(),
+                    hit: rng.random_range(0..no_return) > 0,
+                    free_to: if rng.random_range(0..partial) == 0 {
+                        rng.random_range(-0.1..1.0)
+                    } else {
+                        1.0
+                    },
+                    z_m: rng.random_range(-1.0..5.0),
+                }
+            })
+            .collect();
+        PlanarScan {
+            sensor_x_m: sx,
+            sensor_y_m: sy,
+            sensor_z_m: heights.then_some(1.76),
+            points,
+        }
+    }
+
+    /// Same directory (placement, allocated tiles), same cells, same bins.
+    fn assert_same_grid(a: &OccupancyGrid, b: &OccupancyGrid, label: &str) {
+        fn same_dir<T>(a: &TileDir<T>, b: &TileDir<T>, eq: impl Fn(&T, &T) -> bool) -> bool {
+            (a.ti0, a.tj0, a.w, a.h) == (b.ti0, b.tj0, b.w, b.h)
+                && a.tiles.len() == b.tiles.len()
+                && a.tiles.iter().zip(&b.tiles).all(|(x, y)| match (x, y) {
+                    (Some(x), Some(y)) => eq(x, y),
+                    (None, None) => true,
+                    _ => false,
+                })
+        }
+        assert!(
+            same_dir(&a.dir, &b.dir, |x, y| x.cells[..] == y.cells[..]),
+            "{label}: cells or tiles differ"
+        );
+        match (&a.height, &b.height) {
+            (Some(x), Some(y)) => assert!(
+                same_dir(&x.dir, &y.dir, |x, y| x.bins == y.bins),
+                "{label}: bins differ"
+            ),
+            (None, None) => {}
+            _ => panic!("{label}: one grid has bins"),
+        }
+    }
+
+    #[test]
+    fn scans_split_into_pieces_apply_as_sequential_insertion() {
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(12);
+        for case in 0..24 {
+            let mut opts = MapOptions {
+                resolution_m: [0.1, 0.37][case % 2],
+                free_margin_m: [0.0, 0.3][(case / 2) % 2],
+                ..MapOptions::default()
+            };
+            opts.height.enabled = case % 3 != 0;
+            // Half the cases clamp hard: two updates reach a bound, so the order of a
+            // cell's updates decides its value.
+            if (case / 4) % 2 == 1 {
+                opts.log_odds.hit = 20.0;
+                opts.log_odds.miss = -20.0;
+                opts.log_odds.clamp_min = -40.0;
+                opts.log_odds.clamp_max = 40.0;
+            }
+            let scans: Vec<PlanarScan> = (0..30)
+                .map(|_| {
+                    let centre = (rng.random_range(-2.0..2.0), rng.random_range(-2.0..2.0));
+                    let heights = rng.random_range(0..3) > 0;
+                    let range_max = rng.random_range(0.5..12.0);
+                    random_scan(&mut rng, centre, range_max, heights, [150, 3, 4])
+                })
+                .collect();
+            let mut seq = OccupancyGrid::new(&opts).unwrap();
+            let mut scratch = InsertScratch::new();
+            for scan in &scans {
+                seq.insert_scan(scan, &mut scratch).unwrap();
+            }
+            for threads in [1, 3] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let mut par = OccupancyGrid::new(&opts).unwrap();
+                let mut start = 0;
+                while start < scans.len() {
+                    let end = (start + rng.random_range(1..7)).min(scans.len());
+                    // Each scan cut at up to 3 random rays (empty pieces included).
+                    let mut pieces = Vec::new();
+                    for scan in &scans[start..end] {
+                        let n = scan.points.len();
+                        let mut cuts: Vec<usize> = (0..rng.random_range(0..4))
+                            .map(|_| rng.random_range(0..=n))
+                            .collect();
+                        cuts.sort_unstable();
+                        let mut from = 0;
+                        for cut in cuts.into_iter().chain([n]) {
+                            let mut out = ScanUpdates::new();
+                            par.trace_updates_part(scan, from..cut, &mut scratch, &mut out)
+                                .unwrap();
+                            pieces.push(out);
+                            from = cut;
+                        }
+                    }
+                    let refs: Vec<&ScanUpdates> = pieces.iter().collect();
+                    pool.install(|| par.apply_updates(&refs));
+                    start = end;
+                }
+                assert_same_grid(&seq, &par, &format!("case {case}, {threads} threads"));
+                assert!(scratch.mask.iter().all(|&m| m == MARK_NONE));
+                assert!(scratch.hmask.iter().all(|&m| m == 0));
+            }
         }
     }
 }
