@@ -426,12 +426,11 @@ fn assert_same_grid(a: &OccupancyGrid, b: &OccupancyGrid, what: &str) {
     }
 }
 
-#[test]
-fn batched_parallel_mapping_equals_sequential_insertion_for_any_thread_count() {
-    use crate::geometry::{Rigid3, StampedPose2};
+/// The noise-free simulated car driving `duration_s` seconds: its output and recording.
+fn simulated_car(duration_s: f64) -> (crate::sim::CarSimOutput, Recording) {
     use crate::sim::{SimOptions, World, simulate_car};
     let sim_opts = SimOptions {
-        duration_s: 14.0,
+        duration_s,
         ..SimOptions::noise_free()
     };
     let world = World::builtin(sim_opts.world_name()).unwrap();
@@ -439,6 +438,13 @@ fn batched_parallel_mapping_equals_sequential_insertion_for_any_thread_count() {
     let car = out
         .recording(&crate::motion::MotionOptions::default())
         .unwrap();
+    (out, car)
+}
+
+#[test]
+fn batched_parallel_mapping_equals_sequential_insertion_for_any_thread_count() {
+    use crate::geometry::{Rigid3, StampedPose2};
+    let (out, car) = simulated_car(14.0);
     // A LiDAR moving on the body, level on even scans and tilted on odd ones: one grid gets
     // 2-D and height-bin updates, whose order per cell matters.
     let level = Rigid3::from_rpy(0.0, 0.0, std::f64::consts::FRAC_PI_2, [0.8, 0.0, 1.5]);
@@ -500,16 +506,7 @@ fn batched_parallel_mapping_equals_sequential_insertion_for_any_thread_count() {
 
 #[test]
 fn motion_filter_keeps_scans_spaced_by_travel_or_turn() {
-    use crate::sim::{SimOptions, World, simulate_car};
-    let sim_opts = SimOptions {
-        duration_s: 20.0,
-        ..SimOptions::noise_free()
-    };
-    let world = World::builtin(sim_opts.world_name()).unwrap();
-    let out = simulate_car(&world, &sim_opts).unwrap();
-    let car = out
-        .recording(&crate::motion::MotionOptions::default())
-        .unwrap();
+    let (out, car) = simulated_car(20.0);
     let poses = Trajectory::new(out.ground_truth.clone());
     let n = car.scans.len();
     let every = MapOptions::default();
