@@ -2517,18 +2517,37 @@ mod tests {
             prior_sigma_yaw_deg: 50.0,
             ..ScanMatchOptions::default()
         };
-        let params = o.params(0.1);
         let mut ms = MatchScratch::default();
-        for (dx, dy, dyaw_deg) in [(0.17, -0.12, 0.4), (-0.23, 0.08, -0.6), (0.04, 0.26, 0.0)] {
-            let predicted = Pose2::new(dx, dy, f64::to_radians(dyaw_deg));
-            let m = match_scan(&field, &pts, &predicted, &params, &mut ms);
-            assert!(
-                m.pose.translation_norm_m() < 0.03,
-                "{m:?} from {predicted:?}"
-            );
-            assert!(m.pose.yaw_rad.abs() < 0.15f64.to_radians(), "{m:?}");
-            assert!(m.fit > 0.8, "{m:?}");
+        for precision in [KernelPrecision::F64, KernelPrecision::F32] {
+            let params = ScanMatchOptions {
+                kernel_precision: precision,
+                ..o.clone()
+            }
+            .params(0.1);
+            for (dx, dy, dyaw_deg) in [(0.17, -0.12, 0.4), (-0.23, 0.08, -0.6), (0.04, 0.26, 0.0)] {
+                let predicted = Pose2::new(dx, dy, f64::to_radians(dyaw_deg));
+                let m = match_scan(&field, &pts, &predicted, &params, &mut ms);
+                assert!(
+                    m.pose.translation_norm_m() < 0.03,
+                    "{precision:?}: {m:?} from {predicted:?}"
+                );
+                assert!(m.pose.yaw_rad.abs() < 0.15f64.to_radians(), "{m:?}");
+                assert!(m.fit > 0.8, "{m:?}");
+            }
         }
+    }
+
+    #[test]
+    fn kernel_precision_parses_and_defaults_to_f64() {
+        assert_eq!(
+            ScanMatchOptions::default().kernel_precision,
+            KernelPrecision::F64
+        );
+        let o: ScanMatchOptions = toml::from_str("kernel_precision = \"f32\"").unwrap();
+        assert_eq!(o.params(0.1).kernel_precision, KernelPrecision::F32);
+        let o: ScanMatchOptions = toml::from_str("kernel_precision = \"f64\"").unwrap();
+        assert_eq!(o.kernel_precision, KernelPrecision::F64);
+        assert!(toml::from_str::<ScanMatchOptions>("kernel_precision = \"f16\"").is_err());
     }
 
     #[test]
