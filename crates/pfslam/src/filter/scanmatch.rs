@@ -73,8 +73,9 @@ pub struct ScanMatchOptions {
     /// window, ~1e-4 cell, bilinear mix and per-lane partial sums in f32; sums within 1e-5
     /// of full scale per point of the f64 ones; the refinement ~1.9x cheaper, the
     /// full-size car ~5 % less CPU). Not the default: the trajectories change (near-ties
-    /// flip), and on the default drive (seeds 1-10) the fitted odometry scale came out
-    /// lower on every seed and seed 6 failed (SLAM ATE 0.140 m); see PERFORMANCE.md.
+    /// flip); the full-size car and the humanoid were not worse, but on the default drive
+    /// (seeds 1-15) the front end failed on 2 seeds (1.1-1.3 m) and its mean ATE was
+    /// 0.447 m against 0.292 m; see PERFORMANCE.md.
     pub kernel_precision: KernelPrecision,
     /// Particles are sampled around their match with this standard deviation in x and y
     /// (m); the prediction itself composes the odometry without noise (the match, not the
