@@ -3,7 +3,7 @@
 //! and the default `scan_match` mode's kernels: the likelihood field's build, one particle's
 //! match (7x7 cells x 7 yaws, then the sub-cell refinement), and the update of 40 / 100
 //! particles in parallel; `scan_match_cpu`: 100 jittered particles matched serially, in the
-//! calling thread's CPU time (whole match, with `refine_method = "gauss_newton"`, and the
+//! calling thread's CPU time (whole match, with `kernel_precision = "f32"`, with `refine_method = "gauss_newton"`, and the
 //! coarse search alone).
 
 mod cpu_time;
@@ -201,23 +201,37 @@ fn scan_match_cpu(c: &mut Criterion<ThreadCpuTime>) {
     let cloud = pf.particles.poses.clone();
     let mut g = c.benchmark_group("scan_match_cpu");
     g.sample_size(20);
-    use pfslam::filter::scanmatch::RefineMethod;
-    for (name, levels, refine_method) in [
+    use pfslam::filter::scanmatch::{KernelPrecision, RefineMethod};
+    for (name, levels, refine_method, kernel_precision) in [
         (
             "match_100_jittered",
             sm.refine_levels,
             RefineMethod::Pattern,
+            KernelPrecision::F64,
+        ),
+        (
+            "match_100_jittered_f32",
+            sm.refine_levels,
+            RefineMethod::Pattern,
+            KernelPrecision::F32,
         ),
         (
             "match_100_jittered_gn",
             sm.refine_levels,
             RefineMethod::GaussNewton,
+            KernelPrecision::F64,
         ),
-        ("coarse_100_jittered", 0, RefineMethod::Pattern),
+        (
+            "coarse_100_jittered",
+            0,
+            RefineMethod::Pattern,
+            KernelPrecision::F64,
+        ),
     ] {
         let params = pfslam::filter::scanmatch::ScanMatchOptions {
             refine_levels: levels,
             refine_method,
+            kernel_precision,
             ..sm.clone()
         }
         .params(config.map.resolution_m);
