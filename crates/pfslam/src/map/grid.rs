@@ -1379,8 +1379,18 @@ impl OccupancyGrid {
             touched[*len] = k as u32;
             *len += usize::from(old == MARK_NONE);
         };
+        // The previous ray's cells: a ray with the same end cell, clearing end and kind walks
+        // and marks exactly the same cells with the same marks, so it changes nothing (marks
+        // are ORed, and nothing came between). Consecutive rays of the densification often
+        // end in one cell.
+        let mut prev: Option<(Cell, Cell, bool, bool)> = None;
         for p in points {
             let (end, clear_end, partial) = ray_cells(&self.limits, world_scan, p);
+            let key = Some((end, clear_end, partial, p.hit));
+            if key == prev {
+                continue;
+            }
+            prev = key;
             let margin = if p.hit { self.free_margin_cells } else { 0 };
             let n = (clear_end.i - origin.i)
                 .abs()
@@ -1979,6 +1989,57 @@ mod reference_tests {
                 "mask left dirty"
             );
         }
+    }
+
+    #[test]
+    fn consecutive_rays_into_one_cell_insert_as_the_plain_rule() {
+        // Runs of rays ending within a cell of each other (a densified wall), some partial,
+        // some without a return: the planar walk skips a ray equal to the one before it.
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(12);
+        let mut skipped_some = false;
+        for case in 0..24 {
+            let opts = MapOptions {
+                resolution_m: [0.1, 0.37][case % 2],
+                free_margin_m: [0.0, 0.2, 1.0][(case / 2) % 3],
+                ..MapOptions::default()
+            };
+            let mut fast = OccupancyGrid::new(&opts).unwrap();
+            let mut slow = OccupancyGrid::new(&opts).unwrap();
+            let mut scratch = InsertScratch::new();
+            for _ in 0..3 {
+                let (sx, sy) = (rng.random_range(-30.0..30.0), rng.random_range(-30.0..30.0));
+                let mut scan = random_scan(&mut rng, (sx, sy), 20.0, false, [60, 6, 4]);
+                let mut points = Vec::new();
+                for p in &scan.points {
+                    for _ in 0..rng.random_range(1..5) {
+                        let mut q = *p;
+                        q.x_m += rng.random_range(-0.03..0.03);
+                        q.y_m += rng.random_range(-0.03..0.03);
+                        points.push(q);
+                    }
+                }
+                let lim = fast.limits();
+                skipped_some |= points.windows(2).any(|w| {
+                    w[0].free_to >= 1.0
+                        && w[1].free_to >= 1.0
+                        && w[0].hit == w[1].hit
+                        && lim.cell_of(w[0].x_m, w[0].y_m) == lim.cell_of(w[1].x_m, w[1].y_m)
+                });
+                scan.points = points;
+                let a = fast.insert_scan(&scan, &mut scratch).unwrap();
+                let b = insert_reference(&mut slow, &scan);
+                assert_eq!(a, b, "case {case}");
+            }
+            let (ra, rb) = (fast.observed_bounds(), slow.observed_bounds());
+            assert_eq!(ra, rb, "case {case}");
+            if let Some(r) = ra {
+                let (mut va, mut vb) = (Vec::new(), Vec::new());
+                fast.copy_rect_fixed(&r, &mut va);
+                slow.copy_rect_fixed(&r, &mut vb);
+                assert!(va == vb, "case {case}: cells differ");
+            }
+        }
+        assert!(skipped_some);
     }
 
     /// A random world scan around `(sx, sy)`: below `points` points, one in `no_return`
