@@ -26,6 +26,8 @@ struct Sums {
     walk_joining: u64,
     dup_rays: usize,
     walk_dup: u64,
+    dup_any_rays: usize,
+    walk_dup_any: u64,
     touched_planar: u64,
     touched_heights: u64,
     planar_s: f64,
@@ -85,6 +87,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             // Joining points: those of `body` not in `body0` (same order, returns equal).
             let mut r = 0;
             let mut last: Option<(pfslam::map::Cell, pfslam::map::Cell, bool)> = None;
+            let mut seen = std::collections::HashSet::new();
             for (p, pb) in world.points.iter().zip(&body.points) {
                 let is_return = r < body0.points.len()
                     && body0.points[r].x_m == pb.x_m
@@ -116,6 +119,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     s.walk_dup += steps;
                 }
                 last = Some(key);
+                if !seen.insert(key) {
+                    s.dup_any_rays += 1;
+                    s.walk_dup_any += steps;
+                }
                 if is_return {
                     s.partial_returns += usize::from(p.free_to < 1.0);
                 } else {
@@ -137,7 +144,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         println!(
             "{mode:?}: {} scans (every {every}th); per scan: points {:.1}, returns {:.1}, \
              joining {:.1}, partial returns {:.1}, partial joining {:.1}, walk steps {:.0} \
-             (joining {:.0}), same cells as the ray before {:.1} rays / {:.0} steps, touched planar {:.0}, touched heights {:.0}; trace 1 thread: \
+             (joining {:.0}), same cells as the ray before {:.1} rays / {:.0} steps (as any ray before {:.1} / {:.0}), touched planar {:.0}, touched heights {:.0}; trace 1 thread: \
              planar {:.1} us, heights {:.1} us per scan",
             s.scans,
             s.points as f64 / n,
@@ -149,6 +156,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             s.walk_joining as f64 / n,
             s.dup_rays as f64 / n,
             s.walk_dup as f64 / n,
+            s.dup_any_rays as f64 / n,
+            s.walk_dup_any as f64 / n,
             s.touched_planar as f64 / n,
             s.touched_heights as f64 / n,
             s.planar_s * 1e6 / n,

@@ -75,8 +75,12 @@ pub struct ScanOptions {
     pub densify_max_gap_m: Option<f64>,
     /// Spacing of the joining returns (m).
     pub densify_step_m: f64,
-    /// How the joining returns are inserted into the map (their rays).
+    /// How the joining returns are inserted into maps built along known poses (`pfslam
+    /// map`, the rebuild along the back end's trajectory).
     pub densify_rays: DensifyRays,
+    /// How the joining returns are inserted into the SLAM filter's map (the map it matches
+    /// against).
+    pub filter_densify_rays: DensifyRays,
     /// Only every this many-th joining return of a gap traces its free ray as
     /// `densify_rays` says; the others mark their end cell only (as `hit_only`). 1 = all.
     pub densify_free_every: u32,
@@ -100,6 +104,7 @@ impl Default for ScanOptions {
             densify_max_gap_m: Some(1.0),
             densify_step_m: 0.1,
             densify_rays: DensifyRays::Full,
+            filter_densify_rays: DensifyRays::Full,
             densify_free_every: 1,
             free_z_max_m: Some(2.5),
         }
@@ -147,6 +152,14 @@ impl ScanOptions {
             return Err("map.scan: z_min_m must be < z_max_m".into());
         }
         Ok(())
+    }
+
+    /// These options for the SLAM filter's map: `densify_rays` = `filter_densify_rays`.
+    pub fn for_filter(&self) -> ScanOptions {
+        ScanOptions {
+            densify_rays: self.filter_densify_rays,
+            ..*self
+        }
     }
 
     /// The longest ray this preprocessing can produce (m).
@@ -483,9 +496,15 @@ mod tests {
     /// Two returns 0.5 m apart on a wall 10 m ahead of a sensor at (0, 0, `z`) looking along
     /// x, pitched up by `pitch_deg`: the densification joins them with 4 points.
     fn wall_pair(pitch_deg: f64, rays: DensifyRays) -> PlanarScan {
+        wall_pair_every(pitch_deg, rays, 1)
+    }
+
+    /// [`wall_pair`] with `densify_free_every`.
+    fn wall_pair_every(pitch_deg: f64, rays: DensifyRays, every: u32) -> PlanarScan {
         let opts = ScanOptions {
             range_min_m: 0.1,
             densify_rays: rays,
+            densify_free_every: every,
             ..ScanOptions::default()
         };
         let g = LidarGeometry {
@@ -510,6 +529,13 @@ mod tests {
         assert_eq!(o.densify_rays, DensifyRays::Interpolated);
         assert_eq!(ScanOptions::default().densify_rays, DensifyRays::Full);
         assert!(toml::from_str::<ScanOptions>("densify_rays = \"half\"").is_err());
+        let o: ScanOptions =
+            toml::from_str("densify_rays = \"hit_only\"\nfilter_densify_rays = \"interpolated\"")
+                .unwrap();
+        assert_eq!(o.for_filter().densify_rays, DensifyRays::Interpolated);
+        assert_eq!(o.densify_rays, DensifyRays::HitOnly);
+        let o: ScanOptions = toml::from_str("densify_free_every = 0").unwrap();
+        assert!(o.validate().is_err());
         let back: ScanOptions = toml::from_str(
             &toml::to_string(&ScanOptions {
                 densify_rays: DensifyRays::HitOnly,
@@ -532,6 +558,10 @@ mod tests {
             assert_eq!(ends, [1.0, 1.0], "{rays:?}");
             assert!(joining.iter().all(|q| q.free_to == want), "{rays:?}");
         }
+        // Every 2nd joining point traces its free ray, the others only their end cell.
+        let s = wall_pair_every(0.0, DensifyRays::Full, 2);
+        let f: Vec<f32> = s.points.iter().map(|q| q.free_to).collect();
+        assert_eq!(f, [1.0, 0.0, 1.0, 0.0, 1.0, 1.0]);
         // Pitched up 10 deg at 2 m: the returns end ~3.7 m high, cleared up to 2.5 m only.
         let full = wall_pair(10.0, DensifyRays::Full);
         let interp = wall_pair(10.0, DensifyRays::Interpolated);
