@@ -50,11 +50,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut planar_opts = config.map.clone();
     planar_opts.height.enabled = false;
     let margin = (config.map.free_margin_m / config.map.resolution_m).round() as i32;
+    let mut kept: Vec<(DensifyRays, Vec<PlanarScan>)> = Vec::new();
     for mode in [
         DensifyRays::Full,
         DensifyRays::HitOnly,
         DensifyRays::Interpolated,
     ] {
+        let mut worlds = Vec::new();
         let mut scan_opts = config.map.scan;
         scan_opts.densify_rays = mode;
         let proj = ScanProjector::new(&rec.lidar, &rec.body_from_lidar, &scan_opts)?;
@@ -131,6 +133,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     s.partial_joining += usize::from(p.free_to < 1.0);
                 }
             }
+            worlds.push(world.clone());
             let t = Instant::now();
             planar.trace_updates(&world, &mut scratch, &mut up)?;
             s.planar_s += t.elapsed().as_secs_f64();
@@ -162,6 +165,27 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             s.touched_heights as f64 / n,
             s.planar_s * 1e6 / n,
             s.heights_s * 1e6 / n,
+        );
+        kept.push((mode, worlds));
+    }
+    // Process CPU of the planar tracing alone (one thread, 3 passes over the kept scans).
+    let planar = OccupancyGrid::new(&planar_opts)?;
+    let mut scratch = InsertScratch::new();
+    let mut up = ScanUpdates::new();
+    for (mode, worlds) in &kept {
+        let cpu = pfslam::pipeline::process_cpu_s();
+        for _ in 0..3 {
+            for w in worlds {
+                planar.trace_updates(w, &mut scratch, &mut up)?;
+            }
+        }
+        let cpu = pfslam::pipeline::process_cpu_s()
+            .zip(cpu)
+            .map(|(b, a)| b - a);
+        println!(
+            "{mode:?}: planar tracing {:.1} us CPU per scan (3 passes over {} scans)",
+            cpu.unwrap_or(f64::NAN) * 1e6 / (3 * worlds.len()).max(1) as f64,
+            worlds.len()
         );
     }
     Ok(())
