@@ -81,9 +81,12 @@ pub struct ScanOptions {
     /// How the joining returns are inserted into the SLAM filter's map (the map it matches
     /// against).
     pub filter_densify_rays: DensifyRays,
-    /// Only every this many-th joining return of a gap traces its free ray as
-    /// `densify_rays` says; the others mark their end cell only (as `hit_only`). 1 = all.
+    /// In maps along known poses, only every this many-th joining return of a gap traces
+    /// its free ray as `densify_rays` says; the others mark their end cell only (as
+    /// `hit_only`). 1 = all.
     pub densify_free_every: u32,
+    /// `densify_free_every` for the SLAM filter's map.
+    pub filter_densify_free_every: u32,
     /// A beam clears free space only up to where it climbs above this height (m, body
     /// frame); a large value = the whole ray (the seeds). The car's forward beams rise 37 deg: past
     /// a few metres they fly over parked vans and low buildings, and clearing their whole
@@ -106,6 +109,7 @@ impl Default for ScanOptions {
             densify_rays: DensifyRays::Full,
             filter_densify_rays: DensifyRays::Full,
             densify_free_every: 1,
+            filter_densify_free_every: 1,
             free_z_max_m: Some(2.5),
         }
     }
@@ -137,8 +141,11 @@ impl ScanOptions {
         if !(self.densify_step_m.is_finite() && self.densify_step_m >= 0.01) {
             return Err("map.scan.densify_step_m must be at least 0.01".into());
         }
-        if self.densify_free_every == 0 {
-            return Err("map.scan.densify_free_every must be at least 1".into());
+        if self.densify_free_every == 0 || self.filter_densify_free_every == 0 {
+            return Err(
+                "map.scan: densify_free_every and filter_densify_free_every must be at least 1"
+                    .into(),
+            );
         }
         if self.free_z_max_m.is_some_and(|z| !z.is_finite()) {
             return Err("map.scan.free_z_max_m must be finite".into());
@@ -154,10 +161,12 @@ impl ScanOptions {
         Ok(())
     }
 
-    /// These options for the SLAM filter's map: `densify_rays` = `filter_densify_rays`.
+    /// These options for the SLAM filter's map: `densify_rays` = `filter_densify_rays`,
+    /// `densify_free_every` = `filter_densify_free_every`.
     pub fn for_filter(&self) -> ScanOptions {
         ScanOptions {
             densify_rays: self.filter_densify_rays,
+            densify_free_every: self.filter_densify_free_every,
             ..*self
         }
     }
@@ -534,8 +543,15 @@ mod tests {
                 .unwrap();
         assert_eq!(o.for_filter().densify_rays, DensifyRays::Interpolated);
         assert_eq!(o.densify_rays, DensifyRays::HitOnly);
-        let o: ScanOptions = toml::from_str("densify_free_every = 0").unwrap();
-        assert!(o.validate().is_err());
+        let o: ScanOptions = toml::from_str("densify_free_every = 3").unwrap();
+        assert_eq!(
+            (o.densify_free_every, o.for_filter().densify_free_every),
+            (3, 1)
+        );
+        for bad in ["densify_free_every = 0", "filter_densify_free_every = 0"] {
+            let o: ScanOptions = toml::from_str(bad).unwrap();
+            assert!(o.validate().is_err(), "{bad}");
+        }
         let back: ScanOptions = toml::from_str(
             &toml::to_string(&ScanOptions {
                 densify_rays: DensifyRays::HitOnly,
