@@ -1966,18 +1966,23 @@ mod reference_tests {
             for (c, bins) in &slow_bins {
                 assert_eq!(fast.height_bins(*c), Some(&bins[..]), "case {case}");
             }
-            let (ra, rb) = (fast.observed_bounds(), slow.observed_bounds());
-            assert_eq!(ra, rb, "case {case}");
-            if let Some(r) = ra {
-                let (mut va, mut vb) = (Vec::new(), Vec::new());
-                fast.copy_rect_fixed(&r, &mut va);
-                slow.copy_rect_fixed(&r, &mut vb);
-                assert!(va == vb, "case {case}: cells differ");
-            }
+            assert_same_cells(&fast, &slow, case);
             assert!(
                 scratch.mask.iter().all(|&m| m == MARK_NONE),
                 "mask left dirty"
             );
+        }
+    }
+
+    /// Same observed bounds and the same cells in them.
+    fn assert_same_cells(fast: &OccupancyGrid, slow: &OccupancyGrid, case: usize) {
+        let (ra, rb) = (fast.observed_bounds(), slow.observed_bounds());
+        assert_eq!(ra, rb, "case {case}");
+        if let Some(r) = ra {
+            let (mut va, mut vb) = (Vec::new(), Vec::new());
+            fast.copy_rect_fixed(&r, &mut va);
+            slow.copy_rect_fixed(&r, &mut vb);
+            assert!(va == vb, "case {case}: cells differ");
         }
     }
 
@@ -2018,14 +2023,7 @@ mod reference_tests {
                 let b = insert_reference(&mut slow, &scan);
                 assert_eq!(a, b, "case {case}");
             }
-            let (ra, rb) = (fast.observed_bounds(), slow.observed_bounds());
-            assert_eq!(ra, rb, "case {case}");
-            if let Some(r) = ra {
-                let (mut va, mut vb) = (Vec::new(), Vec::new());
-                fast.copy_rect_fixed(&r, &mut va);
-                slow.copy_rect_fixed(&r, &mut vb);
-                assert!(va == vb, "case {case}: cells differ");
-            }
+            assert_same_cells(&fast, &slow, case);
         }
         assert!(same_cell);
     }
