@@ -455,7 +455,7 @@ pub fn run_slam_with<P: MapPolicy>(
     let mut projector = ScanProjector::new(
         &recording.lidar,
         &recording.body_from_lidar,
-        &config.map.scan,
+        &config.map.scan.for_filter(),
     )?;
     let search: CorrelationSearch = opts.search();
     let mut pf = ParticleFilter::new(opts.particles, start, seed);

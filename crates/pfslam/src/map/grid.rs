@@ -1966,19 +1966,66 @@ mod reference_tests {
             for (c, bins) in &slow_bins {
                 assert_eq!(fast.height_bins(*c), Some(&bins[..]), "case {case}");
             }
-            let (ra, rb) = (fast.observed_bounds(), slow.observed_bounds());
-            assert_eq!(ra, rb, "case {case}");
-            if let Some(r) = ra {
-                let (mut va, mut vb) = (Vec::new(), Vec::new());
-                fast.copy_rect_fixed(&r, &mut va);
-                slow.copy_rect_fixed(&r, &mut vb);
-                assert!(va == vb, "case {case}: cells differ");
-            }
+            assert_same_cells(&fast, &slow, case);
             assert!(
                 scratch.mask.iter().all(|&m| m == MARK_NONE),
                 "mask left dirty"
             );
         }
+    }
+
+    /// Same observed bounds and the same cells in them.
+    fn assert_same_cells(fast: &OccupancyGrid, slow: &OccupancyGrid, case: usize) {
+        let (ra, rb) = (fast.observed_bounds(), slow.observed_bounds());
+        assert_eq!(ra, rb, "case {case}");
+        if let Some(r) = ra {
+            let (mut va, mut vb) = (Vec::new(), Vec::new());
+            fast.copy_rect_fixed(&r, &mut va);
+            slow.copy_rect_fixed(&r, &mut vb);
+            assert!(va == vb, "case {case}: cells differ");
+        }
+    }
+
+    #[test]
+    fn consecutive_rays_into_one_cell_insert_as_the_plain_rule() {
+        // Runs of rays ending within a cell of each other (a densified wall), some partial,
+        // some without a return, on the planar path.
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(12);
+        let mut same_cell = false;
+        for case in 0..24 {
+            let opts = MapOptions {
+                resolution_m: [0.1, 0.37][case % 2],
+                free_margin_m: [0.0, 0.2, 1.0][(case / 2) % 3],
+                ..MapOptions::default()
+            };
+            let mut fast = OccupancyGrid::new(&opts).unwrap();
+            let mut slow = OccupancyGrid::new(&opts).unwrap();
+            let mut scratch = InsertScratch::new();
+            for _ in 0..3 {
+                let (sx, sy) = (rng.random_range(-30.0..30.0), rng.random_range(-30.0..30.0));
+                let mut scan = random_scan(&mut rng, (sx, sy), 20.0, false, [60, 6, 4]);
+                let mut points = Vec::new();
+                for p in &scan.points {
+                    for _ in 0..rng.random_range(1..5) {
+                        let mut q = *p;
+                        q.x_m += rng.random_range(-0.03..0.03);
+                        q.y_m += rng.random_range(-0.03..0.03);
+                        points.push(q);
+                    }
+                }
+                let lim = fast.limits();
+                same_cell |= points.windows(2).any(|w| {
+                    w[0].hit == w[1].hit
+                        && lim.cell_of(w[0].x_m, w[0].y_m) == lim.cell_of(w[1].x_m, w[1].y_m)
+                });
+                scan.points = points;
+                let a = fast.insert_scan(&scan, &mut scratch).unwrap();
+                let b = insert_reference(&mut slow, &scan);
+                assert_eq!(a, b, "case {case}");
+            }
+            assert_same_cells(&fast, &slow, case);
+        }
+        assert!(same_cell);
     }
 
     /// A random world scan around `(sx, sy)`: below `points` points, one in `no_return`

@@ -35,7 +35,9 @@ pub use grid::{
 pub use limits::{Cell, CellRect, MapLimits};
 pub use logodds::{CellState, FixedLogOdds, LogOddsParams, LogOddsPreset, logit, sigmoid};
 pub use ray::{bresenham, bresenham_cells};
-pub use scan::{NoReturnPolicy, PlanarScan, ScanOptions, ScanPoint, ScanProjector, to_world};
+pub use scan::{
+    DensifyRays, NoReturnPolicy, PlanarScan, ScanOptions, ScanPoint, ScanProjector, to_world,
+};
 
 use crate::geometry::{Pose2, Trajectory};
 use crate::sensors::Recording;

@@ -29,6 +29,23 @@ pub enum NoReturnPolicy {
     ClearFree,
 }
 
+/// How a joining point of the densification ([`ScanOptions::densify_max_gap_m`]) is
+/// inserted into the map. Scan matching sees the joining points whatever this says.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum DensifyRays {
+    /// A whole ray from the sensor, cleared all the way (`free_to` 1), even between two
+    /// returns that clear only part of theirs.
+    #[default]
+    Full,
+    /// Only its end cell, marked occupied: no free ray (`free_to` 0). The returns' own rays
+    /// clear the space in front of the wall.
+    HitOnly,
+    /// A ray cleared as far as its two returns' clearing, interpolated (`free_to` between
+    /// theirs): equal to `full` between two wholly cleared rays.
+    Interpolated,
+}
+
 /// Scan preprocessing options (`[map.scan]`, a field of [`super::MapOptions`]).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -58,6 +75,18 @@ pub struct ScanOptions {
     pub densify_max_gap_m: Option<f64>,
     /// Spacing of the joining returns (m).
     pub densify_step_m: f64,
+    /// How the joining returns are inserted into maps built along known poses (`pfslam
+    /// map`, the rebuild along the back end's trajectory).
+    pub densify_rays: DensifyRays,
+    /// How the joining returns are inserted into the SLAM filter's map (the map it matches
+    /// against).
+    pub filter_densify_rays: DensifyRays,
+    /// In maps along known poses, only every this many-th joining return of a gap traces
+    /// its free ray as `densify_rays` says; the others mark their end cell only (as
+    /// `hit_only`). 1 = all.
+    pub densify_free_every: u32,
+    /// `densify_free_every` for the SLAM filter's map.
+    pub filter_densify_free_every: u32,
     /// A beam clears free space only up to where it climbs above this height (m, body
     /// frame); a large value = the whole ray (the seeds). The car's forward beams rise 37 deg: past
     /// a few metres they fly over parked vans and low buildings, and clearing their whole
@@ -77,6 +106,10 @@ impl Default for ScanOptions {
             ground_clearance_m: Some(0.5),
             densify_max_gap_m: Some(1.0),
             densify_step_m: 0.1,
+            densify_rays: DensifyRays::Full,
+            filter_densify_rays: DensifyRays::Full,
+            densify_free_every: 1,
+            filter_densify_free_every: 1,
             free_z_max_m: Some(2.5),
         }
     }
@@ -108,6 +141,12 @@ impl ScanOptions {
         if !(self.densify_step_m.is_finite() && self.densify_step_m >= 0.01) {
             return Err("map.scan.densify_step_m must be at least 0.01".into());
         }
+        if self.densify_free_every == 0 || self.filter_densify_free_every == 0 {
+            return Err(
+                "map.scan: densify_free_every and filter_densify_free_every must be at least 1"
+                    .into(),
+            );
+        }
         if self.free_z_max_m.is_some_and(|z| !z.is_finite()) {
             return Err("map.scan.free_z_max_m must be finite".into());
         }
@@ -120,6 +159,16 @@ impl ScanOptions {
             return Err("map.scan: z_min_m must be < z_max_m".into());
         }
         Ok(())
+    }
+
+    /// These options for the SLAM filter's map: `densify_rays` = `filter_densify_rays`,
+    /// `densify_free_every` = `filter_densify_free_every`.
+    pub fn for_filter(&self) -> ScanOptions {
+        ScanOptions {
+            densify_rays: self.filter_densify_rays,
+            densify_free_every: self.filter_densify_free_every,
+            ..*self
+        }
     }
 
     /// The longest ray this preprocessing can produce (m).
@@ -279,6 +328,13 @@ impl ScanProjector {
             {
                 continue;
             }
+            let free_to = match o.free_z_max_m {
+                Some(zmax) if p.z > zmax && p.z > self.origin_body.z => {
+                    ((zmax - self.origin_body.z) / (p.z - self.origin_body.z)).clamp(0.0, 1.0)
+                        as f32
+                }
+                _ => 1.0,
+            };
             if hit
                 && let Some(gap) = o.densify_max_gap_m
                 && let Some(prev) = out.points.last().copied()
@@ -295,19 +351,19 @@ impl ScanProjector {
                             x_m: prev.x_m + t * dx,
                             y_m: prev.y_m + t * dy,
                             hit: true,
-                            free_to: 1.0,
+                            free_to: match o.densify_rays {
+                                _ if !k.is_multiple_of(o.densify_free_every as usize) => 0.0,
+                                DensifyRays::Full => 1.0,
+                                DensifyRays::HitOnly => 0.0,
+                                DensifyRays::Interpolated => {
+                                    prev.free_to + t as f32 * (free_to - prev.free_to)
+                                }
+                            },
                             z_m: prev.z_m + t as f32 * dz,
                         });
                     }
                 }
             }
-            let free_to = match o.free_z_max_m {
-                Some(zmax) if p.z > zmax && p.z > self.origin_body.z => {
-                    ((zmax - self.origin_body.z) / (p.z - self.origin_body.z)).clamp(0.0, 1.0)
-                        as f32
-                }
-                _ => 1.0,
-            };
             out.points.push(ScanPoint {
                 x_m: p.x,
                 y_m: p.y,
@@ -444,6 +500,136 @@ mod tests {
                 .iter()
                 .all(|q| (q.x_m - 10.0).abs() < 1e-5 && q.hit)
         );
+    }
+
+    /// Two returns 0.5 m apart on a wall 10 m ahead of a sensor at (0, 0, `z`) looking along
+    /// x, pitched up by `pitch_deg`: the densification joins them with 4 points.
+    fn wall_pair(pitch_deg: f64, rays: DensifyRays) -> PlanarScan {
+        wall_pair_every(pitch_deg, rays, 1)
+    }
+
+    /// [`wall_pair`] with `densify_free_every`.
+    fn wall_pair_every(pitch_deg: f64, rays: DensifyRays, every: u32) -> PlanarScan {
+        let opts = ScanOptions {
+            range_min_m: 0.1,
+            densify_rays: rays,
+            densify_free_every: every,
+            ..ScanOptions::default()
+        };
+        let g = LidarGeometry {
+            angle_min_rad: 0.0,
+            angle_increment_rad: (0.5f64 / 10.0).atan(),
+            beam_count: 2,
+            range_max_m: 80.0,
+        };
+        let mount = Rigid3::from_rpy(0.0, -pitch_deg.to_radians(), 0.0, [0.0, 0.0, 2.0]);
+        let p = ScanProjector::new(&g, &mount, &opts).unwrap();
+        let mut out = PlanarScan::default();
+        p.to_body(&[10.0, (10.0f64.hypot(0.5)) as f32], &mut out)
+            .unwrap();
+        out
+    }
+
+    #[test]
+    fn densify_rays_option_parses_and_sets_the_joining_points_clearing() {
+        let o: ScanOptions = toml::from_str("densify_rays = \"hit_only\"").unwrap();
+        assert_eq!(o.densify_rays, DensifyRays::HitOnly);
+        let o: ScanOptions = toml::from_str("densify_rays = \"interpolated\"").unwrap();
+        assert_eq!(o.densify_rays, DensifyRays::Interpolated);
+        assert_eq!(ScanOptions::default().densify_rays, DensifyRays::Full);
+        assert!(toml::from_str::<ScanOptions>("densify_rays = \"half\"").is_err());
+        let o: ScanOptions =
+            toml::from_str("densify_rays = \"hit_only\"\nfilter_densify_rays = \"interpolated\"")
+                .unwrap();
+        assert_eq!(o.for_filter().densify_rays, DensifyRays::Interpolated);
+        assert_eq!(o.densify_rays, DensifyRays::HitOnly);
+        let o: ScanOptions = toml::from_str("densify_free_every = 3").unwrap();
+        assert_eq!(
+            (o.densify_free_every, o.for_filter().densify_free_every),
+            (3, 1)
+        );
+        for bad in ["densify_free_every = 0", "filter_densify_free_every = 0"] {
+            let o: ScanOptions = toml::from_str(bad).unwrap();
+            assert!(o.validate().is_err(), "{bad}");
+        }
+        let back: ScanOptions = toml::from_str(
+            &toml::to_string(&ScanOptions {
+                densify_rays: DensifyRays::HitOnly,
+                ..ScanOptions::default()
+            })
+            .unwrap(),
+        )
+        .unwrap();
+        assert_eq!(back.densify_rays, DensifyRays::HitOnly);
+        // Level: the returns are cleared all the way; the joining points by the setting.
+        for (rays, want) in [
+            (DensifyRays::Full, 1.0),
+            (DensifyRays::HitOnly, 0.0),
+            (DensifyRays::Interpolated, 1.0),
+        ] {
+            let s = wall_pair(0.0, rays);
+            assert_eq!(s.points.len(), 6, "{rays:?}");
+            assert!(s.points.iter().all(|q| q.hit));
+            let (ends, joining) = ([s.points[0].free_to, s.points[5].free_to], &s.points[1..5]);
+            assert_eq!(ends, [1.0, 1.0], "{rays:?}");
+            assert!(joining.iter().all(|q| q.free_to == want), "{rays:?}");
+        }
+        // Every 2nd joining point traces its free ray, the others only their end cell.
+        let s = wall_pair_every(0.0, DensifyRays::Full, 2);
+        let f: Vec<f32> = s.points.iter().map(|q| q.free_to).collect();
+        assert_eq!(f, [1.0, 0.0, 1.0, 0.0, 1.0, 1.0]);
+        // Pitched up 10 deg at 2 m: the returns end ~3.7 m high, cleared up to 2.5 m only.
+        let full = wall_pair(10.0, DensifyRays::Full);
+        let interp = wall_pair(10.0, DensifyRays::Interpolated);
+        let ends = [full.points[0].free_to, full.points[5].free_to];
+        assert!(ends.iter().all(|&f| f > 0.2 && f < 0.4), "{ends:?}");
+        assert!(full.points[1..5].iter().all(|q| q.free_to == 1.0));
+        let (lo, hi) = (ends[0].min(ends[1]), ends[0].max(ends[1]));
+        for q in &interp.points[1..5] {
+            assert!(q.free_to >= lo - 1e-6 && q.free_to <= hi + 1e-6, "{q:?}");
+        }
+        // Matching sees the same points whatever the setting.
+        let hit_only = wall_pair(10.0, DensifyRays::HitOnly);
+        for (a, b) in full.points.iter().zip(&hit_only.points) {
+            assert_eq!((a.x_m, a.y_m, a.z_m, a.hit), (b.x_m, b.y_m, b.z_m, b.hit));
+        }
+    }
+
+    #[test]
+    fn hit_only_joining_points_trace_no_free_cells() {
+        use crate::map::{InsertScratch, MapOptions, OccupancyGrid};
+        let mut mo = MapOptions::default();
+        mo.height.enabled = false;
+        let free_cells = |scan: &PlanarScan| {
+            let mut g = OccupancyGrid::new(&mo).unwrap();
+            g.insert_scan(scan, &mut InsertScratch::new()).unwrap();
+            let mut free = Vec::new();
+            for i in -20..130 {
+                for j in -20..80 {
+                    let c = crate::map::Cell { i, j };
+                    if g.logodds(c) < 0.0 {
+                        free.push(c);
+                    }
+                }
+            }
+            (free, g)
+        };
+        let level = wall_pair(0.0, DensifyRays::HitOnly);
+        let returns = PlanarScan {
+            points: vec![level.points[0], level.points[5]],
+            ..level.clone()
+        };
+        let (free_returns, _) = free_cells(&returns);
+        let (free_hit_only, g) = free_cells(&level);
+        let (free_full, _) = free_cells(&wall_pair(0.0, DensifyRays::Full));
+        // The joining points add no free cell (their end cells may turn a return's free
+        // cell occupied), but do give their end cells the occupied update.
+        assert!(free_hit_only.iter().all(|c| free_returns.contains(c)));
+        for q in &level.points[1..5] {
+            assert!(g.logodds(g.cell_of(q.x_m, q.y_m)) > 0.0, "{q:?}");
+        }
+        // Whole joining rays clear cells the returns' rays do not pass.
+        assert!(free_full.iter().any(|c| !free_returns.contains(c)));
     }
 
     #[test]
