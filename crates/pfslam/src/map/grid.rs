@@ -722,6 +722,15 @@ impl TileRun<'_> {
         self.heights && self.model.is_some() && self.htile.is_some()
     }
 
+    /// [`Self::apply`] of one piece's bin marks (`updates[i]`'s cell gets `marks[i]`), with
+    /// [`Self::heights`].
+    #[inline(always)]
+    fn apply_bins(&mut self, updates: &[u16], marks: &[u32]) {
+        if let (Some(ht), Some(model)) = (self.htile.as_deref_mut(), self.model) {
+            BinUpdater::new(&model).run(&mut ht.bins, self.stale, updates, marks, &model);
+        }
+    }
+
     /// Applies (cell, mark) pairs, each cell once: bin marks when [`Self::heights`], else
     /// 1 = occupied, 0 = free.
     #[inline(always)]
@@ -729,8 +738,9 @@ impl TileRun<'_> {
         let heights = self.heights();
         match (self.htile.as_deref_mut(), self.model) {
             (Some(ht), Some(model)) if heights => {
+                let vector = BinUpdater::new(&model);
                 for (local, m) in marks {
-                    update_bins(&mut ht.bins[local], m, &model);
+                    vector.update(&mut ht.bins[local], m, &model);
                     self.stale[local] = true;
                 }
             }
@@ -793,6 +803,111 @@ fn update_bins(bins: &mut [i8; MAX_BINS], marks: u32, model: &BinLogOdds) {
         };
         *v = model.apply(*v, d);
     }
+}
+
+/// [`update_bins`] with the bins of a column updated as one vector when the CPU has
+/// AVX-512BW/VL (mask registers select the hit, missed and untouched bins): no loop over the
+/// marks' bits, no mispredicted branch per bin, and the columns' loads do not wait on each
+/// other. The same values: a saturating `i8` add then the clamp equals the `i16` add then the
+/// clamp, the bounds being within `i8` and `min <= max`.
+static DEV_OLD: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+#[derive(Clone, Copy)]
+struct BinUpdater {
+    #[cfg(target_arch = "x86_64")]
+    avx512: bool,
+}
+
+impl BinUpdater {
+    fn new(model: &BinLogOdds) -> Self {
+        #[cfg(target_arch = "x86_64")]
+        {
+            BinUpdater {
+                avx512: model.min <= model.max
+                    && !*DEV_OLD.get_or_init(|| std::env::var_os("DEV_OLD_BINS").is_some())
+                    && std::arch::is_x86_feature_detected!("avx512bw")
+                    && std::arch::is_x86_feature_detected!("avx512vl"),
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            let _ = model;
+            BinUpdater {}
+        }
+    }
+
+    /// [`update_bins`] of `bins[updates[i]]` with `marks[i]` (the cell's index in the low 12
+    /// bits of the update), each such cell flagged in `stale`.
+    #[inline(always)]
+    fn run(
+        &self,
+        bins: &mut [[i8; MAX_BINS]],
+        stale: &mut [bool; TILE_CELLS],
+        updates: &[u16],
+        marks: &[u32],
+        model: &BinLogOdds,
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx512 {
+            // SAFETY: the CPU has AVX-512BW and AVX-512VL (checked in `new`).
+            unsafe { update_bin_run_avx512(bins, stale, updates, marks, model) };
+            return;
+        }
+        for (&u, &m) in updates.iter().zip(marks) {
+            let local = usize::from(u) & (TILE_CELLS - 1);
+            update_bins(&mut bins[local], m, model);
+            stale[local] = true;
+        }
+    }
+
+    /// [`update_bins`]`(bins, marks, model)`.
+    #[inline(always)]
+    fn update(&self, bins: &mut [i8; MAX_BINS], marks: u32, model: &BinLogOdds) {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx512 {
+            // SAFETY: the CPU has AVX-512BW and AVX-512VL (checked in `new`).
+            unsafe { update_bins_avx512(bins, marks, model) };
+            return;
+        }
+        update_bins(bins, marks, model);
+    }
+}
+
+/// [`BinUpdater::run`] with AVX-512 (one function: the per-cell update inlines).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512bw,avx512vl")]
+fn update_bin_run_avx512(
+    bins: &mut [[i8; MAX_BINS]],
+    stale: &mut [bool; TILE_CELLS],
+    updates: &[u16],
+    marks: &[u32],
+    model: &BinLogOdds,
+) {
+    for (&u, &m) in updates.iter().zip(marks) {
+        let local = usize::from(u) & (TILE_CELLS - 1);
+        update_bins_avx512(&mut bins[local], m, model);
+        stale[local] = true;
+    }
+}
+
+/// [`update_bins`] as one 16-lane vector operation (see [`BinUpdater`]).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512bw,avx512vl")]
+#[inline]
+fn update_bins_avx512(bins: &mut [i8; MAX_BINS], marks: u32, model: &BinLogOdds) {
+    use std::arch::x86_64::*;
+    let (occ, touched) = ((marks >> 16) as u16, (marks | marks >> 16) as u16);
+    // SAFETY: `bins` is 16 bytes; unaligned loads and stores are allowed.
+    let v = unsafe { _mm_loadu_si128(bins.as_ptr().cast::<__m128i>()) };
+    let d = _mm_mask_blend_epi8(
+        occ,
+        _mm_set1_epi8(model.miss),
+        _mm_set1_epi8(model.hit),
+    );
+    let s = _mm_adds_epi8(v, d);
+    let s = _mm_min_epi8(_mm_max_epi8(s, _mm_set1_epi8(model.min)), _mm_set1_epi8(model.max));
+    let v = _mm_mask_mov_epi8(v, touched, s);
+    // SAFETY: as the load.
+    unsafe { _mm_storeu_si128(bins.as_mut_ptr().cast::<__m128i>(), v) };
 }
 
 /// The log-odds occupancy grid: unbounded, tiled, cheap to clone (see the module docs).
@@ -1253,12 +1368,7 @@ impl OccupancyGrid {
                     let (su, range) = group(&job_entries[e]);
                     let updates = &su.updates[range.clone()];
                     if run.heights() {
-                        run.apply(
-                            updates
-                                .iter()
-                                .zip(&su.bin_marks[range])
-                                .map(|(&u, &m)| (usize::from(u) & (TILE_CELLS - 1), m)),
-                        );
+                        run.apply_bins(updates, &su.bin_marks[range]);
                     } else {
                         run.apply(updates.iter().map(|&u| {
                             (
