@@ -9,9 +9,7 @@
 use pfslam::config::Config;
 use pfslam::io::tum::read_tum;
 use pfslam::io::ucsd::{ReadOptions, read_car_dataset};
-use pfslam::map::{
-    Cell, MAP_BATCH_SCANS, OccupancyGrid, ScanInserter, ScanProjector, ScanUpdates,
-};
+use pfslam::map::{Cell, MAP_BATCH_SCANS, OccupancyGrid, ScanInserter, ScanProjector, ScanUpdates};
 use std::hash::{Hash, Hasher};
 use std::path::PathBuf;
 
