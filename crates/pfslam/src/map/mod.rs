@@ -299,10 +299,7 @@ impl ScanInserter {
         world_from_body: &Pose2,
         out: &mut ScanUpdates,
     ) -> Result<InsertStats, MapError> {
-        out.clear();
-        self.projector.to_body(ranges_m, &mut self.body)?;
-        to_world(&self.body, world_from_body, &mut self.world);
-        grid.trace_updates(&self.world, &mut self.scratch, out)
+        self.trace_with(grid, ranges_m, world_from_body, out, false)
     }
 
     /// [`Self::trace`] of the scan's returns only: the end cells of its rays with a hit get
@@ -315,13 +312,26 @@ impl ScanInserter {
         world_from_body: &Pose2,
         out: &mut ScanUpdates,
     ) -> Result<InsertStats, MapError> {
+        self.trace_with(grid, ranges_m, world_from_body, out, true)
+    }
+
+    fn trace_with(
+        &mut self,
+        grid: &OccupancyGrid,
+        ranges_m: &[f32],
+        world_from_body: &Pose2,
+        out: &mut ScanUpdates,
+        returns_only: bool,
+    ) -> Result<InsertStats, MapError> {
         out.clear();
         self.projector.to_body(ranges_m, &mut self.body)?;
         to_world(&self.body, world_from_body, &mut self.world);
-        self.world.points.retain(|p| p.hit);
-        for p in &mut self.world.points {
-            // A ray cleared up to 0 of the way: no free cell, only its end cell.
-            p.free_to = 0.0;
+        if returns_only {
+            self.world.points.retain(|p| p.hit);
+            for p in &mut self.world.points {
+                // A ray cleared up to 0 of the way: no free cell, only its end cell.
+                p.free_to = 0.0;
+            }
         }
         grid.trace_updates(&self.world, &mut self.scratch, out)
     }
