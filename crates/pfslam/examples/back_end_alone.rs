@@ -32,6 +32,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let input = if which == BackEndInput::CalibratedOdometry {
         let fit = fit_odometry_calibration(&odo, &front, &opts.calibration)?;
         opts.odometry_yaw_edges = Switch::Off;
+        if opts.refine_scans == Switch::Auto {
+            opts.refine_scans = Switch::Off;
+        }
         fit.calibration.apply(&odo)
     } else {
         front

@@ -231,4 +231,29 @@ mod tests {
     fn unknown_key_is_an_error() {
         assert!(toml::from_str::<Config>("nonsense = 1").is_err());
     }
+
+    /// A `Switch` reads its names and, for switches that were booleans, `true` / `false`;
+    /// anything else is an error naming the accepted values.
+    #[test]
+    fn switches_read_names_and_booleans() {
+        use crate::graph::Switch;
+        for (text, want) in [
+            ("\"auto\"", Switch::Auto),
+            ("\"on\"", Switch::On),
+            ("\"off\"", Switch::Off),
+            ("true", Switch::On),
+            ("false", Switch::Off),
+        ] {
+            let c: Config = toml::from_str(&format!("[graph]\nrefine_scans = {text}")).unwrap();
+            assert_eq!(c.graph.refine_scans, want, "{text}");
+            let c: Config =
+                toml::from_str(&format!("[graph]\nsequential_matching = {text}")).unwrap();
+            assert_eq!(c.graph.sequential_matching, want, "{text}");
+        }
+        let err = toml::from_str::<Config>("[graph]\nrefine_scans = \"sometimes\"")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("expected `auto`, `on`, `off`"), "{err}");
+        assert!(toml::from_str::<Config>("[graph]\nrefine_scans = 1").is_err());
+    }
 }

@@ -169,8 +169,13 @@ pub fn run_pipeline(
             BackEndInput::CalibratedOdometry => &calibrated,
         };
         if which != BackEndInput::FrontEnd {
-            // The input is the odometry itself: odometry-yaw edges would count its yaw twice.
+            // The input is the odometry itself: odometry-yaw edges would count its yaw twice,
+            // and re-matching the scans between keyframes would replace its smooth local
+            // motion by noisier matches (`GraphOptions::refine_scans`).
             graph_opts.odometry_yaw_edges = crate::graph::Switch::Off;
+            if graph_opts.refine_scans == crate::graph::Switch::Auto {
+                graph_opts.refine_scans = crate::graph::Switch::Off;
+            }
         }
         let g = optimize_trajectory(recording, &config.map.scan, input, &graph_opts)?;
         if options.rebuild_map {
