@@ -406,6 +406,8 @@ pub struct InsertScratch {
     bits: Vec<u32>,
     /// The current ray's cells (mask indices), walked before they are marked.
     cells: Vec<u32>,
+    /// [`drain_heights`]' runs of touched cells in one tile: (mask tile, start, end).
+    runs: Vec<(u32, u32, u32)>,
 }
 
 impl InsertScratch {
@@ -423,6 +425,7 @@ impl InsertScratch {
                 + self.block_order.capacity()
                 + self.bits.capacity()
                 + self.cells.capacity()
+                + 3 * self.runs.capacity()
                 + self.xoff.capacity()
                 + self.yoff.capacity())
     }
@@ -604,6 +607,106 @@ impl InsertStats {
     }
 }
 
+/// [`OccupancyGrid::trace_updates`]' second half for a whole scan traced with heights: the
+/// touched cells' bin marks moved from the mask into `out`, grouped by tile (tiles in
+/// first-touch order, cells in touch order within a tile: what
+/// [`OccupancyGrid::trace_updates_part`] writes), the mask left zeroed. A counting sort over
+/// the runs of one tile (touch order is ray order): the first pass lists the runs, the second
+/// copies each run without a per-cell tile check.
+fn drain_heights(
+    traced: &Traced,
+    rays: usize,
+    scratch: &mut InsertScratch,
+    out: &mut ScanUpdates,
+) -> InsertStats {
+    let blocks = scratch.blocks;
+    let InsertScratch {
+        hmask,
+        touched,
+        block_count,
+        block_order,
+        runs,
+        ..
+    } = scratch;
+    let touched = &touched[..traced.len];
+    if block_count.len() < blocks * blocks {
+        block_count.resize(blocks * blocks, 0);
+    }
+    // Slices, not the scratch's vectors: their pointers and lengths stay in registers.
+    let (hmask, block_count) = (&mut hmask[..], &mut block_count[..]);
+    block_order.clear();
+    runs.clear();
+    let mut start = 0;
+    while start < touched.len() {
+        let b = mask_tile(touched[start] as usize);
+        let mut end = start + 1;
+        while end < touched.len() && mask_tile(touched[end] as usize) == b {
+            end += 1;
+        }
+        if block_count[b] == 0 {
+            block_order.push(b as u32);
+        }
+        block_count[b] += (end - start) as u32;
+        runs.push((b as u32, start as u32, end as u32));
+        start = end;
+    }
+    // Each tile's first position in `out`; the tiles' ends.
+    let mut end = 0u32;
+    for &b in block_order.iter() {
+        let b = b as usize;
+        let n = std::mem::replace(&mut block_count[b], end);
+        end += n;
+        out.tiles.push((
+            traced.t0i + (b % blocks) as i32,
+            traced.t0j + (b / blocks) as i32,
+            end,
+        ));
+    }
+    let n = touched.len();
+    out.heights = true;
+    out.updates.clear();
+    out.bin_marks.clear();
+    out.updates.reserve(n);
+    out.bin_marks.reserve(n);
+    let (updates, marks) = (
+        &mut out.updates.spare_capacity_mut()[..n],
+        &mut out.bin_marks.spare_capacity_mut()[..n],
+    );
+    let mut occupied = 0usize;
+    for &(b, start, end) in runs.iter() {
+        let pos = &mut block_count[b as usize];
+        let run = &touched[start as usize..end as usize];
+        let p0 = *pos as usize;
+        for ((&k, u), m) in run
+            .iter()
+            .zip(&mut updates[p0..p0 + run.len()])
+            .zip(&mut marks[p0..p0 + run.len()])
+        {
+            let k = k as usize;
+            let v = std::mem::replace(&mut hmask[k], 0);
+            occupied += usize::from(v >> 16 != 0);
+            u.write(local_of(k) as u16);
+            m.write(v);
+        }
+        *pos += run.len() as u32;
+    }
+    // SAFETY: the runs partition `0..n` and each tile's runs fill its range of `0..n` (its
+    // count from the first pass), so every one of the first `n` elements was written.
+    unsafe {
+        out.updates.set_len(n);
+        out.bin_marks.set_len(n);
+    }
+    for &b in block_order.iter() {
+        block_count[b as usize] = 0;
+    }
+    out.stats = InsertStats {
+        rays,
+        occupied_cells: occupied,
+        free_cells: n - occupied,
+    };
+    out.stats
+}
+
 /// Where a traced scan's marks lie ([`OccupancyGrid::trace_scan`]).
 #[derive(Debug, Clone, Copy)]
 struct Traced {
@@ -722,6 +825,15 @@ impl TileRun<'_> {
         self.heights && self.model.is_some() && self.htile.is_some()
     }
 
+    /// [`Self::apply`] of one piece's bin marks (`updates[i]`'s cell gets `marks[i]`), with
+    /// [`Self::heights`].
+    #[inline(always)]
+    fn apply_bins(&mut self, updates: &[u16], marks: &[u32]) {
+        if let (Some(ht), Some(model)) = (self.htile.as_deref_mut(), self.model) {
+            BinUpdater::new(&model).run(&mut ht.bins, self.stale, updates, marks, &model);
+        }
+    }
+
     /// Applies (cell, mark) pairs, each cell once: bin marks when [`Self::heights`], else
     /// 1 = occupied, 0 = free.
     #[inline(always)]
@@ -729,8 +841,9 @@ impl TileRun<'_> {
         let heights = self.heights();
         match (self.htile.as_deref_mut(), self.model) {
             (Some(ht), Some(model)) if heights => {
+                let vector = BinUpdater::new(&model);
                 for (local, m) in marks {
-                    update_bins(&mut ht.bins[local], m, &model);
+                    vector.update(&mut ht.bins[local], m, &model);
                     self.stale[local] = true;
                 }
             }
@@ -793,6 +906,108 @@ fn update_bins(bins: &mut [i8; MAX_BINS], marks: u32, model: &BinLogOdds) {
         };
         *v = model.apply(*v, d);
     }
+}
+
+/// [`update_bins`] with the bins of a column updated as one vector when the CPU has
+/// AVX-512BW/VL (mask registers select the hit, missed and untouched bins): no loop over the
+/// marks' bits, no mispredicted branch per bin, and the columns' loads do not wait on each
+/// other. The same values: a saturating `i8` add then the clamp equals the `i16` add then the
+/// clamp, the bounds being within `i8` and `min <= max`.
+#[derive(Clone, Copy)]
+struct BinUpdater {
+    #[cfg(target_arch = "x86_64")]
+    avx512: bool,
+}
+
+impl BinUpdater {
+    fn new(model: &BinLogOdds) -> Self {
+        #[cfg(target_arch = "x86_64")]
+        {
+            BinUpdater {
+                avx512: model.min <= model.max
+                    && std::arch::is_x86_feature_detected!("avx512bw")
+                    && std::arch::is_x86_feature_detected!("avx512vl"),
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            let _ = model;
+            BinUpdater {}
+        }
+    }
+
+    /// [`update_bins`] of `bins[updates[i]]` with `marks[i]` (the cell's index in the low 12
+    /// bits of the update), each such cell flagged in `stale`.
+    #[inline(always)]
+    fn run(
+        &self,
+        bins: &mut [[i8; MAX_BINS]],
+        stale: &mut [bool; TILE_CELLS],
+        updates: &[u16],
+        marks: &[u32],
+        model: &BinLogOdds,
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx512 {
+            // SAFETY: the CPU has AVX-512BW and AVX-512VL (checked in `new`).
+            unsafe { update_bin_run_avx512(bins, stale, updates, marks, model) };
+            return;
+        }
+        for (&u, &m) in updates.iter().zip(marks) {
+            let local = usize::from(u) & (TILE_CELLS - 1);
+            update_bins(&mut bins[local], m, model);
+            stale[local] = true;
+        }
+    }
+
+    /// [`update_bins`]`(bins, marks, model)`.
+    #[inline(always)]
+    fn update(&self, bins: &mut [i8; MAX_BINS], marks: u32, model: &BinLogOdds) {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx512 {
+            // SAFETY: the CPU has AVX-512BW and AVX-512VL (checked in `new`).
+            unsafe { update_bins_avx512(bins, marks, model) };
+            return;
+        }
+        update_bins(bins, marks, model);
+    }
+}
+
+/// [`BinUpdater::run`] with AVX-512 (one function: the per-cell update inlines).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512bw,avx512vl")]
+fn update_bin_run_avx512(
+    bins: &mut [[i8; MAX_BINS]],
+    stale: &mut [bool; TILE_CELLS],
+    updates: &[u16],
+    marks: &[u32],
+    model: &BinLogOdds,
+) {
+    for (&u, &m) in updates.iter().zip(marks) {
+        let local = usize::from(u) & (TILE_CELLS - 1);
+        update_bins_avx512(&mut bins[local], m, model);
+        stale[local] = true;
+    }
+}
+
+/// [`update_bins`] as one 16-lane vector operation (see [`BinUpdater`]).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512bw,avx512vl")]
+#[inline]
+fn update_bins_avx512(bins: &mut [i8; MAX_BINS], marks: u32, model: &BinLogOdds) {
+    use std::arch::x86_64::*;
+    let (occ, touched) = ((marks >> 16) as u16, (marks | marks >> 16) as u16);
+    // SAFETY: `bins` is 16 bytes; unaligned loads and stores are allowed.
+    let v = unsafe { _mm_loadu_si128(bins.as_ptr().cast::<__m128i>()) };
+    let d = _mm_mask_blend_epi8(occ, _mm_set1_epi8(model.miss), _mm_set1_epi8(model.hit));
+    let s = _mm_adds_epi8(v, d);
+    let s = _mm_min_epi8(
+        _mm_max_epi8(s, _mm_set1_epi8(model.min)),
+        _mm_set1_epi8(model.max),
+    );
+    let v = _mm_mask_mov_epi8(v, touched, s);
+    // SAFETY: as the load.
+    unsafe { _mm_storeu_si128(bins.as_mut_ptr().cast::<__m128i>(), v) };
 }
 
 /// The log-odds occupancy grid: unbounded, tiled, cheap to clone (see the module docs).
@@ -1027,6 +1242,16 @@ impl OccupancyGrid {
         scratch: &mut InsertScratch,
         out: &mut ScanUpdates,
     ) -> Result<InsertStats, MapError> {
+        if world_scan.sensor_z_m.is_some() && self.height.is_some() {
+            out.clear();
+            let traced = self.trace_scan(world_scan, &world_scan.points, scratch)?;
+            return Ok(drain_heights(
+                &traced,
+                world_scan.points.len(),
+                scratch,
+                out,
+            ));
+        }
         self.trace_updates_part(world_scan, 0..world_scan.points.len(), scratch, out)
     }
 
@@ -1253,12 +1478,7 @@ impl OccupancyGrid {
                     let (su, range) = group(&job_entries[e]);
                     let updates = &su.updates[range.clone()];
                     if run.heights() {
-                        run.apply(
-                            updates
-                                .iter()
-                                .zip(&su.bin_marks[range])
-                                .map(|(&u, &m)| (usize::from(u) & (TILE_CELLS - 1), m)),
-                        );
+                        run.apply_bins(updates, &su.bin_marks[range]);
                     } else {
                         run.apply(updates.iter().map(|&u| {
                             (
@@ -1883,6 +2103,107 @@ mod reference_tests {
                 let (lc, lr) = (c as usize % TILE_SIZE, r as usize % TILE_SIZE);
                 assert_eq!(local_of(k), lr * TILE_SIZE + lc);
             }
+        }
+    }
+
+    #[test]
+    fn vectorised_bin_updates_equal_the_per_bin_rule() {
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(13);
+        for case in 0..200 {
+            // Random models, extremes included: steps up to the whole range, bounds at
+            // the `i8` limits and equal bounds.
+            let mut model = BinLogOdds::new(&crate::map::LogOddsParams::ese650(), 0.7);
+            if case % 2 == 1 {
+                let lo = rng.random_range(-127..=0i8);
+                let hi = if case % 10 == 3 {
+                    lo
+                } else {
+                    rng.random_range(lo..=127i8)
+                };
+                model = BinLogOdds {
+                    hit: rng.random_range(1..=127),
+                    miss: rng.random_range(-127..=-1),
+                    min: lo,
+                    max: hi,
+                    occupied: rng.random_range(1..=127),
+                };
+            }
+            let n = rng.random_range(0..300);
+            let updates: Vec<u16> = (0..n)
+                .map(|_| rng.random_range(0..TILE_CELLS as u16) | rng.random_range(0..16) << 12)
+                .collect();
+            let marks: Vec<u32> = (0..n)
+                .map(|_| match rng.random_range(0..4) {
+                    0 => rng.random::<u32>(),
+                    1 => 1 << rng.random_range(0..32),
+                    2 => 0,
+                    _ => rng.random::<u32>() & rng.random::<u32>(),
+                })
+                .collect();
+            let start = |rng: &mut rand_xoshiro::Xoshiro256PlusPlus| -> Vec<[i8; MAX_BINS]> {
+                (0..TILE_CELLS)
+                    .map(|_| std::array::from_fn(|_| rng.random_range(model.min..=model.max)))
+                    .collect()
+            };
+            let mut want = start(&mut rng);
+            let mut got = want.clone();
+            let (mut want_stale, mut got_stale) = ([false; TILE_CELLS], [false; TILE_CELLS]);
+            for (&u, &m) in updates.iter().zip(&marks) {
+                let local = usize::from(u) & (TILE_CELLS - 1);
+                update_bins(&mut want[local], m, &model);
+                want_stale[local] = true;
+            }
+            BinUpdater::new(&model).run(&mut got, &mut got_stale, &updates, &marks, &model);
+            assert!(got == want, "case {case}: bins differ");
+            assert!(got_stale == want_stale, "case {case}: stale cells differ");
+            let one = BinUpdater::new(&model);
+            let mut each = start(&mut rng);
+            let mut plain = each.clone();
+            for (&u, &m) in updates.iter().zip(&marks) {
+                let local = usize::from(u) & (TILE_CELLS - 1);
+                one.update(&mut each[local], m, &model);
+                update_bins(&mut plain[local], m, &model);
+            }
+            assert!(each == plain, "case {case}: single updates differ");
+        }
+    }
+
+    #[test]
+    fn whole_scan_drain_equals_the_piece_drain() {
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(14);
+        for case in 0..40 {
+            let opts = MapOptions {
+                resolution_m: [0.05, 0.1, 0.37][case % 3],
+                free_margin_m: [0.0, 0.3][(case / 3) % 2],
+                ..MapOptions::default()
+            };
+            let grid = OccupancyGrid::new(&opts).unwrap();
+            let mut scratch = InsertScratch::new();
+            let centre = (rng.random_range(-30.0..30.0), rng.random_range(-30.0..30.0));
+            let range_max = rng.random_range(0.5..40.0);
+            let scan = random_scan(&mut rng, centre, range_max, true, [300, 5, 3]);
+            let (mut whole, mut piece) = (ScanUpdates::new(), ScanUpdates::new());
+            // Dirty buffers from a scan before: both must start afresh.
+            let other = random_scan(&mut rng, (0.0, 0.0), 20.0, case % 2 == 0, [100, 5, 3]);
+            grid.trace_updates(&other, &mut scratch, &mut whole)
+                .unwrap();
+            let a = grid.trace_updates(&scan, &mut scratch, &mut whole).unwrap();
+            let b = grid
+                .trace_updates_part(&scan, 0..scan.points.len(), &mut scratch, &mut piece)
+                .unwrap();
+            assert_eq!(a, b, "case {case}");
+            assert!(
+                whole.heights && piece.heights && !whole.continues,
+                "case {case}"
+            );
+            assert_eq!(whole.tiles, piece.tiles, "case {case}");
+            assert_eq!(whole.updates, piece.updates, "case {case}");
+            assert_eq!(whole.bin_marks, piece.bin_marks, "case {case}");
+            assert_eq!(whole.stats, piece.stats, "case {case}");
+            assert!(
+                scratch.hmask.iter().all(|&m| m == 0),
+                "case {case}: mask left dirty"
+            );
         }
     }
 
