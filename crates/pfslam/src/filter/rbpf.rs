@@ -934,7 +934,7 @@ pub fn run_rbpf(
         map_opts.resolution_m = ro.resolution_m;
     }
     let grid = OccupancyGrid::new(&map_opts)?;
-    let mut scan_opts = config.map.scan;
+    let mut scan_opts = config.map.scan.for_filter();
     scan_opts.range_min_m = ro.range_min_m as f32;
     if !ro.densify {
         scan_opts.densify_max_gap_m = None;
