@@ -6,7 +6,7 @@
 //! the wall and process CPU seconds, and a hash of the trajectory's bits.
 
 use pfslam::config::Config;
-use pfslam::graph::{BackEndInput, Switch, optimize_trajectory};
+use pfslam::graph::{BackEndInput, optimize_trajectory};
 use pfslam::io::tum::{read_tum, write_tum};
 use pfslam::io::ucsd::{ReadOptions, read_car_dataset};
 use pfslam::motion::calibration::fit_odometry_calibration;
@@ -31,10 +31,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let which = opts.input.resolve(&recording);
     let input = if which == BackEndInput::CalibratedOdometry {
         let fit = fit_odometry_calibration(&odo, &front, &opts.calibration)?;
-        opts.odometry_yaw_edges = Switch::Off;
-        if opts.refine_scans == Switch::Auto {
-            opts.refine_scans = Switch::Off;
-        }
+        opts = opts.for_odometry_input();
         fit.calibration.apply(&odo)
     } else {
         front

@@ -162,21 +162,16 @@ pub fn run_pipeline(
             }
         }
         back_end_input = Some(which);
-        let mut graph_opts = config.graph.clone();
         let input = match which {
             BackEndInput::FrontEnd | BackEndInput::Auto => &result.trajectory,
             BackEndInput::Odometry => &result.dead_reckoning,
             BackEndInput::CalibratedOdometry => &calibrated,
         };
-        if which != BackEndInput::FrontEnd {
-            // The input is the odometry itself: odometry-yaw edges would count its yaw twice,
-            // and re-matching the scans between keyframes would replace its smooth local
-            // motion by noisier matches (`GraphOptions::refine_scans`).
-            graph_opts.odometry_yaw_edges = crate::graph::Switch::Off;
-            if graph_opts.refine_scans == crate::graph::Switch::Auto {
-                graph_opts.refine_scans = crate::graph::Switch::Off;
-            }
-        }
+        let graph_opts = if which == BackEndInput::FrontEnd {
+            config.graph.clone()
+        } else {
+            config.graph.for_odometry_input()
+        };
         let g = optimize_trajectory(recording, &config.map.scan, input, &graph_opts)?;
         if options.rebuild_map {
             let t = Clock::start();

@@ -351,6 +351,19 @@ impl Default for GraphOptions {
 }
 
 impl GraphOptions {
+    /// These options for a back end fed the odometry itself (`input` other than the front
+    /// end): no odometry-yaw edges (they would count its yaw twice), and `refine_scans =
+    /// "auto"` off (re-matching the scans between keyframes would replace the odometry's
+    /// smooth local motion by noisier matches).
+    pub fn for_odometry_input(&self) -> GraphOptions {
+        let mut opts = self.clone();
+        opts.odometry_yaw_edges = Switch::Off;
+        if opts.refine_scans == Switch::Auto {
+            opts.refine_scans = Switch::Off;
+        }
+        opts
+    }
+
     /// Checks ranges; the message names the bad key.
     pub fn validate(&self) -> Result<(), String> {
         self.calibration

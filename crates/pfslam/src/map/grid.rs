@@ -991,6 +991,9 @@ fn update_bin_run_avx512(
 }
 
 /// [`update_bins`] as one 16-lane vector operation (see [`BinUpdater`]).
+// `update_bins_avx512` loads and stores a column as one 16-byte vector.
+const _: () = assert!(MAX_BINS == 16);
+
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512bw,avx512vl")]
 #[inline]

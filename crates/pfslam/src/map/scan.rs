@@ -31,12 +31,13 @@ pub enum NoReturnPolicy {
 
 /// How a joining point of the densification ([`ScanOptions::densify_max_gap_m`]) is
 /// inserted into the map. Scan matching sees the joining points whatever this says.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+/// The defaults differ by map: see [`ScanOptions::densify_rays`] and
+/// [`ScanOptions::filter_densify_rays`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum DensifyRays {
     /// A whole ray from the sensor, cleared all the way (`free_to` 1), even between two
     /// returns that clear only part of theirs.
-    #[default]
     Full,
     /// Only its end cell, marked occupied: no free ray (`free_to` 0). The returns' own rays
     /// clear the space in front of the wall.
