@@ -333,10 +333,11 @@ fn write_outputs(
         s.neff_min
     );
     println!(
-        "time: load {load_s:.2} s, SLAM {:.2} s (predict {:.2}, correlate {:.2}, resample {:.3}, map {:.2}), outputs {write_s:.2} s",
+        "time: load {load_s:.2} s, SLAM {:.2} s (predict {:.2}, correlate {:.2} of which fields {:.2}, resample {:.3}, map {:.2}), outputs {write_s:.2} s",
         s.timings.total_s,
         s.timings.predict_s,
         s.timings.correlate_s,
+        s.timings.field_s,
         s.timings.resample_s,
         s.timings.map_update_s
     );

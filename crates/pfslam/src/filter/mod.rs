@@ -11,6 +11,7 @@
 //!   [`ParticleMaps`], so one shared map (the seeds) and per-particle maps fit the same code.
 
 pub mod correlate;
+pub mod field_cache;
 pub mod odometry;
 pub mod particles;
 pub mod prediction;

@@ -16,6 +16,7 @@
 //!   "anchor") skip the coarse search and refine from the anchor's offset (shared matching,
 //!   `shared_match_radius_m`): after resampling most particles are jittered copies.
 
+use super::field_cache::FieldCache;
 use crate::geometry::Pose2;
 use crate::map::limits::floor_to_i32;
 use crate::map::{Cell, CellRect, MapLimits, OccupancyGrid};
@@ -374,16 +375,45 @@ impl LikelihoodField {
         self.source_threshold = threshold;
     }
 
-    /// Rebuilds the field over `rect` from the occupied cells of `grid` (Gaussian of
-    /// `sigma_m`, truncated at 3 sigma); never-observed cells away from walls hold
-    /// `unknown_value` (0..1), observed ones 0. Reuses its buffers.
-    pub fn build(
+    /// The field as [`Self::build`] gives it, from `cache` ([`FieldCache`]: the same values,
+    /// bit for bit, from tiles kept up to date with the grid's logged changes). `changes`:
+    /// the grid's changes since the last call with this cache (`None`: unknown, the cache
+    /// starts over).
+    pub fn build_cached(
         &mut self,
         grid: &OccupancyGrid,
         rect: &CellRect,
         sigma_m: f64,
         unknown_value: f64,
+        cache: &mut FieldCache,
+        changes: Option<&[crate::map::CellChange]>,
     ) {
+        let (r, unknown, threshold) = self.prepare(grid, rect, sigma_m, unknown_value);
+        cache.configure(&self.kernel, r, threshold);
+        match changes {
+            Some(changes) => cache.apply(grid, changes),
+            None => cache.reset(),
+        }
+        self.values.clear();
+        self.values.resize(self.w * self.h, 0);
+        cache.fill(grid, rect, unknown, &mut self.values);
+        self.values.extend_from_slice(&[0; FIELD_PAD]);
+    }
+
+    /// The wall threshold this field uses on `grid` (fixed-point log-odds).
+    pub fn source_threshold_on(&self, grid: &OccupancyGrid) -> i16 {
+        self.source_threshold.unwrap_or(grid.fixed().occupied)
+    }
+
+    /// Sets the kernel for `sigma_m` on `grid`'s cells and the window `rect`; returns the
+    /// kernel radius (cells), the unknown value and the wall threshold.
+    fn prepare(
+        &mut self,
+        grid: &OccupancyGrid,
+        rect: &CellRect,
+        sigma_m: f64,
+        unknown_value: f64,
+    ) -> (i32, u8, i16) {
         let limits = *grid.limits();
         let sigma_cells = (sigma_m / limits.resolution_m()).max(0.25);
         let r = (3.0 * sigma_cells).ceil().min(16.0) as i32;
@@ -406,14 +436,24 @@ impl LikelihoodField {
         self.w = rect.width();
         self.h = rect.height();
         let unknown = (255.0 * unknown_value.clamp(0.0, 1.0)).round() as u8;
+        (r, unknown, self.source_threshold_on(grid))
+    }
+
+    /// Rebuilds the field over `rect` from the occupied cells of `grid` (Gaussian of
+    /// `sigma_m`, truncated at 3 sigma); never-observed cells away from walls hold
+    /// `unknown_value` (0..1), observed ones 0. Reuses its buffers.
+    pub fn build(
+        &mut self,
+        grid: &OccupancyGrid,
+        rect: &CellRect,
+        sigma_m: f64,
+        unknown_value: f64,
+    ) {
+        let (r, unknown, occupied_threshold) = self.prepare(grid, rect, sigma_m, unknown_value);
         self.values.clear();
         self.values.resize(self.w * self.h, unknown);
         let w = self.w as i32;
         let (i0, j0) = (self.i0, self.j0);
-        let occupied_threshold = self.source_threshold.unwrap_or(grid.fixed().occupied);
-        // Bands of rows in parallel, each with both passes over its own rows: a cell's value
-        // is 0 if observed, raised to the maximum kernel value of the walls within reach
-        // (the maximum, so neither the order nor the band split changes it).
         let bands = self.h.div_ceil(FIELD_BAND_ROWS);
         if self.occupied.len() < bands {
             self.occupied.resize_with(bands, Vec::new);

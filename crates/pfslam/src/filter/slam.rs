@@ -10,8 +10,8 @@ use super::{FilterError, FilterMode, ParticleFilter, ParticleMaps, SERIAL_BELOW_
 use crate::config::Config;
 use crate::geometry::{Pose2, StampedPose2};
 use crate::map::{
-    Cell, InsertScratch, MapError, MapLimits, OccupancyGrid, PlanarScan, ScanProjector,
-    ScanUpdates, to_world,
+    BatchScratch, Cell, CellChange, ChangeLog, InsertScratch, MapError, MapLimits, OccupancyGrid,
+    PlanarScan, ScanProjector, ScanUpdates, split_rays, to_world,
 };
 use crate::sensors::Recording;
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -92,6 +92,20 @@ pub trait MapPolicy: ParticleMaps {
     fn flush(&mut self) -> Result<(), MapError> {
         Ok(())
     }
+    /// Logs the cells of the output map whose observed or wall status (`threshold`,
+    /// fixed-point log-odds) insertions change, for [`Self::take_changes`]. The default logs
+    /// nothing.
+    fn log_changes(&mut self, _threshold: i16) {}
+    /// Hands the map of particle `best` and the changes logged since the last call to
+    /// `use_changes` (`None` when they are not known: nothing logged, or an insertion that
+    /// did not log) and clears the log.
+    fn take_changes<R>(
+        &mut self,
+        best: usize,
+        use_changes: impl FnOnce(&OccupancyGrid, Option<&[CellChange]>) -> R,
+    ) -> R {
+        use_changes(self.map_for_output(best), None)
+    }
 }
 
 /// The seeds' policy: one map, updated with the best particle's pose.
@@ -99,21 +113,29 @@ pub trait MapPolicy: ParticleMaps {
 /// Scans are queued (in the world frame) and inserted at [`MapPolicy::flush`]: the rays of
 /// the scans between two updates are cut into one run of about equal work per thread (a scan
 /// may be split between two), traced in parallel and applied in scan order, tile by tile in
-/// parallel ([`OccupancyGrid::trace_updates_part`] / [`OccupancyGrid::apply_updates`]), which
-/// leaves the grid exactly as inserting them one by one would. `grid` is complete after a
-/// flush.
+/// parallel, which leaves the grid exactly as inserting them one by one would: planar scans
+/// as one batch ([`OccupancyGrid::insert_planar_batch`]: one mask with a mark per scan, each
+/// cell visited once), scans with heights on a grid with bins scan by scan
+/// ([`OccupancyGrid::trace_updates_part`] / [`OccupancyGrid::apply_updates`]). `grid` is
+/// complete after a flush.
 #[derive(Debug, Clone)]
 pub struct BestParticleMap {
     /// The map.
     pub grid: OccupancyGrid,
     /// One scratch per tracing task (a mask of megabytes each: reused, never per scan).
     scratches: Vec<InsertScratch>,
+    /// The same for batches of planar scans ([`OccupancyGrid::insert_planar_batch`]).
+    batches: Vec<BatchScratch>,
+    /// With [`Self::log_changes`]: the cells changed since the log was last taken, and
+    /// whether the log is complete (false after an insertion that does not log).
+    log: Option<(ChangeLog, bool)>,
     /// Queued world-frame scans: the first `queued` are pending (the rest keep allocations).
     pending: Vec<PlanarScan>,
     queued: usize,
     traced: Vec<ScanUpdates>,
-    /// Cumulative cells to walk per ray of a scan cut between two threads ([`split_rays`]).
-    weights: Vec<u64>,
+    /// Where a scan cut between two threads may be cut, and the work before each place
+    /// ([`split_rays`], [`OccupancyGrid::trace_cuts`]).
+    weights: Vec<(usize, u64)>,
 }
 
 impl BestParticleMap {
@@ -122,6 +144,8 @@ impl BestParticleMap {
         BestParticleMap {
             grid,
             scratches: vec![InsertScratch::new()],
+            batches: Vec::new(),
+            log: None,
             pending: Vec::new(),
             queued: 0,
             traced: Vec::new(),
@@ -138,6 +162,30 @@ impl ParticleMaps for BestParticleMap {
 }
 
 impl MapPolicy for BestParticleMap {
+    fn log_changes(&mut self, threshold: i16) {
+        self.log = Some((
+            ChangeLog {
+                threshold,
+                changes: Vec::new(),
+            },
+            true,
+        ));
+    }
+    fn take_changes<R>(
+        &mut self,
+        _best: usize,
+        use_changes: impl FnOnce(&OccupancyGrid, Option<&[CellChange]>) -> R,
+    ) -> R {
+        match &mut self.log {
+            Some((log, complete)) => {
+                let r = use_changes(&self.grid, complete.then_some(&log.changes[..]));
+                log.changes.clear();
+                *complete = true;
+                r
+            }
+            None => use_changes(&self.grid, None),
+        }
+    }
     fn integrate(
         &mut self,
         poses: &[Pose2],
@@ -169,19 +217,39 @@ impl MapPolicy for BestParticleMap {
             return Ok(());
         }
         let threads = rayon::current_num_threads().max(1);
-        if n == 1 && threads == 1 {
+        if n == 1 && threads == 1 && self.log.is_none() {
             self.grid
                 .insert_scan(&self.pending[0], &mut self.scratches[0])?;
             return Ok(());
         }
         // Run on a pool thread: one hand-over to the pool per flush instead of one per
         // parallel phase (tracing, applying).
-        rayon::scope(|_| self.flush_queued(n, threads))
+        if self.pending[..n].iter().any(|s| self.grid.uses_heights(s)) {
+            // Not logged: whoever reads the log starts over.
+            if let Some(log) = &mut self.log {
+                log.1 = false;
+            }
+            rayon::scope(|_| self.flush_queued(n, threads))
+        } else {
+            let Self {
+                grid,
+                pending,
+                batches,
+                weights,
+                log,
+                ..
+            } = self;
+            let log = log.as_mut().map(|l| &mut l.0);
+            rayon::scope(|_| {
+                grid.insert_planar_batch(&pending[..n], threads, batches, weights, log)
+            })
+        }
     }
 }
 
 impl BestParticleMap {
-    /// [`MapPolicy::flush`] of the `n` queued scans on `threads` threads.
+    /// [`MapPolicy::flush`] of the `n` queued scans on `threads` threads, scan by scan (scans
+    /// with heights on a grid with bins).
     fn flush_queued(&mut self, n: usize, threads: usize) -> Result<(), MapError> {
         // The scans' rays, in order, cut into one contiguous run per thread with about the
         // same number of cells to walk (a scan may be cut in two: its pieces are applied as
@@ -221,71 +289,6 @@ impl BestParticleMap {
     }
 }
 
-/// Cuts the rays of `scans`, in order, into `parts` contiguous runs of about the same work;
-/// returns each run as (scan, ray range) pieces, a scan cut between two runs giving one piece
-/// to each; empty runs are dropped. The scans between two updates are alike (consecutive
-/// sweeps of the same place), so each counts as one unit of work, and within a scan that is
-/// cut the rays are weighed by the cells they walk (Chebyshev length in cells, plus one for
-/// the end cell: left and right halves of a sweep can differ a lot). `cum` is a reusable
-/// buffer.
-fn split_rays(
-    grid: &OccupancyGrid,
-    scans: &[PlanarScan],
-    parts: usize,
-    cum: &mut Vec<u64>,
-) -> Vec<Vec<(usize, std::ops::Range<usize>)>> {
-    let parts = parts.max(1);
-    let n = scans.len();
-    // Where each run ends: (scan, ray) with the ray exclusive; the last run ends after all.
-    let mut cuts = Vec::with_capacity(parts);
-    for t in 1..parts {
-        // Cut at n * t / parts scans: scan `k`, the fraction `num / parts` of its work.
-        let (k, num) = ((n * t) / parts, (n * t) % parts);
-        if k >= n {
-            cuts.push((n, 0));
-            continue;
-        }
-        let scan = &scans[k];
-        let ray = if num == 0 {
-            0
-        } else {
-            cum.clear();
-            let o = grid.cell_of(scan.sensor_x_m, scan.sensor_y_m);
-            let mut total = 0u64;
-            for p in &scan.points {
-                let c = grid.cell_of(p.x_m, p.y_m);
-                total += u64::from((c.i - o.i).unsigned_abs().max((c.j - o.j).unsigned_abs())) + 1;
-                cum.push(total);
-            }
-            let share = total * num as u64 / parts as u64;
-            cum.partition_point(|&w| w <= share)
-        };
-        cuts.push((k, ray));
-    }
-    cuts.push((n, 0));
-    let mut runs = Vec::with_capacity(parts);
-    let mut at = (0usize, 0usize);
-    for &cut in &cuts {
-        let mut run = Vec::new();
-        while at < cut {
-            let (k, ray) = at;
-            let end = if k == cut.0 {
-                cut.1
-            } else {
-                scans[k].points.len()
-            };
-            if end > ray {
-                run.push((k, ray..end));
-            }
-            at = if k == cut.0 { cut } else { (k + 1, 0) };
-        }
-        if !run.is_empty() {
-            runs.push(run);
-        }
-    }
-    runs
-}
-
 /// Wall-clock seconds spent per stage.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
 pub struct StageTimings {
@@ -295,6 +298,8 @@ pub struct StageTimings {
     pub predict_s: f64,
     /// Correlation search and reweighting.
     pub correlate_s: f64,
+    /// Of `correlate_s`: the likelihood fields (`scan_match`).
+    pub field_s: f64,
     /// Resampling.
     pub resample_s: f64,
     /// Map insertion.
@@ -423,6 +428,8 @@ pub fn run_slam(
     } else {
         OccupancyGrid::new(&config.map)?
     };
+    let mut grid = grid;
+    grid.set_fill_fans(config.map.scan.filter_fan_fill);
     let mut policy = BestParticleMap::new(grid);
     run_slam_with(
         recording,
@@ -478,6 +485,8 @@ pub fn run_slam_with<P: MapPolicy>(
     let mut match_pts: Vec<[f64; 2]> = Vec::new();
     let mut field = scanmatch::LikelihoodField::new();
     field.set_source_threshold(opts.scan_match.field_source_threshold());
+    let mut field_cache = super::field_cache::FieldCache::new();
+    policy.log_changes(field.source_threshold_on(policy.map_for_output(0)));
     let match_params = opts.scan_match.params(config.map.resolution_m);
     let resample_threshold = match mode {
         FilterMode::Seed => opts.resample_threshold,
@@ -555,7 +564,19 @@ pub fn run_slam_with<P: MapPolicy>(
                             &match_pts,
                             match_params.xy_radius_cells + 2,
                         );
-                        field.build(grid, &rect, sm.field_sigma_m, sm.unknown_value);
+                        let tb = Instant::now();
+                        // The field from its cache (the map's changes since the last update).
+                        policy.take_changes(pf.particles.best_index(), |grid, changes| {
+                            field.build_cached(
+                                grid,
+                                &rect,
+                                sm.field_sigma_m,
+                                sm.unknown_value,
+                                &mut field_cache,
+                                changes,
+                            )
+                        });
+                        stats.timings.field_s += tb.elapsed().as_secs_f64();
                         if sm.match_gain < 1.0 {
                             predicted.clone_from(&pf.particles.poses);
                         }
@@ -839,11 +860,11 @@ mod flush_tests {
         }
     }
 
-    /// Same allocated tiles, cells and bins.
+    /// Same allocated tiles, cells and bins (not the same directory: its slack depends on
+    /// the order tiles are created, and a batch creates them in its mask's order).
     fn assert_same_grid(a: &OccupancyGrid, b: &OccupancyGrid, label: &str) {
         assert_eq!(a.tile_count(), b.tile_count(), "{label}");
         assert_eq!(a.height_tile_count(), b.height_tile_count(), "{label}");
-        assert_eq!(a.memory_bytes(), b.memory_bytes(), "{label}");
         let r = a.allocated_bounds();
         assert_eq!(r, b.allocated_bounds(), "{label}");
         let Some(r) = r else { return };

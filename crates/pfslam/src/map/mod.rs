@@ -29,8 +29,8 @@ pub use compare::{
     compare_maps_visible_aligned,
 };
 pub use grid::{
-    BIN_SCALE, BinLogOdds, InsertScratch, InsertStats, OccupancyGrid, ScanUpdates, TILE_BYTES,
-    TILE_SIZE, project_bins,
+    BATCH_SCANS, BIN_SCALE, BatchScratch, BinLogOdds, CellChange, ChangeLog, InsertScratch,
+    InsertStats, OccupancyGrid, ScanUpdates, TILE_BYTES, TILE_SIZE, project_bins, split_rays,
 };
 pub use limits::{Cell, CellRect, MapLimits};
 pub use logodds::{CellState, FixedLogOdds, LogOddsParams, LogOddsPreset, logit, sigmoid};

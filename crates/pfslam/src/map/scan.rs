@@ -98,6 +98,14 @@ pub struct ScanOptions {
     pub densify_free_every: u32,
     /// `densify_free_every` for the SLAM filter's map.
     pub filter_densify_free_every: u32,
+    /// The SLAM filter's map clears each fan of whole rays to neighbouring end cells (a
+    /// densified wall: returns and joining points) as one polygon instead of ray by ray
+    /// (see `OccupancyGrid::set_fill_fans`): the same cells but for the wedges past the
+    /// returns cleared only part of the way, each visited once instead of ~2.5 times on
+    /// the car (its map insertion ~45 % cheaper). Off: over default-drive seeds 1-60 the
+    /// filter failed more often with it (SLAM ATE above 0.1 m on 6 seeds instead of 1,
+    /// worst 0.35 m; mean 0.066 against 0.061 m).
+    pub filter_fan_fill: bool,
     /// A beam clears free space only up to where it climbs above this height (m, body
     /// frame); a large value = the whole ray (the seeds). The car's forward beams rise 37 deg: past
     /// a few metres they fly over parked vans and low buildings, and clearing their whole
@@ -121,6 +129,7 @@ impl Default for ScanOptions {
             filter_densify_rays: DensifyRays::Full,
             densify_free_every: 1,
             filter_densify_free_every: 1,
+            filter_fan_fill: false,
             free_z_max_m: Some(2.5),
         }
     }

@@ -575,3 +575,177 @@ fn motion_filter_keeps_scans_spaced_by_travel_or_turn() {
         }
     }
 }
+
+/// A densified wall seen from `(sx, sy)`: returns every `beam_deg` along the segment
+/// `a`-`b` (cleared to `free_to`), joining points every <= 0.1 m between neighbours closer
+/// than 1 m (cleared to the end), as the car's preprocessing gives.
+fn densified_wall(
+    (sx, sy): (f64, f64),
+    a: (f64, f64),
+    b: (f64, f64),
+    beam_deg: f64,
+    free_to: f32,
+) -> PlanarScan {
+    let mut points: Vec<ScanPoint> = Vec::new();
+    let ang = |p: (f64, f64)| (p.1 - sy).atan2(p.0 - sx);
+    let (t0, t1) = (ang(a).min(ang(b)), ang(a).max(ang(b)));
+    let mut t = t0;
+    while t <= t1 {
+        // Ray (sx, sy) + r (cos t, sin t) against the segment a-b.
+        let (dx, dy) = (t.cos(), t.sin());
+        let (ex, ey) = (b.0 - a.0, b.1 - a.1);
+        let den = dx * ey - dy * ex;
+        let r = ((a.0 - sx) * ey - (a.1 - sy) * ex) / den;
+        let p = (sx + r * dx, sy + r * dy);
+        if let Some(prev) = points.last().copied() {
+            let d = (p.0 - prev.x_m).hypot(p.1 - prev.y_m);
+            if d <= 1.0 && d > 0.1 {
+                let n = (d / 0.1).ceil() as usize;
+                for k in 1..n {
+                    let f = k as f64 / n as f64;
+                    points.push(ScanPoint {
+                        x_m: prev.x_m + f * (p.0 - prev.x_m),
+                        y_m: prev.y_m + f * (p.1 - prev.y_m),
+                        hit: true,
+                        free_to: 1.0,
+                        z_m: 0.0,
+                    });
+                }
+            }
+        }
+        points.push(ScanPoint {
+            x_m: p.0,
+            y_m: p.1,
+            hit: true,
+            free_to,
+            z_m: 0.0,
+        });
+        t += beam_deg.to_radians();
+    }
+    PlanarScan {
+        sensor_x_m: sx,
+        sensor_y_m: sy,
+        sensor_z_m: None,
+        points,
+    }
+}
+
+/// Cells free after inserting `scan` into a new 0.1 m grid ray by ray and with the fan fill,
+/// and which are occupied in each: (free in both, only ray by ray, only fan, occupied
+/// differing).
+fn fan_vs_rays(scan: &PlanarScan) -> (usize, Vec<Cell>, Vec<Cell>, usize) {
+    let mut rays = grid(0.1);
+    let mut fan = grid(0.1);
+    fan.set_fill_fans(true);
+    let mut scratch = InsertScratch::new();
+    rays.insert_scan(scan, &mut scratch).unwrap();
+    fan.insert_scan(scan, &mut scratch).unwrap();
+    let o = rays.cell_of(scan.sensor_x_m, scan.sensor_y_m);
+    let (mut both, mut only_rays, mut only_fan, mut occ) = (0, Vec::new(), Vec::new(), 0);
+    for j in o.j - 900..=o.j + 900 {
+        for i in o.i - 900..=o.i + 900 {
+            let c = Cell::new(i, j);
+            let (x, y) = (rays.logodds_fixed(c), fan.logodds_fixed(c));
+            match (x < 0, y < 0) {
+                (true, true) => both += 1,
+                (true, false) => only_rays.push(c),
+                (false, true) => only_fan.push(c),
+                _ => {}
+            }
+            occ += usize::from((x > 0) != (y > 0));
+        }
+    }
+    (both, only_rays, only_fan, occ)
+}
+
+#[test]
+fn fan_fill_clears_what_the_rays_clear() {
+    // Walls near and far, returns cleared whole or part of the way (a climbing beam).
+    let cases = [
+        ((0.05, 0.05), (10.0, -5.0), (12.0, 8.0), 1.0, 20),
+        ((0.05, 0.05), (10.0, -5.0), (12.0, 8.0), 0.5, 900),
+        ((3.37, -1.21), (-20.0, 14.0), (25.0, 31.0), 0.5, 6800),
+        ((3.37, -1.21), (40.0, -30.0), (45.0, 25.0), 1.0, 700),
+    ];
+    for (s, a, b, free_to, extra_max) in cases {
+        let scan = densified_wall(s, a, b, 0.666, free_to);
+        let (both, only_rays, only_fan, occupied_differ) = fan_vs_rays(&scan);
+        let what = format!("wall {a:?}-{b:?}, returns cleared to {free_to}");
+        // Every cell the rays clear, the fan clears; the walls' cells are the same.
+        assert!(only_rays.is_empty(), "{what}: {only_rays:?}");
+        assert_eq!(occupied_differ, 0, "{what}");
+        // The fan's extra cells: a few between whole rays (centres inside the polygon but
+        // off every ray), and the wedges past a partly cleared return between two whole
+        // ones (its neighbours' rays clear them on the next sweeps).
+        assert!(
+            only_fan.len() <= extra_max,
+            "{what}: {} extra of {both}",
+            only_fan.len()
+        );
+        assert!(both > 500, "{what}: {both}");
+    }
+}
+
+#[test]
+fn fan_fill_scans_cut_where_trace_cuts_allows_insert_as_whole() {
+    use crate::sim::{SimOptions, World, simulate_car};
+    // The car with its simulated errors: range noise makes walls zigzag, so fans start and
+    // end anywhere.
+    let sim_opts = SimOptions {
+        duration_s: 12.0,
+        ..SimOptions::default()
+    };
+    let world = World::builtin(sim_opts.world_name()).unwrap();
+    let out = simulate_car(&world, &sim_opts).unwrap();
+    let car = out
+        .recording(&crate::motion::MotionOptions::default())
+        .unwrap();
+    let truth = Trajectory::new(out.ground_truth.clone());
+    let scan_opts = ScanOptions::default().for_filter();
+    let proj = ScanProjector::new(&car.lidar, &car.body_from_lidar, &scan_opts).unwrap();
+    let mut opts = MapOptions::default();
+    opts.height.enabled = false;
+    let fresh = || {
+        let mut g = OccupancyGrid::new(&opts).unwrap();
+        g.set_fill_fans(true);
+        g
+    };
+    let (mut body, mut world_scan) = (PlanarScan::default(), PlanarScan::default());
+    let mut scratch = InsertScratch::new();
+    let (mut cuts, mut a, mut b) = (Vec::new(), ScanUpdates::new(), ScanUpdates::new());
+    let (mut checked, mut in_fans) = (0, 0);
+    for k in (250..car.scans.len()).step_by(2) {
+        let Some(pose) = truth.pose_at(car.scans.stamps_ns[k]) else {
+            continue;
+        };
+        proj.to_body(car.scans.ranges(k), &mut body).unwrap();
+        to_world(&body, &pose, &mut world_scan);
+        let mut whole = fresh();
+        whole.insert_scan(&world_scan, &mut scratch).unwrap();
+        let bounds = whole.allocated_bounds().unwrap();
+        let (mut want, mut got) = (Vec::new(), Vec::new());
+        whole.copy_rect_fixed(&bounds, &mut want);
+        whole.trace_cuts(&world_scan, &mut cuts);
+        let n = world_scan.points.len();
+        assert_eq!(cuts.first().map(|c| c.0), Some(0));
+        assert_eq!(cuts.last().map(|c| c.0), Some(n));
+        in_fans += n + 1 - cuts.len();
+        for &(c, _) in &cuts[1..cuts.len() - 1] {
+            let mut pieces = fresh();
+            pieces
+                .trace_updates_part(&world_scan, 0..c, &mut scratch, &mut a)
+                .unwrap();
+            pieces
+                .trace_updates_part(&world_scan, c..n, &mut scratch, &mut b)
+                .unwrap();
+            pieces.apply_updates(&[&a, &b]);
+            pieces.copy_rect_fixed(&bounds, &mut got);
+            assert!(got == want, "scan {k} cut at ray {c} of {n}");
+            checked += 1;
+        }
+    }
+    assert!(
+        checked > 1000 && in_fans > 1000,
+        "{checked} cuts, {in_fans} rays inside fans"
+    );
+}

@@ -1,0 +1,350 @@
+//! The scan matcher's likelihood field kept up to date with the map instead of rebuilt at
+//! every update ([`super::scanmatch::LikelihoodField::build_cached`]).
+//!
+//! A field value depends on the map through two things only: whether the cell was ever
+//! observed (log-odds not 0) and, for the Gaussian part, which cells within the kernel's
+//! reach are walls (observed, log-odds at least the threshold). Between two updates the
+//! filter inserts ~5 scans, which touch ~25,000 cells on the car but change the observed or
+//! wall status of a few hundred; rebuilding the field over its whole window (a 40 m scan's
+//! bounding box, ~10^5 cells) cost about as much as a third of the matching. The cache keeps,
+//! per 64 x 64 tile of the map, the observed flags and the maximum of the wall kernels (exactly
+//! what a build computes), computes a tile from the grid the first time a window needs it,
+//! and afterwards follows the grid's logged changes ([`crate::map::ChangeLog`]): a new wall
+//! raises the kernel maxima around it, a removed wall has its reach recomputed from the walls
+//! around it. Filling a window is then a copy. The values are those of a build, bit for bit.
+
+use crate::map::{Cell, CellChange, CellRect, OccupancyGrid, TILE_SIZE};
+use std::collections::HashMap;
+
+const SIDE: i32 = TILE_SIZE as i32;
+const CELLS: usize = TILE_SIZE * TILE_SIZE;
+
+/// One tile of the cache: per cell (row-major) the maximum kernel value of the walls within
+/// reach, and 0xff when observed.
+#[derive(Debug, Clone)]
+struct CacheTile {
+    kmax: Box<[u8; CELLS]>,
+    seen: Box<[u8; CELLS]>,
+}
+
+/// The cached parts of the likelihood field (see the module docs). Keyed by what they were
+/// computed with (kernel, wall threshold); a different key starts over.
+#[derive(Debug, Clone, Default)]
+pub struct FieldCache {
+    kernel: Vec<(i32, i32, u8)>,
+    radius: i32,
+    threshold: i16,
+    tiles: HashMap<(i32, i32), CacheTile>,
+    /// Removed walls of the current [`Self::apply`].
+    removed: Vec<Cell>,
+}
+
+fn tile_of(c: Cell) -> (i32, i32) {
+    (c.i.div_euclid(SIDE), c.j.div_euclid(SIDE))
+}
+
+impl FieldCache {
+    /// An empty cache.
+    pub fn new() -> Self {
+        FieldCache::default()
+    }
+
+    /// Forgets every tile (the grid changed in a way that was not logged).
+    pub fn reset(&mut self) {
+        self.tiles.clear();
+    }
+
+    /// Tiles held.
+    pub fn tile_count(&self) -> usize {
+        self.tiles.len()
+    }
+
+    /// Uses `kernel` (offsets and values, within `radius`) and walls from `threshold`; a
+    /// change of either forgets every tile.
+    pub fn configure(&mut self, kernel: &[(i32, i32, u8)], radius: i32, threshold: i16) {
+        if self.kernel != kernel || self.radius != radius || self.threshold != threshold {
+            self.kernel.clear();
+            self.kernel.extend_from_slice(kernel);
+            self.radius = radius;
+            self.threshold = threshold;
+            self.tiles.clear();
+        }
+    }
+
+    fn wall(&self, v: i16) -> bool {
+        v != 0 && v >= self.threshold
+    }
+
+    /// Stamps the kernel around `wall` into the held tiles, clipped to `clip` when given.
+    fn stamp(&mut self, wall: Cell, clip: Option<&CellRect>) {
+        let r = self.radius;
+        let (t0, t1) = (
+            tile_of(Cell::new(wall.i - r, wall.j - r)),
+            tile_of(Cell::new(wall.i + r, wall.j + r)),
+        );
+        for tj in t0.1..=t1.1 {
+            for ti in t0.0..=t1.0 {
+                let Some(tile) = self.tiles.get_mut(&(ti, tj)) else {
+                    continue;
+                };
+                let (oi, oj) = (ti * SIDE, tj * SIDE);
+                for &(di, dj, v) in &self.kernel {
+                    let c = Cell::new(wall.i + di, wall.j + dj);
+                    let (li, lj) = (c.i - oi, c.j - oj);
+                    if li < 0 || lj < 0 || li >= SIDE || lj >= SIDE {
+                        continue;
+                    }
+                    if clip.is_some_and(|k| !k.contains(c)) {
+                        continue;
+                    }
+                    let slot = &mut tile.kmax[(lj * SIDE + li) as usize];
+                    if v > *slot {
+                        *slot = v;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Follows the grid's logged `changes` (the grid is already in its new state).
+    pub fn apply(&mut self, grid: &OccupancyGrid, changes: &[CellChange]) {
+        self.removed.clear();
+        for ch in changes {
+            if let Some(tile) = self.tiles.get_mut(&tile_of(ch.cell)) {
+                let (ti, tj) = tile_of(ch.cell);
+                let k = ((ch.cell.j - tj * SIDE) * SIDE + ch.cell.i - ti * SIDE) as usize;
+                tile.seen[k] = if ch.new != 0 { 0xff } else { 0 };
+            }
+            match (self.wall(ch.old), self.wall(ch.new)) {
+                (false, true) => self.stamp(ch.cell, None),
+                (true, false) => self.removed.push(ch.cell),
+                _ => {}
+            }
+        }
+        // A removed wall's reach: every cell within it recomputed from the walls that reach
+        // it now (the grid's final state, so stamps above are redone where needed).
+        let removed = std::mem::take(&mut self.removed);
+        let r = self.radius;
+        let mut walls = Vec::new();
+        for &w in &removed {
+            let reach = CellRect {
+                min_i: w.i - r,
+                min_j: w.j - r,
+                max_i: w.i + r,
+                max_j: w.j + r,
+            };
+            let (t0, t1) = (
+                tile_of(Cell::new(reach.min_i, reach.min_j)),
+                tile_of(Cell::new(reach.max_i, reach.max_j)),
+            );
+            let mut any = false;
+            for tj in t0.1..=t1.1 {
+                for ti in t0.0..=t1.0 {
+                    if let Some(tile) = self.tiles.get_mut(&(ti, tj)) {
+                        any = true;
+                        for j in reach.min_j.max(tj * SIDE)..=reach.max_j.min(tj * SIDE + SIDE - 1)
+                        {
+                            for i in
+                                reach.min_i.max(ti * SIDE)..=reach.max_i.min(ti * SIDE + SIDE - 1)
+                            {
+                                tile.kmax[((j - tj * SIDE) * SIDE + i - ti * SIDE) as usize] = 0;
+                            }
+                        }
+                    }
+                }
+            }
+            if !any {
+                continue;
+            }
+            walls.clear();
+            let threshold = self.threshold;
+            grid.for_each_observed_in(&reach.expanded(r), |c, v| {
+                if v >= threshold {
+                    walls.push(c);
+                }
+            });
+            for &c in &walls {
+                self.stamp(c, Some(&reach));
+            }
+        }
+        self.removed = removed;
+    }
+
+    /// Computes tile `(ti, tj)` from the grid.
+    fn compute(&self, grid: &OccupancyGrid, ti: i32, tj: i32) -> CacheTile {
+        let mut tile = CacheTile {
+            kmax: Box::new([0; CELLS]),
+            seen: Box::new([0; CELLS]),
+        };
+        let (oi, oj) = (ti * SIDE, tj * SIDE);
+        let rect = CellRect {
+            min_i: oi,
+            min_j: oj,
+            max_i: oi + SIDE - 1,
+            max_j: oj + SIDE - 1,
+        };
+        let r = self.radius;
+        grid.for_each_observed_in(&rect.expanded(r), |c, v| {
+            let (li, lj) = (c.i - oi, c.j - oj);
+            if li >= 0 && lj >= 0 && li < SIDE && lj < SIDE {
+                tile.seen[(lj * SIDE + li) as usize] = 0xff;
+            }
+            if v >= self.threshold {
+                for &(di, dj, kv) in &self.kernel {
+                    let (x, y) = (li + di, lj + dj);
+                    if x < 0 || y < 0 || x >= SIDE || y >= SIDE {
+                        continue;
+                    }
+                    let slot = &mut tile.kmax[(y * SIDE + x) as usize];
+                    if kv > *slot {
+                        *slot = kv;
+                    }
+                }
+            }
+        });
+        tile
+    }
+
+    /// Writes the field over `rect` into `out` (row-major, `rect`'s width, row 0 =
+    /// `rect.min_j`): observed cells their kernel maximum, others at least `unknown`.
+    /// Computes the tiles it has not seen.
+    pub fn fill(&mut self, grid: &OccupancyGrid, rect: &CellRect, unknown: u8, out: &mut [u8]) {
+        let w = rect.width();
+        let (t0, t1) = (
+            tile_of(Cell::new(rect.min_i, rect.min_j)),
+            tile_of(Cell::new(rect.max_i, rect.max_j)),
+        );
+        for tj in t0.1..=t1.1 {
+            for ti in t0.0..=t1.0 {
+                if !self.tiles.contains_key(&(ti, tj)) {
+                    let tile = self.compute(grid, ti, tj);
+                    self.tiles.insert((ti, tj), tile);
+                }
+                let Some(tile) = self.tiles.get(&(ti, tj)) else {
+                    continue;
+                };
+                let (oi, oj) = (ti * SIDE, tj * SIDE);
+                let (i0, i1) = (rect.min_i.max(oi), rect.max_i.min(oi + SIDE - 1));
+                let (j0, j1) = (rect.min_j.max(oj), rect.max_j.min(oj + SIDE - 1));
+                let n = (i1 - i0 + 1) as usize;
+                for j in j0..=j1 {
+                    let src = ((j - oj) * SIDE + i0 - oi) as usize;
+                    let dst = (j - rect.min_j) as usize * w + (i0 - rect.min_i) as usize;
+                    let (kmax, seen) = (&tile.kmax[src..src + n], &tile.seen[src..src + n]);
+                    for ((o, &k), &s) in out[dst..dst + n].iter_mut().zip(kmax).zip(seen) {
+                        *o = k.max(unknown & !s);
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::filter::scanmatch::LikelihoodField;
+    use crate::filter::slam::{BestParticleMap, MapPolicy};
+    use crate::geometry::{Pose2, Trajectory};
+    use crate::map::{MapOptions, PlanarScan, ScanOptions, ScanProjector};
+    use crate::sim::{SimOptions, World, simulate_car};
+    use rand::{RngExt, SeedableRng};
+    use rand_xoshiro::Xoshiro256PlusPlus;
+
+    /// The cached field equals a fresh build, bit for bit, after every flush of the simulated
+    /// car's scans (at jittered true poses, so walls appear and vanish), over windows around
+    /// the car and elsewhere; also with a low wall threshold, with clamping log-odds (walls
+    /// come and go in two scans) and after an unlogged change (the cache starts over).
+    #[test]
+    fn cached_field_equals_a_fresh_build_after_every_flush() {
+        let sim_opts = SimOptions {
+            duration_s: 8.0,
+            ..SimOptions::default()
+        };
+        let world = World::builtin(sim_opts.world_name()).unwrap();
+        let out = simulate_car(&world, &sim_opts).unwrap();
+        let car = out
+            .recording(&crate::motion::MotionOptions::default())
+            .unwrap();
+        let truth = Trajectory::new(out.ground_truth.clone());
+        let scan_opts = ScanOptions::default().for_filter();
+        let proj = ScanProjector::new(&car.lidar, &car.body_from_lidar, &scan_opts).unwrap();
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(3);
+        for case in 0..3 {
+            let mut opts = MapOptions::default();
+            opts.height.enabled = false;
+            if case == 2 {
+                opts.log_odds.hit = 20.0;
+                opts.log_odds.miss = -20.0;
+                opts.log_odds.clamp_min = -40.0;
+                opts.log_odds.clamp_max = 40.0;
+            }
+            let mut grid = crate::map::OccupancyGrid::new(&opts).unwrap();
+            grid.set_fill_fans(true);
+            let mut policy = BestParticleMap::new(grid);
+            let (mut cached, mut fresh) = (LikelihoodField::new(), LikelihoodField::new());
+            if case == 1 {
+                cached.set_source_threshold(Some(1));
+                fresh.set_source_threshold(Some(1));
+            }
+            let threshold = cached.source_threshold_on(&policy.grid);
+            policy.log_changes(threshold);
+            let mut cache = FieldCache::new();
+            let mut body = PlanarScan::default();
+            let (mut flushes, mut changed) = (0, 0);
+            for k in (100..car.scans.len()).step_by(3) {
+                let Some(pose) = truth.pose_at(car.scans.stamps_ns[k]) else {
+                    continue;
+                };
+                let pose = Pose2::new(
+                    pose.x_m + rng.random_range(-0.05..0.05),
+                    pose.y_m + rng.random_range(-0.05..0.05),
+                    pose.yaw_rad + rng.random_range(-0.01..0.01),
+                );
+                proj.to_body(car.scans.ranges(k), &mut body).unwrap();
+                policy.integrate_at(&pose, &body).unwrap();
+                if k % 5 != 0 {
+                    continue;
+                }
+                policy.flush().unwrap();
+                flushes += 1;
+                if flushes == 20 {
+                    // A change nobody logged: the cache must start over.
+                    let c = policy.grid.cell_of(pose.x_m + 3.0, pose.y_m);
+                    policy.grid.set_fixed(c, 2000).unwrap();
+                    policy.log_changes(threshold);
+                }
+                let c = policy.grid.cell_of(pose.x_m, pose.y_m);
+                let w = rng.random_range(20..300);
+                let rect = CellRect {
+                    min_i: c.i - w,
+                    min_j: c.j - rng.random_range(20..300),
+                    max_i: c.i + rng.random_range(20..300),
+                    max_j: c.j + w,
+                };
+                let unknown = [0.5, 0.0, 1.0][case];
+                let reset = flushes == 20;
+                policy.take_changes(0, |grid, changes| {
+                    if let Some(ch) = changes {
+                        changed += ch.len();
+                    }
+                    let changes = if reset { None } else { changes };
+                    cached.build_cached(grid, &rect, 0.15, unknown, &mut cache, changes);
+                    fresh.build(grid, &rect, 0.15, unknown);
+                });
+                let (mut a, mut b) = (Vec::new(), Vec::new());
+                for j in rect.min_j - 2..=rect.max_j + 2 {
+                    for i in rect.min_i - 2..=rect.max_i + 2 {
+                        a.push(cached.at(Cell::new(i, j)));
+                        b.push(fresh.at(Cell::new(i, j)));
+                    }
+                }
+                assert!(a == b, "case {case}, flush {flushes}: fields differ");
+            }
+            assert!(
+                flushes > 40 && changed > 1000,
+                "case {case}: {flushes} flushes, {changed} changes"
+            );
+        }
+    }
+}
