@@ -4,7 +4,8 @@
 //! (`insert_planar_batch`), with and without the fan fill; prints the process CPU per scan
 //! on one thread and the wall time on the pool's threads, and a hash of the cells of each
 //! map (the scan-by-scan and the batch map without fans must be equal).
-//! `cargo run --release -p pfslam --example filter_map -- DATASET [SCANS] [FLUSH]`
+//! `cargo run --release -p pfslam --example filter_map -- DATASET [SCANS] [FLUSH] [ONLY]`
+//! (`ONLY` = `batch`: the batch without fans on one thread alone, to profile it).
 
 use pfslam::config::Config;
 use pfslam::geometry::Trajectory;
@@ -23,6 +24,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     let scans: usize = args.get(2).map_or(Ok(20_000), |s| s.parse())?;
     let flush: usize = args.get(3).map_or(Ok(5), |s| s.parse())?;
+    let only_batch = args.get(4).is_some_and(|s| s == "batch");
     let config = Config::default();
     let mut ds = read_car_dataset(&PathBuf::from(&args[1]), &ReadOptions::default())?;
     let rec = pfslam::motion::car_recording_taking_scans(&mut ds, &config.motion, "d")?;
@@ -59,6 +61,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         h.finish()
     };
+    if only_batch {
+        let (cpu, t) = (pfslam::pipeline::process_cpu_s(), Instant::now());
+        let mut g = OccupancyGrid::new(&opts)?;
+        let (mut batches, mut work) = (Vec::new(), Vec::new());
+        for group in worlds.chunks(flush) {
+            g.insert_planar_batch(group, 1, &mut batches, &mut work, None)?;
+        }
+        report("1 thread", "batch", cpu, t, n, hash(&g));
+        return Ok(());
+    }
     {
         let mut g = OccupancyGrid::new(&opts)?;
         g.set_fill_fans(true);
