@@ -598,12 +598,18 @@ impl PointField {
     fn cell_sum(&self, cells: &[(i64, i64)], level: usize, dx: i64, dy: i64) -> f64 {
         let lv = &self.levels[level].cells[..];
         let (w, h) = (self.w as u64, self.h as u64);
+        // A pooled cell `c` covers `c ..= c + span`: one left of or below the window still
+        // covers window cells up to `span` away, whose maximum cell 0 of that row or column
+        // bounds (its block holds them). Level 0: `span` = 0, the plain lookup.
+        let span = (1i64 << level) - 1;
+        let (ws, hs) = (w + span as u64, h + span as u64);
         cells
             .iter()
             .map(|&(i, j)| {
-                // One unsigned comparison per axis also rejects negatives.
-                let (x, y) = ((i + dx) as u64, (j + dy) as u64);
-                if x < w && y < h {
+                let (x, y) = (i + dx, j + dy);
+                // One unsigned comparison per axis also rejects what lies beyond the reach.
+                if ((x + span) as u64) < ws && ((y + span) as u64) < hs {
+                    let (x, y) = (x.max(0) as u64, y.max(0) as u64);
                     f64::from(lv.get((y * w + x) as usize).copied().unwrap_or(0.0))
                 } else {
                     0.0
@@ -1163,6 +1169,52 @@ mod tests {
             assert_eq!(got.0.y_m.to_bits(), want.0.y_m.to_bits(), "{k}");
             assert_eq!(got.0.yaw_rad.to_bits(), want.0.yaw_rad.to_bits(), "{k}");
             assert_eq!(got.1.to_bits(), want.1.to_bits(), "{k}");
+        }
+    }
+
+    /// A window that cuts the scan (its points partly left of and below the field, as a
+    /// loop candidate's field clipped to its submap leaves the scan's far points): the branch
+    /// and bound still finds the exhaustive maximum for any number of pooled levels. A
+    /// pooled cell left of or below the window covers window cells; counting it as 0 (before)
+    /// made the bound too low and pruned the best pose with 4 or more levels.
+    #[test]
+    fn bnb_is_exact_where_the_scan_leaves_the_window() {
+        let pts = room_points();
+        let truth = Pose2::new(0.3, -0.2, 0.1);
+        let body: Vec<[f64; 2]> = pts
+            .iter()
+            .step_by(7)
+            .map(|p| {
+                let q = truth.inverse().transform_point(p[0], p[1]);
+                [q.0, q.1]
+            })
+            .collect();
+        let win = SearchWindow {
+            xy_m: 0.6,
+            yaw_rad: 0.06,
+            yaw_step_rad: 0.02,
+        };
+        let centre = Pose2::new(0.05, 0.1, 0.08);
+        // The left wall (x = -4) and the bottom wall (y = -3) lie just outside.
+        let (lo, hi) = ([-3.93, -2.91], [6.0, 5.0]);
+        let n = (win.xy_m / 0.05f64).ceil() as i64;
+        for levels in 0..=6 {
+            let f = PointField::build(&pts, lo, hi, 0.05, 0.08, levels);
+            let mut best = f64::NEG_INFINITY;
+            for yaw in PointField::window_yaws(&centre, &win) {
+                let cells = f.cells_at(&body, &centre, yaw);
+                assert!(cells.iter().any(|&(i, j)| i < 0 || j < 0));
+                for dy in -n..=n {
+                    for dx in -n..=n {
+                        best = best.max(f.cell_sum(&cells, 0, dx, dy) / body.len() as f64);
+                    }
+                }
+            }
+            let (_, score) = f.search_bnb(&body, &centre, &win, 0.0, None).unwrap();
+            assert_eq!(score.to_bits(), best.to_bits(), "{levels} levels");
+            let start = f.bnb_start(&body, &centre, &win).unwrap();
+            assert!(f.any_bnb_from(&start, 0.999_999 * best, None), "{levels}");
+            assert!(!f.any_bnb_from(&start, best, None), "{levels}");
         }
     }
 
