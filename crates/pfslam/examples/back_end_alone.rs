@@ -5,7 +5,8 @@
 //! the car (from the TUM files' rounded poses, so not `run`'s exact bits). Prints the stats,
 //! the wall and process CPU seconds, and a hash of the trajectory's bits. `DATASET` may also
 //! be a recording file (`intel.bag`): its back end is fed `RUN_DIR/front_end.tum` itself
-//! (`[graph] input = "auto"`), again from the TUM file's rounded poses.
+//! (`[graph] input = "auto"`), again from the TUM file's rounded poses. `PFSLAM_CONFIG=FILE`
+//! reads the configuration from a TOML file instead of the defaults.
 
 use pfslam::config::Config;
 use pfslam::graph::{BackEndInput, optimize_trajectory};
@@ -23,7 +24,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         return Err("usage: back_end_alone DATASET RUN_DIR [OUT.tum]".into());
     }
     let (data, run) = (PathBuf::from(&args[1]), PathBuf::from(&args[2]));
-    let config = Config::default();
+    // `PFSLAM_CONFIG=FILE.toml`: another configuration (e.g. `[graph]` options to compare).
+    let config = match std::env::var_os("PFSLAM_CONFIG") {
+        Some(path) => Config::from_toml_file(std::path::Path::new(&path))?,
+        None => Config::default(),
+    };
     // A file is a recording (CARMEN log, ROS 1 bag, MCAP: Freiburg), a directory the car.
     let recording = if data.is_file() {
         pfslam::io::recording::read_recording(&data, &Default::default())?

@@ -696,6 +696,25 @@ impl PointField {
         })
     }
 
+    /// Whether `pose` (a pose of the search's cell grid, as [`Self::search_bnb_from`]
+    /// returns) lies on the edge of `start`'s window: its x or y offset the window's
+    /// half-width in cells, or its yaw the first or last of the window's (a window without
+    /// any offset in a dimension has no edge there).
+    pub fn on_window_edge(&self, start: &BnbStart, pose: &Pose2) -> bool {
+        let c = &start.centre;
+        let cells = |d: f64| (d / self.resolution_m).round().abs() as i64;
+        let n = start.n;
+        let xy = n > 0 && (cells(pose.x_m - c.x_m) >= n || cells(pose.y_m - c.y_m) >= n);
+        let last = start.yaws.len().saturating_sub(1);
+        let yaw = last > 0
+            && start
+                .yaws
+                .iter()
+                .position(|&y| y.to_bits() == pose.yaw_rad.to_bits())
+                .is_some_and(|a| a == 0 || a == last);
+        xy || yaw
+    }
+
     /// [`Self::search_bnb`] from a prepared top level.
     pub fn search_bnb_from(
         &self,
