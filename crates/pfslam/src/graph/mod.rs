@@ -177,6 +177,13 @@ pub struct GraphOptions {
     /// 1e-6. The full-size car: 375 -> 245 iterations in all; the default drive's
     /// closures and ATE unchanged (one iteration at most instead: 1 % worse there).
     pub periodic_relative_tolerance: f64,
+    /// A periodic optimisation moves only the keyframes from this many before the last
+    /// optimisation on (the others held where they are; 0 = the whole graph): every new
+    /// closure agreed with the estimates, so it corrects the recent path against the map
+    /// already closed, at a cost that does not grow with the graph (the full-size car's
+    /// 25,000 keyframes: ~400 instead). Urgent (a loop closing after drift) and final
+    /// optimisations move the whole graph.
+    pub periodic_free_keyframes: usize,
     /// After the optimisation, match every scan between keyframes against the corrected
     /// keyframes around it (a small window around the pose composed from its keyframe), so
     /// the scans between keyframes do not keep the front end's local errors: `auto` (on; off
@@ -380,6 +387,7 @@ impl Default for GraphOptions {
             optimize_chi2: 25.0,
             max_iterations: 20,
             periodic_relative_tolerance: 1e-4,
+            periodic_free_keyframes: 3000,
             refine_scans: Switch::Auto,
             refine_window_m: 0.05,
             refine_window_deg: 1.0,
@@ -897,6 +905,14 @@ pub fn optimize_trajectory_look_ahead(
             let t = Instant::now();
             let r = match urgent {
                 true => graph.optimize(&opt_opts),
+                // Keyframe 0 is always held: from keyframe 1 on is the whole graph.
+                false
+                    if opts.periodic_free_keyframes > 0
+                        && last_opt > opts.periodic_free_keyframes + 1 =>
+                {
+                    let first = last_opt - opts.periodic_free_keyframes;
+                    optimize_tail(&mut graph, first, &periodic_opts)
+                }
                 false => graph.optimize(&periodic_opts),
             };
             generation += 1;
@@ -979,6 +995,47 @@ pub fn optimize_trajectory_look_ahead(
         loop_edges: loop_pairs,
         stats,
     })
+}
+
+/// Optimises keyframes `first..` of `graph` (`first >= 1`) with the earlier ones held
+/// fixed: a graph of those keyframes behind a fixed origin, each edge from a fixed keyframe
+/// re-anchored at the origin (its measurement composed with the fixed pose: the same
+/// error), edges between fixed keyframes left out (their error cannot change). Every edge
+/// here runs from an earlier keyframe to a later one; should one run backwards into the
+/// fixed part, the whole graph is optimised instead.
+fn optimize_tail(
+    graph: &mut PoseGraph,
+    first: usize,
+    opts: &OptimizeOptions,
+) -> optimize::OptimizeReport {
+    if first >= graph.poses.len() || graph.edges.iter().any(|e| e.from >= first && e.to < first) {
+        return graph.optimize(opts);
+    }
+    let mut tail = PoseGraph {
+        poses: Vec::with_capacity(graph.poses.len() - first + 1),
+        edges: Vec::new(),
+    };
+    tail.poses.push(Pose2::IDENTITY);
+    tail.poses.extend_from_slice(&graph.poses[first..]);
+    let at = |v: usize| v + 1 - first;
+    for e in graph.edges.iter().filter(|e| e.to >= first) {
+        tail.edges.push(match e.from >= first {
+            true => Edge {
+                from: at(e.from),
+                to: at(e.to),
+                ..*e
+            },
+            false => Edge {
+                from: 0,
+                to: at(e.to),
+                measurement: graph.poses[e.from].compose(&e.measurement),
+                ..*e
+            },
+        });
+    }
+    let r = tail.optimize(opts);
+    graph.poses[first..].copy_from_slice(&tail.poses[1..]);
+    r
 }
 
 /// Keyframes due for a loop search verified in one parallel batch, up to the next periodic
@@ -1602,4 +1659,86 @@ fn correct_trajectory(
         });
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+
+    /// A 400-node lawnmower path: noisy odometry edges and loop edges from every 10th node
+    /// of each later lane to the node beside it on the earlier lane; node 0 at the origin.
+    fn lanes() -> PoseGraph {
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(7);
+        let truth: Vec<Pose2> = (0..400)
+            .map(|i| {
+                let (lane, t) = (i / 50, (i % 50) as f64);
+                let x = if lane % 2 == 0 { t } else { 49.0 - t };
+                let yaw = if lane % 2 == 0 {
+                    0.0
+                } else {
+                    std::f64::consts::PI
+                };
+                Pose2::new(x, 2.0 * lane as f64, yaw)
+            })
+            .collect();
+        let mut g = PoseGraph::default();
+        let mut noise = |s: f64| s * (rng.random::<f64>() - 0.5);
+        for i in 0..truth.len() {
+            g.poses.push(match i {
+                0 => truth[0],
+                _ => {
+                    let z = truth[i - 1].between(&truth[i]);
+                    let z = Pose2::new(
+                        z.x_m + noise(0.05),
+                        z.y_m + noise(0.05),
+                        z.yaw_rad + noise(0.01),
+                    );
+                    g.edges
+                        .push(Edge::with_sigmas(i - 1, i, z, 0.02, 0.005, None));
+                    g.poses[i - 1].compose(&z)
+                }
+            });
+        }
+        for i in (60..400).step_by(10) {
+            let (lane, t) = (i / 50, i % 50);
+            let j = (lane - 1) * 50 + 49 - t;
+            let z = truth[j].between(&truth[i]);
+            g.edges
+                .push(Edge::with_sigmas(j, i, z, 0.05, 0.02, Some(3.0)));
+        }
+        g
+    }
+
+    /// `optimize_tail`: from node 1 on (node 0 at the origin) the bits of `optimize`; from a
+    /// later node, the earlier ones keep their bits and the rest is the optimum with them
+    /// pinned (here: pinned by stiff edges from the origin instead).
+    #[test]
+    fn tail_optimisation_holds_the_head_fixed() {
+        let opts = OptimizeOptions::default();
+        let (mut a, mut b) = (lanes(), lanes());
+        a.optimize(&opts);
+        optimize_tail(&mut b, 1, &opts);
+        assert_eq!(a.poses, b.poses);
+        let first = 230;
+        let mut tail = lanes();
+        let before = tail.cost();
+        optimize_tail(&mut tail, first, &opts);
+        assert_eq!(tail.poses[..first], lanes().poses[..first]);
+        assert!(tail.cost() < 0.7 * before, "{} -> {}", before, tail.cost());
+        let mut pinned = lanes();
+        for v in 1..first {
+            let e = Edge::with_sigmas(0, v, pinned.poses[v], 1e-9, 1e-9, None);
+            pinned.edges.push(e);
+        }
+        pinned.optimize(&opts);
+        for (p, q) in tail.poses.iter().zip(&pinned.poses).skip(first) {
+            assert!(p.between(q).translation_norm_m() < 1e-4, "{p:?} {q:?}");
+            assert!(wrap_angle_abs(p.yaw_rad - q.yaw_rad) < 1e-5, "{p:?} {q:?}");
+        }
+    }
+
+    fn wrap_angle_abs(a: f64) -> f64 {
+        crate::geometry::wrap_angle(a).abs()
+    }
 }
