@@ -175,6 +175,16 @@ fn pool_run(out: &mut [f32], a0: &[f32], a1: &[f32]) {
     }
 }
 
+/// `out = max(max(a.0, a.1), max(b.0, b.1))` elementwise (a pooling step of two rows).
+#[inline]
+fn pool_rows(out: &mut [f32], a: (&[f32], &[f32]), b: (&[f32], &[f32])) {
+    let n = out.len();
+    let (a0, a1, b0, b1) = (&a.0[..n], &a.1[..n], &b.0[..n], &b.1[..n]);
+    for x in 0..n {
+        out[x] = max_f32(max_f32(a0[x], a1[x]), max_f32(b0[x], b1[x]));
+    }
+}
+
 /// The prepared top level of a branch-and-bound search ([`PointField::bnb_start`]).
 #[derive(Debug, Clone)]
 pub struct BnbStart {
@@ -260,8 +270,9 @@ impl PointField {
             .checked_shl(levels.min(31) as u32)
             .map_or(usize::MAX, |v| v - 1)
             .div_ceil(TILE);
-        // Per tile row: the columns of the tiles written.
-        let mut present: Vec<Vec<usize>> = vec![Vec::new(); th];
+        // Per tile row: the cell columns `x0..x1` of the tiles written, neighbours joined
+        // into one run (long runs vectorise; a tile is 32 cells).
+        let mut present: Vec<Vec<(usize, usize)>> = vec![Vec::new(); th];
         for (ty, row) in present.iter_mut().enumerate() {
             for tx in 0..tw {
                 let (ty1, tx1) = (
@@ -269,7 +280,11 @@ impl PointField {
                     tx.saturating_add(reach).min(tw - 1),
                 );
                 if (ty..=ty1).any(|uy| occupied[uy * tw + tx..=uy * tw + tx1].contains(&true)) {
-                    row.push(tx);
+                    let (x0, x1) = (tx * TILE, ((tx + 1) * TILE).min(w));
+                    match row.last_mut() {
+                        Some(run) if run.1 == x0 => run.1 = x1,
+                        _ => row.push((x0, x1)),
+                    }
                 }
             }
         }
@@ -277,9 +292,8 @@ impl PointField {
         let mut written = Vec::new();
         for (ty, row) in present.iter().enumerate() {
             for y in ty * TILE..((ty + 1) * TILE).min(h) {
-                for &tx in row {
-                    let x0 = tx * TILE;
-                    written.push((y * w + x0, TILE.min(w - x0)));
+                for &(x0, x1) in row {
+                    written.push((y * w + x0, x1 - x0));
                 }
             }
         }
@@ -334,22 +348,21 @@ impl PointField {
                         let a = &prev[y * w..(y + 1) * w];
                         // Row `y + s` (none above the window: the maximum over the rest).
                         let b = prev.get((y + s) * w..(y + s + 1) * w).filter(|_| y + s < h);
-                        for &tx in &present[ty] {
-                            let (x0, x1) = (tx * TILE, ((tx + 1) * TILE).min(w));
+                        for &(x0, x1) in &present[ty] {
                             // Cells whose right neighbour `x + s` lies in the window.
                             let xm = x1.min(w.saturating_sub(s)).max(x0);
-                            if xm > x0 {
-                                pool_run(&mut out[x0..xm], &a[x0..xm], &a[x0 + s..xm + s]);
-                            }
-                            for x in xm..x1 {
-                                out[x] = b.map_or(a[x], |b| max_f32(a[x], b[x]));
-                            }
-                            if let Some(b) = b.filter(|_| xm > x0) {
-                                for (o, (&b0, &b1)) in out[x0..xm]
-                                    .iter_mut()
-                                    .zip(b[x0..xm].iter().zip(&b[x0 + s..xm + s]))
-                                {
-                                    *o = max_f32(*o, max_f32(b0, b1));
+                            match b {
+                                Some(b) => {
+                                    pool_rows(
+                                        &mut out[x0..xm],
+                                        (&a[x0..xm], &a[x0 + s..xm + s]),
+                                        (&b[x0..xm], &b[x0 + s..xm + s]),
+                                    );
+                                    pool_run(&mut out[xm..x1], &a[xm..x1], &b[xm..x1]);
+                                }
+                                None => {
+                                    pool_run(&mut out[x0..xm], &a[x0..xm], &a[x0 + s..xm + s]);
+                                    out[xm..x1].copy_from_slice(&a[xm..x1]);
                                 }
                             }
                         }
