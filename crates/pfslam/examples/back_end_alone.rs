@@ -3,7 +3,10 @@
 //! with `RUN_DIR` holding a `pfslam run`'s `front_end.tum` and `dead_reckoning.tum`. The
 //! back end is fed the odometry calibrated against the front end, as `pfslam run` does for
 //! the car (from the TUM files' rounded poses, so not `run`'s exact bits). Prints the stats,
-//! the wall and process CPU seconds, and a hash of the trajectory's bits.
+//! the wall and process CPU seconds, and a hash of the trajectory's bits. `DATASET` may also
+//! be a recording file (`intel.bag`): its back end is fed `RUN_DIR/front_end.tum` itself
+//! (`[graph] input = "auto"`), again from the TUM file's rounded poses. `PFSLAM_CONFIG=FILE`
+//! reads the configuration from a TOML file instead of the defaults.
 
 use pfslam::config::Config;
 use pfslam::graph::{BackEndInput, optimize_trajectory};
@@ -21,10 +24,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         return Err("usage: back_end_alone DATASET RUN_DIR [OUT.tum]".into());
     }
     let (data, run) = (PathBuf::from(&args[1]), PathBuf::from(&args[2]));
-    let config = Config::default();
-    let mut ds = read_car_dataset(&data, &ReadOptions::default())?;
-    let recording = pfslam::motion::car_recording_taking_scans(&mut ds, &config.motion, "d")?;
-    drop(ds);
+    // `PFSLAM_CONFIG=FILE.toml`: another configuration (e.g. `[graph]` options to compare).
+    let config = match std::env::var_os("PFSLAM_CONFIG") {
+        Some(path) => Config::from_toml_file(std::path::Path::new(&path))?,
+        None => Config::default(),
+    };
+    // A file is a recording (CARMEN log, ROS 1 bag, MCAP: Freiburg), a directory the car.
+    let recording = if data.is_file() {
+        pfslam::io::recording::read_recording(&data, &Default::default())?
+    } else {
+        let mut ds = read_car_dataset(&data, &ReadOptions::default())?;
+        pfslam::motion::car_recording_taking_scans(&mut ds, &config.motion, "d")?
+    };
     let front = read_tum(&run.join("front_end.tum"))?.poses;
     let odo = read_tum(&run.join("dead_reckoning.tum"))?.poses;
     let mut opts = config.graph.clone();

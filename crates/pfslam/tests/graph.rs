@@ -5,7 +5,7 @@
 use pfslam::geometry::Pose2;
 use pfslam::graph::matcher::{PointField, SearchWindow};
 use pfslam::graph::optimize::{Edge, OptimizeOptions, PoseGraph};
-use pfslam::graph::{GraphOptions, Verdict, verify_closure};
+use pfslam::graph::{GraphOptions, Verdict, verify_closure, verify_closure_in};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -184,10 +184,9 @@ fn loop_window(opts: &GraphOptions) -> SearchWindow {
     }
 }
 
-#[test]
-fn closure_matcher_finds_a_known_offset() {
-    // Two rooms joined by a door, with a pillar and an alcove: nothing repeats.
-    let world = segments(&[
+/// Two rooms joined by a door, with a pillar and an alcove: nothing repeats.
+fn two_rooms() -> Vec<[f64; 2]> {
+    segments(&[
         ([0.0, 0.0], [12.0, 0.0]),
         ([12.0, 0.0], [12.0, 6.0]),
         ([12.0, 6.0], [0.0, 6.0]),
@@ -201,7 +200,12 @@ fn closure_matcher_finds_a_known_offset() {
         ([2.0, 6.0], [2.0, 5.0]),
         ([2.0, 5.0], [3.0, 5.0]),
         ([3.0, 5.0], [3.0, 6.0]),
-    ]);
+    ])
+}
+
+#[test]
+fn closure_matcher_finds_a_known_offset() {
+    let world = two_rooms();
     let opts = GraphOptions::default();
     let truth = Pose2::new(6.3, 2.4, 0.4);
     let scan = scan_from(&world, &truth, 8.0, 9);
@@ -241,6 +245,95 @@ fn closure_matcher_rejects_a_corridor() {
         verify_closure(&field, &scan, &guess, &loop_window(&opts), &opts),
         Verdict::Ambiguous
     );
+}
+
+fn local_window(opts: &GraphOptions) -> SearchWindow {
+    SearchWindow {
+        xy_m: opts.loop_local_window_m,
+        yaw_rad: opts.loop_local_window_deg.to_radians(),
+        yaw_step_rad: opts.yaw_step_deg.to_radians(),
+    }
+}
+
+/// `loop_local_search`: around an estimate within the local window of the truth, the local
+/// search (+-0.3 m / 2 deg, its smaller ambiguity radius) accepts the very closure the
+/// full window finds (the same cell-grid best, so the same refined bits); around an
+/// estimate beyond it, the local search finds its best on the window's edge (or nothing),
+/// which sends the candidate to the full window.
+#[test]
+fn local_window_finds_the_full_windows_closure() {
+    let world = two_rooms();
+    let opts = GraphOptions::default();
+    let truth = Pose2::new(6.3, 2.4, 0.4);
+    let scan = scan_from(&world, &truth, 8.0, 9);
+    let field = field_for(&world, [-4.0, -4.0], [16.0, 10.0], &opts);
+    let r_local = opts.loop_local_ambiguity_radius_m;
+    for (dx, dy, dyaw_deg) in [
+        (0.12, -0.08, 1.2),
+        (-0.15, 0.1, -1.2),
+        (0.0, 0.0, 0.0),
+        (0.24, 0.21, 0.4),
+    ] {
+        let guess = truth.compose(&Pose2::new(dx, dy, f64::to_radians(dyaw_deg)));
+        let full = verify_closure(&field, &scan, &guess, &loop_window(&opts), &opts);
+        let local = verify_closure_in(
+            &field,
+            &scan,
+            &guess,
+            &local_window(&opts),
+            r_local,
+            true,
+            &opts,
+        );
+        let Verdict::Accepted(p) = full else {
+            panic!("{full:?}");
+        };
+        assert!(truth.between(&p).translation_norm_m() < 0.75 * opts.resolution_m);
+        assert_eq!(local, Some(full), "({dx}, {dy}, {dyaw_deg} deg)");
+    }
+    // 0.6 m and 3 deg off: beyond the local window.
+    let guess = truth.compose(&Pose2::new(0.6, -0.1, 3f64.to_radians()));
+    let local = verify_closure_in(
+        &field,
+        &scan,
+        &guess,
+        &local_window(&opts),
+        r_local,
+        true,
+        &opts,
+    );
+    assert!(matches!(local, None | Some(Verdict::LowScore)), "{local:?}");
+    assert!(matches!(
+        verify_closure(&field, &scan, &guess, &loop_window(&opts), &opts),
+        Verdict::Accepted(_)
+    ));
+}
+
+/// The local search's ambiguity test still rejects a corridor: with a stub on one wall the
+/// best pose is the true one, inside the window, but within +-0.3 m a pose 0.15 m or more
+/// along the axis scores nearly as well.
+#[test]
+fn local_window_rejects_a_corridor() {
+    let world = segments(&[
+        ([-30.0, 0.0], [30.0, 0.0]),
+        ([-30.0, 2.0], [30.0, 2.0]),
+        ([0.0, 0.0], [0.0, 0.3]),
+    ]);
+    let opts = GraphOptions::default();
+    let truth = Pose2::new(0.0, 1.0, 0.0);
+    let scan = scan_from(&world, &truth, 8.0, 5);
+    let field = field_for(&world, [-15.0, -5.0], [15.0, 7.0], &opts);
+    let guess = truth.compose(&Pose2::new(0.1, 0.05, 1f64.to_radians()));
+    let local = verify_closure_in(
+        &field,
+        &scan,
+        &guess,
+        &local_window(&opts),
+        opts.loop_local_ambiguity_radius_m,
+        true,
+        &opts,
+    );
+    assert_eq!(local, Some(Verdict::Ambiguous));
 }
 
 #[test]
@@ -299,9 +392,13 @@ fn mit_csail_back_end_beats_the_front_end() {
 /// and the error falls to a quarter (measured: 0.627 -> 0.162 m). With 5 m gaps after an
 /// accepted or all-ambiguous keyframe (`loop_closure_gap_m`, `loop_ambiguous_gap_m`):
 /// 442 -> 144 candidates, 95 -> 26 closures, 0.175 m.
-#[test]
-fn simulated_car_loop_closes_on_dead_reckoning() {
-    use pfslam::eval::{Association, ate::ate};
+/// The example world's 330 m loop driven twice with a FOG bias 15x the default's, 50 Hz
+/// LiDAR: the recording, its dead reckoning at every scan and the ground truth.
+fn biased_loop() -> (
+    pfslam::sensors::Recording,
+    Vec<pfslam::geometry::StampedPose2>,
+    pfslam::geometry::Trajectory,
+) {
     use pfslam::geometry::{StampedPose2, Trajectory};
     use pfslam::sim::{SimOptions, World, simulate_car};
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("worlds/example.world");
@@ -316,13 +413,6 @@ fn simulated_car_loop_closes_on_dead_reckoning() {
     let recording = sim
         .recording(&pfslam::motion::MotionOptions::default())
         .unwrap();
-    let mut config = pfslam::config::Config::default();
-    // Every due keyframe searches first (the gaps are set below).
-    config.graph.loop_closure_gap_m = 0.0;
-    config.graph.loop_ambiguous_gap_m = 0.0;
-    // The front end is the odometry itself, so an odometry-yaw edge would count its yaw
-    // twice, and this FOG's bias is far beyond that edge's default uncertainty.
-    config.graph.odometry_yaw_sigma_deg_per_sqrt_m = 0.0;
     let front: Vec<StampedPose2> = recording
         .scans
         .stamps_ns
@@ -334,9 +424,24 @@ fn simulated_car_loop_closes_on_dead_reckoning() {
                 .map(|pose| StampedPose2 { stamp_ns: s, pose })
         })
         .collect();
+    (recording, front, Trajectory::new(sim.ground_truth.clone()))
+}
+
+#[test]
+fn simulated_car_loop_closes_on_dead_reckoning() {
+    use pfslam::eval::{Association, ate::ate};
+    use pfslam::geometry::Trajectory;
+    let (recording, front, gt) = biased_loop();
+    let mut config = pfslam::config::Config::default();
+    // Every due keyframe searches first (the gaps are set below).
+    config.graph.loop_closure_gap_m = 0.0;
+    config.graph.loop_ambiguous_gap_m = 0.0;
+    // The front end is the odometry itself, so an odometry-yaw edge would count its yaw
+    // twice, and this FOG's bias is far beyond that edge's default uncertainty.
+    config.graph.odometry_yaw_sigma_deg_per_sqrt_m = 0.0;
     let g = pfslam::graph::optimize_trajectory(&recording, &config.map.scan, &front, &config.graph)
         .unwrap();
-    let gt = Trajectory::new(sim.ground_truth.clone());
+    assert_eq!(g.stats.loop_local, 0, "loop_local_search auto: off here");
     let assoc = Association::Nearest { tolerance_ns: 0 };
     let before = ate(&Trajectory::new(front.clone()), &gt, assoc).unwrap();
     let after = ate(&Trajectory::new(g.trajectory.clone()), &gt, assoc).unwrap();
@@ -433,6 +538,66 @@ fn simulated_car_loop_closes_on_dead_reckoning() {
         sparse.aligned_m.rmse,
         before.aligned_m.rmse
     );
+}
+
+/// `loop_local_search` on the loop of `simulated_car_loop_closes_on_dead_reckoning`, from
+/// the first consistent closure on (`loop_local_min_closures = 1`): the candidates before
+/// the first optimisation (no closure vouches yet) are searched in the full window, most
+/// later ones in the local window, some of those again in the full one (the dead
+/// reckoning's FOG bias moves the estimate by decimetres between optimisations: best pose
+/// on the local window's edge); the loop still closes, no closure is removed, and the
+/// look-ahead (the local decision depends on the last optimisation only) gives the bits of
+/// one keyframe at a time. With the default `loop_local_min_closures` (200) this short loop
+/// never has enough closures for a local search.
+#[test]
+fn simulated_car_local_loop_search() {
+    use pfslam::eval::{Association, ate::ate};
+    use pfslam::geometry::Trajectory;
+    use pfslam::graph::Switch;
+    let (recording, front, gt) = biased_loop();
+    let mut config = pfslam::config::Config::default();
+    config.graph.odometry_yaw_sigma_deg_per_sqrt_m = 0.0;
+    config.graph.loop_local_search = Switch::On;
+    let few =
+        pfslam::graph::optimize_trajectory(&recording, &config.map.scan, &front, &config.graph)
+            .unwrap();
+    assert!(few.stats.loop_accepted < config.graph.loop_local_min_closures);
+    assert_eq!(few.stats.loop_local, 0, "{:?}", few.stats);
+    config.graph.loop_local_min_closures = 1;
+    let g = pfslam::graph::optimize_trajectory(&recording, &config.map.scan, &front, &config.graph)
+        .unwrap();
+    let assoc = Association::Nearest { tolerance_ns: 0 };
+    let before = ate(&Trajectory::new(front.clone()), &gt, assoc).unwrap();
+    let after = ate(&Trajectory::new(g.trajectory.clone()), &gt, assoc).unwrap();
+    eprintln!(
+        "simulated loop, local search: dead reckoning {:.3} m -> back end {:.3} m, {:?}",
+        before.aligned_m.rmse, after.aligned_m.rmse, g.stats
+    );
+    let s = &g.stats;
+    assert!(s.loop_local > s.loop_candidates / 2, "{s:?}");
+    assert!(s.loop_local < s.loop_candidates, "full window first: {s:?}");
+    assert!(s.loop_local_fallbacks < s.loop_local, "{s:?}");
+    assert!(s.loop_accepted >= 20, "{s:?}");
+    assert_eq!(s.loop_removed_outliers, 0);
+    assert!(
+        after.aligned_m.rmse < 0.4 * before.aligned_m.rmse,
+        "{} vs {}",
+        after.aligned_m.rmse,
+        before.aligned_m.rmse
+    );
+    let one = pfslam::graph::optimize_trajectory_look_ahead(
+        &recording,
+        &config.map.scan,
+        &front,
+        &config.graph,
+        1,
+    )
+    .unwrap();
+    assert_eq!(one.trajectory, g.trajectory);
+    assert_eq!(one.loop_edges, g.loop_edges);
+    assert_eq!(one.stats.loop_local, s.loop_local);
+    assert_eq!(one.stats.loop_local_fallbacks, s.loop_local_fallbacks);
+    assert_eq!(one.stats.final_cost.to_bits(), s.final_cost.to_bits());
 }
 
 /// The humanoid (LiDAR on a moving head, odometry yaw from the legs, not a gyro): the back end

@@ -175,6 +175,16 @@ fn pool_run(out: &mut [f32], a0: &[f32], a1: &[f32]) {
     }
 }
 
+/// `out = max(max(a.0, a.1), max(b.0, b.1))` elementwise (a pooling step of two rows).
+#[inline]
+fn pool_rows(out: &mut [f32], a: (&[f32], &[f32]), b: (&[f32], &[f32])) {
+    let n = out.len();
+    let (a0, a1, b0, b1) = (&a.0[..n], &a.1[..n], &b.0[..n], &b.1[..n]);
+    for x in 0..n {
+        out[x] = max_f32(max_f32(a0[x], a1[x]), max_f32(b0[x], b1[x]));
+    }
+}
+
 /// The prepared top level of a branch-and-bound search ([`PointField::bnb_start`]).
 #[derive(Debug, Clone)]
 pub struct BnbStart {
@@ -260,8 +270,9 @@ impl PointField {
             .checked_shl(levels.min(31) as u32)
             .map_or(usize::MAX, |v| v - 1)
             .div_ceil(TILE);
-        // Per tile row: the columns of the tiles written.
-        let mut present: Vec<Vec<usize>> = vec![Vec::new(); th];
+        // Per tile row: the cell columns `x0..x1` of the tiles written, neighbours joined
+        // into one run (long runs vectorise; a tile is 32 cells).
+        let mut present: Vec<Vec<(usize, usize)>> = vec![Vec::new(); th];
         for (ty, row) in present.iter_mut().enumerate() {
             for tx in 0..tw {
                 let (ty1, tx1) = (
@@ -269,7 +280,11 @@ impl PointField {
                     tx.saturating_add(reach).min(tw - 1),
                 );
                 if (ty..=ty1).any(|uy| occupied[uy * tw + tx..=uy * tw + tx1].contains(&true)) {
-                    row.push(tx);
+                    let (x0, x1) = (tx * TILE, ((tx + 1) * TILE).min(w));
+                    match row.last_mut() {
+                        Some(run) if run.1 == x0 => run.1 = x1,
+                        _ => row.push((x0, x1)),
+                    }
                 }
             }
         }
@@ -277,9 +292,8 @@ impl PointField {
         let mut written = Vec::new();
         for (ty, row) in present.iter().enumerate() {
             for y in ty * TILE..((ty + 1) * TILE).min(h) {
-                for &tx in row {
-                    let x0 = tx * TILE;
-                    written.push((y * w + x0, TILE.min(w - x0)));
+                for &(x0, x1) in row {
+                    written.push((y * w + x0, x1 - x0));
                 }
             }
         }
@@ -334,22 +348,21 @@ impl PointField {
                         let a = &prev[y * w..(y + 1) * w];
                         // Row `y + s` (none above the window: the maximum over the rest).
                         let b = prev.get((y + s) * w..(y + s + 1) * w).filter(|_| y + s < h);
-                        for &tx in &present[ty] {
-                            let (x0, x1) = (tx * TILE, ((tx + 1) * TILE).min(w));
+                        for &(x0, x1) in &present[ty] {
                             // Cells whose right neighbour `x + s` lies in the window.
                             let xm = x1.min(w.saturating_sub(s)).max(x0);
-                            if xm > x0 {
-                                pool_run(&mut out[x0..xm], &a[x0..xm], &a[x0 + s..xm + s]);
-                            }
-                            for x in xm..x1 {
-                                out[x] = b.map_or(a[x], |b| max_f32(a[x], b[x]));
-                            }
-                            if let Some(b) = b.filter(|_| xm > x0) {
-                                for (o, (&b0, &b1)) in out[x0..xm]
-                                    .iter_mut()
-                                    .zip(b[x0..xm].iter().zip(&b[x0 + s..xm + s]))
-                                {
-                                    *o = max_f32(*o, max_f32(b0, b1));
+                            match b {
+                                Some(b) => {
+                                    pool_rows(
+                                        &mut out[x0..xm],
+                                        (&a[x0..xm], &a[x0 + s..xm + s]),
+                                        (&b[x0..xm], &b[x0 + s..xm + s]),
+                                    );
+                                    pool_run(&mut out[xm..x1], &a[xm..x1], &b[xm..x1]);
+                                }
+                                None => {
+                                    pool_run(&mut out[x0..xm], &a[x0..xm], &a[x0 + s..xm + s]);
+                                    out[xm..x1].copy_from_slice(&a[xm..x1]);
                                 }
                             }
                         }
@@ -598,12 +611,18 @@ impl PointField {
     fn cell_sum(&self, cells: &[(i64, i64)], level: usize, dx: i64, dy: i64) -> f64 {
         let lv = &self.levels[level].cells[..];
         let (w, h) = (self.w as u64, self.h as u64);
+        // A pooled cell `c` covers `c ..= c + span`: one left of or below the window still
+        // covers window cells up to `span` away, whose maximum cell 0 of that row or column
+        // bounds (its block holds them). Level 0: `span` = 0, the plain lookup.
+        let span = (1i64 << level) - 1;
+        let (ws, hs) = (w + span as u64, h + span as u64);
         cells
             .iter()
             .map(|&(i, j)| {
-                // One unsigned comparison per axis also rejects negatives.
-                let (x, y) = ((i + dx) as u64, (j + dy) as u64);
-                if x < w && y < h {
+                let (x, y) = (i + dx, j + dy);
+                // One unsigned comparison per axis also rejects what lies beyond the reach.
+                if ((x + span) as u64) < ws && ((y + span) as u64) < hs {
+                    let (x, y) = (x.max(0) as u64, y.max(0) as u64);
                     f64::from(lv.get((y * w + x) as usize).copied().unwrap_or(0.0))
                 } else {
                     0.0
@@ -688,6 +707,25 @@ impl PointField {
             n,
             n_pts,
         })
+    }
+
+    /// Whether `pose` (a pose of the search's cell grid, as [`Self::search_bnb_from`]
+    /// returns) lies on the edge of `start`'s window: its x or y offset the window's
+    /// half-width in cells, or its yaw the first or last of the window's (a window without
+    /// any offset in a dimension has no edge there).
+    pub fn on_window_edge(&self, start: &BnbStart, pose: &Pose2) -> bool {
+        let c = &start.centre;
+        let cells = |d: f64| (d / self.resolution_m).round().abs() as i64;
+        let n = start.n;
+        let xy = n > 0 && (cells(pose.x_m - c.x_m) >= n || cells(pose.y_m - c.y_m) >= n);
+        let last = start.yaws.len().saturating_sub(1);
+        let yaw = last > 0
+            && start
+                .yaws
+                .iter()
+                .position(|&y| y.to_bits() == pose.yaw_rad.to_bits())
+                .is_some_and(|a| a == 0 || a == last);
+        xy || yaw
     }
 
     /// [`Self::search_bnb`] from a prepared top level.
@@ -1163,6 +1201,52 @@ mod tests {
             assert_eq!(got.0.y_m.to_bits(), want.0.y_m.to_bits(), "{k}");
             assert_eq!(got.0.yaw_rad.to_bits(), want.0.yaw_rad.to_bits(), "{k}");
             assert_eq!(got.1.to_bits(), want.1.to_bits(), "{k}");
+        }
+    }
+
+    /// A window that cuts the scan (its points partly left of and below the field, as a
+    /// loop candidate's field clipped to its submap leaves the scan's far points): the branch
+    /// and bound still finds the exhaustive maximum for any number of pooled levels. A
+    /// pooled cell left of or below the window covers window cells; counting it as 0 (before)
+    /// made the bound too low and pruned the best pose with 4 or more levels.
+    #[test]
+    fn bnb_is_exact_where_the_scan_leaves_the_window() {
+        let pts = room_points();
+        let truth = Pose2::new(0.3, -0.2, 0.1);
+        let body: Vec<[f64; 2]> = pts
+            .iter()
+            .step_by(7)
+            .map(|p| {
+                let q = truth.inverse().transform_point(p[0], p[1]);
+                [q.0, q.1]
+            })
+            .collect();
+        let win = SearchWindow {
+            xy_m: 0.6,
+            yaw_rad: 0.06,
+            yaw_step_rad: 0.02,
+        };
+        let centre = Pose2::new(0.05, 0.1, 0.08);
+        // The left wall (x = -4) and the bottom wall (y = -3) lie just outside.
+        let (lo, hi) = ([-3.93, -2.91], [6.0, 5.0]);
+        let n = (win.xy_m / 0.05f64).ceil() as i64;
+        for levels in 0..=6 {
+            let f = PointField::build(&pts, lo, hi, 0.05, 0.08, levels);
+            let mut best = f64::NEG_INFINITY;
+            for yaw in PointField::window_yaws(&centre, &win) {
+                let cells = f.cells_at(&body, &centre, yaw);
+                assert!(cells.iter().any(|&(i, j)| i < 0 || j < 0));
+                for dy in -n..=n {
+                    for dx in -n..=n {
+                        best = best.max(f.cell_sum(&cells, 0, dx, dy) / body.len() as f64);
+                    }
+                }
+            }
+            let (_, score) = f.search_bnb(&body, &centre, &win, 0.0, None).unwrap();
+            assert_eq!(score.to_bits(), best.to_bits(), "{levels} levels");
+            let start = f.bnb_start(&body, &centre, &win).unwrap();
+            assert!(f.any_bnb_from(&start, 0.999_999 * best, None), "{levels}");
+            assert!(!f.any_bnb_from(&start, best, None), "{levels}");
         }
     }
 
