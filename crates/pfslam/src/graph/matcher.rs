@@ -349,19 +349,24 @@ impl PointField {
                         // Row `y + s` (none above the window: the maximum over the rest).
                         let b = prev.get((y + s) * w..(y + s + 1) * w).filter(|_| y + s < h);
                         for &(x0, x1) in &present[ty] {
-                            // Cells whose right neighbour `x + s` lies in the window.
+                            // Cells whose right neighbour `x + s` lies in the window
+                            // (none when the run lies in the last `s` columns).
                             let xm = x1.min(w.saturating_sub(s)).max(x0);
                             match b {
                                 Some(b) => {
-                                    pool_rows(
-                                        &mut out[x0..xm],
-                                        (&a[x0..xm], &a[x0 + s..xm + s]),
-                                        (&b[x0..xm], &b[x0 + s..xm + s]),
-                                    );
+                                    if xm > x0 {
+                                        pool_rows(
+                                            &mut out[x0..xm],
+                                            (&a[x0..xm], &a[x0 + s..xm + s]),
+                                            (&b[x0..xm], &b[x0 + s..xm + s]),
+                                        );
+                                    }
                                     pool_run(&mut out[xm..x1], &a[xm..x1], &b[xm..x1]);
                                 }
                                 None => {
-                                    pool_run(&mut out[x0..xm], &a[x0..xm], &a[x0 + s..xm + s]);
+                                    if xm > x0 {
+                                        pool_run(&mut out[x0..xm], &a[x0..xm], &a[x0 + s..xm + s]);
+                                    }
                                     out[xm..x1].copy_from_slice(&a[xm..x1]);
                                 }
                             }
