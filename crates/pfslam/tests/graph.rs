@@ -247,12 +247,27 @@ fn closure_matcher_rejects_a_corridor() {
     );
 }
 
-fn local_window(opts: &GraphOptions) -> SearchWindow {
-    SearchWindow {
+/// [`verify_closure_in`] as the local loop search runs it: its window and ambiguity radius.
+fn verify_local(
+    field: &PointField,
+    scan: &[[f64; 2]],
+    guess: &Pose2,
+    opts: &GraphOptions,
+) -> Option<Verdict> {
+    let window = SearchWindow {
         xy_m: opts.loop_local_window_m,
         yaw_rad: opts.loop_local_window_deg.to_radians(),
         yaw_step_rad: opts.yaw_step_deg.to_radians(),
-    }
+    };
+    verify_closure_in(
+        field,
+        scan,
+        guess,
+        &window,
+        opts.loop_local_ambiguity_radius_m,
+        true,
+        opts,
+    )
 }
 
 /// `loop_local_search`: around an estimate within the local window of the truth, the local
@@ -267,7 +282,6 @@ fn local_window_finds_the_full_windows_closure() {
     let truth = Pose2::new(6.3, 2.4, 0.4);
     let scan = scan_from(&world, &truth, 8.0, 9);
     let field = field_for(&world, [-4.0, -4.0], [16.0, 10.0], &opts);
-    let r_local = opts.loop_local_ambiguity_radius_m;
     for (dx, dy, dyaw_deg) in [
         (0.12, -0.08, 1.2),
         (-0.15, 0.1, -1.2),
@@ -276,15 +290,7 @@ fn local_window_finds_the_full_windows_closure() {
     ] {
         let guess = truth.compose(&Pose2::new(dx, dy, f64::to_radians(dyaw_deg)));
         let full = verify_closure(&field, &scan, &guess, &loop_window(&opts), &opts);
-        let local = verify_closure_in(
-            &field,
-            &scan,
-            &guess,
-            &local_window(&opts),
-            r_local,
-            true,
-            &opts,
-        );
+        let local = verify_local(&field, &scan, &guess, &opts);
         let Verdict::Accepted(p) = full else {
             panic!("{full:?}");
         };
@@ -293,15 +299,7 @@ fn local_window_finds_the_full_windows_closure() {
     }
     // 0.6 m and 3 deg off: beyond the local window.
     let guess = truth.compose(&Pose2::new(0.6, -0.1, 3f64.to_radians()));
-    let local = verify_closure_in(
-        &field,
-        &scan,
-        &guess,
-        &local_window(&opts),
-        r_local,
-        true,
-        &opts,
-    );
+    let local = verify_local(&field, &scan, &guess, &opts);
     assert!(matches!(local, None | Some(Verdict::LowScore)), "{local:?}");
     assert!(matches!(
         verify_closure(&field, &scan, &guess, &loop_window(&opts), &opts),
@@ -324,15 +322,7 @@ fn local_window_rejects_a_corridor() {
     let scan = scan_from(&world, &truth, 8.0, 5);
     let field = field_for(&world, [-15.0, -5.0], [15.0, 7.0], &opts);
     let guess = truth.compose(&Pose2::new(0.1, 0.05, 1f64.to_radians()));
-    let local = verify_closure_in(
-        &field,
-        &scan,
-        &guess,
-        &local_window(&opts),
-        opts.loop_local_ambiguity_radius_m,
-        true,
-        &opts,
-    );
+    let local = verify_local(&field, &scan, &guess, &opts);
     assert_eq!(local, Some(Verdict::Ambiguous));
 }
 

@@ -43,6 +43,25 @@ fn tile_of(c: Cell) -> (i32, i32) {
     (c.i.div_euclid(SIDE), c.j.div_euclid(SIDE))
 }
 
+/// The tiles overlapping `rect`, row by row.
+fn tiles_over(rect: &CellRect) -> impl Iterator<Item = (i32, i32)> + use<> {
+    let (t0, t1) = (
+        tile_of(Cell::new(rect.min_i, rect.min_j)),
+        tile_of(Cell::new(rect.max_i, rect.max_j)),
+    );
+    (t0.1..=t1.1).flat_map(move |tj| (t0.0..=t1.0).map(move |ti| (ti, tj)))
+}
+
+/// The cells of tile `(ti, tj)`.
+fn tile_rect(ti: i32, tj: i32) -> CellRect {
+    CellRect {
+        min_i: ti * SIDE,
+        min_j: tj * SIDE,
+        max_i: ti * SIDE + SIDE - 1,
+        max_j: tj * SIDE + SIDE - 1,
+    }
+}
+
 impl FieldCache {
     /// An empty cache.
     pub fn new() -> Self {
@@ -77,30 +96,23 @@ impl FieldCache {
 
     /// Stamps the kernel around `wall` into the held tiles, clipped to `clip` when given.
     fn stamp(&mut self, wall: Cell, clip: Option<&CellRect>) {
-        let r = self.radius;
-        let (t0, t1) = (
-            tile_of(Cell::new(wall.i - r, wall.j - r)),
-            tile_of(Cell::new(wall.i + r, wall.j + r)),
-        );
-        for tj in t0.1..=t1.1 {
-            for ti in t0.0..=t1.0 {
-                let Some(tile) = self.tiles.get_mut(&(ti, tj)) else {
+        for (ti, tj) in tiles_over(&CellRect::around(wall).expanded(self.radius)) {
+            let Some(tile) = self.tiles.get_mut(&(ti, tj)) else {
+                continue;
+            };
+            let (oi, oj) = (ti * SIDE, tj * SIDE);
+            for &(di, dj, v) in &self.kernel {
+                let c = Cell::new(wall.i + di, wall.j + dj);
+                let (li, lj) = (c.i - oi, c.j - oj);
+                if li < 0 || lj < 0 || li >= SIDE || lj >= SIDE {
                     continue;
-                };
-                let (oi, oj) = (ti * SIDE, tj * SIDE);
-                for &(di, dj, v) in &self.kernel {
-                    let c = Cell::new(wall.i + di, wall.j + dj);
-                    let (li, lj) = (c.i - oi, c.j - oj);
-                    if li < 0 || lj < 0 || li >= SIDE || lj >= SIDE {
-                        continue;
-                    }
-                    if clip.is_some_and(|k| !k.contains(c)) {
-                        continue;
-                    }
-                    let slot = &mut tile.kmax[(lj * SIDE + li) as usize];
-                    if v > *slot {
-                        *slot = v;
-                    }
+                }
+                if clip.is_some_and(|k| !k.contains(c)) {
+                    continue;
+                }
+                let slot = &mut tile.kmax[(lj * SIDE + li) as usize];
+                if v > *slot {
+                    *slot = v;
                 }
             }
         }
@@ -127,30 +139,18 @@ impl FieldCache {
         let r = self.radius;
         let mut walls = Vec::new();
         for &w in &removed {
-            let reach = CellRect {
-                min_i: w.i - r,
-                min_j: w.j - r,
-                max_i: w.i + r,
-                max_j: w.j + r,
-            };
-            let (t0, t1) = (
-                tile_of(Cell::new(reach.min_i, reach.min_j)),
-                tile_of(Cell::new(reach.max_i, reach.max_j)),
-            );
+            let reach = CellRect::around(w).expanded(r);
             let mut any = false;
-            for tj in t0.1..=t1.1 {
-                for ti in t0.0..=t1.0 {
-                    if let Some(tile) = self.tiles.get_mut(&(ti, tj)) {
-                        any = true;
-                        for j in reach.min_j.max(tj * SIDE)..=reach.max_j.min(tj * SIDE + SIDE - 1)
-                        {
-                            for i in
-                                reach.min_i.max(ti * SIDE)..=reach.max_i.min(ti * SIDE + SIDE - 1)
-                            {
-                                tile.kmax[((j - tj * SIDE) * SIDE + i - ti * SIDE) as usize] = 0;
-                            }
-                        }
-                    }
+            for (ti, tj) in tiles_over(&reach) {
+                let Some(tile) = self.tiles.get_mut(&(ti, tj)) else {
+                    continue;
+                };
+                any = true;
+                let (t, (oi, oj)) = (tile_rect(ti, tj), (ti * SIDE, tj * SIDE));
+                let (i0, i1) = (reach.min_i.max(t.min_i), reach.max_i.min(t.max_i));
+                for j in reach.min_j.max(t.min_j)..=reach.max_j.min(t.max_j) {
+                    let start = ((j - oj) * SIDE + i0 - oi) as usize;
+                    tile.kmax[start..=start + (i1 - i0) as usize].fill(0);
                 }
             }
             if !any {
@@ -177,14 +177,7 @@ impl FieldCache {
             seen: Box::new([0; CELLS]),
         };
         let (oi, oj) = (ti * SIDE, tj * SIDE);
-        let rect = CellRect {
-            min_i: oi,
-            min_j: oj,
-            max_i: oi + SIDE - 1,
-            max_j: oj + SIDE - 1,
-        };
-        let r = self.radius;
-        grid.for_each_observed_in(&rect.expanded(r), |c, v| {
+        grid.for_each_observed_in(&tile_rect(ti, tj).expanded(self.radius), |c, v| {
             let (li, lj) = (c.i - oi, c.j - oj);
             if li >= 0 && lj >= 0 && li < SIDE && lj < SIDE {
                 tile.seen[(lj * SIDE + li) as usize] = 0xff;
@@ -210,30 +203,23 @@ impl FieldCache {
     /// Computes the tiles it has not seen.
     pub fn fill(&mut self, grid: &OccupancyGrid, rect: &CellRect, unknown: u8, out: &mut [u8]) {
         let w = rect.width();
-        let (t0, t1) = (
-            tile_of(Cell::new(rect.min_i, rect.min_j)),
-            tile_of(Cell::new(rect.max_i, rect.max_j)),
-        );
-        for tj in t0.1..=t1.1 {
-            for ti in t0.0..=t1.0 {
-                if !self.tiles.contains_key(&(ti, tj)) {
-                    let tile = self.compute(grid, ti, tj);
-                    self.tiles.insert((ti, tj), tile);
-                }
-                let Some(tile) = self.tiles.get(&(ti, tj)) else {
-                    continue;
-                };
-                let (oi, oj) = (ti * SIDE, tj * SIDE);
-                let (i0, i1) = (rect.min_i.max(oi), rect.max_i.min(oi + SIDE - 1));
-                let (j0, j1) = (rect.min_j.max(oj), rect.max_j.min(oj + SIDE - 1));
-                let n = (i1 - i0 + 1) as usize;
-                for j in j0..=j1 {
-                    let src = ((j - oj) * SIDE + i0 - oi) as usize;
-                    let dst = (j - rect.min_j) as usize * w + (i0 - rect.min_i) as usize;
-                    let (kmax, seen) = (&tile.kmax[src..src + n], &tile.seen[src..src + n]);
-                    for ((o, &k), &s) in out[dst..dst + n].iter_mut().zip(kmax).zip(seen) {
-                        *o = k.max(unknown & !s);
-                    }
+        for (ti, tj) in tiles_over(rect) {
+            if !self.tiles.contains_key(&(ti, tj)) {
+                let tile = self.compute(grid, ti, tj);
+                self.tiles.insert((ti, tj), tile);
+            }
+            let Some(tile) = self.tiles.get(&(ti, tj)) else {
+                continue;
+            };
+            let (t, (oi, oj)) = (tile_rect(ti, tj), (ti * SIDE, tj * SIDE));
+            let (i0, i1) = (rect.min_i.max(t.min_i), rect.max_i.min(t.max_i));
+            let n = (i1 - i0 + 1) as usize;
+            for j in rect.min_j.max(t.min_j)..=rect.max_j.min(t.max_j) {
+                let src = ((j - oj) * SIDE + i0 - oi) as usize;
+                let dst = (j - rect.min_j) as usize * w + (i0 - rect.min_i) as usize;
+                let (kmax, seen) = (&tile.kmax[src..src + n], &tile.seen[src..src + n]);
+                for ((o, &k), &s) in out[dst..dst + n].iter_mut().zip(kmax).zip(seen) {
+                    *o = k.max(unknown & !s);
                 }
             }
         }
@@ -247,7 +233,7 @@ mod tests {
     use crate::filter::slam::{BestParticleMap, MapPolicy};
     use crate::geometry::{Pose2, Trajectory};
     use crate::map::{MapOptions, PlanarScan, ScanOptions, ScanProjector};
-    use crate::sim::{SimOptions, World, simulate_car};
+    use crate::sim::SimOptions;
     use rand::{RngExt, SeedableRng};
     use rand_xoshiro::Xoshiro256PlusPlus;
 
@@ -257,15 +243,10 @@ mod tests {
     /// come and go in two scans) and after an unlogged change (the cache starts over).
     #[test]
     fn cached_field_equals_a_fresh_build_after_every_flush() {
-        let sim_opts = SimOptions {
+        let (out, car) = crate::sim::test_car(&SimOptions {
             duration_s: 8.0,
             ..SimOptions::default()
-        };
-        let world = World::builtin(sim_opts.world_name()).unwrap();
-        let out = simulate_car(&world, &sim_opts).unwrap();
-        let car = out
-            .recording(&crate::motion::MotionOptions::default())
-            .unwrap();
+        });
         let truth = Trajectory::new(out.ground_truth.clone());
         let scan_opts = ScanOptions::default().for_filter();
         let proj = ScanProjector::new(&car.lidar, &car.body_from_lidar, &scan_opts).unwrap();

@@ -983,6 +983,17 @@ mod tests {
         pts
     }
 
+    /// Every 7th of `pts` in the body frame of a robot at `truth`.
+    fn seen_from(pts: &[[f64; 2]], truth: &Pose2) -> Vec<[f64; 2]> {
+        pts.iter()
+            .step_by(7)
+            .map(|p| {
+                let q = truth.inverse().transform_point(p[0], p[1]);
+                [q.0, q.1]
+            })
+            .collect()
+    }
+
     /// The interpolated score written plainly (libm floor, bounds-checked lookups).
     fn score_plain(f: &PointField, points_body: &[[f64; 2]], pose: &Pose2) -> f64 {
         let (s, c) = pose.yaw_rad.sin_cos();
@@ -1218,14 +1229,7 @@ mod tests {
     fn bnb_is_exact_where_the_scan_leaves_the_window() {
         let pts = room_points();
         let truth = Pose2::new(0.3, -0.2, 0.1);
-        let body: Vec<[f64; 2]> = pts
-            .iter()
-            .step_by(7)
-            .map(|p| {
-                let q = truth.inverse().transform_point(p[0], p[1]);
-                [q.0, q.1]
-            })
-            .collect();
+        let body = seen_from(&pts, &truth);
         let win = SearchWindow {
             xy_m: 0.6,
             yaw_rad: 0.06,
@@ -1260,14 +1264,7 @@ mod tests {
         let pts = room_points();
         let f = PointField::build(&pts, [-6.0, -5.0], [6.0, 5.0], 0.05, 0.08, 4);
         let truth = Pose2::new(0.3, -0.2, 0.1);
-        let body: Vec<[f64; 2]> = pts
-            .iter()
-            .step_by(7)
-            .map(|p| {
-                let q = truth.inverse().transform_point(p[0], p[1]);
-                [q.0, q.1]
-            })
-            .collect();
+        let body = seen_from(&pts, &truth);
         let win = SearchWindow {
             xy_m: 0.6,
             yaw_rad: 0.2,

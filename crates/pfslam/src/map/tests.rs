@@ -446,17 +446,10 @@ fn assert_same_grid(a: &OccupancyGrid, b: &OccupancyGrid, what: &str) {
 
 /// The noise-free simulated car driving `duration_s` seconds: its output and recording.
 fn simulated_car(duration_s: f64) -> (crate::sim::CarSimOutput, Recording) {
-    use crate::sim::{SimOptions, World, simulate_car};
-    let sim_opts = SimOptions {
+    crate::sim::test_car(&crate::sim::SimOptions {
         duration_s,
-        ..SimOptions::noise_free()
-    };
-    let world = World::builtin(sim_opts.world_name()).unwrap();
-    let out = simulate_car(&world, &sim_opts).unwrap();
-    let car = out
-        .recording(&crate::motion::MotionOptions::default())
-        .unwrap();
-    (out, car)
+        ..crate::sim::SimOptions::noise_free()
+    })
 }
 
 #[test]
@@ -688,18 +681,12 @@ fn fan_fill_clears_what_the_rays_clear() {
 
 #[test]
 fn fan_fill_scans_cut_where_trace_cuts_allows_insert_as_whole() {
-    use crate::sim::{SimOptions, World, simulate_car};
     // The car with its simulated errors: range noise makes walls zigzag, so fans start and
     // end anywhere.
-    let sim_opts = SimOptions {
+    let (out, car) = crate::sim::test_car(&crate::sim::SimOptions {
         duration_s: 12.0,
-        ..SimOptions::default()
-    };
-    let world = World::builtin(sim_opts.world_name()).unwrap();
-    let out = simulate_car(&world, &sim_opts).unwrap();
-    let car = out
-        .recording(&crate::motion::MotionOptions::default())
-        .unwrap();
+        ..crate::sim::SimOptions::default()
+    });
     let truth = Trajectory::new(out.ground_truth.clone());
     let scan_opts = ScanOptions::default().for_filter();
     let proj = ScanProjector::new(&car.lidar, &car.body_from_lidar, &scan_opts).unwrap();
