@@ -73,11 +73,6 @@ impl FieldCache {
         self.tiles.clear();
     }
 
-    /// Tiles held.
-    pub fn tile_count(&self) -> usize {
-        self.tiles.len()
-    }
-
     /// Uses `kernel` (offsets and values, within `radius`) and walls from `threshold`; a
     /// change of either forgets every tile.
     pub fn configure(&mut self, kernel: &[(i32, i32, u8)], radius: i32, threshold: i16) {
