@@ -497,6 +497,7 @@ pub fn run_slam_with<P: MapPolicy>(
     let mut neff_sum = 0.0;
     let mut score_sum = 0.0;
     let mut predicted: Vec<Pose2> = Vec::new();
+    let mut increments: Vec<Pose2> = Vec::new();
     for i in first..total {
         let stamp_ns = scans.stamps_ns[i];
         let t = Instant::now();
@@ -512,7 +513,7 @@ pub fn run_slam_with<P: MapPolicy>(
                 // The scan match is the proposal: odometry without noise here, the spread
                 // comes from sampling around each match.
                 FilterMode::ScanMatch | FilterMode::Rbpf | FilterMode::Auto => {
-                    pf.predict_steps(&steps, &ExactOdometry)
+                    pf.predict_exact(&steps, &mut increments)
                 }
             }
         }
@@ -711,9 +712,11 @@ pub(crate) fn check_and_start<'a>(
     Ok((first, cursor))
 }
 
-/// Odometry composed without noise.
+/// Odometry composed without noise: the reference of [`ParticleFilter::predict_exact`].
+#[cfg(test)]
 struct ExactOdometry;
 
+#[cfg(test)]
 impl MotionModel for ExactOdometry {
     fn sample(
         &self,
@@ -784,6 +787,29 @@ impl ParticleFilter {
             }
         });
     }
+
+    /// Composes every particle with the odometry steps `(from, to)` in order, without
+    /// noise: [`Self::predict_steps`] with exact odometry, each step's increment computed
+    /// once for all particles instead of per particle (the same bits: the increment is a pure
+    /// function of the step; the per-particle `between` cost two of its three `sin_cos`).
+    /// `increments` is a reusable buffer.
+    pub fn predict_exact(
+        &mut self,
+        steps: &[(StampedPose2, StampedPose2)],
+        increments: &mut Vec<Pose2>,
+    ) {
+        increments.clear();
+        increments.extend(steps.iter().map(|(from, to)| from.pose.between(&to.pose)));
+        let increments = &*increments;
+        let parallel = self.particles.len() * steps.len() >= SERIAL_BELOW_PARTICLE_STEPS;
+        self.par_chunks(parallel, |poses, _| {
+            for d in increments {
+                for p in poses.iter_mut() {
+                    *p = p.compose(d);
+                }
+            }
+        });
+    }
 }
 
 /// Re-expresses the odometry of `recording` in its ground truth's frame, anchored at the first
@@ -814,6 +840,41 @@ pub fn anchor_odometry_to_ground_truth(recording: &mut Recording) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn exact_prediction_equals_the_per_particle_odometry_bit_for_bit() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(8);
+        let mut odo = |t: i64| StampedPose2 {
+            stamp_ns: t,
+            pose: Pose2::new(
+                rng.random_range(-50.0..50.0),
+                rng.random_range(-50.0..50.0),
+                rng.random_range(-3.2..3.2),
+            ),
+        };
+        let mut steps = Vec::new();
+        let mut prev = odo(0);
+        for t in 1..40 {
+            let next = odo(t);
+            steps.push((prev, next));
+            prev = next;
+        }
+        for n in [1, 7, 100, 300] {
+            let mut a = ParticleFilter::new(n, Pose2::new(1.0, -2.0, 0.3), 5);
+            a.jitter(0.5, 0.2);
+            let mut b = a.clone();
+            a.predict_steps(&steps, &ExactOdometry);
+            b.predict_exact(&steps, &mut Vec::new());
+            for (p, q) in a.particles.poses.iter().zip(&b.particles.poses) {
+                assert_eq!(
+                    [p.x_m, p.y_m, p.yaw_rad].map(f64::to_bits),
+                    [q.x_m, q.y_m, q.yaw_rad].map(f64::to_bits),
+                    "{n} particles"
+                );
+            }
+        }
+    }
 
     #[test]
     fn blend_moves_part_of_the_way_along_the_shorter_yaw_arc() {
