@@ -15,6 +15,7 @@
 
 use crate::map::{Cell, CellChange, CellRect, OccupancyGrid, TILE_SIZE};
 use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
 
 const SIDE: i32 = TILE_SIZE as i32;
 const CELLS: usize = TILE_SIZE * TILE_SIZE;
@@ -34,9 +35,44 @@ pub struct FieldCache {
     kernel: Vec<(i32, i32, u8)>,
     radius: i32,
     threshold: i16,
-    tiles: HashMap<(i32, i32), CacheTile>,
+    tiles: HashMap<(i32, i32), CacheTile, BuildHasherDefault<TileKeyHasher>>,
     /// Removed walls of the current [`Self::apply`].
     removed: Vec<Cell>,
+}
+
+/// A multiply-rotate hash of tile keys (two i32), FxHash style: the map is looked up once per
+/// logged cell change, and SipHash (the default, built against flooding attacks that do not
+/// apply to tile indices) was most of that cost. Nothing iterates the map, so its order never
+/// reaches a result.
+#[derive(Debug, Clone, Copy, Default)]
+struct TileKeyHasher(u64);
+
+impl TileKeyHasher {
+    const K: u64 = 0x517c_c1b7_2722_0a95;
+
+    #[inline]
+    fn add(&mut self, word: u64) {
+        self.0 = (self.0.rotate_left(5) ^ word).wrapping_mul(Self::K);
+    }
+}
+
+impl Hasher for TileKeyHasher {
+    #[inline]
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.add(u64::from(b));
+        }
+    }
+
+    #[inline]
+    fn write_i32(&mut self, i: i32) {
+        self.add(u64::from(i as u32));
+    }
+
+    #[inline]
+    fn finish(&self) -> u64 {
+        self.0
+    }
 }
 
 fn tile_of(c: Cell) -> (i32, i32) {
