@@ -82,7 +82,13 @@ impl Pose2 {
     /// Maps a point given in this pose's frame into the parent frame.
     #[inline]
     pub fn transform_point(&self, x_m: f64, y_m: f64) -> (f64, f64) {
-        let (s, c) = self.yaw_rad.sin_cos();
+        self.transform_point_with(self.yaw_rad.sin_cos(), x_m, y_m)
+    }
+
+    /// [`Self::transform_point`] with the heading's `(sin, cos)` computed once by the caller
+    /// (mapping many points: the same bits).
+    #[inline]
+    pub fn transform_point_with(&self, (s, c): (f64, f64), x_m: f64, y_m: f64) -> (f64, f64) {
         (self.x_m + c * x_m - s * y_m, self.y_m + s * x_m + c * y_m)
     }
 

@@ -203,16 +203,11 @@ impl Through {
     }
 }
 
-/// Maps a point through an optional rigid transform (`None`: unchanged, the same bits);
-/// the bits of [`Pose2::transform_point`].
+/// Maps a point through an optional rigid transform (`None`: unchanged, the same bits).
 #[inline]
 fn through(t: Option<&Through>, x_m: f64, y_m: f64) -> (f64, f64) {
     t.map_or((x_m, y_m), |t| {
-        let (s, c) = t.sin_cos;
-        (
-            t.pose.x_m + c * x_m - s * y_m,
-            t.pose.y_m + s * x_m + c * y_m,
-        )
+        t.pose.transform_point_with(t.sin_cos, x_m, y_m)
     })
 }
 

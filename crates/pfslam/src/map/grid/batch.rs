@@ -453,9 +453,9 @@ impl OccupancyGrid {
 /// run's samples).
 #[inline(always)]
 fn apply_block_marks(cells: &mut [i16; 16], m: &[u16; 16], f: &FixedLogOdds) {
-    let all = m.iter().fold(0u16, |a, &x| a | x);
-    let scans = 16 - (all & 0x5555).leading_zeros().min(16);
-    let scans = scans.div_ceil(2);
+    // Scans up to the last one that touched any lane (bit 2s), no further.
+    let touched = m.iter().fold(0u16, |a, &x| a | x) & 0x5555;
+    let scans = (u16::BITS - touched.leading_zeros()).div_ceil(2);
     for s in 0..scans {
         for (v, &x) in cells.iter_mut().zip(m) {
             let touched = 0i16.wrapping_sub((x >> (2 * s) & 1) as i16);
