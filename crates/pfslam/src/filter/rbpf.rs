@@ -288,6 +288,42 @@ pub fn scan_log_likelihood_above(
     pose: &Pose2,
     bar: Option<Bar>,
 ) -> f64 {
+    #[cfg(target_arch = "x86_64")]
+    if model.kernel == 1 && std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: AVX2 is present (checked above).
+        return unsafe { likelihood_avx2(grid, model, points, pose, bar) };
+    }
+    likelihood_with(grid, model, points, pose, bar, nearest_3x3)
+}
+
+/// [`scan_log_likelihood_above`] with the 3x3 kernel's minimum in AVX2
+/// ([`nearest_3x3_avx2`]); the same bits.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn likelihood_avx2(
+    grid: &OccupancyGrid,
+    model: &ObservationModel,
+    points: &[[f64; 2]],
+    pose: &Pose2,
+    bar: Option<Bar>,
+) -> f64 {
+    // The closure inherits this function's AVX2.
+    likelihood_with(grid, model, points, pose, bar, |cells, li, lj, u, v, i, j, occ| {
+        nearest_3x3_avx2(cells, li, lj, u, v, i, j, occ)
+    })
+}
+
+/// The body of [`scan_log_likelihood_above`], with `nearest` the 3x3 kernel's minimum
+/// (inlined into each caller, so it takes the caller's target features).
+#[inline(always)]
+fn likelihood_with(
+    grid: &OccupancyGrid,
+    model: &ObservationModel,
+    points: &[[f64; 2]],
+    pose: &Pose2,
+    bar: Option<Bar>,
+    nearest: impl Fn(&[i16], i32, i32, f64, f64, i32, i32, i16) -> f64,
+) -> f64 {
     // Without a bar, a test that never stops (NaN compares false).
     let Bar { penalty, bar } = bar.unwrap_or(Bar {
         penalty: 0.0,
@@ -317,7 +353,7 @@ pub fn scan_log_likelihood_above(
             }
             if let Some(cells) = tile {
                 if k == 1 {
-                    best = nearest_3x3(cells, li, lj, u, v, i, j, occ);
+                    best = nearest(cells, li, lj, u, v, i, j, occ);
                 } else {
                     for dj in -k..=k {
                         let row = ((lj + dj) as usize) << TILE_SHIFT;
@@ -387,6 +423,61 @@ fn nearest_3x3(cells: &[i16], li: i32, lj: i32, u: f64, v: f64, i: i32, j: i32, 
         }
     }
     best
+}
+
+/// [`nearest_3x3`] in AVX2: a row's three cells and squared distances in one vector each
+/// (a fourth lane never occupied), a compare-select per row. The minimum of the same
+/// values, taken in the same way (a candidate replaces the best only when smaller, so a NaN
+/// never does): the same bits.
+#[cfg(target_arch = "x86_64")]
+#[allow(clippy::too_many_arguments)]
+#[target_feature(enable = "avx2")]
+#[inline]
+fn nearest_3x3_avx2(
+    cells: &[i16],
+    li: i32,
+    lj: i32,
+    u: f64,
+    v: f64,
+    i: i32,
+    j: i32,
+    occ: i16,
+) -> f64 {
+    use std::arch::x86_64::*;
+    // Columns i - 1, i, i + 1 (and i + 2, masked off): `f64::from(i + d) + 0.5` exactly.
+    let columns = _mm_add_epi32(_mm_set1_epi32(i), _mm_setr_epi32(-1, 0, 1, 2));
+    let du = _mm256_sub_pd(
+        _mm256_set1_pd(u),
+        _mm256_add_pd(_mm256_cvtepi32_pd(columns), _mm256_set1_pd(0.5)),
+    );
+    let du2 = _mm256_mul_pd(du, du);
+    let occ_v = _mm_set1_epi16(occ);
+    let inf = _mm256_set1_pd(f64::INFINITY);
+    let mut best = inf;
+    for dj in -1..=1 {
+        let dv = v - (f64::from(j + dj) + 0.5);
+        let dv2 = dv * dv;
+        let start = (((lj + dj) as usize) << TILE_SHIFT) + (li - 1) as usize;
+        let Some(row) = cells.get(start..start + 3) else {
+            continue;
+        };
+        // The fourth lane is i16::MIN, which no threshold is below.
+        let four = [row[0], row[1], row[2], i16::MIN];
+        // SAFETY: an unaligned 8-byte load from a local array of four i16.
+        let row_v = unsafe { _mm_loadl_epi64(four.as_ptr().cast()) };
+        let occupied = _mm256_castsi256_pd(_mm256_cvtepi16_epi64(_mm_cmpgt_epi16(row_v, occ_v)));
+        let d = _mm256_blendv_pd(inf, _mm256_add_pd(du2, _mm256_set1_pd(dv2)), occupied);
+        // `minpd(a, b)` is `a < b ? a : b`: the scalar rule `if d < best { d } else { best }`.
+        best = _mm256_min_pd(d, best);
+    }
+    let mut lanes = [0.0f64; 4];
+    // SAFETY: a store into a local array of four f64.
+    unsafe { _mm256_storeu_pd(lanes.as_mut_ptr(), best) };
+    let mut m = f64::INFINITY;
+    for l in lanes {
+        m = if l < m { l } else { m };
+    }
+    m
 }
 
 /// Search parameters of [`match_in_own_map`].
