@@ -28,7 +28,7 @@ use crate::config::Config;
 use crate::geometry::{Pose2, StampedPose2, wrap_angle};
 use crate::map::TILE_SIZE;
 use crate::map::grid::TILE_SHIFT;
-use crate::map::limits::floor_to_i32;
+use crate::map::limits::{MapLimits, floor_to_i32};
 use crate::map::{
     Cell, InsertScratch, MapError, OccupancyGrid, PlanarScan, ScanProjector, to_world,
 };
@@ -293,7 +293,7 @@ pub fn scan_log_likelihood_above(
         // SAFETY: AVX2 is present (checked above).
         return unsafe { likelihood_avx2(grid, model, points, pose, bar) };
     }
-    likelihood_with(grid, model, points, pose, bar, nearest_3x3)
+    likelihood_with(grid, model, points, pose, bar, nearest_3x3, project_scalar)
 }
 
 /// [`scan_log_likelihood_above`] with the 3x3 kernel's minimum in AVX2
@@ -307,10 +307,109 @@ fn likelihood_avx2(
     pose: &Pose2,
     bar: Option<Bar>,
 ) -> f64 {
-    // The closure inherits this function's AVX2.
-    likelihood_with(grid, model, points, pose, bar, |cells, li, lj, u, v, i, j, occ| {
-        nearest_3x3_avx2(cells, li, lj, u, v, i, j, occ)
-    })
+    // The closures inherit this function's AVX2.
+    likelihood_with(
+        grid,
+        model,
+        points,
+        pose,
+        bar,
+        |cells, li, lj, u, v, i, j, occ| nearest_3x3_avx2(cells, li, lj, u, v, i, j, occ),
+        |limits, pose, sin_cos, chunk, out| project_avx2(limits, pose, sin_cos, chunk, out),
+    )
+}
+
+/// Up to four points' continuous cell coordinates `(u, v)` and cells `(i, j)`.
+#[derive(Default)]
+struct Projected {
+    u: [f64; 4],
+    v: [f64; 4],
+    i: [i32; 4],
+    j: [i32; 4],
+}
+
+/// Maps the body-frame points of `chunk` (at most four) through `pose` (`sin_cos` of its
+/// yaw) into `limits`' cell coordinates.
+#[inline(always)]
+fn project_scalar(
+    limits: &MapLimits,
+    pose: &Pose2,
+    (s, c): (f64, f64),
+    chunk: &[[f64; 2]],
+    out: &mut Projected,
+) {
+    for (n, p) in chunk.iter().enumerate().take(4) {
+        let x = pose.x_m + c * p[0] - s * p[1];
+        let y = pose.y_m + s * p[0] + c * p[1];
+        let (u, v) = limits.cell_coords(x, y);
+        (out.u[n], out.v[n]) = (u, v);
+        (out.i[n], out.j[n]) = (floor_to_i32(u), floor_to_i32(v));
+    }
+}
+
+/// [`project_scalar`] four points at a time in AVX2: the same operations in the same order
+/// per lane (no fused multiply-add), so the same bits; the floor in vector form where every
+/// lane is finite and well inside the `i32` range (else the scalar, saturating one).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+fn project_avx2(
+    limits: &MapLimits,
+    pose: &Pose2,
+    (s, c): (f64, f64),
+    chunk: &[[f64; 2]],
+    out: &mut Projected,
+) {
+    use std::arch::x86_64::*;
+    let Some(four) = chunk.first_chunk::<4>() else {
+        return project_scalar(limits, pose, (s, c), chunk, out);
+    };
+    let flat = four.as_flattened();
+    // SAFETY: unaligned loads of 4 + 4 f64 from an 8-element slice.
+    let (a, b) = unsafe {
+        (
+            _mm256_loadu_pd(flat.as_ptr()),
+            _mm256_loadu_pd(flat[4..].as_ptr()),
+        )
+    };
+    // [x0 y0 x1 y1], [x2 y2 x3 y3] -> [x0 x1 x2 x3], [y0 y1 y2 y3].
+    let px = _mm256_permute4x64_pd::<0b1101_1000>(_mm256_unpacklo_pd(a, b));
+    let py = _mm256_permute4x64_pd::<0b1101_1000>(_mm256_unpackhi_pd(a, b));
+    let (sv, cv) = (_mm256_set1_pd(s), _mm256_set1_pd(c));
+    let x = _mm256_sub_pd(
+        _mm256_add_pd(_mm256_set1_pd(pose.x_m), _mm256_mul_pd(cv, px)),
+        _mm256_mul_pd(sv, py),
+    );
+    let y = _mm256_add_pd(
+        _mm256_add_pd(_mm256_set1_pd(pose.y_m), _mm256_mul_pd(sv, px)),
+        _mm256_mul_pd(cv, py),
+    );
+    let inv = _mm256_set1_pd(limits.inv_resolution());
+    let u = _mm256_mul_pd(_mm256_sub_pd(x, _mm256_set1_pd(limits.origin_x_m())), inv);
+    let v = _mm256_mul_pd(_mm256_sub_pd(y, _mm256_set1_pd(limits.origin_y_m())), inv);
+    // SAFETY: stores into local arrays of four f64.
+    unsafe {
+        _mm256_storeu_pd(out.u.as_mut_ptr(), u);
+        _mm256_storeu_pd(out.v.as_mut_ptr(), v);
+    }
+    // |u|, |v| < 2^30 in every lane (false for NaN): the floor is exact in i32.
+    let lim = _mm256_set1_pd(1073741824.0);
+    let abs = _mm256_castsi256_pd(_mm256_set1_epi64x(i64::MAX));
+    let inside = _mm256_and_pd(
+        _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_and_pd(u, abs), lim),
+        _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_and_pd(v, abs), lim),
+    );
+    if _mm256_movemask_pd(inside) == 0b1111 {
+        // SAFETY: stores into local arrays of four i32.
+        unsafe {
+            _mm_storeu_si128(out.i.as_mut_ptr().cast(), _mm256_cvttpd_epi32(_mm256_floor_pd(u)));
+            _mm_storeu_si128(out.j.as_mut_ptr().cast(), _mm256_cvttpd_epi32(_mm256_floor_pd(v)));
+        }
+    } else {
+        for n in 0..4 {
+            (out.i[n], out.j[n]) = (floor_to_i32(out.u[n]), floor_to_i32(out.v[n]));
+        }
+    }
 }
 
 /// The body of [`scan_log_likelihood_above`], with `nearest` the 3x3 kernel's minimum
@@ -323,6 +422,7 @@ fn likelihood_with(
     pose: &Pose2,
     bar: Option<Bar>,
     nearest: impl Fn(&[i16], i32, i32, f64, f64, i32, i32, i16) -> f64,
+    project: impl Fn(&MapLimits, &Pose2, (f64, f64), &[[f64; 2]], &mut Projected),
 ) -> f64 {
     // Without a bar, a test that never stops (NaN compares false).
     let Bar { penalty, bar } = bar.unwrap_or(Bar {
@@ -337,11 +437,12 @@ fn likelihood_with(
     // The tile of the last point (most points fall in the same tile as their predecessor).
     let mut tile_key = (i32::MIN, i32::MIN);
     let mut tile: Option<&[i16]> = None;
-    for p in points {
-        let x = pose.x_m + c * p[0] - s * p[1];
-        let y = pose.y_m + s * p[0] + c * p[1];
-        let (u, v) = limits.cell_coords(x, y);
-        let (i, j) = (floor_to_i32(u), floor_to_i32(v));
+    let mut at = Projected::default();
+    for (n, _) in points.iter().enumerate() {
+        if n % 4 == 0 {
+            project(limits, pose, (s, c), &points[n..], &mut at);
+        }
+        let (u, v, i, j) = (at.u[n % 4], at.v[n % 4], at.i[n % 4], at.j[n % 4]);
         let mut best = f64::INFINITY;
         let (li, lj) = (i & MASK, j & MASK);
         if li >= k && lj >= k && li < TS - k && lj < TS - k {
@@ -1316,7 +1417,13 @@ mod tests {
                 };
                 grid.insert_scan(&scan, &mut scratch).unwrap();
             }
-            let body: Vec<[f64; 2]> = (0..200).map(|_| [uni(-7.0, 7.0), uni(-7.0, 7.0)]).collect();
+            let mut body: Vec<[f64; 2]> =
+                (0..200).map(|_| [uni(-7.0, 7.0), uni(-7.0, 7.0)]).collect();
+            // Points beyond 2^30 cells (the vector floor's range; within the i32 range):
+            // the chunks holding them take the scalar floor.
+            for (at, far) in [(37, [6e7, 1.0]), (38, [-2.0, -7e7]), (121, [-9e7, 9e7])] {
+                body.insert(at, far);
+            }
             for kernel in [0, 1, 2] {
                 for occupied_logodds in [0.0, -0.5, 0.7] {
                     let o = RbpfOptions {

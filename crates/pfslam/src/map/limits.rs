@@ -77,6 +77,12 @@ impl MapLimits {
         self.resolution_m
     }
 
+    /// `1 / resolution` (cells per m), the factor [`Self::cell_coords`] multiplies by.
+    #[inline]
+    pub fn inv_resolution(&self) -> f64 {
+        self.inv_resolution
+    }
+
     /// World x of the lower-left corner of cell (0, 0) (m).
     #[inline]
     pub fn origin_x_m(&self) -> f64 {
