@@ -404,8 +404,14 @@ fn project_avx2(
     if _mm256_movemask_pd(inside) == 0b1111 {
         // SAFETY: stores into local arrays of four i32.
         unsafe {
-            _mm_storeu_si128(out.i.as_mut_ptr().cast(), _mm256_cvttpd_epi32(_mm256_floor_pd(u)));
-            _mm_storeu_si128(out.j.as_mut_ptr().cast(), _mm256_cvttpd_epi32(_mm256_floor_pd(v)));
+            _mm_storeu_si128(
+                out.i.as_mut_ptr().cast(),
+                _mm256_cvttpd_epi32(_mm256_floor_pd(u)),
+            );
+            _mm_storeu_si128(
+                out.j.as_mut_ptr().cast(),
+                _mm256_cvttpd_epi32(_mm256_floor_pd(v)),
+            );
         }
     } else {
         for n in 0..4 {
