@@ -1,0 +1,79 @@
+//! The `rbpf` matcher's kernels (Intel's default filter): the observation model's
+//! log-likelihood of one scan at one pose, and one particle's whole match (coarse yaw search,
+//! then the hill climb with a prior), against a 0.05 m grid built from simulated car scans at
+//! their true poses. One thread, the default `[filter.rbpf]` options; the points are the
+//! scan's returns within `range_max_m`, every `beam_decimation`-th, as the filter takes them.
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use pfslam::config::Config;
+use pfslam::filter::rbpf::{
+    MatchPrior, RbpfOptions, SearchParams, match_in_own_map, scan_log_likelihood,
+};
+use pfslam::filter::scanmatch::match_points;
+use pfslam::geometry::Pose2;
+use pfslam::map::{InsertScratch, OccupancyGrid, PlanarScan, ScanProjector, to_world};
+use pfslam::sim::{SimOptions, World, simulate_car};
+use std::hint::black_box;
+
+fn bench(c: &mut Criterion) {
+    let o = RbpfOptions::default();
+    let mut config = Config::default();
+    config.map.resolution_m = 0.05;
+    config.map.scan.z_min_m = Some(0.5);
+    let sim = SimOptions {
+        duration_s: 8.0,
+        ..SimOptions::default()
+    };
+    let world = World::builtin(sim.world_name()).expect("campus");
+    let out = simulate_car(&world, &sim).expect("simulation");
+    let rec = pfslam::motion::car_recording(&out.dataset, &config.motion, "bench").expect("rec");
+    let proj = ScanProjector::new(&rec.lidar, &rec.body_from_lidar, &config.map.scan).expect("p");
+    let mut grid = OccupancyGrid::new(&config.map).expect("grid");
+    let (mut body, mut world_scan) = (PlanarScan::default(), PlanarScan::default());
+    let mut ins = InsertScratch::new();
+    let n = rec.scans.len();
+    for k in (0..n - 1).step_by(5) {
+        proj.to_body(rec.scans.ranges(k), &mut body).expect("scan");
+        to_world(&body, &out.ground_truth[k].pose, &mut world_scan);
+        grid.insert_scan(&world_scan, &mut ins).expect("insert");
+    }
+    proj.to_body(rec.scans.ranges(n - 1), &mut body)
+        .expect("scan");
+    let truth = out.ground_truth[n - 1].pose;
+    let mut points = Vec::new();
+    match_points(&body, o.range_max_m, o.beam_decimation, &mut points);
+    let model = o.observation(0.05);
+    let mut search = SearchParams::new(&o, 0.05);
+    // The prior's smallest sigmas (as after a short step).
+    search.prior = Some(MatchPrior {
+        inv_var_xy: 1.0 / (o.prior_min_xy_m * o.prior_min_xy_m),
+        inv_var_yaw: 1.0 / o.prior_min_yaw_deg.to_radians().powi(2),
+    });
+    let start = Pose2::new(truth.x_m + 0.04, truth.y_m - 0.03, truth.yaw_rad + 0.01);
+    let mut g = c.benchmark_group("rbpf");
+    g.bench_function(format!("likelihood_{}_points", points.len()), |b| {
+        b.iter(|| {
+            black_box(scan_log_likelihood(
+                &grid,
+                &model,
+                black_box(&points),
+                &start,
+            ))
+        })
+    });
+    g.bench_function(format!("match_{}_points", points.len()), |b| {
+        b.iter(|| {
+            black_box(match_in_own_map(
+                &grid,
+                &model,
+                black_box(&points),
+                &start,
+                &search,
+            ))
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
