@@ -4,15 +4,16 @@
 //! their true poses. One thread, the default `[filter.rbpf]` options; the points are the
 //! scan's returns within `range_max_m`, every `beam_decimation`-th, as the filter takes them.
 
+mod mapped_drive;
+
 use criterion::{Criterion, criterion_group, criterion_main};
+use mapped_drive::mapped_drive;
 use pfslam::config::Config;
 use pfslam::filter::rbpf::{
     MatchPrior, RbpfOptions, SearchParams, match_in_own_map, scan_log_likelihood,
 };
 use pfslam::filter::scanmatch::match_points;
 use pfslam::geometry::Pose2;
-use pfslam::map::{InsertScratch, OccupancyGrid, PlanarScan, ScanProjector, to_world};
-use pfslam::sim::{SimOptions, World, simulate_car};
 use std::hint::black_box;
 
 fn bench(c: &mut Criterion) {
@@ -20,26 +21,7 @@ fn bench(c: &mut Criterion) {
     let mut config = Config::default();
     config.map.resolution_m = 0.05;
     config.map.scan.z_min_m = Some(0.5);
-    let sim = SimOptions {
-        duration_s: 8.0,
-        ..SimOptions::default()
-    };
-    let world = World::builtin(sim.world_name()).expect("campus");
-    let out = simulate_car(&world, &sim).expect("simulation");
-    let rec = pfslam::motion::car_recording(&out.dataset, &config.motion, "bench").expect("rec");
-    let proj = ScanProjector::new(&rec.lidar, &rec.body_from_lidar, &config.map.scan).expect("p");
-    let mut grid = OccupancyGrid::new(&config.map).expect("grid");
-    let (mut body, mut world_scan) = (PlanarScan::default(), PlanarScan::default());
-    let mut ins = InsertScratch::new();
-    let n = rec.scans.len();
-    for k in (0..n - 1).step_by(5) {
-        proj.to_body(rec.scans.ranges(k), &mut body).expect("scan");
-        to_world(&body, &out.ground_truth[k].pose, &mut world_scan);
-        grid.insert_scan(&world_scan, &mut ins).expect("insert");
-    }
-    proj.to_body(rec.scans.ranges(n - 1), &mut body)
-        .expect("scan");
-    let truth = out.ground_truth[n - 1].pose;
+    let (grid, body, truth) = mapped_drive(&config, 5);
     let mut points = Vec::new();
     match_points(&body, o.range_max_m, o.beam_decimation, &mut points);
     let model = o.observation(0.05);
