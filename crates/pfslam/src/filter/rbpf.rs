@@ -258,7 +258,7 @@ const MASK: i32 = TS - 1;
 /// Faster: an integer floor (`f64::floor` is a libm call on baseline x86-64), the tile of the
 /// previous point reused, and for the default 3x3 kernel a branch-free minimum. With AVX2
 /// (the default kernel): four points projected at a time and the 3x3 minimum a row per
-/// vector (session 11: Intel's correlate stage ~-25 %).
+/// vector.
 pub fn scan_log_likelihood(
     grid: &OccupancyGrid,
     model: &ObservationModel,
@@ -341,8 +341,7 @@ fn project_scalar(
     out: &mut Projected,
 ) {
     for (n, p) in chunk.iter().enumerate().take(4) {
-        let x = pose.x_m + c * p[0] - s * p[1];
-        let y = pose.y_m + s * p[0] + c * p[1];
+        let (x, y) = pose.transform_point_with((s, c), p[0], p[1]);
         let (u, v) = limits.cell_coords(x, y);
         (out.u[n], out.v[n]) = (u, v);
         (out.i[n], out.j[n]) = (floor_to_i32(u), floor_to_i32(v));
@@ -446,7 +445,7 @@ fn likelihood_with(
     let mut tile_key = (i32::MIN, i32::MIN);
     let mut tile: Option<&[i16]> = None;
     let mut at = Projected::default();
-    for (n, _) in points.iter().enumerate() {
+    for n in 0..points.len() {
         if n % 4 == 0 {
             project(limits, pose, (s, c), &points[n..], &mut at);
         }
@@ -1427,9 +1426,10 @@ mod tests {
             }
             let mut body: Vec<[f64; 2]> =
                 (0..200).map(|_| [uni(-7.0, 7.0), uni(-7.0, 7.0)]).collect();
-            // Points beyond 2^30 cells (the vector floor's range; within the i32 range):
-            // the chunks holding them take the scalar floor.
-            for (at, far) in [(37, [6e7, 1.0]), (38, [-2.0, -7e7]), (121, [-9e7, 9e7])] {
+            // Points ~5e7 m out: beyond 2^30 cells at 0.03 m, where the chunks holding them
+            // take the scalar floor (the vector floor's range ends there), and inside the i32
+            // range at every resolution here (so `i + di` cannot overflow).
+            for (at, far) in [(37, [5e7, 1.0]), (38, [-2.0, -5e7]), (121, [-3.5e7, 3.5e7])] {
                 body.insert(at, far);
             }
             for kernel in [0, 1, 2] {
