@@ -186,8 +186,9 @@ fn pool_rows(out: &mut [f32], a: (&[f32], &[f32]), b: (&[f32], &[f32])) {
 }
 
 /// The cells of a scan's points at one heading ([`PointField::cells_at`]), as two columns.
-/// Stored in `i32`, clamped to `+-CELL_CLAMP`: a clamped cell lies far outside any window
-/// (at most 2^14 cells a side) whatever the search's offset, as the cell it stands for.
+/// Stored in `i32`, clamped to `+-CELL_CLAMP`: a clamped cell lies outside any window (at
+/// most 2^14 cells a side) for any offset under 2^29 cells, as the cell it stands for
+/// (search windows are at most 10 m, 10^3 cells at 0.01 m).
 #[derive(Debug, Clone, Default)]
 struct PointCells {
     x: Vec<i32>,
