@@ -450,6 +450,41 @@ impl PointField {
         poses: [Pose2; K],
         sin_cos: [(f64, f64); K],
     ) -> [f64; K] {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: AVX2 is present (checked above).
+            return unsafe { self.scores_rotated_avx2(points_body, poses, sin_cos) };
+        }
+        self.scores_rotated_with(points_body, poses, sin_cos, |u, v| {
+            self.bilinear_lanes(u, v)
+        })
+    }
+
+    /// [`Self::scores_rotated`] with the four lanes' interpolation in AVX2
+    /// ([`Self::bilinear_lanes_avx2`]); the same bits.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn scores_rotated_avx2<const K: usize>(
+        &self,
+        points_body: &[[f64; 2]],
+        poses: [Pose2; K],
+        sin_cos: [(f64, f64); K],
+    ) -> [f64; K] {
+        // The closure inherits this function's AVX2.
+        self.scores_rotated_with(points_body, poses, sin_cos, |u, v| {
+            self.bilinear_lanes_avx2(u, v)
+        })
+    }
+
+    /// The body of [`Self::scores_rotated`], with `lanes` the interpolation of four points.
+    #[inline(always)]
+    fn scores_rotated_with<const K: usize>(
+        &self,
+        points_body: &[[f64; 2]],
+        poses: [Pose2; K],
+        sin_cos: [(f64, f64); K],
+        lanes: impl Fn(&[f64; LANES], &[f64; LANES]) -> [f64; LANES],
+    ) -> [f64; K] {
         if points_body.is_empty() {
             return [0.0; K];
         }
@@ -469,7 +504,7 @@ impl PointField {
                     u[l] = (x - self.origin_x_m) / self.resolution_m - 0.5;
                     v[l] = (y - self.origin_y_m) / self.resolution_m - 0.5;
                 }
-                values[k] = self.bilinear_lanes(&u, &v);
+                values[k] = lanes(&u, &v);
             }
             // Apart from the loop above: unrolled, the accumulators stay in registers.
             for (sum, values) in sums.iter_mut().zip(&values) {
@@ -526,6 +561,111 @@ impl PointField {
             f[k] = self.corners(i, j).map(f64::from);
         }
         mix_lanes(&f, &au, &av)
+    }
+
+    /// One lane of [`Self::bilinear_lanes`].
+    #[inline(always)]
+    fn bilinear_lane(&self, u: f64, v: f64) -> f64 {
+        let (i, j) = (floor_to_i64(u), floor_to_i64(v));
+        let (au, av) = (u - i as f64, v - j as f64);
+        let [f00, f10, f01, f11] = self.corners(i, j).map(f64::from);
+        let bottom = f00 * (1.0 - au) + f10 * au;
+        let top = f01 * (1.0 - au) + f11 * au;
+        bottom * (1.0 - av) + top * av
+    }
+
+    /// [`Self::bilinear_lanes`] in AVX2: the floors and fractions in vector registers, the
+    /// two corner pairs of each point gathered (one 8-byte load per row) where its 2x2 block
+    /// lies inside the field, the mix lane by lane in the scalar order (no fused
+    /// multiply-add): the same bits. Points near or beyond the edges (or beyond 2^30 cells)
+    /// take [`Self::bilinear_lane`].
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn bilinear_lanes_avx2(&self, u: &[f64; LANES], v: &[f64; LANES]) -> [f64; LANES] {
+        use std::arch::x86_64::*;
+        let lv = &self.levels[0].cells[..];
+        // SAFETY: unaligned loads of four f64 from arrays of four.
+        let (uv, vv) = unsafe { (_mm256_loadu_pd(u.as_ptr()), _mm256_loadu_pd(v.as_ptr())) };
+        let (fu, fv) = (_mm256_floor_pd(uv), _mm256_floor_pd(vv));
+        // `u - i as f64` with `i` the floor: the floor itself where it fits (below).
+        let (au, av) = (_mm256_sub_pd(uv, fu), _mm256_sub_pd(vv, fv));
+        let lim = _mm256_set1_pd(1073741824.0);
+        let abs = _mm256_castsi256_pd(_mm256_set1_epi64x(i64::MAX));
+        // |u|, |v| < 2^30 (false for NaN): the floors are exact in i32.
+        let fits = _mm256_and_pd(
+            _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_and_pd(uv, abs), lim),
+            _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_and_pd(vv, abs), lim),
+        );
+        let fits = _mm256_castpd_si256(fits);
+        // The i32 floors (0 in lanes that do not fit, which the mask drops).
+        let pick = _mm256_setr_epi32(0, 2, 4, 6, 1, 3, 5, 7);
+        let fits32 = _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(fits, pick));
+        let i = _mm_and_si128(_mm256_cvttpd_epi32(fu), fits32);
+        let j = _mm_and_si128(_mm256_cvttpd_epi32(fv), fits32);
+        // `i >= 0 && j >= 0 && i + 1 < w && j + 1 < h` (w, h at most 2^14).
+        let (w, h) = (self.w as i32, self.h as i32);
+        let minus_one = _mm_set1_epi32(-1);
+        let inside = _mm_and_si128(
+            _mm_and_si128(_mm_cmpgt_epi32(i, minus_one), _mm_cmpgt_epi32(j, minus_one)),
+            _mm_and_si128(
+                _mm_cmpgt_epi32(_mm_set1_epi32(w - 1), i),
+                _mm_cmpgt_epi32(_mm_set1_epi32(h - 1), j),
+            ),
+        );
+        let inside = _mm_and_si128(inside, fits32);
+        // (A level shorter than `w * h` never happens; it would take the scalar way.)
+        let inside_bits = match lv.len() >= self.w * self.h {
+            true => _mm_movemask_ps(_mm_castsi128_ps(inside)),
+            false => 0,
+        };
+        let mut out = [0.0f64; LANES];
+        if inside_bits != 0 {
+            let k = _mm_add_epi32(_mm_mullo_epi32(j, _mm_set1_epi32(w)), i);
+            let mask = _mm256_cvtepi32_epi64(inside);
+            // SAFETY: only lanes inside are read: `k + 1` and `k + w + 1` are cells of the
+            // 2x2 block, below `w * h <= lv.len()`.
+            let (row0, row1) = unsafe {
+                (
+                    _mm256_mask_i32gather_epi64::<4>(
+                        _mm256_setzero_si256(),
+                        lv.as_ptr().cast(),
+                        k,
+                        mask,
+                    ),
+                    _mm256_mask_i32gather_epi64::<4>(
+                        _mm256_setzero_si256(),
+                        lv.as_ptr().cast(),
+                        _mm_add_epi32(k, _mm_set1_epi32(w)),
+                        mask,
+                    ),
+                )
+            };
+            // [a0 b0 a1 b1 a2 b2 a3 b3] -> [a0 a1 a2 a3 | b0 b1 b2 b3], then to f64.
+            let split = |r| {
+                let r = _mm256_castsi256_ps(_mm256_permutevar8x32_epi32(r, pick));
+                (
+                    _mm256_cvtps_pd(_mm256_castps256_ps128(r)),
+                    _mm256_cvtps_pd(_mm256_extractf128_ps::<1>(r)),
+                )
+            };
+            let ((f00, f10), (f01, f11)) = (split(row0), split(row1));
+            let one = _mm256_set1_pd(1.0);
+            let (nu, nv) = (_mm256_sub_pd(one, au), _mm256_sub_pd(one, av));
+            let bottom = _mm256_add_pd(_mm256_mul_pd(f00, nu), _mm256_mul_pd(f10, au));
+            let top = _mm256_add_pd(_mm256_mul_pd(f01, nu), _mm256_mul_pd(f11, au));
+            let mix = _mm256_add_pd(_mm256_mul_pd(bottom, nv), _mm256_mul_pd(top, av));
+            // SAFETY: a store into a local array of four f64.
+            unsafe { _mm256_storeu_pd(out.as_mut_ptr(), mix) };
+        }
+        if inside_bits != 0b1111 {
+            for l in 0..LANES {
+                if inside_bits >> l & 1 == 0 {
+                    out[l] = self.bilinear_lane(u[l], v[l]);
+                }
+            }
+        }
+        out
     }
 
     /// Level-0 values at `(i, j)`, `(i+1, j)`, `(i, j+1)`, `(i+1, j+1)` (0 outside): one
