@@ -441,7 +441,6 @@ static NEVER_OCCUPIED: [i16; 2 * TILE_SIZE + 4] = [i16::MIN; 2 * TILE_SIZE + 4];
 
 /// Four projected points with their kernels' rows gathered ([`gather4_avx2`]).
 #[cfg(target_arch = "x86_64")]
-#[derive(Clone, Copy)]
 struct Gathered4 {
     u: std::arch::x86_64::__m256d,
     v: std::arch::x86_64::__m256d,
@@ -467,19 +466,15 @@ fn gather4_avx2<'a>(
     cache: &mut TileCache<'a>,
 ) -> Gathered4 {
     use std::arch::x86_64::*;
-    let never = |at: Projected4| {
-        let never = _mm256_set1_epi16(i16::MIN);
-        Gathered4 {
+    let Some((i, j)) = at.cells else {
+        return Gathered4 {
             u: at.u,
             v: at.v,
             i: _mm_setzero_si128(),
             j: _mm_setzero_si128(),
-            rows: [never; 3],
+            rows: [_mm256_set1_epi16(i16::MIN); 3],
             scalar: 0b1111,
-        }
-    };
-    let Some((i, j)) = at.cells else {
-        return never(at);
+        };
     };
     let one = _mm_set1_epi32(1);
     let mask = _mm_set1_epi32(MASK);
@@ -501,7 +496,7 @@ fn gather4_avx2<'a>(
     let ok_bits = _mm_movemask_ps(_mm_castsi128_ps(ok));
     let ti = _mm_srai_epi32::<{ TILE_SHIFT as i32 }>(i);
     let tj = _mm_srai_epi32::<{ TILE_SHIFT as i32 }>(j);
-    // Each point's first kernel cell within its tile, in bytes.
+    // Each point's first kernel cell within its tile (cells, then bytes).
     let first = _mm_add_epi32(
         _mm_slli_epi32::<{ TILE_SHIFT as i32 }>(_mm_sub_epi32(lj, one)),
         _mm_sub_epi32(li, one),
@@ -674,7 +669,6 @@ fn point_term(model: &ObservationModel, best: f64) -> f64 {
 /// The smallest squared distance (cells) from the point at `(u, v)` (cell `(i, j)`) to the
 /// centre of an occupied cell within the kernel; infinity if none. `nearest` is the 3x3
 /// kernel's minimum within one tile.
-#[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn point_best<'a>(
     grid: &'a OccupancyGrid,

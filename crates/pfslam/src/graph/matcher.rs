@@ -418,14 +418,7 @@ impl PointField {
     fn bilinear(&self, x_m: f64, y_m: f64) -> f64 {
         let u = (x_m - self.origin_x_m) / self.resolution_m - 0.5;
         let v = (y_m - self.origin_y_m) / self.resolution_m - 0.5;
-        // `f64::floor` is a libm call on baseline x86-64; the integer floor is the same value.
-        let (i, j) = (floor_to_i64(u), floor_to_i64(v));
-        let (au, av) = (u - i as f64, v - j as f64);
-        let [f00, f10, f01, f11] = self.corners(i, j);
-        let f = |x: f32| f64::from(x);
-        let bottom = f(f00) * (1.0 - au) + f(f10) * au;
-        let top = f(f01) * (1.0 - au) + f(f11) * au;
-        bottom * (1.0 - av) + top * av
+        self.bilinear_lane(u, v)
     }
 
     /// Mean interpolated field value (0..1) of `points_body` seen from `pose`.
@@ -563,9 +556,11 @@ impl PointField {
         mix_lanes(&f, &au, &av)
     }
 
-    /// One lane of [`Self::bilinear_lanes`].
+    /// [`Self::bilinear`] from cell coordinates minus one half (`u`, `v`); one lane of
+    /// [`Self::bilinear_lanes`].
     #[inline(always)]
     fn bilinear_lane(&self, u: f64, v: f64) -> f64 {
+        // `f64::floor` is a libm call on baseline x86-64; the integer floor is the same value.
         let (i, j) = (floor_to_i64(u), floor_to_i64(v));
         let (au, av) = (u - i as f64, v - j as f64);
         let [f00, f10, f01, f11] = self.corners(i, j).map(f64::from);
@@ -577,8 +572,8 @@ impl PointField {
     /// [`Self::bilinear_lanes`] in AVX2: the floors and fractions in vector registers, the
     /// two corner pairs of each point gathered (one 8-byte load per row) where its 2x2 block
     /// lies inside the field, the mix lane by lane in the scalar order (no fused
-    /// multiply-add): the same bits. Points near or beyond the edges (or beyond 2^30 cells)
-    /// take [`Self::bilinear_lane`].
+    /// multiply-add): the same bits. Points near or beyond the edges take
+    /// [`Self::bilinear_lane`].
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     #[inline]
@@ -588,21 +583,11 @@ impl PointField {
         // SAFETY: unaligned loads of four f64 from arrays of four.
         let (uv, vv) = unsafe { (_mm256_loadu_pd(u.as_ptr()), _mm256_loadu_pd(v.as_ptr())) };
         let (fu, fv) = (_mm256_floor_pd(uv), _mm256_floor_pd(vv));
-        // `u - i as f64` with `i` the floor: the floor itself where it fits (below).
+        // `u - i as f64` with `i` the floor: the floor itself for the lanes inside (below).
         let (au, av) = (_mm256_sub_pd(uv, fu), _mm256_sub_pd(vv, fv));
-        let lim = _mm256_set1_pd(1073741824.0);
-        let abs = _mm256_castsi256_pd(_mm256_set1_epi64x(i64::MAX));
-        // |u|, |v| < 2^30 (false for NaN): the floors are exact in i32.
-        let fits = _mm256_and_pd(
-            _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_and_pd(uv, abs), lim),
-            _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_and_pd(vv, abs), lim),
-        );
-        let fits = _mm256_castpd_si256(fits);
-        // The i32 floors (0 in lanes that do not fit, which the mask drops).
-        let pick = _mm256_setr_epi32(0, 2, 4, 6, 1, 3, 5, 7);
-        let fits32 = _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(fits, pick));
-        let i = _mm_and_si128(_mm256_cvttpd_epi32(fu), fits32);
-        let j = _mm_and_si128(_mm256_cvttpd_epi32(fv), fits32);
+        // The floors in i32: exact inside the i32 range; beyond it, and for NaN, the
+        // conversion gives i32::MIN, which the test below puts outside.
+        let (i, j) = (_mm256_cvttpd_epi32(fu), _mm256_cvttpd_epi32(fv));
         // `i >= 0 && j >= 0 && i + 1 < w && j + 1 < h` (w, h at most 2^14).
         let (w, h) = (self.w as i32, self.h as i32);
         let minus_one = _mm_set1_epi32(-1);
@@ -613,7 +598,6 @@ impl PointField {
                 _mm_cmpgt_epi32(_mm_set1_epi32(h - 1), j),
             ),
         );
-        let inside = _mm_and_si128(inside, fits32);
         // (A level shorter than `w * h` never happens; it would take the scalar way.)
         let inside_bits = match lv.len() >= self.w * self.h {
             true => _mm_movemask_ps(_mm_castsi128_ps(inside)),
@@ -642,6 +626,7 @@ impl PointField {
                 )
             };
             // [a0 b0 a1 b1 a2 b2 a3 b3] -> [a0 a1 a2 a3 | b0 b1 b2 b3], then to f64.
+            let pick = _mm256_setr_epi32(0, 2, 4, 6, 1, 3, 5, 7);
             let split = |r| {
                 let r = _mm256_castsi256_ps(_mm256_permutevar8x32_epi32(r, pick));
                 (
@@ -1435,8 +1420,14 @@ mod tests {
                 })
                 .collect();
             let sc: Vec<(f64, f64)> = poses.iter().map(|p| p.yaw_rad.sin_cos()).collect();
-            // Every remainder of the four-point batches.
-            let part = &body[..body.len() - k % 4];
+            // Every remainder of the four-point batches; some with points beyond the i32
+            // range of cells (~1.1e8 m at 0.05 m), whose vector conversion gives i32::MIN.
+            let mut far = body.clone();
+            if k % 5 == 0 {
+                far[k % 7] = [2e8, -1.0];
+                far[3 + k % 11] = [2.0, -3e8];
+            }
+            let part = &far[..far.len() - k % 4];
             let mut got = vec![0.0; poses.len()];
             f.scores_batched(part, &poses, &sc, &mut got);
             for (p, g) in poses.iter().zip(&got) {
