@@ -30,7 +30,7 @@ pub struct BatchScratch {
     blocks: usize,
     xoff: Vec<u32>,
     yoff: Vec<u32>,
-    cells: Vec<u32>,
+    walk: RayCells,
     fan: FanScratch,
 }
 
@@ -44,7 +44,8 @@ impl BatchScratch {
     pub fn memory_bytes(&self) -> usize {
         2 * self.mask.capacity()
             + self.flags.capacity()
-            + 4 * (self.xoff.capacity() + self.yoff.capacity() + self.cells.capacity())
+            + 4 * (self.xoff.capacity() + self.yoff.capacity())
+            + self.walk.bytes()
             + self.fan.bytes()
     }
 
@@ -71,6 +72,10 @@ struct BitMarks<'a> {
 }
 
 impl Marks for BitMarks<'_> {
+    /// On the car's filter map (`examples/filter_map`, one thread) ~158 -> ~140 us per scan:
+    /// half the walked cells repeat the previous ray's.
+    const FRESH_ONLY: bool = true;
+
     #[inline(always)]
     fn reserve(&mut self, _n: usize) {}
 
@@ -293,7 +298,7 @@ impl OccupancyGrid {
                 flags,
                 xoff,
                 yoff,
-                cells,
+                walk,
                 fan,
                 ..
             } = scratch;
@@ -314,7 +319,7 @@ impl OccupancyGrid {
                     free: 1 << (2 * s),
                     occupied: 3 << (2 * s),
                 };
-                grid.trace_planar_marks(scan, points, origin, &layout, cells, fan, &mut marks);
+                grid.trace_planar_marks(scan, points, origin, &layout, walk, fan, &mut marks);
             }
         };
         if pieces.len() > 1 {
