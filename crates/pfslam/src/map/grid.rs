@@ -693,19 +693,6 @@ impl RayCells {
         self.prev_len = 0;
     }
 
-    /// Walks the first `count` cells of `from` -> `to` ([`walk_mask`]) and returns them all;
-    /// no previous ray is kept.
-    #[inline(always)]
-    fn walk_all(&mut self, from: Cell, to: Cell, layout: &MaskLayout<'_>, count: usize) -> &[u32] {
-        if self.ray.len() < count {
-            self.ray.resize(count + 1024, 0);
-        }
-        let cells = &mut self.ray[..count];
-        walk_mask(from, to, layout, cells);
-        self.prev_len = 0;
-        cells
-    }
-
     /// Walks the first `count` cells of `from` -> `to` ([`walk_mask`]) and returns those
     /// not equal to the previous ray's cell at the same step; the ray becomes the previous.
     #[inline(always)]
@@ -856,9 +843,6 @@ fn ray_cells(limits: &MapLimits, scan: &PlanarScan, p: &ScanPoint) -> (Cell, Cel
 /// Where planar tracing puts a scan's marks: one call per cell, free or occupied (occupied
 /// wins over free within a scan, whatever the order).
 pub(crate) trait Marks {
-    /// Whether a ray's cells equal to the previous ray's at the same step are left out
-    /// ([`RayCells::walk_fresh`]): it pays where marking costs more than the compaction.
-    const FRESH_ONLY: bool;
     /// Room for `n` more marks (a list that grows).
     fn reserve(&mut self, n: usize);
     /// Marks mask cell `k`.
@@ -876,10 +860,6 @@ struct TouchMarks<'a> {
 }
 
 impl Marks for TouchMarks<'_> {
-    /// Measured on Intel (`insert_scan`, 0.05 m, short indoor rays): the compaction cost
-    /// more than the marks it saved (rbpf map insertion 2.5-2.6 -> 2.7-2.9 s).
-    const FRESH_ONLY: bool = false;
-
     #[inline(always)]
     fn reserve(&mut self, n: usize) {
         if self.touched.len() < self.len + n {
@@ -945,11 +925,7 @@ fn trace_planar_ray<M: Marks>(
         // (full ray), or the last one (partial ray: `clear_end`; `end` lies beyond it,
         // hence not on the line).
         let count = if partial { n } else { (n - margin).max(0) } as usize;
-        if M::FRESH_ONLY {
-            marks.mark_free(walk.walk_fresh(origin, clear_end, layout, count));
-        } else {
-            marks.mark_free(walk.walk_all(origin, clear_end, layout, count));
-        }
+        marks.mark_free(walk.walk_fresh(origin, clear_end, layout, count));
     }
     marks.mark(layout.index(end), p.hit);
 }

@@ -72,10 +72,6 @@ struct BitMarks<'a> {
 }
 
 impl Marks for BitMarks<'_> {
-    /// On the car's filter map (`examples/filter_map`, one thread) ~158 -> ~140 us per scan:
-    /// half the walked cells repeat the previous ray's.
-    const FRESH_ONLY: bool = true;
-
     #[inline(always)]
     fn reserve(&mut self, _n: usize) {}
 
