@@ -1062,9 +1062,13 @@ struct RotationBuffers {
 
 /// The rotation the refinement's x/y moves reuse (`kept`, of the yaw `yaw_bits`) and two
 /// scratch ones for one-off yaws (a pattern-search iteration's two yaw candidates, summed
-/// in the same pass as its x/y moves).
+/// in the same pass as its x/y moves), of the yaws `once_bits`. All are kept across calls
+/// (for the same points, as the refinement makes them): after an x/y move the next
+/// iteration tries the same two yaws, and after a yaw move its x/y moves use a yaw a
+/// one-off buffer holds.
 struct RotatedPoints {
     yaw_bits: Option<u64>,
+    once_bits: [Option<u64>; 2],
     buf: RotationBuffers,
     /// Sum with the f32 kernel ([`KernelPrecision::F32`]).
     f32: bool,
@@ -1074,6 +1078,7 @@ impl RotatedPoints {
     fn take(buf: &mut RotationBuffers, precision: KernelPrecision) -> Self {
         RotatedPoints {
             yaw_bits: None,
+            once_bits: [None; 2],
             buf: std::mem::take(buf),
             f32: precision == KernelPrecision::F32,
         }
@@ -1125,10 +1130,10 @@ impl RotatedPoints {
         let mut start = 0;
         while start < cands.len().min(sums.len()) {
             // One pass: candidates while a rotation buffer is free for their yaw. Slot 0
-            // is `kept`, 1 and 2 the one-off buffers; `kept` is refilled only before this
+            // is `kept`, 1 and 2 the one-off buffers; a buffer is refilled only before this
             // pass uses it.
             let mut slot = [0usize; NEIGHBOURS];
-            let mut once_bits: [Option<u64>; 2] = [None; 2];
+            let mut once_used = [false; 2];
             let mut kept_used = false;
             let mut end = start;
             while end < cands.len().min(sums.len()) && end - start < NEIGHBOURS {
@@ -1137,16 +1142,18 @@ impl RotatedPoints {
                 slot[end - start] = if self.yaw_bits == Some(bits) {
                     kept_used = true;
                     0
-                } else if let Some(k) = once_bits.iter().position(|&b| b == Some(bits)) {
+                } else if let Some(k) = self.once_bits.iter().position(|&b| b == Some(bits)) {
+                    once_used[k] = true;
                     k + 1
                 } else if *keep && !kept_used {
                     fill(&mut self.buf.kept, &mut self.buf.kept32, pose.yaw_rad);
                     self.yaw_bits = Some(bits);
                     kept_used = true;
                     0
-                } else if let Some(k) = once_bits.iter().position(Option::is_none) {
+                } else if let Some(k) = once_used.iter().position(|&used| !used) {
                     fill(&mut self.buf.once[k], &mut self.buf.once32[k], pose.yaw_rad);
-                    once_bits[k] = Some(bits);
+                    self.once_bits[k] = Some(bits);
+                    once_used[k] = true;
                     k + 1
                 } else {
                     break;
