@@ -607,11 +607,11 @@ fn walk_mask_avx2(from: Cell, to: Cell, layout: &MaskLayout<'_>, out: &mut [u32]
     // major(t) = major0 + s_major t, minor(t) = minor0 + s_minor q(t).
     let mut major = _mm256_add_epi32(
         _mm256_set1_epi32(major0 as i32),
-        _mm256_sign_epi32(lanes, _mm256_set1_epi32(s_major as i32)),
+        _mm256_sign_epi32(lanes, _mm256_set1_epi32(s_major)),
     );
-    let major_step = _mm256_set1_epi32(8 * s_major as i32);
+    let major_step = _mm256_set1_epi32(8 * s_major);
     let minor0 = _mm256_set1_epi32(minor0 as i32);
-    let s_minor = _mm256_set1_epi32(s_minor as i32);
+    let s_minor = _mm256_set1_epi32(s_minor);
     let blocks = _mm256_set1_epi32(blocks);
     let (m3, m60, m_hi) = (
         _mm256_set1_epi32(3),
