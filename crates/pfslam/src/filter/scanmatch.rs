@@ -1229,20 +1229,7 @@ impl RotationF32 {
         self.blocks.clear();
         let whole = points_body.chunks_exact(LANES32);
         let rest = whole.remainder();
-        #[cfg(target_arch = "x86_64")]
-        let vector = std::arch::is_x86_feature_detected!("avx2");
-        #[cfg(not(target_arch = "x86_64"))]
-        let vector = false;
-        if vector {
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: AVX2 is present (checked above).
-            unsafe {
-                RotationF32::fill_avx2(&mut self.blocks, whole, s, c, inv_res)
-            };
-        } else {
-            self.blocks
-                .extend(whole.map(|chunk| RotationF32::block(chunk, s, c, inv_res)));
-        }
+        RotationF32::fill_whole(&mut self.blocks, whole, s, c, inv_res);
         if !rest.is_empty() {
             self.blocks.push(RotationF32::block(rest, s, c, inv_res));
         }
@@ -1250,6 +1237,22 @@ impl RotationF32 {
             0 => LANES32,
             r => r,
         };
+    }
+
+    /// [`Self::block`] of each whole chunk, appended; in AVX2 where the CPU has it.
+    fn fill_whole(
+        blocks: &mut Vec<[[f32; LANES32]; 2]>,
+        whole: std::slice::ChunksExact<'_, [f64; 2]>,
+        s: f64,
+        c: f64,
+        inv_res: f64,
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: AVX2 is present (checked above).
+            return unsafe { RotationF32::fill_avx2(blocks, whole, s, c, inv_res) };
+        }
+        blocks.extend(whole.map(|chunk| RotationF32::block(chunk, s, c, inv_res)));
     }
 
     /// [`Self::block`] of whole chunks in AVX2, four points per f64 vector: the same
