@@ -8,9 +8,11 @@
 //! DIR/stereo_images/stereo_left/<stamp_ns>.png, stereo_right/<stamp_ns>.png   (optional)
 //! ```
 //!
-//! The CSV readers stream: a buffered reader and one reused line buffer, fields split by hand
-//! and parsed with `fast-float2`, ranges stored as `f32` in a flat [`ScanSet`]. The text is
-//! never held in memory. A header line whose first field mentions "time" is skipped. Every
+//! The CSV readers stream: 1 MiB blocks read into one reused buffer, lines found there with
+//! `memchr` and parsed in place, fields split by hand and parsed with `fast-float2`, ranges
+//! stored as `f32` in a flat [`ScanSet`]. The LiDAR rows' plain decimals take a vector parser
+//! first (`ranges`), with the scalar one as the fallback for anything else. The text is never
+//! held in memory. A header line whose first field mentions "time" is skipped. Every
 //! malformed row is an [`IoError::Parse`] naming file and line.
 
 pub mod calib;
