@@ -991,7 +991,7 @@ mod tests {
             }
         }
         // Most good rows took the vector parser (where there is one).
-        if std::arch::is_x86_feature_detected!("avx2") {
+        if ranges::vector_available() {
             assert!(vector_rows * 2 > rows, "{vector_rows} of {rows}");
         }
     }

@@ -64,19 +64,30 @@ pub(super) fn parse_plain_ranges(
     if !padded || out.is_empty() {
         return false;
     }
-    // Room for every byte being a comma, plus the pass's unconditional writes.
-    let room = end - start + 1 + 32;
-    if scratch.commas.len() < room {
-        scratch.commas.resize(room, 0);
+    #[cfg(target_arch = "x86_64")]
+    if vector_available() {
+        // Room for every byte being a comma, plus the pass's unconditional writes.
+        let room = end - start + 1 + 32;
+        if scratch.commas.len() < room {
+            scratch.commas.resize(room, 0);
+        }
+        // SAFETY: the features were detected; the padding and the scratch length were
+        // checked above.
+        return unsafe { parse_plain_ranges_avx2(buf, start, end, out, &mut scratch.commas) };
     }
+    let _ = scratch;
+    false
+}
+
+/// True when this CPU runs the vector parser (AVX2, BMI1, LZCNT, POPCNT).
+pub(super) fn vector_available() -> bool {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2")
         && std::arch::is_x86_feature_detected!("bmi1")
         && std::arch::is_x86_feature_detected!("lzcnt")
         && std::arch::is_x86_feature_detected!("popcnt")
     {
-        // SAFETY: the features were detected; the padding and the scratch length were checked above.
-        return unsafe { parse_plain_ranges_avx2(buf, start, end, out, &mut scratch.commas) };
+        return true;
     }
     false
 }
@@ -117,6 +128,11 @@ const IN_FIELD: [u8; 32] = {
     t
 };
 
+/// [`parse_plain_ranges`] once its checks passed.
+///
+/// # Safety
+/// The CPU has the enabled features; `HEAD_PAD <= start <= end`, `buf[end] == b','`,
+/// `buf.len() >= end + 1 + TAIL_PAD` and `commas.len() >= end - start + 33`.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,bmi1,lzcnt,popcnt")]
 unsafe fn parse_plain_ranges_avx2(
@@ -145,8 +161,8 @@ unsafe fn parse_plain_ranges_avx2(
         }
         let found = mask.count_ones() as usize;
         for k in 0..8 {
-            // SAFETY: count + found <= (block - start) + 32 <= room - 32 + 32 (commas are
-            // distinct bytes of buf[start..=end]), and count + 8 <= room likewise.
+            // SAFETY: count <= block - start (one byte per comma before this block), so
+            // count + k < end - start + 8 < commas.len() (at least end - start + 33).
             unsafe {
                 *positions.add(count + k) = (block as u32).wrapping_add(mask.trailing_zeros())
             };
@@ -154,7 +170,7 @@ unsafe fn parse_plain_ranges_avx2(
         }
         let mut k = 8;
         while mask != 0 {
-            // SAFETY: as above; these are real commas.
+            // SAFETY: count + k < count + found <= end - start + 1 < commas.len().
             unsafe { *positions.add(count + k) = block as u32 + mask.trailing_zeros() };
             mask &= mask.wrapping_sub(1);
             k += 1;
@@ -292,9 +308,7 @@ mod tests {
             let (buf, start, end) = padded(line);
             let mut out = vec![0f32; 4];
             let ok = parse_plain_ranges(&buf, start, end, &mut out, &mut RangeScratch::default());
-            if !std::arch::is_x86_feature_detected!("avx2")
-                || !std::arch::is_x86_feature_detected!("lzcnt")
-            {
+            if !vector_available() {
                 assert!(!ok);
                 continue;
             }
