@@ -27,9 +27,9 @@ const INV_POW10: [f64; 16] = [
 ];
 
 /// `mantissa / 10^frac_digits` correctly rounded to f32, for a mantissa below 2^24 and at
-/// most 15 decimals: the product with the f64 reciprocal, rounded to f32. It replaced an f32
-/// division whose latency was most of the LiDAR reader's time. The product is within two
-/// f64 ulps of the quotient, so it is the correctly rounded f32 unless the quotient lies
+/// most 15 decimals: the product with the f64 reciprocal, rounded to f32 (it replaced an f32
+/// division limited to 10 decimals; the speed-up once credited to it did not reproduce, see
+/// PERFORMANCE.md). The product is within two f64 ulps of the quotient, so it is the correctly rounded f32 unless the quotient lies
 /// that close to halfway between two f32s; `small_decimals_are_correctly_rounded_for_every_mantissa`
 /// checks all 268M inputs, the one near halfway exactly.
 #[inline(always)]
@@ -75,6 +75,7 @@ pub(super) fn parse_plain_ranges(
         // checked above.
         return unsafe { parse_plain_ranges_avx2(buf, start, end, out, &mut scratch.commas) };
     }
+    #[cfg(not(target_arch = "x86_64"))]
     let _ = scratch;
     false
 }
@@ -293,9 +294,12 @@ mod tests {
                 "007,.5,.00000000000001,16777215",
                 Some(&[7.0, 0.5, 1e-14, 16_777_215.0]),
             ),
-            ("1677721.5,12345678901234,1,2", None), // too long: 15 bytes is the limit
+            ("1677721.5,12345678901234,1,2", None), // a 14-digit mantissa
             ("1,2,3,16777216", None),               // mantissa 2^24
             ("1,2,3,0.0000000000000001", None),     // 16 decimals: too long
+            // 16 bytes and more: the lanes would lose the leading digits (giving 0 and 0.5)
+            ("1,10000000000000.5,3,4", None),
+            ("1,1000000000000000000.5,3,4", None),
             ("1,,3,4", None),
             ("1,.,3,4", None),
             ("1, 2,3,4", None),
