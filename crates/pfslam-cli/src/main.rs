@@ -27,6 +27,9 @@ pub enum Command {
     Demo(cmd::demo::Args),
     /// Dead-reckon a dataset: trajectory.tum/.csv/.png.
     DeadReckon(cmd::dead_reckon::Args),
+    /// Describe a recording: format, topics or line types, beam layouts, odometry, clock,
+    /// what was dropped or repaired, and what `run` would use.
+    Info(cmd::info::Args),
     /// Occupancy mapping with known poses: map.png, map.pgm/.yaml, logodds.npy.
     Map(cmd::map::Args),
     /// Simulate the car (or the humanoid) in a world: dataset + ground truth.
@@ -55,6 +58,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         None => cmd::demo::run(cmd::demo::Args::default()),
         Some(Command::Demo(a)) => cmd::demo::run(a),
         Some(Command::DeadReckon(a)) => cmd::dead_reckon::run(a),
+        Some(Command::Info(a)) => cmd::info::run(a),
         Some(Command::PrintConfig(a)) => cmd::print_config::run(a),
         Some(Command::Run(a)) => cmd::run::run(a),
         Some(Command::Experiment(a)) => cmd::experiment::run(a),

@@ -210,3 +210,99 @@ fn dead_reckon_takes_the_odometry_of_a_carmen_log() {
     assert_eq!(traj.len(), 1988);
     assert!(traj.path_length_m() > 100.0, "{}", traj.path_length_m());
 }
+
+#[test]
+fn run_maps_a_log_without_usable_stamps_and_accounts_for_every_scan() {
+    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+        eprintln!(
+            "SKIP run_maps_a_log_without_usable_stamps_and_accounts_for_every_scan: no real data"
+        );
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("o");
+    // every laser stamp of this log is 0: 237 laser lines (README table)
+    let o = super::run_ok(
+        super::pfslam()
+            .arg("run")
+            .arg(data.join("carmen/orebro-corrected.log.gz"))
+            .arg("--out")
+            .arg(&out),
+    );
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("237 of 237 scans kept"), "{stdout}");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        stderr.contains("warning:") && stderr.contains("file order"),
+        "{stderr}"
+    );
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["input"]["scans_kept"], 237);
+    assert_eq!(summary["input"]["format"], "carmen");
+    let traj = pfslam::io::tum::read_tum(&out.join("trajectory.tum")).unwrap();
+    assert_eq!(traj.len(), 237);
+    assert!(traj.path_length_m() > 150.0, "{}", traj.path_length_m());
+}
+
+#[test]
+fn info_describes_a_bag_and_names_the_layouts_looked_for() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = super::pfslam()
+        .arg("info")
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        e.contains("no known layout") && e.contains("metadata.yaml"),
+        "{e}"
+    );
+    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+        eprintln!("SKIP info_describes_a_bag_and_names_the_layouts_looked_for: no real data");
+        return;
+    };
+    let o = super::run_ok(
+        super::pfslam()
+            .arg("info")
+            .arg(data.join("freiburg/mit-csail/mit-csail.bag")),
+    );
+    let s = String::from_utf8_lossy(&o.stdout);
+    for want in [
+        "format:     ros1_bag",
+        "/scan",
+        "1988 msgs",
+        "sensor_msgs/LaserScan",
+        "361 beams from  -90.000 deg step 0.5000 deg",
+        "odometry:   1988 of 1988 poses from /odom",
+        "mount:      /tf_static: base_link -> laser",
+        "filter mode Rbpf",
+    ] {
+        assert!(s.contains(want), "{want:?} not in\n{s}");
+    }
+    // a topic asked for that is not there: exit 2, the topics listed
+    let o = super::pfslam()
+        .arg("info")
+        .arg(data.join("freiburg/mit-csail/mit-csail.bag"))
+        .args(["--scan-topic", "/base_scan"])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        e.contains("/odom (nav_msgs/Odometry, 1988 messages)"),
+        "{e}"
+    );
+    // the CARMEN log: line types, the ODOM lines it does not need
+    let o = super::run_ok(
+        super::pfslam()
+            .arg("info")
+            .arg(data.join("carmen/intel-corrected.log.gz")),
+    );
+    let s = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        s.contains("14541 ODOM lines") && s.contains("910 of 910 kept"),
+        "{s}"
+    );
+}

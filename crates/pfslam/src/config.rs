@@ -7,6 +7,8 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Config {
+    /// Recording readers: topics, frames, beam geometry, strictness, span (`[input]`).
+    pub input: crate::io::recording::ReaderOptions,
     /// Motion models and their noise (`[motion]`).
     pub motion: crate::motion::MotionOptions,
     /// Occupancy grid (`[map]`).

@@ -277,6 +277,16 @@ impl Rigid3 {
             translation: Vector3::new(pose.x_m, pose.y_m, 0.0),
         }
     }
+
+    /// The planar part: x, y and the yaw of the rotation's x axis about z.
+    pub fn to_pose2(&self) -> Pose2 {
+        let r = &self.rotation;
+        Pose2::new(
+            self.translation.x,
+            self.translation.y,
+            r[(1, 0)].atan2(r[(0, 0)]),
+        )
+    }
 }
 
 #[cfg(test)]

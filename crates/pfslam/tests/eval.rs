@@ -137,7 +137,7 @@ fn relations_file_errors_name_line() {
 /// with the relations metric.
 #[test]
 fn raw_odometry_relations_baseline() {
-    use pfslam::io::ros_msgs::RosOptions;
+    use pfslam::io::ros_assemble::RosOptions;
     use pfslam::io::ros1::read_ros1_bag;
     let Some(root) = data_dir("raw_odometry_relations_baseline") else {
         return;

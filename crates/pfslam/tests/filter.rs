@@ -273,6 +273,7 @@ pub(crate) mod synthetic {
             lidar,
             body_from_lidar: Rigid3::IDENTITY,
             body_from_lidar_per_scan: None,
+            lidar_per_scan: None,
             ground_truth: Some(gt),
         }
     }

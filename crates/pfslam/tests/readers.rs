@@ -24,9 +24,15 @@ fn carmen_mit_csail_counts_and_relation_stamps() {
     assert_eq!(rec.scans.beam_count, 361);
     assert_eq!(rec.lidar.beam_count, 361);
     assert!((rec.lidar.angle_increment_rad - 0.5f64.to_radians()).abs() < 1e-15);
-    assert!(log.stats.odometry_from_laser);
-    assert_eq!(log.stats.odom_lines, 0);
-    assert_eq!(log.stats.laser_out_of_order, 0);
+    let a = &log.account;
+    assert!(
+        a.odometry_source.contains("FLASER"),
+        "{}",
+        a.odometry_source
+    );
+    assert_eq!((a.scans_read, a.scans_kept), (1988, 1988));
+    assert!(a.repaired.is_empty() && a.dropped.is_empty(), "{a:?}");
+    assert_eq!(a.clock, "the laser lines' stamps");
     // odometry from the laser lines: one pose per scan, same stamps
     assert_eq!(rec.odometry.len(), 1988);
     assert_eq!(rec.odometry.poses[0].stamp_ns, rec.scans.stamps_ns[0]);
@@ -49,70 +55,174 @@ fn carmen_intel_corrected_gz_backwards_stamps() {
         &CarmenOptions::default(),
     )
     .unwrap();
-    let s = &log.stats;
+    let a = &log.account;
     let rec = &log.recording;
-    eprintln!("intel-corrected: {s:?}");
     assert_eq!(rec.name, "intel-corrected");
-    assert_eq!(s.laser_out_of_order, 4);
-    assert_eq!(s.odom_lines, 14_541);
-    assert_eq!(s.laser_lines, 910);
-    assert_eq!(rec.scans.beam_count, 180);
-    assert!(!s.odometry_from_laser);
-    // the corrected keyframe poses written as ODOM lines with stamp 0 (841 "0", 22 like 1e-42)
-    assert_eq!(s.odom_zero_stamp, 863);
-    assert!(s.odom_out_of_order > 0);
+    // every laser line kept, the four whose stamps go backwards placed by file order
     assert_eq!(
-        rec.odometry.len() + s.odom_zero_stamp + s.odom_out_of_order,
-        s.odom_lines
+        (a.scans_read, a.scans_kept, rec.scans.len()),
+        (910, 910, 910)
     );
-    assert!(rec.scans.len() <= 910 && rec.scans.len() >= 906);
-    for w in rec.odometry.poses.windows(2) {
-        assert!(w[0].stamp_ns < w[1].stamp_ns);
-    }
+    assert_eq!(
+        a.repaired.iter().map(|t| t.count).sum::<usize>(),
+        4,
+        "{a:?}"
+    );
+    assert_eq!(
+        a.ignored
+            .iter()
+            .find(|t| t.reason == "ODOM")
+            .map(|t| t.count),
+        Some(14_541)
+    );
+    assert_eq!(rec.scans.beam_count, 180);
+    assert_eq!(rec.odometry.len(), 910);
     for w in rec.scans.stamps_ns.windows(2) {
         assert!(w[0] < w[1]);
     }
     // the odometry is a plausible drive: metres, not kilometres
     let len = rec.odometry.path_length_m();
     assert!(len > 100.0 && len < 1000.0, "{len}");
+    assert!(a.all_warnings().is_empty(), "{:?}", a.all_warnings());
+}
+
+/// Laser lines in a CARMEN log, counted from its text.
+fn laser_lines_in(path: &Path) -> usize {
+    use std::io::BufRead;
+    let f = std::fs::File::open(path).unwrap();
+    let r = std::io::BufReader::new(flate2::read::MultiGzDecoder::new(f));
+    r.lines()
+        .map_while(Result::ok)
+        .filter(|l| l.starts_with("FLASER ") || l.starts_with("ROBOTLASER1 "))
+        .count()
 }
 
 #[test]
-fn carmen_malformed_inputs_name_file_and_line() {
+fn every_laser_line_of_the_radish_logs_is_a_scan() {
+    let Some(root) = data_dir("every_laser_line_of_the_radish_logs_is_a_scan") else {
+        return;
+    };
+    let logs = [
+        "acapulco",
+        "edmonton",
+        "fhw",
+        "infinite-corridor",
+        "intel",
+        "orebro",
+        "seattle",
+    ];
+    for name in logs {
+        let path = root.join(format!("carmen/{name}-corrected.log.gz"));
+        let want = laser_lines_in(&path);
+        let log = read_carmen(&path, &CarmenOptions::default()).unwrap();
+        let (a, rec) = (&log.account, &log.recording);
+        eprintln!("{}", a.one_line());
+        assert!(want > 200, "{name}: {want} laser lines");
+        assert_eq!(
+            (a.scans_read, a.scans_kept, rec.scans.len()),
+            (want, want, want),
+            "{name}"
+        );
+        assert_eq!(
+            rec.odometry.len(),
+            want,
+            "{name}: one odometry pose per scan"
+        );
+        assert_eq!(log.laser_poses.len(), want, "{name}");
+        for w in rec.scans.stamps_ns.windows(2) {
+            assert!(w[0] < w[1], "{name}: stamps strictly increase");
+        }
+        // the logs whose stamps say nothing get a clock from the file order, and say so
+        let useless = matches!(name, "orebro" | "infinite-corridor");
+        assert_eq!(
+            !a.clock.starts_with("the laser lines' stamps"),
+            useless,
+            "{name}: {}",
+            a.clock
+        );
+        assert_eq!(!a.all_warnings().is_empty(), useless, "{name}");
+    }
+}
+
+#[test]
+fn carmen_malformed_lines_are_counted_or_refused_when_strict() {
     let dir = tempfile::tempdir().unwrap();
+    let good = "FLASER 3 1.0 2.0 3.0 0 0 0 0 0 0 1.5 h 1.5\nFLASER 3 1.0 2.0 3.0 0 0 0 0.1 0 0 2.5 h 2.5\n";
     let cases = [
-        (
-            "trunc.clf",
-            "# c\nFLASER 3 1.0 2.0 3.0 0 0 0 0 0 0 1.5 h 1.5\nFLASER 3 1.0 2.0\n",
-            ":3:",
-        ),
+        ("trunc.clf", "FLASER 3 1.0 2.0\n", ":3:", "scans"),
         (
             "nan.clf",
             "FLASER 3 1.0 abc 3.0 0 0 0 0 0 0 1.5 h 1.5\n",
-            ":1:",
+            ":3:",
+            "scans",
         ),
-        ("stamp.clf", "ODOM 0 0 0 0 0 0 x1.5 h 1.5\n", ":1:"),
-        ("count.clf", "FLASER -3 1.0\n", ":1:"),
+        ("stamp.clf", "ODOM 0 0 0 0 0 0 x1.5 h 1.5\n", ":3:", "lines"),
+        ("count.clf", "FLASER -3 1.0\n", ":3:", "scans"),
+        ("odomshort.clf", "ODOM 1 2\n", ":3:", "lines"),
+        ("garbage.clf", "%%% 12\n", ":3:", "lines"),
         (
-            "odomshort.clf",
-            "FLASER 1 1.0 0 0 0 0 0 0 1.5 h 1.5\nODOM 1 2\n",
-            ":2:",
+            "zero.clf",
+            "FLASER 0 0 0 0 0 0 0 1.5 h 1.5\n",
+            ":3:",
+            "scans",
         ),
-        (
-            "beams.clf",
-            "FLASER 1 1.0 0 0 0 0 0 0 1.5 h 1.5\nFLASER 2 1.0 1.0 0 0 0 0 0 0 1.6 h 1.6\n",
-            ":2:",
-        ),
-        ("empty.clf", "# nothing\n", ":0:"),
-        ("zero.clf", "FLASER 0 0 0 0 0 0 0 1.5 h 1.5\n", ":1:"),
     ];
-    for (name, text, pos) in cases {
-        let p = write(dir.path(), name, text);
-        let e = read_carmen(&p, &CarmenOptions::default())
-            .unwrap_err()
-            .to_string();
+    for (name, bad, pos, what) in cases {
+        let p = write(dir.path(), name, &format!("{good}{bad}"));
+        let strict = CarmenOptions {
+            strict: true,
+            ..CarmenOptions::default()
+        };
+        let e = read_carmen(&p, &strict).unwrap_err().to_string();
         assert!(e.contains(name) && e.contains(pos), "{name}: {e}");
+        let log = read_carmen(&p, &CarmenOptions::default()).unwrap();
+        let a = &log.account;
+        assert_eq!(log.recording.scans.len(), 2, "{name}");
+        assert_eq!(a.dropped.len(), 1, "{name}: {a:?}");
+        assert_eq!(a.dropped[0].what, what, "{name}");
+        assert!(
+            a.dropped[0]
+                .first_at
+                .as_deref()
+                .unwrap()
+                .starts_with("line 3"),
+            "{name}"
+        );
+        // a dropped scan is a third of the scans: a warning
+        assert_eq!(
+            a.all_warnings().len(),
+            usize::from(what == "scans"),
+            "{name}"
+        );
     }
+    // a cut last line (no newline) is dropped with a warning, not refused
+    let p = write(dir.path(), "cutline.clf", &format!("{good}FLASER 3 1.0 2."));
+    let log = read_carmen(&p, &CarmenOptions::default()).unwrap();
+    assert_eq!(log.recording.scans.len(), 2);
+    assert!(
+        log.account.warnings[0].contains("cutline.clf:3: the last line is cut"),
+        "{:?}",
+        log.account.warnings
+    );
+    // mixed beam counts: each scan with its own geometry
+    let p = write(
+        dir.path(),
+        "mixed.clf",
+        &format!("{good}FLASER 2 1.0 2.0 0 0 0 0.2 0 0 3.5 h 3.5\n"),
+    );
+    let rec = read_carmen(&p, &CarmenOptions::default())
+        .unwrap()
+        .recording;
+    let per = rec.lidar_per_scan.as_ref().unwrap();
+    assert_eq!((per[0].beam_count, per[2].beam_count), (3, 2));
+    assert_eq!(rec.scans.ranges(2), &[1.0, 2.0]);
+    assert_eq!(rec.scans.ranges(1), &[1.0, 2.0, 3.0]);
+    // no laser line at all: refused
+    let p = write(dir.path(), "empty.clf", "# nothing\n");
+    let e = read_carmen(&p, &CarmenOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("empty.clf:0:"), "{e}");
     // truncated gzip stream
     let gz = {
         use std::io::Write;
@@ -131,6 +241,36 @@ fn carmen_malformed_inputs_name_file_and_line() {
     std::fs::write(&p, &gz).unwrap();
     let ok = read_carmen(&p, &CarmenOptions::default()).unwrap();
     assert_eq!(ok.recording.scans.len(), 2000);
+}
+
+#[test]
+fn carmen_zero_and_repeated_stamps_keep_every_scan() {
+    let dir = tempfile::tempdir().unwrap();
+    // five scans, all stamped 0; ODOM lines carry a usable clock
+    let mut text = String::new();
+    for k in 0..5 {
+        text += &format!("ODOM {k} 0 0 0 0 0 {}.0 h 0\n", 10 + k);
+        text += &format!("FLASER 2 1.0 2.0 0 0 0 {k}.5 0 0 0 h 0\n");
+    }
+    let p = write(dir.path(), "zero.clf", &text);
+    let log = read_carmen(&p, &CarmenOptions::default()).unwrap();
+    let rec = &log.recording;
+    assert_eq!(rec.scans.len(), 5);
+    assert!(log.account.clock.contains("ODOM"), "{}", log.account.clock);
+    // each scan between the ODOM line before it and the one after
+    assert_eq!(rec.scans.stamps_ns[0], 10_500_000_000);
+    assert_eq!(rec.odometry.poses[3].pose.x_m, 3.5);
+    // the same stamp everywhere, written low-precision: one scan per second in file order
+    let text: String = (0..4)
+        .map(|k| format!("FLASER 2 1.0 2.0 0 0 0 {k} 0 0 1.13486e+09 h 0\n"))
+        .collect();
+    let p = write(dir.path(), "same.clf", &text);
+    let log = read_carmen(&p, &CarmenOptions::default()).unwrap();
+    assert_eq!(
+        log.recording.scans.stamps_ns,
+        vec![0, 1_000_000_000, 2_000_000_000, 3_000_000_000]
+    );
+    assert_eq!(log.account.all_warnings().len(), 1);
 }
 
 fn relation_stamps_found(rec: &pfslam::sensors::Recording, relations: &Path) -> usize {
@@ -159,8 +299,8 @@ fn relation_stamps_found(rec: &pfslam::sensors::Recording, relations: &Path) -> 
 
 #[test]
 fn ros1_bags_counts_geometry_and_relation_stamps() {
-    use pfslam::io::ros_msgs::{BeamGeometry, RosOptions};
-    use pfslam::io::ros1::{read_ros1_bag, read_ros1_bag_with_stats};
+    use pfslam::io::ros_assemble::{BeamGeometry, RosOptions};
+    use pfslam::io::ros1::{read_ros1_bag, read_ros1_bag_with_account};
     let Some(root) = data_dir("ros1_bags_counts_geometry_and_relation_stamps") else {
         return;
     };
@@ -171,19 +311,28 @@ fn ros1_bags_counts_geometry_and_relation_stamps() {
         ("mit-csail", 1_988, 361, 1_988, 1_172),
     ] {
         let dir = root.join("freiburg").join(name);
-        let (rec, stats) =
-            read_ros1_bag_with_stats(&dir.join(format!("{name}.bag")), &RosOptions::default())
+        let (rec, a) =
+            read_ros1_bag_with_account(&dir.join(format!("{name}.bag")), &RosOptions::default())
                 .unwrap();
-        eprintln!("{name}: {stats:?}");
-        assert_eq!(stats.scan_messages, scans, "{name} scan messages");
-        assert_eq!(stats.odometry_messages, odom, "{name} odometry messages");
-        assert_eq!(
-            rec.odometry.len() + stats.odometry_out_of_order,
-            stats.odometry_messages
+        eprintln!("{}", a.one_line());
+        assert_eq!(a.scans_read, scans, "{name} scan messages");
+        assert_eq!(a.odometry_read, odom, "{name} odometry messages");
+        assert_eq!(a.odometry_kept, rec.odometry.len());
+        let dropped: usize = a
+            .dropped
+            .iter()
+            .filter(|t| t.what == "odometry")
+            .map(|t| t.count)
+            .sum();
+        assert_eq!(rec.odometry.len() + dropped, odom);
+        assert!(
+            a.mount_source.starts_with("/tf_static"),
+            "{}",
+            a.mount_source
         );
-        assert!(stats.mount_from_tf);
         let backwards = if name == "intel" { 631 } else { 0 };
-        assert_eq!(stats.scans_out_of_order, backwards, "{name}");
+        let repaired: usize = a.repaired.iter().map(|t| t.count).sum();
+        assert_eq!(repaired, backwards, "{name}");
         assert_eq!(rec.name, name);
         assert_eq!(rec.scans.len(), scans, "{name} scans");
         assert_eq!(rec.scans.beam_count, beams, "{name} beams");
@@ -221,7 +370,7 @@ fn ros1_bags_counts_geometry_and_relation_stamps() {
 fn mcap_from_bag_slice_roundtrip() {
     use pfslam::geometry::Trajectory;
     use pfslam::io::mcap::{read_mcap, write_mcap};
-    use pfslam::io::ros_msgs::{BeamGeometry, RosOptions};
+    use pfslam::io::ros_assemble::{BeamGeometry, RosOptions};
     use pfslam::io::ros1::read_ros1_bag;
     use pfslam::sensors::ScanSet;
     let Some(root) = data_dir("mcap_from_bag_slice_roundtrip") else {
@@ -283,22 +432,26 @@ fn mcap_from_bag_slice_roundtrip() {
         e.contains("cut.mcap") && (e.contains("message") || e.contains("byte")),
         "{e}"
     );
-    // wrong topic names: a clear error
+    // a topic that is not there: the error lists those that are
     let e = read_mcap(
         &path,
         &RosOptions {
-            scan_topic: "/base_scan".into(),
+            scan_topic: Some("/base_scan".into()),
             ..RosOptions::default()
         },
     )
     .unwrap_err()
     .to_string();
-    assert!(e.contains("no LaserScan message on /base_scan"), "{e}");
+    assert!(
+        e.contains("no topic /base_scan")
+            && e.contains("/scan (sensor_msgs/msg/LaserScan, 300 messages)"),
+        "{e}"
+    );
 }
 
 #[test]
 fn ros1_malformed_bags_name_positions() {
-    use pfslam::io::ros_msgs::RosOptions;
+    use pfslam::io::ros_assemble::RosOptions;
     use pfslam::io::ros1::read_ros1_bag;
     let dir = tempfile::tempdir().unwrap();
     let p = write(dir.path(), "text.bag", "hello\n");
@@ -366,10 +519,10 @@ fn carmen_robotlaser_rlaser_param() {
     assert!(rec.ground_truth.is_none());
     // the mount from the laser and robot poses of ROBOTLASER1 wins over PARAM
     assert!((rec.body_from_lidar.translation.x - 0.3).abs() < 1e-12);
-    // ODOM lines present: they are the odometry
-    assert!(!log.stats.odometry_from_laser);
+    // the odometry is the robot pose of each line, ODOM lines or not
+    assert!(log.account.odometry_source.contains("ROBOTLASER1"));
     assert_eq!(rec.odometry.len(), 2);
-    assert_eq!(rec.odometry.poses[1].pose.x_m, 0.5);
+    assert_eq!(rec.odometry.poses[1].pose.x_m, 1.0);
 
     // FLASER + RLASER with PARAM offsets
     let text = "PARAM robot_frontlaser_offset 0.25 h 0\nPARAM robot_rearlaser_offset -0.2 h 0\n\
@@ -382,7 +535,7 @@ TRUEPOS 1 2 0.5 7 6 0.2 2.0 h 2\n";
     assert_eq!(front.recording.scans.len(), 2);
     assert!((front.recording.body_from_lidar.translation.x - 0.25).abs() < 1e-12);
     // odometry from the FLASER lines' odom_x odom_y odom_theta
-    assert!(front.stats.odometry_from_laser);
+    assert!(front.account.odometry_source.contains("FLASER"));
     let gt = front.recording.ground_truth.as_ref().unwrap();
     assert_eq!(gt.len(), 1);
     assert_eq!((gt[0].stamp_ns, gt[0].pose.y_m), (2_000_000_000, 2.0));
@@ -460,7 +613,7 @@ proptest::proptest! {
     #[test]
     fn mcap_corruption_never_panics(at in 0.0f64..1.0, xor in 1u8..=255, len in 1usize..16) {
         use pfslam::io::mcap::{read_mcap, write_mcap};
-        use pfslam::io::ros_msgs::RosOptions;
+        use pfslam::io::ros_assemble::RosOptions;
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("s.mcap");
         write_mcap(&p, &synthetic_recording(), &RosOptions::default()).unwrap();
@@ -480,7 +633,7 @@ proptest::proptest! {
 #[test]
 fn mcap_synthetic_roundtrip_without_data() {
     use pfslam::io::mcap::write_mcap;
-    use pfslam::io::ros_msgs::RosOptions;
+    use pfslam::io::ros_assemble::RosOptions;
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("s.mcap");
     let rec = synthetic_recording();
@@ -490,4 +643,179 @@ fn mcap_synthetic_roundtrip_without_data() {
     assert_eq!(back.odometry.len(), 20);
     assert_eq!(back.lidar.angle_increment_rad, 0.5);
     assert_eq!(back.lidar.range_max_m, 30.0);
+}
+
+/// Scans `0..n` of the Intel bag and its odometry over their span.
+fn intel_slice(root: &Path, n: usize) -> pfslam::sensors::Recording {
+    use pfslam::io::ros_assemble::RosOptions;
+    let rec = pfslam::io::ros1::read_ros1_bag(
+        &root.join("freiburg/intel/intel.bag"),
+        &RosOptions::default(),
+    )
+    .unwrap();
+    let keep: Vec<usize> = (0..n).collect();
+    let scans = rec.scans.select(&keep);
+    let (t0, t1) = (scans.stamps_ns[0], scans.stamps_ns[n - 1]);
+    let odometry = pfslam::geometry::Trajectory::new(
+        rec.odometry
+            .poses
+            .iter()
+            .filter(|p| p.stamp_ns >= t0 - 200_000_000 && p.stamp_ns <= t1 + 200_000_000)
+            .copied()
+            .collect(),
+    );
+    pfslam::sensors::Recording {
+        scans,
+        odometry,
+        ..rec
+    }
+}
+
+/// Body-frame returns of scan `i` without densification or range windows.
+fn body_points(rec: &pfslam::sensors::Recording, i: usize) -> Vec<(f64, f64)> {
+    use pfslam::map::{PlanarScan, ScanOptions, ScanProjector};
+    let opts = ScanOptions {
+        range_min_m: 0.0,
+        densify_max_gap_m: None,
+        ..ScanOptions::default()
+    };
+    let mut p = ScanProjector::new(&rec.lidar, &rec.body_from_lidar, &opts).unwrap();
+    p.aim(rec, i);
+    let mut body = PlanarScan::default();
+    p.to_body(rec.scans.ranges(i), &mut body).unwrap();
+    body.points.iter().map(|q| (q.x_m, q.y_m)).collect()
+}
+
+#[test]
+fn mixed_beam_layouts_renamed_topics_and_tf_odometry() {
+    use pfslam::io::mcap::{McapTopics, write_mcap_with};
+    use pfslam::io::recording::{ReaderOptions, open_recording};
+    use pfslam::sensors::{LidarGeometry, ScanSet};
+    let Some(root) = data_dir("mixed_beam_layouts_renamed_topics_and_tf_odometry") else {
+        return;
+    };
+    let base = intel_slice(&root, 600);
+    // an interlaced scanner: 180, 179 (first beam gone), 179 (last gone), 177 (first three
+    // gone) beams in turn, each with its own first angle
+    let mut scans = ScanSet::default();
+    let mut per = Vec::new();
+    for i in 0..base.scans.len() {
+        let r = base.scans.ranges(i);
+        let (skip, keep) = [(0, 180), (1, 179), (0, 179), (3, 177)][i % 4];
+        scans.push_any(base.scans.stamps_ns[i], &r[skip..skip + keep]);
+        per.push(LidarGeometry {
+            angle_min_rad: base.lidar.angle_min_rad + skip as f64 * base.lidar.angle_increment_rad,
+            beam_count: keep,
+            ..base.lidar
+        });
+    }
+    let mixed = pfslam::sensors::Recording {
+        scans,
+        lidar_per_scan: Some(per),
+        ..base.clone()
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("interlaced.mcap");
+    let topics = McapTopics {
+        scan: "/base_scan".into(),
+        odom: None,
+    };
+    write_mcap_with(&path, &mixed, &topics).unwrap();
+
+    // found by type under its own name, odometry from /tf, every scan with its own angles
+    let opened = open_recording(&path, &ReaderOptions::default()).unwrap();
+    let (rec, a) = (&opened.recording, &opened.account);
+    eprintln!("{}", a.one_line());
+    assert_eq!(rec.scans.len(), 600);
+    assert_eq!(a.beam_layouts.len(), 4, "{:?}", a.beam_layouts);
+    assert!(
+        a.odometry_source.contains("/tf odom -> base_link"),
+        "{}",
+        a.odometry_source
+    );
+    assert_eq!(rec.odometry.len(), base.odometry.len());
+    for i in [0, 1, 2, 3, 301] {
+        let orig = body_points(&base, i);
+        let got = body_points(rec, i);
+        let (skip, _) = [(0, 180), (1, 179), (0, 179), (3, 177)][i % 4];
+        let want: Vec<(f64, f64)> = {
+            // the returns of the kept beams, in order
+            let mut p = ScanSet::default();
+            p.push_any(0, &base.scans.ranges(i)[skip..]);
+            let n_before = base.scans.ranges(i)[..skip]
+                .iter()
+                .filter(|r| r.is_finite() && **r > 0.0 && **r < 50.0)
+                .count();
+            orig[n_before..n_before + got.len()].to_vec()
+        };
+        for (g, w) in got.iter().zip(&want) {
+            assert!(
+                (g.0 - w.0).abs() < 1e-4 && (g.1 - w.1).abs() < 1e-4,
+                "scan {i}: {g:?} vs {w:?}"
+            );
+        }
+    }
+    // asking for a topic that is not there lists the ones that are
+    let wrong = ReaderOptions {
+        scan_topic: Some("/scan".into()),
+        ..ReaderOptions::default()
+    };
+    let e = open_recording(&path, &wrong).unwrap_err().to_string();
+    assert!(
+        e.contains("/base_scan (sensor_msgs/msg/LaserScan, 600 messages)") && e.contains("/tf"),
+        "{e}"
+    );
+
+    // the filter runs on it
+    let config = pfslam::config::Config::default();
+    let out =
+        pfslam::pipeline::run_pipeline(rec, &config, 1, &Default::default(), &mut |_| {}).unwrap();
+    assert_eq!(out.result.trajectory.len(), with_odometry(rec));
+}
+
+/// Scans within the odometry's time span: the ones the filter can place.
+fn with_odometry(rec: &pfslam::sensors::Recording) -> usize {
+    let p = &rec.odometry.poses;
+    let (a, b) = (p[0].stamp_ns, p[p.len() - 1].stamp_ns);
+    rec.scans
+        .stamps_ns
+        .iter()
+        .filter(|&&s| s >= a && s <= b)
+        .count()
+}
+
+#[test]
+fn dense_scanner_of_3600_beams_runs() {
+    use pfslam::sensors::{LidarGeometry, ScanSet};
+    let Some(root) = data_dir("dense_scanner_of_3600_beams_runs") else {
+        return;
+    };
+    let base = intel_slice(&root, 300);
+    // each 1 deg beam spread over twenty 0.05 deg beams
+    let mut scans = ScanSet::new(3600);
+    for i in 0..base.scans.len() {
+        let r = base.scans.ranges(i);
+        let dense: Vec<f32> = (0..3600).map(|j| r[j / 20]).collect();
+        scans.push(base.scans.stamps_ns[i], &dense);
+    }
+    let lidar = LidarGeometry {
+        angle_min_rad: base.lidar.angle_min_rad - 0.475f64.to_radians(),
+        angle_increment_rad: 0.05f64.to_radians(),
+        beam_count: 3600,
+        ..base.lidar
+    };
+    let rec = pfslam::sensors::Recording {
+        scans,
+        lidar,
+        ..base
+    };
+    let config = pfslam::config::Config::default();
+    let out =
+        pfslam::pipeline::run_pipeline(&rec, &config, 1, &Default::default(), &mut |_| {}).unwrap();
+    assert_eq!(out.result.trajectory.len(), with_odometry(&rec));
+    assert!(
+        out.result.stats.updates > 10,
+        "{}",
+        out.result.stats.updates
+    );
 }

@@ -9,7 +9,9 @@
 
 use pfslam::config::Config;
 use pfslam::geometry::Pose2;
+use pfslam::io::account::InputAccount;
 use pfslam::io::map_files::read_map_server;
+use pfslam::io::recording::{Opened, open_recording};
 use pfslam::io::tum::read_tum;
 use pfslam::io::ucsd::{ReadOptions, TimestampPolicy, read_car_dataset};
 use pfslam::map::{BinaryMap, MapComparison, compare_maps_aligned, compare_maps_visible_aligned};
@@ -25,7 +27,14 @@ pub struct Dataset {
     /// The raw car streams, for a car-layout dataset (without the LiDAR scans, which moved
     /// into `recording`).
     pub car: Option<CarDataset>,
+    /// What the reader read, kept, dropped and repaired.
+    pub account: InputAccount,
 }
+
+/// The layouts a directory is looked up as, for the error when it is none of them.
+pub const DIRECTORY_LAYOUTS: &str = "the car's layout (sensor_data/{encoder,fog,lidar}.csv + \
+     param/), the humanoid's layout (calibration.txt + odometry.csv), a rosbag2 directory \
+     (metadata.yaml + one .mcap)";
 
 /// Loads `path` as a [`Dataset`].
 pub fn load_dataset(
@@ -40,9 +49,16 @@ pub fn load_dataset(
     if !path.exists() {
         anyhow::bail!("{}: no such file or directory", path.display());
     }
-    if path.is_dir() {
+    if path.is_dir() && !path.join("metadata.yaml").is_file() {
         let humanoid = path.join(pfslam::io::humanoid::CALIBRATION_FILE).is_file()
             && path.join(pfslam::io::humanoid::ODOMETRY_CSV).is_file();
+        let car_layout = path.join("sensor_data").is_dir() || path.join("param").is_dir();
+        if !humanoid && !car_layout {
+            anyhow::bail!(
+                "{}: a directory of no known layout; looked for {DIRECTORY_LAYOUTS}",
+                path.display()
+            );
+        }
         let (mut recording, car) = if humanoid {
             let ds = pfslam::io::humanoid::read_humanoid_dataset(path)?;
             (pfslam::io::humanoid::humanoid_recording(&ds, &name), None)
@@ -70,18 +86,55 @@ pub fn load_dataset(
         } else {
             None
         };
+        let account = directory_account(path, &recording, car.as_ref());
+        let mut opened = Opened { recording, account };
+        opened.keep_span(config.input.start_s, config.input.end_s);
         return Ok(Dataset {
-            recording,
+            recording: opened.recording,
             true_map,
             car,
+            account: opened.account,
         });
     }
-    let recording = pfslam::io::recording::read_recording(path, &Default::default())?;
+    let Opened { recording, account } = open_recording(path, &config.input)?;
     Ok(Dataset {
         recording,
         true_map: None,
         car: None,
+        account,
     })
+}
+
+/// The account of a car or humanoid directory: their readers refuse bad rows, so every row
+/// read is kept.
+fn directory_account(path: &Path, rec: &Recording, car: Option<&CarDataset>) -> InputAccount {
+    let (format, rows, source, mount) = match car {
+        Some(c) => (
+            "ucsd_car",
+            c.encoder.len() + c.fog.len() + rec.scans.len(),
+            "wheel encoders and FOG (dead reckoning)",
+            "param/Vehicle2Lidar.txt",
+        ),
+        None => (
+            "humanoid",
+            rec.odometry.len() + rec.scans.len(),
+            "odometry.csv",
+            "calibration.txt and the head joints",
+        ),
+    };
+    let mut a = InputAccount::new(format, path, "rows");
+    a.records_read = rows;
+    a.scans_read = rec.scans.len();
+    a.scans_kept = rec.scans.len();
+    a.odometry_read = rec.odometry.len();
+    a.odometry_kept = rec.odometry.len();
+    a.odometry_source = source.into();
+    a.clock = "the files' stamps".into();
+    a.mount_source = mount.into();
+    for i in 0..rec.scans.len() {
+        a.add_layout(rec.lidar_at(i));
+    }
+    a
 }
 
 /// A true map (map_server yaml) and, when a `<stem>_visible.yaml` lies beside it (the

@@ -27,15 +27,19 @@ pub struct Args {
     /// Sort rows whose timestamps go backwards (with a warning) instead of rejecting them.
     #[arg(long)]
     pub sort_timestamps: bool,
+    /// Input selection and strictness.
+    #[command(flatten)]
+    pub input: super::input::InputArgs,
 }
 
 /// Runs dead reckoning.
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let config = match &args.config {
+    let mut config = match &args.config {
         Some(p) => Config::from_toml_file(p)?,
         None => Config::default(),
     };
     config.motion.validate()?;
+    args.input.apply(&mut config.input)?;
     if args.out.exists() && !args.out.is_dir() {
         anyhow::bail!(
             "--out {}: exists and is not a directory",
@@ -45,6 +49,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // Every format's odometry is its dead reckoning: for the car it is the integration of
     // wheel ticks and FOG yaw (`motion::car_recording`), for recordings their odometry poses.
     let ds = super::dataset::load_dataset(&args.dataset, &config, args.sort_timestamps)?;
+    super::input::report(&ds.account);
     let traj = &ds.recording.odometry;
     if traj.is_empty() {
         anyhow::bail!("{}: no odometry to dead-reckon", args.dataset.display());

@@ -91,6 +91,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         out: dr_dir.clone(),
         config: None,
         sort_timestamps: false,
+        input: Default::default(),
     })
     .context("dead-reckon")?;
 
@@ -110,6 +111,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         )],
         truth: Some(sim_dir.join("true_map.yaml")),
         tolerance_cells: 1,
+        input: Default::default(),
     })
     .context("map")?;
 
@@ -125,6 +127,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         out: slam_dir.clone(),
         sort_timestamps: false,
         graph_on_odometry: false,
+        input: Default::default(),
     })
     .context("run")?;
 

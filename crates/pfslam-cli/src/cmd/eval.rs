@@ -18,8 +18,10 @@ pub struct Args {
     /// log, ROS 1 bag, MCAP), whose raw odometry at its scan stamps is then scored: the
     /// baseline a SLAM result must beat.
     pub trajectory: PathBuf,
-    /// Ground-truth trajectory (TUM): prints ATE (aligned and unaligned) and RPE.
-    #[arg(long, value_name = "GT.tum")]
+    /// Ground-truth trajectory (TUM), or a CARMEN log whose laser lines carry corrected poses
+    /// (their `x y theta`, at the stamps the reader gives its scans): prints ATE (aligned and
+    /// unaligned) and RPE.
+    #[arg(long, value_name = "GT.tum|LOG")]
     pub ground_truth: Option<PathBuf>,
     /// Relations file (`t1 t2 x y z roll pitch yaw`): prints the relations metric.
     #[arg(long, value_name = "FILE")]
@@ -42,6 +44,15 @@ pub struct Args {
     /// RPE step as a distance travelled (m).
     #[arg(long, value_name = "M")]
     pub rpe_metres: Option<f64>,
+}
+
+/// A reference trajectory: a TUM file, or the laser poses of a CARMEN log.
+fn read_reference(path: &std::path::Path) -> anyhow::Result<pfslam::geometry::Trajectory> {
+    if detect_format(path)? == Some(pfslam::io::recording::RecordingFormat::Carmen) {
+        let opts = ReaderOptions::default().carmen();
+        return Ok(pfslam::io::carmen::read_carmen(path, &opts)?.laser_poses);
+    }
+    Ok(read_tum(path)?)
 }
 
 fn stats_line(s: &ErrorStats, unit: &str) -> String {
@@ -96,7 +107,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // with --json, one object holding every metric asked for
     let mut json = serde_json::Map::new();
     if let Some(gt_path) = &args.ground_truth {
-        let gt = read_tum(gt_path)?;
+        let gt = read_reference(gt_path)?;
         let pairs = associate(&estimate, &gt, association);
         let ate = ate_of_pairs(&pairs, estimate.len() - pairs.len())
             .with_context(|| format!("{} vs {}", args.trajectory.display(), gt_path.display()))?;

@@ -63,6 +63,9 @@ pub struct Args {
     /// Tolerance of the comparison (cells).
     #[arg(long, default_value_t = 1)]
     pub tolerance_cells: u32,
+    /// Input selection and strictness.
+    #[command(flatten)]
+    pub input: super::input::InputArgs,
 }
 
 fn file_label(p: &Path) -> String {
@@ -93,6 +96,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.z_max.is_some() {
         config.map.scan.z_max_m = args.z_max;
     }
+    args.input.apply(&mut config.input)?;
     config
         .map
         .validate()
@@ -123,7 +127,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         None => None,
     };
 
-    let rec = super::dataset::load_dataset(&args.dataset, &config, false)?.recording;
+    let ds = super::dataset::load_dataset(&args.dataset, &config, false)?;
+    super::input::report(&ds.account);
+    let rec = ds.recording;
     let t0 = std::time::Instant::now();
     let cpu0 = pfslam::pipeline::process_cpu_s();
     let (grid, last_scan, stats) = map_with_poses(&rec, &poses, &config.map)?;
@@ -173,6 +179,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut report = serde_json::json!({
         "dataset": args.dataset.display().to_string(),
         "poses": args.poses.display().to_string(),
+        "input": ds.account,
         "resolution_m": config.map.resolution_m,
         "scans_inserted": stats.scans_inserted,
         "scans_without_pose": stats.scans_without_pose,

@@ -46,6 +46,9 @@ pub struct Args {
     /// measure the back end alone). With the back end, `front_end.tum` is its input.
     #[arg(long)]
     pub graph_on_odometry: bool,
+    /// Input selection and strictness.
+    #[command(flatten)]
+    pub input: super::input::InputArgs,
 }
 
 use super::dataset::{Dataset, load_dataset};
@@ -59,6 +62,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(n) = args.particles {
         config.filter.particles = n;
     }
+    args.input.apply(&mut config.input)?;
     config.filter.validate()?;
     config.motion.validate()?;
     config.map.validate().map_err(anyhow::Error::msg)?;
@@ -72,10 +76,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let Dataset {
         mut recording,
         true_map,
+        account,
         ..
     } = load_dataset(&args.dataset, &config, args.sort_timestamps)
         .with_context(|| format!("loading {}", args.dataset.display()))?;
     let load_s = t_load.elapsed().as_secs_f64();
+    super::input::report(&account);
     // With ground truth, start at the true pose so maps and paths overlay without alignment.
     let anchored = anchor_odometry_to_ground_truth(&mut recording);
     std::fs::create_dir_all(&args.out)
@@ -181,6 +187,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         anchored,
         graph.as_ref(),
         back_end_input,
+        &account,
     )?;
     // The ground's colours along the SLAM path, when the dataset has stereo images.
     let (traj, map) = (&result.trajectory, &result.map);
@@ -222,6 +229,7 @@ fn write_outputs(
     anchored: bool,
     graph: Option<&(GraphStats, f64, Vec<StampedPose2>)>,
     back_end_input: serde_json::Value,
+    account: &pfslam::io::account::InputAccount,
 ) -> anyhow::Result<()> {
     let out = &args.out;
     let t = Instant::now();
@@ -269,6 +277,7 @@ fn write_outputs(
     let mut summary = serde_json::json!({
         "dataset": args.dataset.display().to_string(),
         "recording": recording.name,
+        "input": account,
         "seed": args.seed,
         "config": config,
         "stats": result.stats,

@@ -84,18 +84,7 @@ pub struct OdometryMotion {
 impl OdometryMotion {
     /// IMU yaw interpolated at `stamp_ns` (clamped to the ends), when known.
     fn imu_yaw_at(&self, stamp_ns: i64) -> Option<f64> {
-        let v = self.imu_yaw.as_ref()?;
-        let (first, last) = (v.first()?, v.last()?);
-        if stamp_ns <= first.0 {
-            return Some(first.1);
-        }
-        if stamp_ns >= last.0 {
-            return Some(last.1);
-        }
-        let i = v.partition_point(|s| s.0 <= stamp_ns);
-        let (a, b) = (v[i - 1], v[i]);
-        let t = (stamp_ns - a.0) as f64 / (b.0 - a.0) as f64;
-        Some(a.1 + t * wrap_angle(b.1 - a.1))
+        crate::motion::imu_yaw::yaw_at(self.imu_yaw.as_deref()?, stamp_ns)
     }
 }
 

@@ -1423,9 +1423,7 @@ pub fn run_rbpf(
             || delta.yaw_rad.abs() >= angular;
         if due {
             let t = Instant::now();
-            if recording.body_from_lidar_per_scan.is_some() {
-                projector.set_mount(&recording.lidar, recording.body_from_lidar_at(i));
-            }
+            projector.aim(recording, i);
             projector.to_body(scans.ranges(i), &mut body)?;
             clip_scan(&mut body, ro.range_max_m);
             match_points(&body, ro.range_max_m, ro.beam_decimation, &mut pts);
@@ -1519,8 +1517,9 @@ fn refine_in_final_map(
         .par_iter_mut()
         .zip(scan_index.par_iter())
         .try_for_each_init(
-            || (PlanarScan::default(), Vec::new()),
-            |(body, pts), (sp, &i)| {
+            || (projector.clone(), PlanarScan::default(), Vec::new()),
+            |(projector, body, pts), (sp, &i)| {
+                projector.aim(recording, i);
                 projector.to_body(recording.scans.ranges(i), body)?;
                 clip_scan(body, ro.range_max_m);
                 match_points(body, ro.range_max_m, ro.beam_decimation, pts);

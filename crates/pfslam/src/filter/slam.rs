@@ -527,9 +527,7 @@ pub fn run_slam_with<P: MapPolicy>(
                     .moved_enough(&last_update_odom.between(&odom.pose)));
         let estimate = if due {
             let t = Instant::now();
-            if recording.body_from_lidar_per_scan.is_some() {
-                projector.set_mount(&recording.lidar, recording.body_from_lidar_at(i));
-            }
+            projector.aim(recording, i);
             projector.to_body(scans.ranges(i), &mut body)?;
             super::correlate::hit_points(&body, &mut hits);
             stats.timings.preprocess_s += t.elapsed().as_secs_f64();
@@ -632,9 +630,7 @@ pub fn run_slam_with<P: MapPolicy>(
                 // Insert this scan at the composed pose: the map then reaches up to the
                 // latest scan when the next update correlates against it.
                 let t = Instant::now();
-                if recording.body_from_lidar_per_scan.is_some() {
-                    projector.set_mount(&recording.lidar, recording.body_from_lidar_at(i));
-                }
+                projector.aim(recording, i);
                 projector.to_body(scans.ranges(i), &mut body)?;
                 stats.timings.preprocess_s += t.elapsed().as_secs_f64();
                 let t = Instant::now();

@@ -1546,10 +1546,7 @@ impl<'a> ScanPoints<'a> {
         if i >= stamps.len() || stamps[i] != stamp_ns {
             return Ok(Vec::new());
         }
-        if rec.body_from_lidar_per_scan.is_some() {
-            self.projector
-                .set_mount(&rec.lidar, rec.body_from_lidar_at(i));
-        }
+        self.projector.aim(rec, i);
         self.projector
             .to_body(rec.scans.ranges(i), &mut self.body)?;
         let mut pts = Vec::new();

@@ -477,6 +477,7 @@ pub fn humanoid_recording(ds: &HumanoidDataset, name: &str) -> Recording {
         lidar: cal.lidar,
         body_from_lidar: cal.body_from_lidar(0.0, 0.0),
         body_from_lidar_per_scan: Some(per_scan),
+        lidar_per_scan: None,
         ground_truth: None,
     }
 }

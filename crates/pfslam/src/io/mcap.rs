@@ -1,16 +1,15 @@
-//! ROS 2 recordings in MCAP (`.mcap`, CDR-encoded `sensor_msgs/msg/LaserScan`,
-//! `nav_msgs/msg/Odometry`, `tf2_msgs/msg/TFMessage` on `/tf_static`) into a [`Recording`]
-//! (see [`super::ros_msgs`] for the options and conventions), and a small writer of such
+//! ROS 2 recordings in MCAP (`.mcap`, CDR-encoded) into a [`Recording`] (see
+//! [`super::ros_assemble`] for the topics, frames and conventions), and a small writer of such
 //! files (used by the tests to make MCAP files from real bags, since no real MCAP is at hand).
 //!
 //! The file is memory-mapped and its messages are visited in file order, chunk by chunk (each
 //! chunk decompressed on its own) by the `mcap` crate. Errors name the message index.
 
 use super::IoError;
-use super::ros_msgs::{
-    Decoder, OdomMsg, RecordingBuilder, RosError, RosOptions, RosStats, ScanMsg, decode_odometry,
-    decode_scan, decode_tf, encode,
-};
+use super::account::InputAccount;
+use super::ros_assemble::{RecordingBuilder, RosOptions, TopicInfo, TopicTable, choose_topics};
+use super::ros_msgs::{Decoder, OdomMsg, RosError, ScanMsg, encode};
+use super::ros1::add_message;
 use crate::sensors::Recording;
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -150,77 +149,138 @@ fn check_inner_records(content: &[u8]) -> Result<(), usize> {
 
 /// Reads an MCAP file into a [`Recording`].
 pub fn read_mcap(path: &Path, options: &RosOptions) -> Result<Recording, RosError> {
-    read_mcap_with_stats(path, options).map(|(r, _)| r)
+    read_mcap_with_account(path, options).map(|(r, _)| r)
 }
 
-/// Reads a MCAP file into a [`Recording`], with what was read and dropped.
-pub fn read_mcap_with_stats(
-    path: &Path,
-    options: &RosOptions,
-) -> Result<(Recording, RosStats), RosError> {
+/// Maps an MCAP file after checking its chunks (see [`check_chunk_sizes`]).
+fn map_checked(path: &Path) -> Result<memmap2::Mmap, RosError> {
     let file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
     // SAFETY: the file is opened read-only; as with any memory map, another process
     // truncating it while we read is outside what we can guard against.
     let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|e| IoError::io(path, e))?;
     check_chunk_sizes(&map, path)?;
-    let stream = ::mcap::MessageStream::new(&map)
+    Ok(map)
+}
+
+/// Visits every message in file order with its index, topic, type name and encoding.
+fn for_each_message(
+    path: &Path,
+    map: &[u8],
+    mut f: impl FnMut(usize, &::mcap::Message<'_>, &str) -> Result<(), RosError>,
+) -> Result<(), RosError> {
+    let stream = ::mcap::MessageStream::new(map)
         .map_err(|e| RosError::format(path, "byte 0", e.to_string()))?;
-    let mut builder = RecordingBuilder::new();
     for (k, msg) in stream.enumerate() {
-        let pos = || format!("message {k}");
-        let msg = msg.map_err(|e| RosError::format(path, pos(), e.to_string()))?;
+        let msg = msg.map_err(|e| RosError::format(path, format!("message {k}"), e.to_string()))?;
+        let type_name = msg
+            .channel
+            .schema
+            .as_ref()
+            .map_or_else(String::new, |s| s.name.clone());
+        f(k, &msg, &type_name)?;
+    }
+    Ok(())
+}
+
+/// The file's topics with their types and message counts, and its time span (ns, by the
+/// messages' log times) when it has messages.
+pub fn mcap_topics(path: &Path) -> Result<TopicTable, RosError> {
+    let map = map_checked(path)?;
+    let mut topics: Vec<TopicInfo> = Vec::new();
+    let mut span: Option<(i64, i64)> = None;
+    for_each_message(path, &map, |_, msg, type_name| {
+        let t = i64::try_from(msg.log_time).unwrap_or(i64::MAX);
+        span = Some(span.map_or((t, t), |(a, b)| (a.min(t), b.max(t))));
         let topic = msg.channel.topic.as_str();
-        let kind = if topic == options.scan_topic {
-            "sensor_msgs/msg/LaserScan"
-        } else if topic == options.odom_topic {
-            "nav_msgs/msg/Odometry"
-        } else if topic == options.tf_static_topic {
-            "tf2_msgs/msg/TFMessage"
-        } else {
-            continue;
-        };
+        match topics.iter_mut().find(|x| x.topic == topic) {
+            Some(x) => x.count += 1,
+            None => topics.push(TopicInfo {
+                topic: topic.to_string(),
+                type_name: type_name.to_string(),
+                count: 1,
+            }),
+        }
+        Ok(())
+    })?;
+    Ok(TopicTable {
+        topics,
+        span_ns: span,
+    })
+}
+
+/// Reads a MCAP file into a [`Recording`], with what was read, dropped and repaired.
+pub fn read_mcap_with_account(
+    path: &Path,
+    options: &RosOptions,
+) -> Result<(Recording, InputAccount), RosError> {
+    let topics = mcap_topics(path)?.topics;
+    let chosen =
+        choose_topics(&topics, options).map_err(|e| RosError::format(path, "topics", e))?;
+    let map = map_checked(path)?;
+    let mut acc = InputAccount::new("mcap", path, "messages");
+    let mut builder = RecordingBuilder::new();
+    for_each_message(path, &map, |k, msg, type_name| {
+        acc.records_read += 1;
+        let topic = msg.channel.topic.as_str();
+        let used = topic == chosen.scan
+            || Some(topic) == chosen.odom.as_deref()
+            || Some(topic) == chosen.tf.as_deref()
+            || Some(topic) == chosen.tf_static.as_deref()
+            || Some(topic) == chosen.imu.as_deref();
+        if !used {
+            return Ok(());
+        }
+        let pos = format!("message {k}");
         if msg.channel.message_encoding != "cdr" {
             return Err(RosError::format(
                 path,
-                pos(),
+                pos,
                 format!(
                     "topic {topic}: message encoding {:?}, only \"cdr\" is supported",
                     msg.channel.message_encoding
                 ),
             ));
         }
-        if let Some(schema) = &msg.channel.schema
-            && schema.name != kind
-        {
-            return Err(RosError::format(
-                path,
-                pos(),
-                format!("topic {topic} carries {}, expected {kind}", schema.name),
-            ));
-        }
-        let err = |e: String| RosError::format(path, pos(), format!("{kind} on {topic}: {e}"));
+        let err = |e: String| RosError::format(path, &pos, format!("{type_name} on {topic}: {e}"));
         let mut d = Decoder::cdr(&msg.data).map_err(err)?;
-        if topic == options.scan_topic {
-            let scan = decode_scan(&mut d).map_err(err)?;
-            builder.add_scan(scan).map_err(err)?;
-        } else if topic == options.odom_topic {
-            builder.add_odometry(decode_odometry(&mut d).map_err(err)?);
-        } else {
-            builder.add_tf_static(decode_tf(&mut d).map_err(err)?);
-        }
-    }
+        add_message(&mut builder, &chosen, options, topic, type_name, &mut d).map_err(err)
+    })?;
     builder
-        .finish(super::carmen::recording_name(path), options)
+        .finish(super::carmen::recording_name(path), &chosen, options, acc)
         .map_err(|e| RosError::format(path, "whole file", e))
 }
 
+/// The topics [`write_mcap_with`] writes.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct McapTopics {
+    /// The scans' topic.
+    pub scan: String,
+    /// The odometry's topic; `None` writes the odometry as `/tf` transforms `odom ->
+    /// base_link` instead.
+    pub odom: Option<String>,
+}
+
 /// Writes the scans and odometry of `recording` as an MCAP file of CDR messages on the topics
-/// of `options` (frames `laser`, `base_link`, `odom`; beam angles from `recording.lidar`;
-/// no `/tf_static`), atomically. For tests and examples: the output of pfslam is TUM, maps and JSON.
+/// of `options` (`/scan`, `/odom` when unset), atomically; see [`write_mcap_with`].
 pub fn write_mcap(
     path: &Path,
     recording: &Recording,
     options: &RosOptions,
+) -> Result<(), RosError> {
+    let topics = McapTopics {
+        scan: options.scan_topic.clone().unwrap_or_else(|| "/scan".into()),
+        odom: Some(options.odom_topic.clone().unwrap_or_else(|| "/odom".into())),
+    };
+    write_mcap_with(path, recording, &topics)
+}
+
+/// Writes the scans and odometry of `recording` as an MCAP file of CDR messages (frames
+/// `laser`, `base_link`, `odom`; each scan's own beam angles; no `/tf_static`), atomically.
+/// For tests and examples: the output of pfslam is TUM, maps and JSON.
+pub fn write_mcap_with(
+    path: &Path,
+    recording: &Recording,
+    topics: &McapTopics,
 ) -> Result<(), RosError> {
     let mcap_err = |e: ::mcap::McapError| RosError::format(path, "writing", e.to_string());
     // built in memory (the writer seeks), then written atomically
@@ -229,17 +289,18 @@ pub fn write_mcap(
     let scan_schema = w
         .add_schema("sensor_msgs/msg/LaserScan", "ros2msg", b"")
         .map_err(mcap_err)?;
-    let odom_schema = w
-        .add_schema("nav_msgs/msg/Odometry", "ros2msg", b"")
-        .map_err(mcap_err)?;
+    let (odom_type, odom_topic) = match &topics.odom {
+        Some(t) => ("nav_msgs/msg/Odometry", t.as_str()),
+        None => ("tf2_msgs/msg/TFMessage", "/tf"),
+    };
+    let odom_schema = w.add_schema(odom_type, "ros2msg", b"").map_err(mcap_err)?;
     let scan_ch = w
-        .add_channel(scan_schema, &options.scan_topic, "cdr", &meta)
+        .add_channel(scan_schema, &topics.scan, "cdr", &meta)
         .map_err(mcap_err)?;
     let odom_ch = w
-        .add_channel(odom_schema, &options.odom_topic, "cdr", &meta)
+        .add_channel(odom_schema, odom_topic, "cdr", &meta)
         .map_err(mcap_err)?;
     // merge both streams by time, as a recorder would
-    let g = &recording.lidar;
     let scans = &recording.scans;
     let odom = &recording.odometry.poses;
     let (mut i, mut j, mut seq) = (0usize, 0usize, 0u32);
@@ -247,7 +308,8 @@ pub fn write_mcap(
         let take_scan =
             j >= odom.len() || (i < scans.len() && scans.stamps_ns[i] <= odom[j].stamp_ns);
         let (channel_id, stamp_ns, data) = if take_scan {
-            let n = scans.beam_count;
+            let g = recording.lidar_at(i);
+            let n = scans.ranges(i).len();
             let msg = ScanMsg {
                 stamp_ns: scans.stamps_ns[i],
                 frame_id: "laser".into(),
@@ -268,7 +330,11 @@ pub fn write_mcap(
                 pose: odom[j].pose,
             };
             j += 1;
-            (odom_ch, msg.stamp_ns, encode::odometry_cdr(&msg))
+            let data = match topics.odom {
+                Some(_) => encode::odometry_cdr(&msg),
+                None => encode::tf_cdr(&msg),
+            };
+            (odom_ch, msg.stamp_ns, data)
         };
         let t = u64::try_from(stamp_ns).unwrap_or(0);
         w.write_to_known_channel(

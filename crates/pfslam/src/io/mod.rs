@@ -4,13 +4,16 @@
 //! and the problem; every writer writes to a temporary file in the target directory and renames
 //! it into place ([`write_atomic`]), so a failed or interrupted run leaves no half-written file.
 
+pub mod account;
 pub mod carmen;
+pub mod clock;
 pub mod humanoid;
 pub mod map_files;
 pub mod mcap;
 pub mod opencv_yaml;
 pub mod recording;
 pub mod ros1;
+pub mod ros_assemble;
 pub mod ros_msgs;
 pub mod tum;
 pub mod ucsd;

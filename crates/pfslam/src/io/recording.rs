@@ -1,11 +1,14 @@
-//! Opens any supported recording file as a [`Recording`], choosing the reader from the file's
-//! first bytes (ROS 1 bag, MCAP) or its name (CARMEN `.clf` / `.log`, optionally `.gz`).
+//! Opens any supported recording file as a [`Recording`] with its [`InputAccount`], choosing
+//! the reader from the file's first bytes (ROS 1 bag, MCAP) or its name (CARMEN `.clf` /
+//! `.log`, optionally `.gz`); a rosbag2 directory is read through its `.mcap` file.
 
 use super::IoError;
-use super::carmen::{CarmenOptions, read_carmen};
-use super::mcap::read_mcap;
-use super::ros_msgs::{RosError, RosOptions};
-use super::ros1::read_ros1_bag;
+use super::account::InputAccount;
+use super::carmen::{CarmenLaser, CarmenOptions, read_carmen};
+use super::mcap::read_mcap_with_account;
+use super::ros_assemble::{BeamGeometry, RosOptions};
+use super::ros_msgs::RosError;
+use super::ros1::read_ros1_bag_with_account;
 use crate::sensors::Recording;
 use serde::{Deserialize, Serialize};
 use std::io::Read;
@@ -23,14 +26,93 @@ pub enum RecordingFormat {
     Mcap,
 }
 
-/// Options of all recording readers.
+/// Options of all recording readers (`[input]`).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ReaderOptions {
-    /// CARMEN logs.
-    pub carmen: CarmenOptions,
-    /// ROS 1 bags and MCAP files.
-    pub ros: RosOptions,
+    /// ROS topic of the scans; unset: the only `LaserScan` topic, or `/scan` among several.
+    pub scan_topic: Option<String>,
+    /// ROS topic of the odometry; unset: the only `Odometry` topic, or `/odom` among
+    /// several, or odometry from `/tf` when there is none.
+    pub odom_topic: Option<String>,
+    /// ROS body frame; unset: the odometry's `child_frame_id`, or the first child of
+    /// `odom_frame` in `/tf`.
+    pub base_frame: Option<String>,
+    /// ROS odometry frame in `/tf`; unset: `odom`.
+    pub odom_frame: Option<String>,
+    /// ROS topic of `sensor_msgs/Imu` whose yaw replaces the odometry's turning (its
+    /// translation is kept); unset: no IMU.
+    pub imu_topic: Option<String>,
+    /// ROS beam angles: `auto` (CARMEN geometry for bags converted from CARMEN logs, else as
+    /// recorded), `as_recorded`, `carmen`.
+    pub beam_geometry: BeamGeometry,
+    /// Readings at or above this range (m) mean "no return"; unset: 50 m for CARMEN logs and
+    /// CARMEN-converted bags, else each scan's own maximum.
+    pub range_max_m: Option<f32>,
+    /// The laser of a CARMEN log: `front` (FLASER, else ROBOTLASER1) or `rear` (RLASER).
+    pub carmen_laser: CarmenLaser,
+    /// A malformed line is an error naming the file and line, instead of a counted drop.
+    pub strict: bool,
+    /// Only the part of the recording from this many seconds after its first scan.
+    pub start_s: Option<f64>,
+    /// Only the part of the recording up to this many seconds after its first scan.
+    pub end_s: Option<f64>,
+}
+
+impl ReaderOptions {
+    /// The CARMEN reader's options.
+    pub fn carmen(&self) -> CarmenOptions {
+        CarmenOptions {
+            laser: self.carmen_laser,
+            range_max_m: self
+                .range_max_m
+                .unwrap_or(CarmenOptions::default().range_max_m),
+            strict: self.strict,
+        }
+    }
+
+    /// The ROS readers' options.
+    pub fn ros(&self) -> RosOptions {
+        RosOptions {
+            scan_topic: self.scan_topic.clone(),
+            odom_topic: self.odom_topic.clone(),
+            base_frame: self.base_frame.clone(),
+            odom_frame: self.odom_frame.clone(),
+            imu_topic: self.imu_topic.clone(),
+            beam_geometry: self.beam_geometry,
+            range_max_m: self.range_max_m,
+        }
+    }
+
+    /// Checks the values; the message names the key.
+    pub fn validate(&self) -> Result<(), String> {
+        if self
+            .range_max_m
+            .is_some_and(|r| !(r.is_finite() && r > 0.0))
+        {
+            return Err("input.range_max_m must be finite and > 0".into());
+        }
+        for (k, v) in [("start_s", self.start_s), ("end_s", self.end_s)] {
+            if v.is_some_and(|s| !(s.is_finite() && s >= 0.0)) {
+                return Err(format!("input.{k} must be finite and >= 0"));
+            }
+        }
+        if let (Some(a), Some(b)) = (self.start_s, self.end_s)
+            && a >= b
+        {
+            return Err("input: start_s must be below end_s".into());
+        }
+        Ok(())
+    }
+}
+
+/// A recording and the account of its reading.
+#[derive(Debug, Clone)]
+pub struct Opened {
+    /// The recording.
+    pub recording: Recording,
+    /// What was read, kept, dropped and repaired.
+    pub account: InputAccount,
 }
 
 /// Errors of [`read_recording`].
@@ -87,13 +169,106 @@ pub(crate) fn read_head(path: &Path, n: usize) -> Result<Vec<u8>, IoError> {
 
 /// Reads a recording in any supported format.
 pub fn read_recording(path: &Path, options: &ReaderOptions) -> Result<Recording, ReadError> {
-    match detect_format(path)? {
-        Some(RecordingFormat::Carmen) => Ok(read_carmen(path, &options.carmen)?.recording),
-        Some(RecordingFormat::Ros1Bag) => Ok(read_ros1_bag(path, &options.ros)?),
-        Some(RecordingFormat::Mcap) => Ok(read_mcap(path, &options.ros)?),
-        None => Err(ReadError::Unsupported {
-            path: path.to_path_buf(),
-        }),
+    open_recording(path, options).map(|o| o.recording)
+}
+
+/// Reads a recording in any supported format, with the account of its reading. A rosbag2
+/// directory (`metadata.yaml` beside one `.mcap` file) is read as that file.
+pub fn open_recording(path: &Path, options: &ReaderOptions) -> Result<Opened, ReadError> {
+    let file = resolve_rosbag2(path)?;
+    let path = file.as_deref().unwrap_or(path);
+    let (recording, account) = match detect_format(path)? {
+        Some(RecordingFormat::Carmen) => {
+            let log = read_carmen(path, &options.carmen())?;
+            (log.recording, log.account)
+        }
+        Some(RecordingFormat::Ros1Bag) => read_ros1_bag_with_account(path, &options.ros())?,
+        Some(RecordingFormat::Mcap) => read_mcap_with_account(path, &options.ros())?,
+        None => {
+            return Err(ReadError::Unsupported {
+                path: path.to_path_buf(),
+            });
+        }
+    };
+    let mut opened = Opened { recording, account };
+    opened.keep_span(options.start_s, options.end_s);
+    Ok(opened)
+}
+
+impl Opened {
+    /// Keeps the scans from `start_s` to `end_s` seconds after the first scan (and the
+    /// odometry around them); the others are counted in the account as left out on request.
+    pub fn keep_span(&mut self, start_s: Option<f64>, end_s: Option<f64>) {
+        if start_s.is_none() && end_s.is_none() {
+            return;
+        }
+        let rec = &mut self.recording;
+        let Some(&t0) = rec.scans.stamps_ns.first() else {
+            return;
+        };
+        let lo = t0.saturating_add(start_s.map_or(i64::MIN / 2, |s| (s * 1e9) as i64));
+        let hi = t0.saturating_add(end_s.map_or(i64::MAX / 2, |s| (s * 1e9) as i64));
+        let keep: Vec<usize> = (0..rec.scans.len())
+            .filter(|&i| (lo..=hi).contains(&rec.scans.stamps_ns[i]))
+            .collect();
+        let outside = rec.scans.len() - keep.len();
+        rec.scans = rec.scans.select(&keep);
+        if let Some(g) = &mut rec.lidar_per_scan {
+            *g = keep.iter().map(|&i| g[i]).collect();
+        }
+        if let Some(m) = &mut rec.body_from_lidar_per_scan {
+            *m = keep.iter().map(|&i| m[i]).collect();
+        }
+        // the odometry around the kept scans: one pose on either side for interpolation
+        let (a, b) = match (rec.scans.stamps_ns.first(), rec.scans.stamps_ns.last()) {
+            (Some(&a), Some(&b)) => (a, b),
+            _ => (lo, hi),
+        };
+        let p = &rec.odometry.poses;
+        let first = p.partition_point(|q| q.stamp_ns <= a).saturating_sub(1);
+        let last = p
+            .partition_point(|q| q.stamp_ns < b)
+            .min(p.len().saturating_sub(1));
+        let kept: Vec<_> = p.get(first..=last).map(<[_]>::to_vec).unwrap_or_default();
+        self.account.odometry_kept = kept.len();
+        rec.odometry = crate::geometry::Trajectory::new(kept);
+        if let Some(gt) = &mut rec.ground_truth {
+            gt.retain(|q| (lo..=hi).contains(&q.stamp_ns));
+        }
+        self.account.scans_outside_span = outside;
+        self.account.scans_kept = rec.scans.len();
+    }
+}
+
+/// The `.mcap` file of a rosbag2 directory; `None` for a file.
+pub fn resolve_rosbag2(path: &Path) -> Result<Option<PathBuf>, IoError> {
+    if !path.is_dir() {
+        return Ok(None);
+    }
+    if !path.join("metadata.yaml").is_file() {
+        return Ok(None);
+    }
+    let mut found: Vec<PathBuf> = std::fs::read_dir(path)
+        .map_err(|e| IoError::io(path, e))?
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|x| x == "mcap"))
+        .collect();
+    found.sort();
+    match found.len() {
+        1 => Ok(found.pop()),
+        0 => Err(IoError::parse(
+            path,
+            0,
+            "a rosbag2 directory (metadata.yaml) without a .mcap file (only MCAP storage is read)",
+        )),
+        n => Err(IoError::parse(
+            path,
+            0,
+            format!(
+                "a rosbag2 directory with {n} .mcap files: split bags are not read, pass one file"
+            ),
+        )),
     }
 }
 

@@ -1,6 +1,6 @@
-//! ROS 1 bags (`.bag`, format 2.0, chunks uncompressed, bz2 or lz4): `sensor_msgs/LaserScan`,
-//! `nav_msgs/Odometry` and `/tf_static` into a [`Recording`] (see [`super::ros_msgs`] for the
-//! options and conventions).
+//! ROS 1 bags (`.bag`, format 2.0, chunks uncompressed, bz2 or lz4) into a [`Recording`] (see
+//! [`super::ros_assemble`] for the topics, frames and conventions). The topics and their
+//! counts come from the bag's index first, so the topics can be chosen before reading.
 //!
 //! The file is memory-mapped and read one chunk at a time (each chunk is decompressed on its
 //! own), through the `rosbag` crate. Before that, the bag header is checked here so that a
@@ -9,12 +9,16 @@
 //! record index (chunk section).
 
 use super::IoError;
+use super::account::InputAccount;
+use super::ros_assemble::{
+    ChosenTopics, MsgKind, RecordingBuilder, RosOptions, TopicInfo, TopicTable, choose_topics,
+    msg_kind,
+};
 use super::ros_msgs::{
-    Decoder, RecordingBuilder, RosError, RosOptions, RosStats, decode_odometry, decode_scan,
-    decode_tf,
+    Decoder, RosError, decode_imu, decode_multi_echo_scan, decode_odometry, decode_scan, decode_tf,
 };
 use crate::sensors::Recording;
-use rosbag::{ChunkRecord, MessageRecord, RosBag};
+use rosbag::{ChunkRecord, IndexRecord, MessageRecord, RosBag};
 use std::collections::HashMap;
 use std::path::Path;
 
@@ -87,16 +91,76 @@ fn check_header(path: &Path) -> Result<(u64, u64), RosError> {
 
 /// Reads a ROS 1 bag into a [`Recording`].
 pub fn read_ros1_bag(path: &Path, options: &RosOptions) -> Result<Recording, RosError> {
-    read_ros1_bag_with_stats(path, options).map(|(r, _)| r)
+    read_ros1_bag_with_account(path, options).map(|(r, _)| r)
 }
 
-/// Reads a ROS 1 bag into a [`Recording`], with what was read and dropped.
-pub fn read_ros1_bag_with_stats(
-    path: &Path,
-    options: &RosOptions,
-) -> Result<(Recording, RosStats), RosError> {
+/// The bag's topics with their types and message counts, from its index, and its time span
+/// (ns) when it has messages.
+pub fn ros1_topics(path: &Path) -> Result<TopicTable, RosError> {
     check_header(path)?;
     let bag = RosBag::new(path).map_err(|e| RosError::format(path, "byte 0", e.to_string()))?;
+    let mut conns: Vec<(u32, TopicInfo)> = Vec::new();
+    let mut span: Option<(i64, i64)> = None;
+    let mut counts: HashMap<u32, usize> = HashMap::new();
+    for (k, rec) in bag.index_records().enumerate() {
+        let rec =
+            rec.map_err(|e| RosError::format(path, format!("index record {k}"), e.to_string()))?;
+        match rec {
+            IndexRecord::Connection(c) => {
+                if !conns.iter().any(|(id, _)| *id == c.id) {
+                    conns.push((
+                        c.id,
+                        TopicInfo {
+                            topic: c.topic.to_string(),
+                            type_name: c.tp.to_string(),
+                            count: 0,
+                        },
+                    ));
+                }
+            }
+            IndexRecord::ChunkInfo(ci) => {
+                let (a, b) = (ros_time_ns(ci.start_time), ros_time_ns(ci.end_time));
+                span = Some(span.map_or((a, b), |(x, y)| (x.min(a), y.max(b))));
+                for e in ci.entries() {
+                    *counts.entry(e.conn_id).or_default() += e.count as usize;
+                }
+            }
+            IndexRecord::IndexData(_) => {}
+        }
+    }
+    // several connections may share a topic (one per publisher)
+    let mut topics: Vec<TopicInfo> = Vec::new();
+    for (id, t) in conns {
+        let n = counts.get(&id).copied().unwrap_or(0);
+        match topics
+            .iter_mut()
+            .find(|x| x.topic == t.topic && x.type_name == t.type_name)
+        {
+            Some(x) => x.count += n,
+            None => topics.push(TopicInfo { count: n, ..t }),
+        }
+    }
+    Ok(TopicTable {
+        topics,
+        span_ns: span,
+    })
+}
+
+/// A bag time as the `rosbag` crate gives it (ns) as a signed stamp.
+fn ros_time_ns(t: u64) -> i64 {
+    i64::try_from(t).unwrap_or(i64::MAX)
+}
+
+/// Reads a ROS 1 bag into a [`Recording`], with what was read, dropped and repaired.
+pub fn read_ros1_bag_with_account(
+    path: &Path,
+    options: &RosOptions,
+) -> Result<(Recording, InputAccount), RosError> {
+    let topics = ros1_topics(path)?.topics;
+    let chosen =
+        choose_topics(&topics, options).map_err(|e| RosError::format(path, "topics", e))?;
+    let bag = RosBag::new(path).map_err(|e| RosError::format(path, "byte 0", e.to_string()))?;
+    let mut acc = InputAccount::new("ros1_bag", path, "messages");
     let mut builder = RecordingBuilder::new();
     // conn id -> (topic, type)
     let mut conns: HashMap<u32, (String, String)> = HashMap::new();
@@ -116,6 +180,7 @@ pub fn read_ros1_bag_with_stats(
                     conns.insert(c.id, (c.topic.to_string(), c.tp.to_string()));
                 }
                 MessageRecord::MessageData(md) => {
+                    acc.records_read += 1;
                     let Some((topic, tp)) = conns.get(&md.conn_id) else {
                         return Err(RosError::format(
                             path,
@@ -123,42 +188,45 @@ pub fn read_ros1_bag_with_stats(
                             format!("message on unknown connection {}", md.conn_id),
                         ));
                     };
-                    let err = |what: &str, e: String| {
-                        RosError::format(path, pos(Some(ri)), format!("{what} on {topic}: {e}"))
+                    let err = |e: String| {
+                        RosError::format(path, pos(Some(ri)), format!("{tp} on {topic}: {e}"))
                     };
-                    if *topic == options.scan_topic {
-                        expect_type(path, &pos(Some(ri)), topic, tp, "sensor_msgs/LaserScan")?;
-                        let scan = decode_scan(&mut Decoder::ros1(md.data))
-                            .map_err(|e| err("LaserScan", e))?;
-                        builder.add_scan(scan).map_err(|e| err("LaserScan", e))?;
-                    } else if *topic == options.odom_topic {
-                        expect_type(path, &pos(Some(ri)), topic, tp, "nav_msgs/Odometry")?;
-                        let o = decode_odometry(&mut Decoder::ros1(md.data))
-                            .map_err(|e| err("Odometry", e))?;
-                        builder.add_odometry(o);
-                    } else if *topic == options.tf_static_topic {
-                        expect_type(path, &pos(Some(ri)), topic, tp, "tf2_msgs/TFMessage")?;
-                        let t = decode_tf(&mut Decoder::ros1(md.data))
-                            .map_err(|e| err("TFMessage", e))?;
-                        builder.add_tf_static(t);
-                    }
+                    let mut d = Decoder::ros1(md.data);
+                    add_message(&mut builder, &chosen, options, topic, tp, &mut d).map_err(err)?;
                 }
             }
         }
     }
     builder
-        .finish(super::carmen::recording_name(path), options)
+        .finish(super::carmen::recording_name(path), &chosen, options, acc)
         .map_err(|e| RosError::format(path, "whole file", e))
 }
 
-fn expect_type(path: &Path, pos: &str, topic: &str, tp: &str, want: &str) -> Result<(), RosError> {
-    if tp == want {
-        Ok(())
-    } else {
-        Err(RosError::format(
-            path,
-            pos,
-            format!("topic {topic} carries {tp}, expected {want}"),
-        ))
+/// Decodes one message of a chosen topic into the builder; messages of other topics are
+/// skipped.
+pub(crate) fn add_message(
+    builder: &mut RecordingBuilder,
+    chosen: &ChosenTopics,
+    options: &RosOptions,
+    topic: &str,
+    type_name: &str,
+    d: &mut Decoder<'_>,
+) -> Result<(), String> {
+    let kind = msg_kind(type_name);
+    if topic == chosen.scan {
+        let scan = match kind {
+            Some(MsgKind::MultiEchoScan) => decode_multi_echo_scan(d)?,
+            _ => decode_scan(d)?,
+        };
+        builder.add_scan(scan);
+    } else if Some(topic) == chosen.odom.as_deref() {
+        builder.add_odometry(decode_odometry(d)?);
+    } else if Some(topic) == chosen.tf_static.as_deref() {
+        builder.add_tf_static(decode_tf(d)?);
+    } else if Some(topic) == chosen.tf.as_deref() {
+        builder.add_tf(decode_tf(d)?, options);
+    } else if Some(topic) == chosen.imu.as_deref() {
+        builder.add_imu(decode_imu(d)?);
     }
+    Ok(())
 }

@@ -1,27 +1,9 @@
 //! Decoding of the ROS messages the recordings need (`sensor_msgs/LaserScan`,
-//! `nav_msgs/Odometry`, `tf2_msgs/TFMessage`) from ROS 1 serialisation or ROS 2 CDR (little
-//! endian), and their assembly into a [`Recording`]; shared by [`super::ros1`] and
-//! [`super::mcap`].
-//!
-//! Options ([`RosOptions`]) choose the topics and the beam geometry:
-//! - [`BeamGeometry::Auto`] (default): scans that look converted from a CARMEN log (180 or 360
-//!   beams spanning 180 deg from -90 deg, the Freiburg bags) get the CARMEN geometry
-//!   ([`super::carmen::carmen_geometry`]: 1 deg or 0.5 deg steps from -90 deg, because the
-//!   converter wrote `angle_increment = fov / (n - 1)`, which is not how those lasers
-//!   sampled); every other scan keeps the geometry it was recorded with.
-//! - [`BeamGeometry::AsRecorded`]: `angle_min` and `angle_increment` as recorded.
-//! - [`BeamGeometry::Carmen`]: always the CARMEN geometry.
-//!
-//! Scans are stamped with their `header.stamp` (not the bag's receive time); odometry with its
-//! `header.stamp`. Stamps that go backwards (the Intel bag: 631 scans, 602 odometry messages)
-//! are handled by the rule of the CARMEN reader: scans are all kept and sorted by stamp,
-//! odometry keeps its longest strictly increasing subsequence. The laser mount `body_from_lidar` is the
-//! chain of `/tf_static` transforms from the odometry's `child_frame_id` to the scan's
-//! `frame_id` (identity, with a warning, when the chain is absent).
+//! `sensor_msgs/MultiEchoLaserScan`, `nav_msgs/Odometry`, `tf2_msgs/TFMessage`) from ROS 1
+//! serialisation or ROS 2 CDR (little endian). [`super::ros_assemble`] turns the decoded
+//! messages into a recording.
 
-use crate::geometry::{Pose2, Rigid3, StampedPose2, Trajectory};
-use crate::sensors::{LidarGeometry, Recording, ScanSet};
-use serde::{Deserialize, Serialize};
+use crate::geometry::{Pose2, Rigid3};
 
 /// Errors of the binary readers (ROS 1 bags, MCAP).
 #[derive(Debug, thiserror::Error)]
@@ -52,49 +34,6 @@ impl RosError {
             path: path.to_path_buf(),
             position: position.into(),
             message: message.into(),
-        }
-    }
-}
-
-/// Which beam angles the scans get (see the module docs).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum BeamGeometry {
-    /// CARMEN geometry for scans converted from CARMEN logs, else as recorded.
-    #[default]
-    Auto,
-    /// As recorded in the message.
-    AsRecorded,
-    /// Always the CARMEN convention (-90 deg + i * 1 deg or 0.5 deg).
-    Carmen,
-}
-
-/// Options of the ROS 1 bag and MCAP readers.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct RosOptions {
-    /// Topic of the `LaserScan` messages.
-    pub scan_topic: String,
-    /// Topic of the `Odometry` messages.
-    pub odom_topic: String,
-    /// Topic of the static transforms (laser mount).
-    pub tf_static_topic: String,
-    /// Beam angles.
-    pub beam_geometry: BeamGeometry,
-    /// Readings at or above this range (m) mean "no return"; `None`: 50 m with the CARMEN
-    /// geometry (the Freiburg files write 81.83/81.91 m or 50 m for no return), else the
-    /// message's `range_max`.
-    pub range_max_m: Option<f32>,
-}
-
-impl Default for RosOptions {
-    fn default() -> Self {
-        RosOptions {
-            scan_topic: "/scan".to_string(),
-            odom_topic: "/odom".to_string(),
-            tf_static_topic: "/tf_static".to_string(),
-            beam_geometry: BeamGeometry::Auto,
-            range_max_m: None,
         }
     }
 }
@@ -136,6 +75,8 @@ pub struct OdomMsg {
 /// One transform of a `tf2_msgs/TFMessage`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TfMsg {
+    /// `header.stamp` (ns).
+    pub stamp_ns: i64,
     /// Parent frame (`header.frame_id`).
     pub parent: String,
     /// Child frame.
@@ -324,6 +265,84 @@ pub fn decode_scan(d: &mut Decoder<'_>) -> Result<ScanMsg, String> {
     })
 }
 
+/// Decodes a `sensor_msgs/MultiEchoLaserScan`, keeping each beam's first echo (a beam
+/// without echo is "no return", NaN).
+pub fn decode_multi_echo_scan(d: &mut Decoder<'_>) -> Result<ScanMsg, String> {
+    let (stamp_ns, frame_id) = d.header()?;
+    let mut v = [0f32; 7];
+    for (x, name) in v.iter_mut().zip([
+        "angle_min",
+        "angle_max",
+        "angle_increment",
+        "time_increment",
+        "scan_time",
+        "range_min",
+        "range_max",
+    ]) {
+        *x = d.f32(name)?;
+    }
+    let n = d.u32("ranges")? as usize;
+    // each echo list takes at least its 4-byte length: a larger count is a corrupt message
+    if n > d.buf.len() / 4 {
+        return Err(format!("ranges: {n} beams cannot fit in the message"));
+    }
+    let mut ranges = Vec::with_capacity(n);
+    let mut echoes = Vec::new();
+    for _ in 0..n {
+        d.f32_seq("echoes", &mut echoes)?;
+        ranges.push(echoes.first().copied().unwrap_or(f32::NAN));
+    }
+    Ok(ScanMsg {
+        stamp_ns,
+        frame_id,
+        angle_min: v[0],
+        angle_max: v[1],
+        angle_increment: v[2],
+        range_min: v[5],
+        range_max: v[6],
+        ranges,
+    })
+}
+
+/// A decoded `sensor_msgs/Imu` (what the motion model uses of it).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImuMsg {
+    /// `header.stamp` (ns).
+    pub stamp_ns: i64,
+    /// Yaw of the orientation (rad), when the message has one (`orientation_covariance[0]`
+    /// is not -1, the ROS mark of "no orientation").
+    pub yaw_rad: Option<f64>,
+    /// Angular velocity about z (rad/s).
+    pub yaw_rate_rad_per_s: f64,
+}
+
+/// Decodes a `sensor_msgs/Imu`.
+pub fn decode_imu(d: &mut Decoder<'_>) -> Result<ImuMsg, String> {
+    let (stamp_ns, _) = d.header()?;
+    let mut q = [0.0; 4];
+    for v in &mut q {
+        *v = d.f64("orientation")?;
+    }
+    let mut cov = [0.0; 9];
+    for v in &mut cov {
+        *v = d.f64("orientation_covariance")?;
+    }
+    let mut w = [0.0; 3];
+    for v in &mut w {
+        *v = d.f64("angular_velocity")?;
+    }
+    let has_orientation = cov[0] != -1.0 && q.iter().all(|v| v.is_finite());
+    let norm = q.iter().map(|v| v * v).sum::<f64>();
+    if !w[2].is_finite() {
+        return Err("angular_velocity.z is not finite".into());
+    }
+    Ok(ImuMsg {
+        stamp_ns,
+        yaw_rad: (has_orientation && norm > 0.5).then(|| yaw_of(q)),
+        yaw_rate_rad_per_s: w[2],
+    })
+}
+
 /// Decodes the pose part of a `nav_msgs/Odometry` (the twist is not needed).
 pub fn decode_odometry(d: &mut Decoder<'_>) -> Result<OdomMsg, String> {
     let (stamp_ns, frame_id) = d.header()?;
@@ -345,192 +364,17 @@ pub fn decode_tf(d: &mut Decoder<'_>) -> Result<Vec<TfMsg>, String> {
     let n = d.u32("transforms")? as usize;
     let mut out = Vec::with_capacity(n.min(1024));
     for _ in 0..n {
-        let (_, parent) = d.header()?;
+        let (stamp_ns, parent) = d.header()?;
         let child = d.string("child_frame_id")?;
         let (t, q) = d.pose3()?;
         out.push(TfMsg {
+            stamp_ns,
             parent,
             child,
             parent_from_child: rigid_of(t, q),
         });
     }
     Ok(out)
-}
-
-/// What a ROS reader read and dropped.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-pub struct RosStats {
-    /// `LaserScan` messages read.
-    pub scan_messages: usize,
-    /// Scans whose stamp is not above the previous one's (sorted into place; a repeated stamp
-    /// is dropped).
-    pub scans_out_of_order: usize,
-    /// `Odometry` messages read.
-    pub odometry_messages: usize,
-    /// Odometry messages dropped because their stamp is out of order or repeated.
-    pub odometry_out_of_order: usize,
-    /// True when the laser mount came from `/tf_static` (else identity).
-    pub mount_from_tf: bool,
-}
-
-/// Collects decoded messages and turns them into a [`Recording`].
-#[derive(Debug, Default)]
-pub struct RecordingBuilder {
-    scans: Option<ScanSet>,
-    first_scan: Option<ScanMsg>,
-    scan_frame: String,
-    odom: Vec<StampedPose2>,
-    body_frame: Option<String>,
-    tf_static: Vec<TfMsg>,
-}
-
-impl RecordingBuilder {
-    /// An empty builder.
-    pub fn new() -> Self {
-        RecordingBuilder::default()
-    }
-
-    /// Adds a scan; `Err` with a message when it is empty or its beam count differs from the
-    /// first scan's.
-    pub fn add_scan(&mut self, msg: ScanMsg) -> Result<(), String> {
-        if msg.ranges.is_empty() {
-            return Err("scan has no range".into());
-        }
-        let set = self
-            .scans
-            .get_or_insert_with(|| ScanSet::new(msg.ranges.len()));
-        if msg.ranges.len() != set.beam_count {
-            return Err(format!(
-                "scan has {} beams, earlier scans {}",
-                msg.ranges.len(),
-                set.beam_count
-            ));
-        }
-        set.push(msg.stamp_ns, &msg.ranges);
-        if self.first_scan.is_none() {
-            self.scan_frame = msg.frame_id.clone();
-            self.first_scan = Some(ScanMsg {
-                ranges: Vec::new(),
-                ..msg
-            });
-        }
-        Ok(())
-    }
-
-    /// Adds an odometry pose.
-    pub fn add_odometry(&mut self, msg: OdomMsg) {
-        if self.body_frame.is_none() && !msg.child_frame_id.is_empty() {
-            self.body_frame = Some(msg.child_frame_id);
-        }
-        self.odom.push(StampedPose2 {
-            stamp_ns: msg.stamp_ns,
-            pose: msg.pose,
-        });
-    }
-
-    /// Adds static transforms.
-    pub fn add_tf_static(&mut self, tfs: Vec<TfMsg>) {
-        self.tf_static.extend(tfs);
-    }
-
-    /// Number of scans so far.
-    pub fn scan_count(&self) -> usize {
-        self.scans.as_ref().map_or(0, ScanSet::len)
-    }
-
-    /// Number of odometry messages so far.
-    pub fn odometry_count(&self) -> usize {
-        self.odom.len()
-    }
-
-    /// `body_from_lidar` by walking the static transforms from the scan frame up to the body
-    /// frame; `None` when there is no such chain.
-    fn mount(&self) -> Option<Rigid3> {
-        let body = self.body_frame.as_deref()?;
-        let mut frame = self.scan_frame.as_str();
-        let mut acc = Rigid3::IDENTITY;
-        for _ in 0..64 {
-            if frame == body {
-                return Some(acc);
-            }
-            let tf = self.tf_static.iter().find(|t| t.child == frame)?;
-            acc = tf.parent_from_child.compose(&acc);
-            frame = tf.parent.as_str();
-        }
-        None
-    }
-
-    /// The recording and what was dropped; `Err` with a message when there is no scan or no
-    /// odometry.
-    pub fn finish(
-        self,
-        name: String,
-        options: &RosOptions,
-    ) -> Result<(Recording, RosStats), String> {
-        let (Some(scans), Some(first)) = (self.scans.as_ref(), self.first_scan.as_ref()) else {
-            return Err(format!("no LaserScan message on {}", options.scan_topic));
-        };
-        if self.odom.is_empty() {
-            return Err(format!("no Odometry message on {}", options.odom_topic));
-        }
-        let n = scans.beam_count;
-        let span_deg = (f64::from(first.angle_max) - f64::from(first.angle_min)).to_degrees();
-        let looks_carmen = matches!(n, 180 | 181 | 360 | 361)
-            && (f64::from(first.angle_min).to_degrees() + 90.0).abs() < 0.5
-            && (span_deg - 180.0).abs() < 0.5;
-        let carmen = match options.beam_geometry {
-            BeamGeometry::Auto => looks_carmen,
-            BeamGeometry::AsRecorded => false,
-            BeamGeometry::Carmen => true,
-        };
-        let lidar = if carmen {
-            super::carmen::carmen_geometry(n, options.range_max_m.unwrap_or(50.0))
-        } else {
-            LidarGeometry {
-                angle_min_rad: f64::from(first.angle_min),
-                angle_increment_rad: f64::from(first.angle_increment),
-                beam_count: n,
-                range_max_m: options.range_max_m.unwrap_or(first.range_max),
-            }
-        };
-        let mount = self.mount();
-        let mount_from_tf = mount.is_some();
-        let body_from_lidar = match mount {
-            Some(m) => m,
-            None => {
-                tracing::warn!(
-                    "no static transform chain from {:?} to {:?}: laser mount taken as identity",
-                    self.scan_frame,
-                    self.body_frame
-                );
-                Rigid3::IDENTITY
-            }
-        };
-        let scans = self.scans.unwrap_or_default();
-        let scan_messages = scans.len();
-        let (scans, scans_out_of_order) = super::carmen::sort_scans(scans);
-        let stamps: Vec<i64> = self.odom.iter().map(|p| p.stamp_ns).collect();
-        let keep = super::carmen::longest_increasing(&stamps);
-        let odometry = Trajectory::new(keep.iter().map(|&i| self.odom[i]).collect());
-        let stats = RosStats {
-            scan_messages,
-            scans_out_of_order,
-            odometry_messages: self.odom.len(),
-            odometry_out_of_order: self.odom.len() - keep.len(),
-            mount_from_tf,
-        };
-        let rec = Recording {
-            name,
-            odometry,
-            imu_yaw: None,
-            scans,
-            lidar,
-            body_from_lidar,
-            body_from_lidar_per_scan: None,
-            ground_truth: None,
-        };
-        Ok((rec, stats))
-    }
 }
 
 /// Encoders used by the MCAP writer (test files) and the tests: the inverse of the decoders.
@@ -610,6 +454,75 @@ pub mod encode {
         w.into_bytes()
     }
 
+    /// `sensor_msgs/msg/MultiEchoLaserScan` as CDR: `echoes[k]` are beam `k`'s echoes.
+    pub fn multi_echo_scan_cdr(m: &ScanMsg, echoes: &[Vec<f32>]) -> Vec<u8> {
+        let mut w = CdrWriter::new();
+        w.header(m.stamp_ns, &m.frame_id);
+        for v in [
+            m.angle_min,
+            m.angle_max,
+            m.angle_increment,
+            0.0,
+            0.0,
+            m.range_min,
+            m.range_max,
+        ] {
+            w.f32(v);
+        }
+        w.u32(echoes.len() as u32);
+        for e in echoes {
+            w.u32(e.len() as u32);
+            for &r in e {
+                w.f32(r);
+            }
+        }
+        w.u32(0); // intensities
+        w.into_bytes()
+    }
+
+    /// A `tf2_msgs/msg/TFMessage` of one planar transform `frame_id -> child_frame_id`.
+    pub fn tf_cdr(m: &OdomMsg) -> Vec<u8> {
+        let mut w = CdrWriter::new();
+        w.u32(1);
+        w.header(m.stamp_ns, &m.frame_id);
+        w.string(&m.child_frame_id);
+        let half = 0.5 * m.pose.yaw_rad;
+        for v in [
+            m.pose.x_m,
+            m.pose.y_m,
+            0.0,
+            0.0,
+            0.0,
+            half.sin(),
+            half.cos(),
+        ] {
+            w.f64(v);
+        }
+        w.into_bytes()
+    }
+
+    /// `sensor_msgs/msg/Imu` as CDR: the yaw as orientation (or, `None`, covariance -1 for
+    /// "no orientation") and the yaw rate.
+    pub fn imu_cdr(stamp_ns: i64, yaw_rad: Option<f64>, yaw_rate_rad_per_s: f64) -> Vec<u8> {
+        let mut w = CdrWriter::new();
+        w.header(stamp_ns, "imu");
+        let half = 0.5 * yaw_rad.unwrap_or(0.0);
+        for v in [0.0, 0.0, half.sin(), half.cos()] {
+            w.f64(v);
+        }
+        let cov0 = if yaw_rad.is_some() { 0.0 } else { -1.0 };
+        for k in 0..9 {
+            w.f64(if k == 0 { cov0 } else { 0.0 });
+        }
+        for v in [0.0, 0.0, yaw_rate_rad_per_s] {
+            w.f64(v);
+        }
+        for _ in 0..(9 + 3 + 9) {
+            w.f64(0.0);
+        }
+        w.into_bytes()
+    }
+
     /// `nav_msgs/msg/Odometry` as CDR (zero covariances and twist).
     pub fn odometry_cdr(m: &OdomMsg) -> Vec<u8> {
         let mut w = CdrWriter::new();
@@ -680,53 +593,8 @@ mod tests {
             if let Some(mut d) = mk() { let _ = decode_scan(&mut d); }
             if let Some(mut d) = mk() { let _ = decode_odometry(&mut d); }
             if let Some(mut d) = mk() { let _ = decode_tf(&mut d); }
+            if let Some(mut d) = mk() { let _ = decode_multi_echo_scan(&mut d); }
+            if let Some(mut d) = mk() { let _ = decode_imu(&mut d); }
         }
-    }
-
-    #[test]
-    fn mount_follows_static_chain() {
-        let mut b = RecordingBuilder::new();
-        b.add_scan(ScanMsg {
-            stamp_ns: 10,
-            frame_id: "laser".into(),
-            angle_min: -1.0,
-            angle_max: 1.0,
-            angle_increment: 1.0,
-            range_min: 0.0,
-            range_max: 30.0,
-            ranges: vec![1.0, 2.0, 3.0],
-        })
-        .unwrap();
-        b.add_odometry(OdomMsg {
-            stamp_ns: 5,
-            frame_id: "odom".into(),
-            child_frame_id: "base_link".into(),
-            pose: Pose2::IDENTITY,
-        });
-        let tf = |parent: &str, child: &str, p: Pose2| TfMsg {
-            parent: parent.into(),
-            child: child.into(),
-            parent_from_child: Rigid3::from_pose2(&p),
-        };
-        b.add_tf_static(vec![
-            tf("mast", "laser", Pose2::new(0.1, 0.0, 0.0)),
-            tf(
-                "base_link",
-                "mast",
-                Pose2::new(0.2, 0.0, std::f64::consts::FRAC_PI_2),
-            ),
-        ]);
-        let (rec, stats) = b.finish("t".into(), &RosOptions::default()).unwrap();
-        assert!(stats.mount_from_tf);
-        // base_from_laser = base_from_mast * mast_from_laser: (0.2, 0.1)
-        let t = rec.body_from_lidar.translation;
-        assert!(
-            (t.x - 0.2).abs() < 1e-12 && (t.y - 0.1).abs() < 1e-12,
-            "{t:?}"
-        );
-        // not CARMEN-shaped: geometry as recorded
-        assert_eq!(rec.lidar.beam_count, 3);
-        assert_eq!(rec.lidar.angle_increment_rad, 1.0);
-        assert_eq!(rec.lidar.range_max_m, 30.0);
     }
 }

@@ -413,7 +413,7 @@ pub fn map_with_poses(
     let mut grid = OccupancyGrid::new(opts)?;
     let projector = ScanProjector::new(&recording.lidar, &recording.body_from_lidar, &opts.scan)?;
     let mut stats = MappingStats::default();
-    let per_scan_mount = recording.body_from_lidar_per_scan.is_some();
+
     let scans: Vec<(usize, bool)> = scans_to_map(recording, poses, opts)
         .into_iter()
         .enumerate()
@@ -440,10 +440,7 @@ pub fn map_with_poses(
                     *traced = match poses.pose_at(recording.scans.stamps_ns[k]) {
                         None => Traced::NoPose,
                         Some(pose) => {
-                            if per_scan_mount {
-                                ins.projector
-                                    .set_mount(&recording.lidar, recording.body_from_lidar_at(k));
-                            }
+                            ins.projector.aim(recording, k);
                             let ranges = recording.scans.ranges(k);
                             let traced = if free {
                                 ins.trace(grid_ref, ranges, &pose, updates)
@@ -490,10 +487,7 @@ pub fn map_with_poses(
     );
     // The last inserted scan in the world frame (cheap to redo once).
     let mut ins = ScanInserter::new(projector);
-    if per_scan_mount {
-        ins.projector
-            .set_mount(&recording.lidar, recording.body_from_lidar_at(k));
-    }
+    ins.projector.aim(recording, k);
     if let Some(pose) = poses.pose_at(recording.scans.stamps_ns[k]) {
         ins.projector
             .to_body(recording.scans.ranges(k), &mut ins.body)?;

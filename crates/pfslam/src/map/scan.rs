@@ -292,14 +292,26 @@ impl ScanProjector {
         })
     }
 
-    /// Replaces the mount (a LiDAR that moves on the body), keeping geometry and options.
+    /// Replaces the beam geometry and the mount (a LiDAR that moves on the body, or whose
+    /// beam layout changes from scan to scan), keeping the options.
     pub fn set_mount(&mut self, geometry: &LidarGeometry, body_from_lidar: &Rigid3) {
         self.origin_body = body_from_lidar.translation;
         self.ground_z_m = ground_z(body_from_lidar, self.opts.ground_clearance_m);
         self.tilted = is_tilted(body_from_lidar);
-        for (k, d) in self.dirs_body.iter_mut().enumerate() {
+        self.sensor_range_max_m = geometry.range_max_m;
+        self.dirs_body.clear();
+        self.dirs_body.extend((0..geometry.beam_count).map(|k| {
             let (s, c) = geometry.beam_angle_rad(k).sin_cos();
-            *d = body_from_lidar.rotation * Vector3::new(c, s, 0.0);
+            body_from_lidar.rotation * Vector3::new(c, s, 0.0)
+        }));
+    }
+
+    /// Aims the projector at scan `i` of `recording` when its sensor varies from scan to
+    /// scan (mount or beam geometry); a no-op otherwise.
+    #[inline]
+    pub fn aim(&mut self, recording: &crate::sensors::Recording, i: usize) {
+        if recording.sensor_varies() {
+            self.set_mount(recording.lidar_at(i), recording.body_from_lidar_at(i));
         }
     }
 

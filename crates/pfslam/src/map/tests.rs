@@ -398,10 +398,7 @@ fn map_with_poses_sequential(
             stats.scans_without_pose += 1;
             continue;
         };
-        if recording.body_from_lidar_per_scan.is_some() {
-            ins.projector
-                .set_mount(&recording.lidar, recording.body_from_lidar_at(k));
-        }
+        ins.projector.aim(recording, k);
         let ranges = recording.scans.ranges(k);
         stats.rays += if n % opts.free_scan_step == 0 {
             ins.insert(&mut grid, ranges, &pose).unwrap().rays

@@ -133,6 +133,7 @@ pub fn car_recording(
         lidar: ds.calibration.lidar,
         body_from_lidar: ds.calibration.body_from_lidar,
         body_from_lidar_per_scan: None,
+        lidar_per_scan: None,
         ground_truth: None,
     })
 }

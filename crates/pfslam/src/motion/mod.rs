@@ -9,6 +9,7 @@
 
 pub mod calibration;
 pub mod dead_reckoning;
+pub mod imu_yaw;
 pub mod odometry_model;
 
 pub use dead_reckoning::{

@@ -69,17 +69,23 @@ impl LidarGeometry {
     }
 }
 
-/// A set of scans stored flat: `ranges_m[i * beam_count .. (i + 1) * beam_count]` is scan `i`.
-/// Ranges are `f32` metres; `0.0` (or anything non-finite, or >= the sensor's maximum) means
-/// "no return".
+/// A set of scans stored flat. When every scan has `beam_count` beams (the usual case, and
+/// the only one the car's CSV reader produces) scan `i` is
+/// `ranges_m[i * beam_count .. (i + 1) * beam_count]`; once a scan of another length is pushed
+/// with [`ScanSet::push_any`], each scan's start is kept instead and `beam_count` is the
+/// largest count. Ranges are `f32` metres; `0.0` (or anything non-finite, or >= the sensor's
+/// maximum) means "no return".
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ScanSet {
-    /// Beams per scan.
+    /// Beams per scan (the largest, when scans differ).
     pub beam_count: usize,
     /// Time of each scan (ns).
     pub stamps_ns: Vec<i64>,
     /// All ranges, scan after scan (m).
     pub ranges_m: Vec<f32>,
+    /// Start of each scan in `ranges_m` plus the end, when scans differ in length; empty when
+    /// every scan has `beam_count` beams.
+    starts: Vec<usize>,
 }
 
 impl ScanSet {
@@ -89,6 +95,7 @@ impl ScanSet {
             beam_count,
             stamps_ns: Vec::new(),
             ranges_m: Vec::new(),
+            starts: Vec::new(),
         }
     }
 
@@ -104,10 +111,20 @@ impl ScanSet {
         self.stamps_ns.is_empty()
     }
 
+    /// True when every scan has `beam_count` beams.
+    #[inline]
+    pub fn is_uniform(&self) -> bool {
+        self.starts.is_empty()
+    }
+
     /// The ranges of scan `i`.
     #[inline]
     pub fn ranges(&self, i: usize) -> &[f32] {
-        &self.ranges_m[i * self.beam_count..(i + 1) * self.beam_count]
+        if self.starts.is_empty() {
+            &self.ranges_m[i * self.beam_count..(i + 1) * self.beam_count]
+        } else {
+            &self.ranges_m[self.starts[i]..self.starts[i + 1]]
+        }
     }
 
     /// Appends a scan; `ranges_m.len()` must equal `beam_count` (checked by the caller, which
@@ -115,8 +132,33 @@ impl ScanSet {
     #[inline]
     pub fn push(&mut self, stamp_ns: i64, ranges_m: &[f32]) {
         debug_assert_eq!(ranges_m.len(), self.beam_count);
+        self.push_any(stamp_ns, ranges_m);
+    }
+
+    /// Appends a scan of any length (a scanner whose beam count changes from scan to scan).
+    pub fn push_any(&mut self, stamp_ns: i64, ranges_m: &[f32]) {
+        if self.starts.is_empty() && ranges_m.len() != self.beam_count {
+            if self.is_empty() {
+                self.beam_count = ranges_m.len();
+            } else {
+                self.starts = (0..=self.len()).map(|i| i * self.beam_count).collect();
+            }
+        }
         self.stamps_ns.push(stamp_ns);
         self.ranges_m.extend_from_slice(ranges_m);
+        if !self.starts.is_empty() {
+            self.starts.push(self.ranges_m.len());
+            self.beam_count = self.beam_count.max(ranges_m.len());
+        }
+    }
+
+    /// The scans `keep` selects (indices in increasing order or not), in that order.
+    pub fn select(&self, keep: &[usize]) -> ScanSet {
+        let mut out = ScanSet::new(self.beam_count);
+        for &i in keep {
+            out.push_any(self.stamps_ns[i], self.ranges(i));
+        }
+        out
     }
 }
 
@@ -377,6 +419,9 @@ pub struct Recording {
     /// Per-scan LiDAR mount when the sensor moves on the body (a humanoid's head); same
     /// length as `scans` when present.
     pub body_from_lidar_per_scan: Option<Vec<Rigid3>>,
+    /// Per-scan beam geometry when it changes from scan to scan (an interlaced scanner, a log
+    /// that mixes lasers); same length as `scans` when present, else `lidar` holds for all.
+    pub lidar_per_scan: Option<Vec<LidarGeometry>>,
     /// Ground-truth poses (simulator) when known.
     pub ground_truth: Option<Vec<StampedPose2>>,
 }
@@ -395,5 +440,21 @@ impl Recording {
             Some(v) => &v[i],
             None => &self.body_from_lidar,
         }
+    }
+
+    /// The beam geometry of scan `i`.
+    #[inline]
+    pub fn lidar_at(&self, i: usize) -> &LidarGeometry {
+        match &self.lidar_per_scan {
+            Some(v) => &v[i],
+            None => &self.lidar,
+        }
+    }
+
+    /// True when the mount or the beam geometry changes from scan to scan: a scan projector
+    /// must then be re-aimed ([`crate::map::ScanProjector::aim`]) before each scan.
+    #[inline]
+    pub fn sensor_varies(&self) -> bool {
+        self.body_from_lidar_per_scan.is_some() || self.lidar_per_scan.is_some()
     }
 }
