@@ -306,3 +306,55 @@ fn info_describes_a_bag_and_names_the_layouts_looked_for() {
         "{s}"
     );
 }
+
+#[test]
+fn a_span_of_the_recording_and_a_rosbag2_directory() {
+    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+        eprintln!("SKIP a_span_of_the_recording_and_a_rosbag2_directory: no real data");
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("dr");
+    let clf = data.join("freiburg/mit-csail/mit-csail.clf");
+    let o = super::run_ok(
+        super::pfslam()
+            .arg("dead-reckon")
+            .arg(&clf)
+            .args(["--start-s", "100", "--end-s", "200", "--out"])
+            .arg(&out),
+    );
+    let s = String::from_utf8_lossy(&o.stdout);
+    assert!(s.contains("outside the span asked for"), "{s}");
+    let whole = pfslam::io::carmen::read_carmen(&clf, &Default::default()).unwrap();
+    let t0 = whole.recording.scans.stamps_ns[0];
+    let inside = whole
+        .recording
+        .scans
+        .stamps_ns
+        .iter()
+        .filter(|&&t| t >= t0 + 100_000_000_000 && t <= t0 + 200_000_000_000)
+        .count();
+    let traj = pfslam::io::tum::read_tum(&out.join("trajectory.tum")).unwrap();
+    assert_eq!(traj.len(), inside);
+    assert!(inside > 100 && inside < 1988, "{inside}");
+    for p in &traj.poses {
+        assert!(p.stamp_ns >= t0 + 100_000_000_000 && p.stamp_ns <= t0 + 200_000_000_000);
+    }
+    // a rosbag2 directory: metadata.yaml beside one .mcap
+    let bag2 = dir.path().join("rosbag2_run");
+    std::fs::create_dir(&bag2).unwrap();
+    std::fs::write(
+        bag2.join("metadata.yaml"),
+        "rosbag2_bagfile_information:\n  version: 5\n",
+    )
+    .unwrap();
+    let opts = pfslam::io::ros_assemble::RosOptions::default();
+    pfslam::io::mcap::write_mcap(&bag2.join("rosbag2_run_0.mcap"), &whole.recording, &opts)
+        .unwrap();
+    let o = super::run_ok(super::pfslam().arg("info").arg(&bag2));
+    let s = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        s.contains("format:     mcap") && s.contains("1988 of 1988 kept"),
+        "{s}"
+    );
+}

@@ -27,6 +27,16 @@ fn simulate_car_writes_dataset_and_ground_truth() {
     }
     let ds = pfslam::io::ucsd::read_car_dataset(&out, &Default::default()).unwrap();
     assert_eq!(ds.encoder.len(), 301);
+    // info on the car's layout: its rows, the LMS511's layout, the filter it would run
+    let o = run_ok(pfslam().arg("info").arg(&out));
+    let s = String::from_utf8_lossy(&o.stdout);
+    for want in [
+        "format:     ucsd_car",
+        "286 beams from   -5.000 deg",
+        "filter mode ScanMatch",
+    ] {
+        assert!(s.contains(want), "{want:?} not in\n{s}");
+    }
     // sim.toml reproduces the run, byte for byte
     let again = dir.path().join("again");
     let o = pfslam()
@@ -64,6 +74,12 @@ fn simulate_humanoid_writes_its_layout() {
     );
     let ds = pfslam::io::humanoid::read_humanoid_dataset(dir.path()).unwrap();
     assert_eq!(ds.lidar.beam_count, 1081);
+    let o = run_ok(pfslam().arg("info").arg(dir.path()));
+    let s = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        s.contains("format:     humanoid") && s.contains("1081 beams"),
+        "{s}"
+    );
     assert!(dir.path().join("beam_labels.csv").is_file());
 }
 

@@ -27,6 +27,16 @@ pub enum PipelineError {
     Map(#[from] MapError),
 }
 
+/// Gives a recording without odometry the odometry of its scans alone
+/// ([`crate::graph::lidar_odometry`]: LiDAR-only mode); true when it did.
+pub fn ensure_odometry(recording: &mut Recording) -> Result<bool, MapError> {
+    if !recording.odometry.is_empty() || recording.scans.is_empty() {
+        return Ok(false);
+    }
+    recording.odometry = crate::graph::lidar_odometry::lidar_odometry(recording)?;
+    Ok(true)
+}
+
 /// Options of one pipeline run beyond the [`Config`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct PipelineOptions {
@@ -114,6 +124,11 @@ pub fn run_pipeline(
     options: &PipelineOptions,
     observer: &mut dyn FnMut(SlamEvent<'_>),
 ) -> Result<PipelineResult, PipelineError> {
+    if recording.odometry.is_empty() && !recording.scans.is_empty() {
+        let mut with = recording.clone();
+        ensure_odometry(&mut with)?;
+        return run_pipeline(&with, config, seed, options, observer);
+    }
     let t = Clock::start();
     let mut result = run_slam(recording, config, seed, observer)?;
     let (filter_s, filter_cpu_s) = t.elapsed();

@@ -96,7 +96,14 @@ pub fn load_dataset(
             account: opened.account,
         });
     }
-    let Opened { recording, account } = open_recording(path, &config.input)?;
+    let Opened {
+        mut recording,
+        mut account,
+    } = open_recording(path, &config.input)?;
+    if pfslam::pipeline::ensure_odometry(&mut recording)? {
+        account.odometry_source = "scan matching of the scans alone (LiDAR-only)".into();
+        account.odometry_kept = recording.odometry.len();
+    }
     Ok(Dataset {
         recording,
         true_map: None,

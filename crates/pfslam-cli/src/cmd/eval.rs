@@ -8,6 +8,7 @@ use pfslam::eval::{Association, ErrorStats, associate, ate::ate_of_pairs};
 use pfslam::io::recording::{ReaderOptions, detect_format, read_recording};
 use pfslam::io::tum::read_tum;
 use pfslam::sensors::sync::poses_at_stamps;
+use std::fmt::Write;
 use std::path::PathBuf;
 
 /// Arguments of `eval`.
@@ -89,16 +90,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             tolerance_ns: args.tolerance_ns.unwrap_or(1_000),
         },
     };
+    let mut text = String::new();
     let estimate = match detect_format(&args.trajectory)? {
         Some(_) => {
             let rec = read_recording(&args.trajectory, &ReaderOptions::default())?;
             let (poses, clamped) = poses_at_stamps(&rec.odometry, &rec.scans.stamps_ns);
             if !args.json {
-                println!(
+                writeln!(
+                    text,
                     "raw odometry of {} at its {} scan stamps ({clamped} outside the odometry's time span, given its first/last pose)",
                     args.trajectory.display(),
                     rec.scans.len(),
-                );
+                )?;
             }
             pfslam::geometry::Trajectory::new(poses)
         }
@@ -116,37 +119,47 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             json.insert("ate".into(), serde_json::to_value(&ate)?);
             json.insert("rpe".into(), serde_json::to_value(&rpe)?);
         } else {
-            println!(
+            writeln!(
+                text,
                 "associated poses: {} ({} estimate poses without ground truth)",
                 ate.pairs, ate.unmatched
-            );
-            println!("ATE aligned (SE(2)):   {}", stats_line(&ate.aligned_m, "m"));
-            println!(
+            )?;
+            writeln!(
+                text,
+                "ATE aligned (SE(2)):   {}",
+                stats_line(&ate.aligned_m, "m")
+            )?;
+            writeln!(
+                text,
                 "ATE unaligned:         {}",
                 stats_line(&ate.unaligned_m, "m")
-            );
-            println!(
+            )?;
+            writeln!(
+                text,
                 "heading aligned:       {}",
                 stats_line(&ate.aligned_rot_deg, "deg")
-            );
-            println!(
+            )?;
+            writeln!(
+                text,
                 "alignment gt_from_estimate: x {:.4} m, y {:.4} m, yaw {:.4} deg",
                 ate.alignment.x_m,
                 ate.alignment.y_m,
                 ate.alignment.yaw_rad.to_degrees()
-            );
+            )?;
             let d = match rpe.delta {
                 RpeDelta::Frames(k) => format!("{k} frame(s)"),
                 RpeDelta::Metres(m) => format!("{m} m"),
             };
-            println!(
+            writeln!(
+                text,
                 "RPE over {d}: translation {}",
                 stats_line(&rpe.trans_m, "m")
-            );
-            println!(
+            )?;
+            writeln!(
+                text,
                 "RPE over {d}: rotation    {}",
                 stats_line(&rpe.rot_deg, "deg")
-            );
+            )?;
         }
     }
     if let Some(rel_path) = &args.relations {
@@ -159,11 +172,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         if args.json {
             json.insert("relations".into(), serde_json::to_value(&r)?);
         } else {
-            println!(
+            writeln!(
+                text,
                 "relations: {} used of {} ({} skipped: a stamp without pose)",
                 r.used, r.relations, r.skipped
-            );
-            println!(
+            )?;
+            writeln!(
+                text,
                 "translational error: {:.4} +- {:.4} m (max {:.4}); squared {:.5} +- {:.5} m^2 (max {:.4})",
                 r.trans_m.abs.mean,
                 r.trans_m.abs.std,
@@ -171,8 +186,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 r.trans_m.squared.mean,
                 r.trans_m.squared.std,
                 r.trans_m.squared.max
-            );
-            println!(
+            )?;
+            writeln!(
+                text,
                 "rotational error:    {:.4} +- {:.4} deg (max {:.4}); squared {:.4} +- {:.4} deg^2 (max {:.4})",
                 r.rot_deg.abs.mean,
                 r.rot_deg.abs.std,
@@ -180,11 +196,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 r.rot_deg.squared.mean,
                 r.rot_deg.squared.std,
                 r.rot_deg.squared.max
-            );
+            )?;
         }
     }
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&json)?);
+        writeln!(text, "{}", serde_json::to_string_pretty(&json)?)?;
     }
-    Ok(())
+    super::print_stdout(&text)
 }

@@ -19,10 +19,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(p) => Config::from_toml_file(p)?,
         None => Config::default(),
     };
-    if args.bare {
-        print!("{}", config.to_toml());
+    let text = if args.bare {
+        config.to_toml()
     } else {
-        print!("{}", config.to_annotated_toml());
-    }
-    Ok(())
+        config.to_annotated_toml()
+    };
+    super::print_stdout(&text)
 }

@@ -21,6 +21,7 @@
 //! 5. Every scan's corrected pose = its keyframe's corrected pose composed with the front
 //!    end's motion since that keyframe.
 
+pub mod lidar_odometry;
 pub mod matcher;
 pub mod optimize;
 

@@ -258,6 +258,9 @@ pub struct McapTopics {
     /// The odometry's topic; `None` writes the odometry as `/tf` transforms `odom ->
     /// base_link` instead.
     pub odom: Option<String>,
+    /// The topic of `sensor_msgs/Imu` messages made from the recording's `imu_yaw` (as
+    /// orientations), when set.
+    pub imu: Option<String>,
 }
 
 /// Writes the scans and odometry of `recording` as an MCAP file of CDR messages on the topics
@@ -270,6 +273,7 @@ pub fn write_mcap(
     let topics = McapTopics {
         scan: options.scan_topic.clone().unwrap_or_else(|| "/scan".into()),
         odom: Some(options.odom_topic.clone().unwrap_or_else(|| "/odom".into())),
+        imu: None,
     };
     write_mcap_with(path, recording, &topics)
 }
@@ -348,6 +352,26 @@ pub fn write_mcap_with(
         )
         .map_err(mcap_err)?;
         seq += 1;
+    }
+    if let (Some(topic), Some(series)) = (&topics.imu, &recording.imu_yaw) {
+        let schema = w
+            .add_schema("sensor_msgs/msg/Imu", "ros2msg", b"")
+            .map_err(mcap_err)?;
+        let ch = w
+            .add_channel(schema, topic, "cdr", &meta)
+            .map_err(mcap_err)?;
+        for &(stamp_ns, yaw) in series {
+            let t = u64::try_from(stamp_ns).unwrap_or(0);
+            let header = ::mcap::records::MessageHeader {
+                channel_id: ch,
+                sequence: seq,
+                log_time: t,
+                publish_time: t,
+            };
+            w.write_to_known_channel(&header, &encode::imu_cdr(stamp_ns, Some(yaw), 0.0))
+                .map_err(mcap_err)?;
+            seq += 1;
+        }
     }
     w.finish().map_err(mcap_err)?;
     super::write_bytes_atomic(path, w.into_inner().get_ref())?;

@@ -371,10 +371,11 @@ impl RecordingBuilder {
             let odom = options.odom_frame.as_deref().unwrap_or("odom");
             (self.tf_odom.clone(), format!("/tf {odom} -> {base}"))
         } else {
-            return Err(format!(
-                "no odometry: no Odometry topic and no /tf transform from {:?}",
+            acc.warnings.push(format!(
+                "no odometry (no Odometry topic, no /tf transform from {:?}): LiDAR-only, the motion comes from scan matching",
                 options.odom_frame.as_deref().unwrap_or("odom")
             ));
+            (Vec::new(), "none in the recording".to_string())
         };
         let geometry = self.geometries(options);
         let body = options
