@@ -30,6 +30,9 @@ pub enum Command {
     /// Describe a recording: format, topics or line types, beam layouts, odometry, clock,
     /// what was dropped or repaired, and what `run` would use.
     Info(cmd::info::Args),
+    /// Write a recording with its odometry degraded (severity 0-3) as a CARMEN log, and the
+    /// reference trajectory beside it.
+    Perturb(cmd::perturb::Args),
     /// Occupancy mapping with known poses: map.png, map.pgm/.yaml, logodds.npy.
     Map(cmd::map::Args),
     /// Simulate the car (or the humanoid) in a world: dataset + ground truth.
@@ -59,6 +62,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Demo(a)) => cmd::demo::run(a),
         Some(Command::DeadReckon(a)) => cmd::dead_reckon::run(a),
         Some(Command::Info(a)) => cmd::info::run(a),
+        Some(Command::Perturb(a)) => cmd::perturb::run(a),
         Some(Command::PrintConfig(a)) => cmd::print_config::run(a),
         Some(Command::Run(a)) => cmd::run::run(a),
         Some(Command::Experiment(a)) => cmd::experiment::run(a),

@@ -358,3 +358,56 @@ fn a_span_of_the_recording_and_a_rosbag2_directory() {
         "{s}"
     );
 }
+
+#[test]
+fn perturb_writes_a_degraded_log_and_its_reference() {
+    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+        eprintln!("SKIP perturb_writes_a_degraded_log_and_its_reference: no real data");
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let src = data.join("carmen/seattle-corrected.log.gz");
+    let original = pfslam::io::carmen::read_carmen(&src, &Default::default()).unwrap();
+    let mut ates = Vec::new();
+    for level in ["0", "1", "2"] {
+        let out = dir.path().join(format!("Seattle-L{level}.log"));
+        let o = super::run_ok(
+            super::pfslam()
+                .arg("perturb")
+                .arg(&src)
+                .args(["--level", level, "--seed", "3", "--out"])
+                .arg(&out),
+        );
+        let s = String::from_utf8_lossy(&o.stdout);
+        assert!(s.contains("241 scans"), "{s}");
+        // every scan, with the original ranges and stamps; the reference beside it
+        let back = pfslam::io::carmen::read_carmen(&out, &Default::default()).unwrap();
+        assert_eq!(back.recording.scans, original.recording.scans);
+        let reference = dir.path().join(format!("Seattle-L{level}.reference.tum"));
+        let r = pfslam::io::tum::read_tum(&reference).unwrap();
+        assert_eq!(r.len(), 241);
+        // the log is its own ground truth: its FLASER poses are the reference
+        let o = super::run_ok(
+            super::pfslam()
+                .arg("eval")
+                .arg("--json")
+                .arg("--ground-truth")
+                .arg(&out)
+                .arg(&out),
+        );
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        ates.push(v["ate"]["aligned_m"]["rmse"].as_f64().unwrap());
+    }
+    assert!(
+        ates[0] < 1e-6 && ates[0] < ates[1] && ates[1] < ates[2],
+        "{ates:?}"
+    );
+    let bad = super::pfslam()
+        .arg("perturb")
+        .arg(&src)
+        .args(["--level", "5", "--out"])
+        .arg(dir.path().join("x.log"))
+        .output()
+        .unwrap();
+    assert_eq!(bad.status.code(), Some(2));
+}

@@ -958,3 +958,40 @@ fn imu_yaw_replaces_the_odometry_turning() {
         "{e}"
     );
 }
+
+#[test]
+fn carmen_rawlaser_lines_take_the_odom_lines_as_odometry() {
+    let dir = tempfile::tempdir().unwrap();
+    let raw = |stamp: &str| {
+        format!("RAWLASER1 0 -1.0 2.0 1.0 30 0.01 0 3 1.0 2.0 3.0 0 {stamp} h {stamp}\n")
+    };
+    let text = format!(
+        "PARAM robot_frontlaser_offset 0.2 h 0\nODOM 0 0 0 0 0 0 1.0 h 1\n{}ODOM 1 0 0 0 0 0 2.0 h 2\n{}ODOM 2 0 0 0 0 0 3.0 h 3\nNEFF 1\n",
+        raw("1.5"),
+        raw("2.5")
+    );
+    let p = write(dir.path(), "raw.log", &text);
+    let log = read_carmen(&p, &CarmenOptions::default()).unwrap();
+    let (rec, a) = (&log.recording, &log.account);
+    assert_eq!(rec.scans.len(), 2);
+    assert_eq!(
+        (
+            rec.lidar.beam_count,
+            rec.lidar.angle_min_rad,
+            rec.lidar.angle_increment_rad
+        ),
+        (3, -1.0, 1.0)
+    );
+    assert_eq!(rec.lidar.range_max_m, 30.0);
+    assert_eq!(rec.odometry.len(), 3);
+    assert!((rec.odometry.pose_at(1_500_000_000).unwrap().x_m - 0.5).abs() < 1e-12);
+    assert!((rec.body_from_lidar.translation.x - 0.2).abs() < 1e-12);
+    assert!(a.odometry_source.contains("ODOM"), "{}", a.odometry_source);
+    assert_eq!(
+        a.ignored
+            .iter()
+            .map(|t| t.reason.as_str())
+            .collect::<Vec<_>>(),
+        vec!["NEFF"]
+    );
+}

@@ -1,14 +1,17 @@
 //! CARMEN logs (`.clf`, `.log`, optionally gzipped), read line by line (streaming).
 //!
-//! Messages understood (lines of other types, e.g. `SYNC`, `NEFF`, `RAWLASER*`, are counted
-//! in the account's `ignored`; `#` lines are comments):
+//! Messages understood (lines of other types, e.g. `SYNC`, `NEFF`, are counted in the
+//! account's `ignored`; `#` lines are comments):
 //! - `FLASER n r_1..r_n x y theta odom_x odom_y odom_theta ipc_timestamp host logger_timestamp`
 //!   (front laser), `RLASER` (rear laser, same layout)
 //! - `ROBOTLASER1 type start_angle fov resolution max_range accuracy remission_mode n r_1..r_n
 //!   m rem_1..rem_m laser_x laser_y laser_theta robot_x robot_y robot_theta tv rv
 //!   forward_safety side_safety turn_axis ipc_timestamp host logger_timestamp`
-//! - `ODOM x y theta tv rv accel ipc_timestamp host logger_timestamp`: checked and counted;
-//!   its stamp can serve as the clock (below)
+//! - `RAWLASER1` (front) / `RAWLASER2` (rear) `laser_type start_angle fov resolution
+//!   max_range accuracy remission_mode n r_1..r_n m rem_1..rem_m ipc_timestamp host
+//!   logger_timestamp`: used when the log has none of the lines above for that laser
+//! - `ODOM x y theta tv rv accel ipc_timestamp host logger_timestamp`: the odometry of
+//!   `RAWLASER` logs (whose lines carry no pose); its stamps can serve as the clock (below)
 //! - `TRUEPOS true_x true_y true_theta odom_x odom_y odom_theta ipc_timestamp host
 //!   logger_timestamp` (simulated logs): becomes the recording's ground truth
 //! - `PARAM name value [host stamp]`: `robot_{front,rear}laser_{offset,side_offset,angular_offset}`
@@ -18,7 +21,8 @@
 //! - **Every laser line is a scan**, in file order: the file's order is the order of events.
 //! - **Odometry** is the pose each laser line carries (`odom_x odom_y odom_theta` of
 //!   FLASER/RLASER, the robot pose of ROBOTLASER1): exact at its scan whatever its stamp,
-//!   which is how GMapping reads CARMEN. `ODOM` lines are not needed for it.
+//!   which is how GMapping reads CARMEN. `ODOM` lines are needed only for `RAWLASER` lines,
+//!   which carry no pose: the `ODOM` poses on their clock (none usable: LiDAR-only).
 //! - **Stamps** are the `ipc_timestamp` field (seconds, parsed exactly into ns; the Freiburg
 //!   relations name scans by it). Real logs write zero, repeated, rounded (`1.13486e+09`) or
 //!   wild stamps, so the clock is chosen by this rule:
@@ -43,6 +47,9 @@
 //!   warning.
 
 mod parse;
+mod write;
+
+pub use write::write_carmen;
 
 use super::account::InputAccount;
 use super::clock::{RepairedClock, place_between, repair_in_file_order};
@@ -164,6 +171,8 @@ struct LogContent {
     rear: LaserStream,
     robot: LaserStream,
     odom_stamps: Vec<Option<i64>>,
+    odom_poses: Vec<Pose2>,
+    raw: [LaserStream; 2],
     truepos: Vec<StampedPose2>,
     /// `[front, rear]` x, y, yaw offsets from PARAM lines.
     offsets: [[f64; 3]; 2],
@@ -199,11 +208,14 @@ impl LogContent {
                     LaserKind::Front => self.front.push(&l, g, ranges, before),
                     LaserKind::Rear => self.rear.push(&l, g, ranges, before),
                     LaserKind::Robot => self.robot.push(&l, g, ranges, before),
+                    LaserKind::Raw { rear } => {
+                        self.raw[usize::from(rear)].push(&l, g, ranges, before)
+                    }
                 }
             }
-            Message::Odom { stamp_ns } => {
+            Message::Odom { stamp_ns, pose } => {
                 self.odom_stamps.push(Some(stamp_ns));
-                acc.ignore_one("ODOM", "lines (the laser lines carry the odometry)");
+                self.odom_poses.push(pose);
             }
             Message::TruePos { stamp_ns, pose } => {
                 self.truepos.push(StampedPose2 { stamp_ns, pose })
@@ -290,6 +302,33 @@ fn first_word(buf: &[u8]) -> String {
         .to_string()
 }
 
+/// The laser stream a log's scans come from (the first non-empty of the chosen laser's
+/// line types), its name and the laser mount.
+fn choose_stream(
+    options: &CarmenOptions,
+    c: &mut LogContent,
+) -> (LaserStream, &'static str, Pose2) {
+    let offsets =
+        |k: usize, yaw: f64| Pose2::new(c.offsets[k][0], c.offsets[k][1], yaw + c.offsets[k][2]);
+    let (front, rear) = (offsets(0, 0.0), offsets(1, std::f64::consts::PI));
+    let robot_mount = c.robot.first_robot_mount.unwrap_or(Pose2::IDENTITY);
+    let [raw_front, raw_rear] = &mut c.raw;
+    let candidates: Vec<(&mut LaserStream, &'static str, Pose2)> = match options.laser {
+        CarmenLaser::Front => vec![
+            (&mut c.front, "FLASER", front),
+            (&mut c.robot, "ROBOTLASER1", robot_mount),
+            (raw_front, "RAWLASER1", front),
+        ],
+        CarmenLaser::Rear => vec![(&mut c.rear, "RLASER", rear), (raw_rear, "RAWLASER2", rear)],
+    };
+    for (stream, name, mount) in candidates {
+        if !stream.scans.is_empty() {
+            return (std::mem::take(stream), name, mount);
+        }
+    }
+    (LaserStream::default(), "", Pose2::IDENTITY)
+}
+
 /// Chooses the laser stream and the clock, and builds the recording.
 fn assemble(
     path: &Path,
@@ -297,29 +336,13 @@ fn assemble(
     mut content: LogContent,
     mut acc: InputAccount,
 ) -> Result<CarmenLog, IoError> {
-    let (stream, kind_name, mount) = match options.laser {
-        CarmenLaser::Front if !content.front.scans.is_empty() || content.robot.scans.is_empty() => {
-            let o = content.offsets[0];
-            (
-                std::mem::take(&mut content.front),
-                "FLASER",
-                Pose2::new(o[0], o[1], o[2]),
-            )
-        }
-        CarmenLaser::Front => {
-            let m = content.robot.first_robot_mount.unwrap_or(Pose2::IDENTITY);
-            (std::mem::take(&mut content.robot), "ROBOTLASER1", m)
-        }
-        CarmenLaser::Rear => {
-            let o = content.offsets[1];
-            let m = Pose2::new(o[0], o[1], std::f64::consts::PI + o[2]);
-            (std::mem::take(&mut content.rear), "RLASER", m)
-        }
-    };
+    let (stream, kind_name, mount) = choose_stream(options, &mut content);
     for (s, name) in [
         (&content.front, "FLASER"),
         (&content.rear, "RLASER"),
         (&content.robot, "ROBOTLASER1"),
+        (&content.raw[0], "RAWLASER1"),
+        (&content.raw[1], "RAWLASER2"),
     ] {
         for _ in 0..s.scans.len() {
             acc.ignore_one(name, "lines (another laser)");
@@ -330,26 +353,69 @@ fn assemble(
             path,
             0,
             match options.laser {
-                CarmenLaser::Front => "no FLASER or ROBOTLASER1 line in the log",
-                CarmenLaser::Rear => "no RLASER line in the log",
+                CarmenLaser::Front => "no FLASER, ROBOTLASER1 or RAWLASER1 line in the log",
+                CarmenLaser::Rear => "no RLASER or RAWLASER2 line in the log",
             },
         ));
     }
     let n = stream.scans.len();
     acc.scans_read += n;
     acc.scans_kept = n;
-    acc.odometry_read = n;
-    acc.odometry_kept = n;
-    acc.odometry_source = format!("the {kind_name} lines' odometry poses");
-    acc.mount_source = match (kind_name, options.laser) {
-        ("ROBOTLASER1", _) => "the first ROBOTLASER1 line's laser and robot poses".into(),
+    acc.mount_source = match kind_name {
+        "ROBOTLASER1" => "the first ROBOTLASER1 line's laser and robot poses".into(),
         _ => "PARAM laser offsets (zero when absent)".into(),
     };
     for g in &stream.geometry {
         acc.add_layout(g);
     }
     let stamps = choose_clock(path, &stream, &content.odom_stamps, &mut acc);
-    Ok(build(path, stream, stamps, mount, content.truepos, acc))
+    let raw = kind_name.starts_with("RAWLASER");
+    for _ in 0..content.odom_poses.len() * usize::from(!raw) {
+        acc.ignore_one("ODOM", "lines (the laser lines carry the odometry)");
+    }
+    let odometry = if raw {
+        // these lines carry no pose: the ODOM lines are the odometry
+        let odom = odom_lines(&content, &mut acc);
+        acc.odometry_source = "the ODOM lines (the RAWLASER lines carry no pose)".into();
+        Some(odom)
+    } else {
+        acc.odometry_read = n;
+        acc.odometry_kept = n;
+        acc.odometry_source = format!("the {kind_name} lines' odometry poses");
+        None
+    };
+    Ok(build(
+        path,
+        stream,
+        stamps,
+        mount,
+        odometry,
+        content.truepos,
+        acc,
+    ))
+}
+
+/// The ODOM lines as odometry, on their clock (empty when they have none: LiDAR-only).
+fn odom_lines(content: &LogContent, acc: &mut InputAccount) -> Trajectory {
+    acc.odometry_read = content.odom_poses.len();
+    let Some(clock) = repair_in_file_order(&content.odom_stamps) else {
+        acc.warnings.push("the ODOM lines have no usable stamps: the odometry comes from scan matching (LiDAR-only)".into());
+        return Trajectory::default();
+    };
+    acc.repair(
+        "odometry",
+        "stamp zero, repeated or out of order: placed by file order",
+        clock.repaired,
+    );
+    acc.odometry_kept = content.odom_poses.len();
+    Trajectory::new(
+        clock
+            .stamps_ns
+            .iter()
+            .zip(&content.odom_poses)
+            .map(|(&stamp_ns, &pose)| StampedPose2 { stamp_ns, pose })
+            .collect(),
+    )
 }
 
 /// The scans' stamps by the rule of the module docs, with the account's `clock`.
@@ -407,6 +473,7 @@ fn build(
     stream: LaserStream,
     stamps: Vec<i64>,
     mount: Pose2,
+    odometry: Option<Trajectory>,
     truepos: Vec<StampedPose2>,
     acc: InputAccount,
 ) -> CarmenLog {
@@ -430,7 +497,7 @@ fn build(
     let uniform = geometry.windows(2).all(|w| w[0] == w[1]);
     let recording = Recording {
         name: recording_name(path),
-        odometry: at(&odom),
+        odometry: odometry.unwrap_or_else(|| at(&odom)),
         imu_yaw: None,
         lidar: geometry[0],
         lidar_per_scan: (!uniform).then_some(geometry),

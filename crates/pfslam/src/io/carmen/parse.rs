@@ -13,6 +13,8 @@ pub(super) enum LaserKind {
     Rear,
     /// `ROBOTLASER1`.
     Robot,
+    /// `RAWLASER1` (front) or `RAWLASER2` (rear): geometry but no pose.
+    Raw { rear: bool },
 }
 
 /// A laser line's content (its readings are written into the caller's buffer).
@@ -22,7 +24,8 @@ pub(super) struct LaserLine {
     /// `start_angle`, `angular_resolution` (rad) and `maximum_range` (m) when the line
     /// carries its geometry (ROBOTLASER1).
     pub geometry: Option<(f64, f64, f32)>,
-    /// The odometry pose at the scan (FLASER/RLASER `odom_*`, ROBOTLASER1's robot pose).
+    /// The odometry pose at the scan (FLASER/RLASER `odom_*`, ROBOTLASER1's robot pose;
+    /// identity for RAWLASER lines, which carry none).
     pub odom: Pose2,
     /// The pose the line gives for the laser's robot (FLASER/RLASER `x y theta`: the corrected
     /// pose in corrected logs; ROBOTLASER1's laser pose).
@@ -40,8 +43,8 @@ pub(super) enum Message {
     Comment,
     /// A laser line.
     Laser(LaserLine),
-    /// An `ODOM` line's stamp (its pose is not used: the laser lines carry the odometry).
-    Odom { stamp_ns: i64 },
+    /// An `ODOM` line (its pose is the odometry only of logs whose laser lines carry none).
+    Odom { stamp_ns: i64, pose: Pose2 },
     /// A `TRUEPOS` line (simulated logs).
     TruePos { stamp_ns: i64, pose: Pose2 },
     /// A `PARAM` line of a laser offset.
@@ -61,6 +64,8 @@ pub(super) fn parse_line(t: &str, ranges: &mut Vec<f32>) -> Result<Message, Stri
         "FLASER" => flaser(&f, LaserKind::Front, ranges),
         "RLASER" => flaser(&f, LaserKind::Rear, ranges),
         "ROBOTLASER1" => robotlaser(&f, ranges),
+        "RAWLASER1" => rawlaser(&f, false, ranges),
+        "RAWLASER2" => rawlaser(&f, true, ranges),
         "ODOM" => {
             need(
                 &f,
@@ -68,10 +73,8 @@ pub(super) fn parse_line(t: &str, ranges: &mut Vec<f32>) -> Result<Message, Stri
                 "ODOM",
                 "x y theta tv rv accel ipc_timestamp host logger_timestamp",
             )?;
-            for (k, name) in ["x", "y", "theta"].iter().enumerate() {
-                finite(f[k + 1], name)?;
-            }
             Ok(Message::Odom {
+                pose: pose(&f[1..4])?,
                 stamp_ns: stamp(f[7])?,
             })
         }
@@ -215,6 +218,37 @@ fn robotlaser(f: &[&str], ranges: &mut Vec<f32>) -> Result<Message, String> {
     }))
 }
 
+/// `RAWLASERk laser_type start_angle fov resolution max_range accuracy remission_mode n
+/// r_1..r_n m rem_1..rem_m ipc_timestamp host logger_timestamp`.
+fn rawlaser(f: &[&str], rear: bool, ranges: &mut Vec<f32>) -> Result<Message, String> {
+    let kind = f[0];
+    if f.len() < 10 {
+        return Err(format!("{kind}: line too short ({} fields)", f.len() - 1));
+    }
+    let start = finite(f[2], "start_angle")?;
+    let res = finite(f[4], "angular_resolution")?;
+    let max_range = finite(f[5], "maximum_range")? as f32;
+    let n = count(f.get(8), kind)?;
+    let m = count(f.get(9 + n), "num_remissions")?;
+    let rest = 10 + n + m;
+    if f.len() != rest + 3 {
+        return Err(format!(
+            "{kind}: {n} readings and {m} remissions need {} fields, found {}",
+            rest + 2,
+            f.len() - 1
+        ));
+    }
+    let non_finite = readings(&f[9..9 + n], kind, ranges)?;
+    Ok(Message::Laser(LaserLine {
+        kind: LaserKind::Raw { rear },
+        geometry: Some((start, res, max_range)),
+        pose: Pose2::IDENTITY,
+        odom: Pose2::IDENTITY,
+        stamp_ns: stamp(f[rest])?,
+        non_finite,
+    }))
+}
+
 /// `PARAM name value [host stamp]`: only the laser offsets are used.
 fn param(f: &[&str]) -> Result<Message, String> {
     const USED: [&str; 6] = [
@@ -261,6 +295,10 @@ mod tests {
             ("garbage!", "not a CARMEN message"),
             ("FLASER 999999 1", "implausible count"),
             ("FLASER 0 1 2 3 4 5 6 7.5 h 0", "0 readings"),
+            (
+                "RAWLASER1 0 -1.5 3 0.5 30 0.01 0 2 1 2 0 7.5 h",
+                "need 14 fields",
+            ),
         ] {
             let e = parse_line(line, &mut r).unwrap_err();
             assert!(e.contains(why), "{line}: {e}");

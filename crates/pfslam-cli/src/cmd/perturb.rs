@@ -1,0 +1,87 @@
+//! `pfslam perturb RECORDING --out FILE.log --level L --seed N`: the recording with its
+//! odometry degraded (scale and turning errors, yaw drift, random walk, slips;
+//! `pfslam::motion::perturb`), written as a CARMEN log, and the reference trajectory it
+//! came from beside it (`FILE.reference.tum`), to check that SLAM recovers the path.
+
+use pfslam::config::Config;
+use pfslam::eval::{Association, ate::ate};
+use pfslam::io::carmen::write_carmen;
+use pfslam::io::tum::write_tum;
+use pfslam::motion::perturb::{OdometryErrors, perturb_odometry};
+use pfslam::sensors::sync::poses_at_stamps;
+use std::path::PathBuf;
+
+/// Arguments of `perturb`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// The recording (any format `run` reads).
+    pub recording: PathBuf,
+    /// The CARMEN log to write (`.log` or `.clf`); the reference goes beside it as
+    /// `<stem>.reference.tum`.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Severity 0-3: 0 none, 1 a well-calibrated robot, 2 about the Intel recording's
+    /// odometry, 3 worse.
+    #[arg(long, default_value_t = 2)]
+    pub level: u8,
+    /// Seed of the errors.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// TOML configuration (its `[input]` section applies).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Input selection and strictness.
+    #[command(flatten)]
+    pub input: super::input::InputArgs,
+}
+
+/// Writes the perturbed log and the reference.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let mut config = match &args.config {
+        Some(p) => Config::from_toml_file(p)?,
+        None => Config::default(),
+    };
+    args.input.apply(&mut config.input)?;
+    let errors = OdometryErrors::level(args.level)
+        .ok_or_else(|| anyhow::anyhow!("--level must be 0, 1, 2 or 3, got {}", args.level))?;
+    let name = args
+        .out
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let lower = name.to_lowercase();
+    let stem_len = lower
+        .strip_suffix(".log")
+        .or_else(|| lower.strip_suffix(".clf"))
+        .map(str::len);
+    let Some(stem) = stem_len.map(|n| &name[..n]) else {
+        anyhow::bail!(
+            "--out {}: the log's name must end in .log or .clf",
+            args.out.display()
+        );
+    };
+    let reference_path = args.out.with_file_name(format!("{stem}.reference.tum"));
+    let ds = super::dataset::load_dataset(&args.recording, &config, false)?;
+    super::input::report(&ds.account);
+    let mut rec = ds.recording;
+    let (reference, _) = poses_at_stamps(&rec.odometry, &rec.scans.stamps_ns);
+    let reference = pfslam::geometry::Trajectory::new(reference);
+    rec.odometry = perturb_odometry(&rec.odometry, &errors, args.seed);
+    let written = write_carmen(&args.out, &rec, Some(&reference))?;
+    write_tum(&reference_path, &reference.poses)?;
+    let (degraded, _) = poses_at_stamps(&rec.odometry, &rec.scans.stamps_ns);
+    let a = ate(
+        &pfslam::geometry::Trajectory::new(degraded),
+        &reference,
+        Association::Nearest { tolerance_ns: 0 },
+    )?;
+    println!(
+        "wrote {} ({written} scans, odometry at level {}, seed {}: ATE {:.3} m RMSE against the reference) and {}",
+        args.out.display(),
+        args.level,
+        args.seed,
+        a.aligned_m.rmse,
+        reference_path.display()
+    );
+    Ok(())
+}
