@@ -171,7 +171,12 @@ fn backwards_timestamps_rejected_or_sorted() {
     let (code, err, files) = run_bad(swap, &["--sort-timestamps"]);
     assert_eq!(code, Some(0), "{err}");
     assert!(err.contains("sorted"), "{err}");
-    assert_eq!(files.len(), 3);
+    // the three outputs and the manifest listing them
+    assert_eq!(files.len(), 4, "{files:?}");
+    assert!(
+        files.iter().any(|f| f.ends_with("manifest.json")),
+        "{files:?}"
+    );
 }
 
 #[test]
@@ -410,4 +415,100 @@ fn perturb_writes_a_degraded_log_and_its_reference() {
         .output()
         .unwrap();
     assert_eq!(bad.status.code(), Some(2));
+}
+
+/// Staging directories of killed runs left in `dir`.
+fn staging_dirs(dir: &std::path::Path) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with(".pfslam-staging-"))
+        .collect()
+}
+
+#[test]
+fn outputs_are_one_unit_and_checked_before_work() {
+    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+        eprintln!("SKIP outputs_are_one_unit_and_checked_before_work: no real data");
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let log = data.join("carmen/orebro-corrected.log.gz");
+    let out = dir.path().join("o");
+    let run = |extra: &[&str], out: &std::path::Path| {
+        super::pfslam()
+            .arg("run")
+            .arg(&log)
+            .args(extra)
+            .arg("--out")
+            .arg(out)
+            .output()
+            .unwrap()
+    };
+    // a bad [graph] key is refused before the recording is read, and nothing is written
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(&bad, "[graph]\nkeyframe_distance_m = -1\n").unwrap();
+    let t = std::time::Instant::now();
+    let o = run(&["--config", bad.to_str().unwrap()], &out);
+    assert_eq!(o.status.code(), Some(2));
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        e.contains("[graph]") && e.contains("keyframe_distance_m"),
+        "{e}"
+    );
+    assert!(
+        !String::from_utf8_lossy(&o.stdout).contains("input:"),
+        "refused before reading"
+    );
+    assert!(!out.exists() && t.elapsed().as_secs_f64() < 5.0);
+    // a file in the way of --out, or of its parent
+    let file = dir.path().join("file");
+    std::fs::write(&file, "x").unwrap();
+    for o in [run(&[], &file), run(&[], &file.join("o"))] {
+        assert_eq!(o.status.code(), Some(2));
+        assert!(String::from_utf8_lossy(&o.stderr).contains("--out"));
+    }
+    // a second run without the back end removes the first run's front_end.tum, not the user's file
+    super::assert_ok(&run(&[], &out));
+    assert!(out.join("front_end.tum").is_file() && out.join("manifest.json").is_file());
+    std::fs::write(out.join("notes.txt"), "mine").unwrap();
+    let off = dir.path().join("off.toml");
+    std::fs::write(&off, "[graph]\nenabled = false\n").unwrap();
+    super::assert_ok(&run(&["--config", off.to_str().unwrap()], &out));
+    assert!(!out.join("front_end.tum").exists(), "stale output left");
+    assert!(out.join("trajectory.tum").is_file() && out.join("notes.txt").is_file());
+    let manifest = std::fs::read_to_string(out.join("manifest.json")).unwrap();
+    assert!(
+        manifest.contains("trajectory.tum") && !manifest.contains("front_end.tum"),
+        "{manifest}"
+    );
+    // a run killed midway leaves the previous outputs as they were; the next run clears its
+    // staging directory
+    let before = std::fs::read(out.join("trajectory.tum")).unwrap();
+    let mut child = super::pfslam()
+        .arg("run")
+        .arg(data.join("freiburg/intel/intel.bag"))
+        .arg("--out")
+        .arg(&out)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert_eq!(std::fs::read(out.join("trajectory.tum")).unwrap(), before);
+    assert!(out.join("notes.txt").is_file());
+    assert_eq!(
+        staging_dirs(dir.path()).len(),
+        1,
+        "the killed run's staging directory"
+    );
+    super::assert_ok(&run(&[], &dir.path().join("o2")));
+    assert!(
+        staging_dirs(dir.path()).is_empty(),
+        "{:?}",
+        staging_dirs(dir.path())
+    );
 }

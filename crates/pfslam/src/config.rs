@@ -44,7 +44,34 @@ pub enum ConfigError {
     },
 }
 
+/// A configuration value out of range, found by [`Config::validate`] before any work.
+#[derive(Debug, thiserror::Error)]
+#[error("configuration [{section}]: {message}")]
+pub struct OptionError {
+    /// The section (`input`, `motion`, `map`, `filter`, `graph`, `sim`).
+    pub section: &'static str,
+    /// What is wrong, naming the key.
+    pub message: String,
+}
+
 impl Config {
+    /// Checks every section's values (before any work: a bad `[graph]` key must not wait
+    /// for the filter to finish).
+    pub fn validate(&self) -> Result<(), OptionError> {
+        let err = |section: &'static str| move |message: String| OptionError { section, message };
+        self.input.validate().map_err(err("input"))?;
+        self.motion
+            .validate()
+            .map_err(|e| err("motion")(e.to_string()))?;
+        self.map.validate().map_err(err("map"))?;
+        self.filter
+            .validate()
+            .map_err(|e| err("filter")(e.to_string()))?;
+        self.graph.validate().map_err(err("graph"))?;
+        self.sim.validate().map_err(|e| err("sim")(e.to_string()))?;
+        Ok(())
+    }
+
     /// Loads a TOML file over the defaults.
     pub fn from_toml_file(path: &std::path::Path) -> Result<Config, ConfigError> {
         let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {

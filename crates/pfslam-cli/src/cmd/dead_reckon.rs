@@ -38,14 +38,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(p) => Config::from_toml_file(p)?,
         None => Config::default(),
     };
-    config.motion.validate()?;
     args.input.apply(&mut config.input)?;
-    if args.out.exists() && !args.out.is_dir() {
-        anyhow::bail!(
-            "--out {}: exists and is not a directory",
-            args.out.display()
-        );
-    }
+    config.validate()?;
+    let staging = super::output::Staging::new(&args.out)?;
+    let out = staging.path().to_path_buf();
     // Every format's odometry is its dead reckoning: for the car it is the integration of
     // wheel ticks and FOG yaw (`motion::car_recording`), for recordings their odometry poses.
     let ds = super::dataset::load_dataset(&args.dataset, &config, args.sort_timestamps)?;
@@ -72,9 +68,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &format!("Dead reckoning: {name}"),
     )
     .context("trajectory.png")?;
-    write_tum(&args.out.join("trajectory.tum"), &at_scans)?;
-    write_csv(&args.out.join("trajectory.csv"), &at_scans)?;
-    write_bytes_atomic(&args.out.join("trajectory.png"), &png)?;
+    write_tum(&out.join("trajectory.tum"), &at_scans)?;
+    write_csv(&out.join("trajectory.csv"), &at_scans)?;
+    write_bytes_atomic(&out.join("trajectory.png"), &png)?;
+    staging.commit()?;
 
     let first = traj.poses.first().map(|p| p.stamp_ns).unwrap_or(0);
     let last = traj.poses.last().copied();

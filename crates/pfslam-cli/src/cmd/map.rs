@@ -97,16 +97,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         config.map.scan.z_max_m = args.z_max;
     }
     args.input.apply(&mut config.input)?;
-    config
-        .map
-        .validate()
-        .map_err(|m| anyhow::anyhow!("invalid map options: {m}"))?;
-    if args.out.exists() && !args.out.is_dir() {
-        bail!(
-            "--out {}: exists and is not a directory",
-            args.out.display()
-        );
-    }
+    config.validate()?;
+    let staging = super::output::Staging::new(&args.out)?;
+    let out = staging.path().to_path_buf();
     let poses = read_tum(&args.poses)?;
     if poses.is_empty() {
         bail!("{}: no poses", args.poses.display());
@@ -171,11 +164,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         None => None,
     };
 
-    write_bytes_atomic(&args.out.join("map.png"), &png)?;
-    write_binary_png(&args.out.join("binary_map.png"), &grid, Some(rect))
-        .context("binary_map.png")?;
-    write_map_server(&grid.to_binary_map(Some(rect)), &args.out.join("map.yaml"))?;
-    write_logodds_npy(&grid, &rect, &args.out.join("logodds.npy"))?;
+    write_bytes_atomic(&out.join("map.png"), &png)?;
+    write_binary_png(&out.join("binary_map.png"), &grid, Some(rect)).context("binary_map.png")?;
+    write_map_server(&grid.to_binary_map(Some(rect)), &out.join("map.yaml"))?;
+    write_logodds_npy(&grid, &rect, &out.join("logodds.npy"))?;
     let mut report = serde_json::json!({
         "dataset": args.dataset.display().to_string(),
         "poses": args.poses.display().to_string(),
@@ -206,7 +198,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         println!("{c}");
     }
     let text = serde_json::to_string_pretty(&report)? + "\n";
-    write_bytes_atomic(&args.out.join("map_stats.json"), text.as_bytes())?;
+    write_bytes_atomic(&out.join("map_stats.json"), text.as_bytes())?;
+    staging.commit()?;
     println!(
         "map: {} scans, {} x {} cells at {} m -> {}",
         stats.scans_inserted,

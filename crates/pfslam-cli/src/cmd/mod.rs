@@ -10,6 +10,7 @@ pub mod experiment;
 pub mod info;
 pub mod input;
 pub mod map;
+pub mod output;
 pub mod perturb;
 pub mod print_config;
 pub mod run;

@@ -63,15 +63,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         config.filter.particles = n;
     }
     args.input.apply(&mut config.input)?;
-    config.filter.validate()?;
-    config.motion.validate()?;
-    config.map.validate().map_err(anyhow::Error::msg)?;
-    if args.out.exists() && !args.out.is_dir() {
-        anyhow::bail!(
-            "--out {}: exists and is not a directory",
-            args.out.display()
-        );
-    }
+    // every check before reading the recording
+    config.validate()?;
+    let staging = super::output::Staging::new(&args.out)?;
+    let out_dir = staging.path().to_path_buf();
     let t_load = Instant::now();
     let Dataset {
         mut recording,
@@ -84,9 +79,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     super::input::report(&account);
     // With ground truth, start at the true pose so maps and paths overlay without alignment.
     let anchored = anchor_odometry_to_ground_truth(&mut recording);
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
-    let snapshots = args.out.join("snapshots");
+    let snapshots = out_dir.join("snapshots");
 
     let total = recording.scans.len();
     let bar = if std::io::stderr().is_terminal() {
@@ -188,10 +181,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         graph.as_ref(),
         back_end_input,
         &account,
+        &out_dir,
     )?;
     // The ground's colours along the SLAM path, when the dataset has stereo images.
     let (traj, map) = (&result.trajectory, &result.map);
-    super::texture::texture_after_run(&args.dataset, traj, &config, map, &args.out);
+    super::texture::texture_after_run(&args.dataset, traj, &config, map, &out_dir);
+    staging.commit()?;
+    println!("wrote {}", args.out.display());
     Ok(())
 }
 
@@ -230,8 +226,8 @@ fn write_outputs(
     graph: Option<&(GraphStats, f64, Vec<StampedPose2>)>,
     back_end_input: serde_json::Value,
     account: &pfslam::io::account::InputAccount,
+    out: &std::path::Path,
 ) -> anyhow::Result<()> {
-    let out = &args.out;
     let t = Instant::now();
     write_tum(&out.join("trajectory.tum"), &result.trajectory)?;
     if let Some((_, _, front)) = graph {
@@ -407,6 +403,5 @@ fn write_outputs(
             m["recall"].as_f64().unwrap_or(f64::NAN)
         );
     }
-    println!("wrote {}", out.display());
     Ok(())
 }
