@@ -353,7 +353,7 @@ fn a_span_of_the_recording_and_a_rosbag2_directory() {
         "rosbag2_bagfile_information:\n  version: 5\n",
     )
     .unwrap();
-    let opts = pfslam::io::ros_assemble::RosOptions::default();
+    let opts = pfslam::io::options::ReaderOptions::default();
     pfslam::io::mcap::write_mcap(&bag2.join("rosbag2_run_0.mcap"), &whole.recording, &opts)
         .unwrap();
     let o = super::run_ok(super::pfslam().arg("info").arg(&bag2));

@@ -137,7 +137,7 @@ fn relations_file_errors_name_line() {
 /// with the relations metric.
 #[test]
 fn raw_odometry_relations_baseline() {
-    use pfslam::io::ros_assemble::RosOptions;
+    use pfslam::io::options::ReaderOptions;
     use pfslam::io::ros1::read_ros1_bag;
     let Some(root) = data_dir("raw_odometry_relations_baseline") else {
         return;
@@ -145,7 +145,8 @@ fn raw_odometry_relations_baseline() {
     let mut rows = Vec::new();
     for name in ["intel", "aces", "mit-csail"] {
         let dir = root.join("freiburg").join(name);
-        let rec = read_ros1_bag(&dir.join(format!("{name}.bag")), &RosOptions::default()).unwrap();
+        let rec =
+            read_ros1_bag(&dir.join(format!("{name}.bag")), &ReaderOptions::default()).unwrap();
         let traj = pfslam::geometry::Trajectory::new(
             pfslam::sensors::sync::poses_at_stamps(&rec.odometry, &rec.scans.stamps_ns).0,
         );

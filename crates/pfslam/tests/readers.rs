@@ -305,8 +305,8 @@ fn relation_stamps_found(rec: &pfslam::sensors::Recording, relations: &Path) -> 
 
 #[test]
 fn ros1_bags_counts_geometry_and_relation_stamps() {
-    use pfslam::io::ros_assemble::{BeamGeometry, RosOptions};
     use pfslam::io::ros1::{read_ros1_bag, read_ros1_bag_with_account};
+    use pfslam::io::{options::ReaderOptions, ros_assemble::BeamGeometry};
     let Some(root) = data_dir("ros1_bags_counts_geometry_and_relation_stamps") else {
         return;
     };
@@ -318,7 +318,7 @@ fn ros1_bags_counts_geometry_and_relation_stamps() {
     ] {
         let dir = root.join("freiburg").join(name);
         let (rec, a) =
-            read_ros1_bag_with_account(&dir.join(format!("{name}.bag")), &RosOptions::default())
+            read_ros1_bag_with_account(&dir.join(format!("{name}.bag")), &ReaderOptions::default())
                 .unwrap();
         eprintln!("{}", a.one_line());
         assert_eq!(a.scans_read, scans, "{name} scan messages");
@@ -362,9 +362,9 @@ fn ros1_bags_counts_geometry_and_relation_stamps() {
             relations
         );
         if name == "intel" {
-            let raw = RosOptions {
+            let raw = ReaderOptions {
                 beam_geometry: BeamGeometry::AsRecorded,
-                ..RosOptions::default()
+                ..ReaderOptions::default()
             };
             let rec = read_ros1_bag(&dir.join("intel.bag"), &raw).unwrap();
             assert!((rec.lidar.angle_increment_rad - (180.0f64 / 179.0).to_radians()).abs() < 1e-6);
@@ -376,13 +376,17 @@ fn ros1_bags_counts_geometry_and_relation_stamps() {
 fn mcap_from_bag_slice_roundtrip() {
     use pfslam::geometry::Trajectory;
     use pfslam::io::mcap::{read_mcap, write_mcap};
-    use pfslam::io::ros_assemble::{BeamGeometry, RosOptions};
     use pfslam::io::ros1::read_ros1_bag;
+    use pfslam::io::{options::ReaderOptions, ros_assemble::BeamGeometry};
     use pfslam::sensors::ScanSet;
     let Some(root) = data_dir("mcap_from_bag_slice_roundtrip") else {
         return;
     };
-    let rec = read_ros1_bag(&root.join("freiburg/aces/aces.bag"), &RosOptions::default()).unwrap();
+    let rec = read_ros1_bag(
+        &root.join("freiburg/aces/aces.bag"),
+        &ReaderOptions::default(),
+    )
+    .unwrap();
     // a slice: scans 100..400 and the odometry over the same time span
     let mut scans = ScanSet::new(rec.scans.beam_count);
     for i in 100..400 {
@@ -404,13 +408,13 @@ fn mcap_from_bag_slice_roundtrip() {
     };
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("aces-slice.mcap");
-    let opts = RosOptions::default();
+    let opts = ReaderOptions::default();
     write_mcap(&path, &slice, &opts).unwrap();
     let back = read_mcap(
         &path,
-        &RosOptions {
+        &ReaderOptions {
             beam_geometry: BeamGeometry::AsRecorded,
-            ..RosOptions::default()
+            ..ReaderOptions::default()
         },
     )
     .unwrap();
@@ -431,7 +435,7 @@ fn mcap_from_bag_slice_roundtrip() {
     let bytes = std::fs::read(&path).unwrap();
     let cut = dir.path().join("cut.mcap");
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
-    let e = read_mcap(&cut, &RosOptions::default())
+    let e = read_mcap(&cut, &ReaderOptions::default())
         .unwrap_err()
         .to_string();
     assert!(
@@ -441,9 +445,9 @@ fn mcap_from_bag_slice_roundtrip() {
     // a topic that is not there: the error lists those that are
     let e = read_mcap(
         &path,
-        &RosOptions {
+        &ReaderOptions {
             scan_topic: Some("/base_scan".into()),
-            ..RosOptions::default()
+            ..ReaderOptions::default()
         },
     )
     .unwrap_err()
@@ -457,16 +461,16 @@ fn mcap_from_bag_slice_roundtrip() {
 
 #[test]
 fn ros1_malformed_bags_name_positions() {
-    use pfslam::io::ros_assemble::RosOptions;
+    use pfslam::io::options::ReaderOptions;
     use pfslam::io::ros1::read_ros1_bag;
     let dir = tempfile::tempdir().unwrap();
     let p = write(dir.path(), "text.bag", "hello\n");
-    let e = read_ros1_bag(&p, &RosOptions::default())
+    let e = read_ros1_bag(&p, &ReaderOptions::default())
         .unwrap_err()
         .to_string();
     assert!(e.contains("text.bag: byte 0"), "{e}");
     let p = write(dir.path(), "short.bag", "#ROSBAG V2.0\n\x10\0");
-    let e = read_ros1_bag(&p, &RosOptions::default())
+    let e = read_ros1_bag(&p, &ReaderOptions::default())
         .unwrap_err()
         .to_string();
     assert!(e.contains("short.bag: byte 13"), "{e}");
@@ -477,7 +481,7 @@ fn ros1_malformed_bags_name_positions() {
     // truncated: the index lies past the end
     let cut = dir.path().join("cut.bag");
     std::fs::write(&cut, &bytes[..bytes.len() / 3]).unwrap();
-    let e = read_ros1_bag(&cut, &RosOptions::default())
+    let e = read_ros1_bag(&cut, &ReaderOptions::default())
         .unwrap_err()
         .to_string();
     assert!(
@@ -492,7 +496,7 @@ fn ros1_malformed_bags_name_positions() {
     }
     let badp = dir.path().join("corrupt.bag");
     std::fs::write(&badp, &bad).unwrap();
-    let e = read_ros1_bag(&badp, &RosOptions::default())
+    let e = read_ros1_bag(&badp, &ReaderOptions::default())
         .unwrap_err()
         .to_string();
     assert!(e.contains("corrupt.bag: chunk"), "{e}");
@@ -619,10 +623,10 @@ proptest::proptest! {
     #[test]
     fn mcap_corruption_never_panics(at in 0.0f64..1.0, xor in 1u8..=255, len in 1usize..16) {
         use pfslam::io::mcap::{read_mcap, write_mcap};
-        use pfslam::io::ros_assemble::RosOptions;
+        use pfslam::io::options::ReaderOptions;
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("s.mcap");
-        write_mcap(&p, &synthetic_recording(), &RosOptions::default()).unwrap();
+        write_mcap(&p, &synthetic_recording(), &ReaderOptions::default()).unwrap();
         let mut bytes = std::fs::read(&p).unwrap();
         let start = ((bytes.len() - 1) as f64 * at) as usize;
         let end = (start + len).min(bytes.len());
@@ -630,7 +634,7 @@ proptest::proptest! {
             *b ^= xor;
         }
         std::fs::write(&p, &bytes).unwrap();
-        if let Err(e) = read_mcap(&p, &RosOptions::default()) {
+        if let Err(e) = read_mcap(&p, &ReaderOptions::default()) {
             proptest::prop_assert!(e.to_string().contains("s.mcap"), "{}", e);
         }
     }
@@ -639,11 +643,11 @@ proptest::proptest! {
 #[test]
 fn mcap_synthetic_roundtrip_without_data() {
     use pfslam::io::mcap::write_mcap;
-    use pfslam::io::ros_assemble::RosOptions;
+    use pfslam::io::options::ReaderOptions;
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("s.mcap");
     let rec = synthetic_recording();
-    write_mcap(&p, &rec, &RosOptions::default()).unwrap();
+    write_mcap(&p, &rec, &ReaderOptions::default()).unwrap();
     let back = pfslam::io::recording::read_recording(&p, &Default::default()).unwrap();
     assert_eq!(back.scans, rec.scans);
     assert_eq!(back.odometry.len(), 20);
@@ -653,10 +657,10 @@ fn mcap_synthetic_roundtrip_without_data() {
 
 /// Scans `0..n` of the Intel bag and its odometry over their span.
 fn intel_slice(root: &Path, n: usize) -> pfslam::sensors::Recording {
-    use pfslam::io::ros_assemble::RosOptions;
+    use pfslam::io::options::ReaderOptions;
     let rec = pfslam::io::ros1::read_ros1_bag(
         &root.join("freiburg/intel/intel.bag"),
-        &RosOptions::default(),
+        &ReaderOptions::default(),
     )
     .unwrap();
     let keep: Vec<usize> = (0..n).collect();
@@ -847,7 +851,7 @@ fn a_recording_without_odometry_runs_lidar_only() {
     let dir = root.join("freiburg/mit-csail");
     let bag = pfslam::io::ros1::read_ros1_bag(
         &dir.join("mit-csail.bag"),
-        &pfslam::io::ros_assemble::RosOptions::default(),
+        &pfslam::io::options::ReaderOptions::default(),
     )
     .unwrap();
     let bare = pfslam::sensors::Recording {

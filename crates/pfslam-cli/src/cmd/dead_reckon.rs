@@ -3,7 +3,6 @@
 //! `trajectory.csv` (one pose per LiDAR scan) and `trajectory.png`.
 
 use anyhow::Context;
-use pfslam::config::Config;
 use pfslam::geometry::StampedPose2;
 use pfslam::io::tum::{format_stamp_s, write_tum};
 use pfslam::io::{write_atomic, write_bytes_atomic};
@@ -34,11 +33,7 @@ pub struct Args {
 
 /// Runs dead reckoning.
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let mut config = match &args.config {
-        Some(p) => Config::from_toml_file(p)?,
-        None => Config::default(),
-    };
-    args.input.apply(&mut config.input)?;
+    let config = args.input.config(args.config.as_deref())?;
     config.validate()?;
     let staging = super::output::Staging::new(&args.out)?;
     let out = staging.path().to_path_buf();

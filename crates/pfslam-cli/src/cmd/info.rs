@@ -1,7 +1,6 @@
 //! `pfslam info PATH`: what a recording holds and what `run` would use, like `rosbag info`
 //! for every supported format.
 
-use pfslam::config::Config;
 use pfslam::io::account::InputAccount;
 use pfslam::io::recording::{RecordingFormat, detect_format, resolve_rosbag2};
 use pfslam::io::ros_assemble::TopicInfo;
@@ -27,11 +26,8 @@ pub struct Args {
 
 /// Prints the description.
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let mut config = match &args.config {
-        Some(p) => Config::from_toml_file(p)?,
-        None => Config::default(),
-    };
-    args.input.apply(&mut config.input)?;
+    let config = args.input.config(args.config.as_deref())?;
+    config.validate()?;
     let topics = topics_of(&args.path)?;
     let ds = super::dataset::load_dataset(&args.path, &config, true)?;
     let mode = config.filter.mode.resolve(&ds.recording);

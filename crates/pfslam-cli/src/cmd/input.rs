@@ -1,5 +1,6 @@
 //! The input flags shared by the commands that read a recording, and the account they print.
 
+use pfslam::config::Config;
 use pfslam::io::account::InputAccount;
 use pfslam::io::recording::ReaderOptions;
 
@@ -33,6 +34,16 @@ pub struct InputArgs {
 }
 
 impl InputArgs {
+    /// The configuration of `path` (or the defaults) with these flags over its `[input]`.
+    pub fn config(&self, path: Option<&std::path::Path>) -> anyhow::Result<Config> {
+        let mut config = match path {
+            Some(p) => Config::from_toml_file(p)?,
+            None => Config::default(),
+        };
+        self.apply(&mut config.input)?;
+        Ok(config)
+    }
+
     /// The flags given, over `options`; then checks the result.
     pub fn apply(&self, options: &mut ReaderOptions) -> anyhow::Result<()> {
         let set = |dst: &mut Option<String>, src: &Option<String>| {

@@ -7,7 +7,6 @@
 //! that map (in `map_stats.json` and on stdout).
 
 use anyhow::{Context, bail};
-use pfslam::config::Config;
 use pfslam::geometry::Pose2;
 use pfslam::io::map_files::{write_logodds_npy, write_map_server};
 use pfslam::io::tum::read_tum;
@@ -77,10 +76,7 @@ fn file_label(p: &Path) -> String {
 /// Runs the mapping.
 pub fn run(args: Args) -> anyhow::Result<()> {
     // Validate everything before any work.
-    let mut config = match &args.config {
-        Some(p) => Config::from_toml_file(p)?,
-        None => Config::default(),
-    };
+    let mut config = args.input.config(args.config.as_deref())?;
     if let Some(r) = args.resolution {
         config.map.resolution_m = r;
     }
@@ -96,7 +92,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.z_max.is_some() {
         config.map.scan.z_max_m = args.z_max;
     }
-    args.input.apply(&mut config.input)?;
     config.validate()?;
     let staging = super::output::Staging::new(&args.out)?;
     let out = staging.path().to_path_buf();

@@ -3,7 +3,6 @@
 //! `pfslam::motion::perturb`), written as a CARMEN log, and the reference trajectory it
 //! came from beside it (`FILE.reference.tum`), to check that SLAM recovers the path.
 
-use pfslam::config::Config;
 use pfslam::eval::{Association, ate::ate};
 use pfslam::io::carmen::write_carmen;
 use pfslam::io::tum::write_tum;
@@ -37,11 +36,8 @@ pub struct Args {
 
 /// Writes the perturbed log and the reference.
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let mut config = match &args.config {
-        Some(p) => Config::from_toml_file(p)?,
-        None => Config::default(),
-    };
-    args.input.apply(&mut config.input)?;
+    let config = args.input.config(args.config.as_deref())?;
+    config.validate()?;
     let errors = OdometryErrors::level(args.level)
         .ok_or_else(|| anyhow::anyhow!("--level must be 0, 1, 2 or 3, got {}", args.level))?;
     let name = args

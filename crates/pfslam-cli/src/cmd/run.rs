@@ -55,14 +55,10 @@ use super::dataset::{Dataset, load_dataset};
 
 /// Runs SLAM and writes the outputs.
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let mut config = match &args.config {
-        Some(p) => Config::from_toml_file(p)?,
-        None => Config::default(),
-    };
+    let mut config = args.input.config(args.config.as_deref())?;
     if let Some(n) = args.particles {
         config.filter.particles = n;
     }
-    args.input.apply(&mut config.input)?;
     // every check before reading the recording
     config.validate()?;
     let staging = super::output::Staging::new(&args.out)?;

@@ -7,7 +7,8 @@
 
 use super::IoError;
 use super::account::InputAccount;
-use super::ros_assemble::{RecordingBuilder, RosOptions, TopicInfo, TopicTable, choose_topics};
+use super::options::ReaderOptions;
+use super::ros_assemble::{RecordingBuilder, TopicInfo, TopicTable, choose_topics};
 use super::ros_msgs::{Decoder, OdomMsg, RosError, ScanMsg, encode};
 use super::ros1::add_message;
 use crate::sensors::Recording;
@@ -148,7 +149,7 @@ fn check_inner_records(content: &[u8]) -> Result<(), usize> {
 }
 
 /// Reads an MCAP file into a [`Recording`].
-pub fn read_mcap(path: &Path, options: &RosOptions) -> Result<Recording, RosError> {
+pub fn read_mcap(path: &Path, options: &ReaderOptions) -> Result<Recording, RosError> {
     read_mcap_with_account(path, options).map(|(r, _)| r)
 }
 
@@ -211,7 +212,7 @@ pub fn mcap_topics(path: &Path) -> Result<TopicTable, RosError> {
 /// Reads a MCAP file into a [`Recording`], with what was read, dropped and repaired.
 pub fn read_mcap_with_account(
     path: &Path,
-    options: &RosOptions,
+    options: &ReaderOptions,
 ) -> Result<(Recording, InputAccount), RosError> {
     let topics = mcap_topics(path)?.topics;
     let chosen =
@@ -268,7 +269,7 @@ pub struct McapTopics {
 pub fn write_mcap(
     path: &Path,
     recording: &Recording,
-    options: &RosOptions,
+    options: &ReaderOptions,
 ) -> Result<(), RosError> {
     let topics = McapTopics {
         scan: options.scan_topic.clone().unwrap_or_else(|| "/scan".into()),

@@ -11,6 +11,7 @@ pub mod humanoid;
 pub mod map_files;
 pub mod mcap;
 pub mod opencv_yaml;
+pub mod options;
 pub mod recording;
 pub mod ros1;
 pub mod ros_assemble;

@@ -4,9 +4,9 @@
 
 use super::IoError;
 use super::account::InputAccount;
-use super::carmen::{CarmenLaser, CarmenOptions, read_carmen};
+use super::carmen::read_carmen;
 use super::mcap::read_mcap_with_account;
-use super::ros_assemble::{BeamGeometry, RosOptions};
+pub use super::options::ReaderOptions;
 use super::ros_msgs::RosError;
 use super::ros1::read_ros1_bag_with_account;
 use crate::sensors::Recording;
@@ -24,86 +24,6 @@ pub enum RecordingFormat {
     Ros1Bag,
     /// ROS 2 MCAP (`.mcap`).
     Mcap,
-}
-
-/// Options of all recording readers (`[input]`).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct ReaderOptions {
-    /// ROS topic of the scans; unset: the only `LaserScan` topic, or `/scan` among several.
-    pub scan_topic: Option<String>,
-    /// ROS topic of the odometry; unset: the only `Odometry` topic, or `/odom` among
-    /// several, or odometry from `/tf` when there is none.
-    pub odom_topic: Option<String>,
-    /// ROS body frame; unset: the odometry's `child_frame_id`, or the first child of
-    /// `odom_frame` in `/tf`.
-    pub base_frame: Option<String>,
-    /// ROS odometry frame in `/tf`; unset: `odom`.
-    pub odom_frame: Option<String>,
-    /// ROS topic of `sensor_msgs/Imu` whose yaw replaces the odometry's turning (its
-    /// translation is kept); unset: no IMU.
-    pub imu_topic: Option<String>,
-    /// ROS beam angles: `auto` (CARMEN geometry for bags converted from CARMEN logs, else as
-    /// recorded), `as_recorded`, `carmen`.
-    pub beam_geometry: BeamGeometry,
-    /// Readings at or above this range (m) mean "no return"; unset: 50 m for CARMEN logs and
-    /// CARMEN-converted bags, else each scan's own maximum.
-    pub range_max_m: Option<f32>,
-    /// The laser of a CARMEN log: `front` (FLASER, else ROBOTLASER1) or `rear` (RLASER).
-    pub carmen_laser: CarmenLaser,
-    /// A malformed line is an error naming the file and line, instead of a counted drop.
-    pub strict: bool,
-    /// Only the part of the recording from this many seconds after its first scan.
-    pub start_s: Option<f64>,
-    /// Only the part of the recording up to this many seconds after its first scan.
-    pub end_s: Option<f64>,
-}
-
-impl ReaderOptions {
-    /// The CARMEN reader's options.
-    pub fn carmen(&self) -> CarmenOptions {
-        CarmenOptions {
-            laser: self.carmen_laser,
-            range_max_m: self
-                .range_max_m
-                .unwrap_or(CarmenOptions::default().range_max_m),
-            strict: self.strict,
-        }
-    }
-
-    /// The ROS readers' options.
-    pub fn ros(&self) -> RosOptions {
-        RosOptions {
-            scan_topic: self.scan_topic.clone(),
-            odom_topic: self.odom_topic.clone(),
-            base_frame: self.base_frame.clone(),
-            odom_frame: self.odom_frame.clone(),
-            imu_topic: self.imu_topic.clone(),
-            beam_geometry: self.beam_geometry,
-            range_max_m: self.range_max_m,
-        }
-    }
-
-    /// Checks the values; the message names the key.
-    pub fn validate(&self) -> Result<(), String> {
-        if self
-            .range_max_m
-            .is_some_and(|r| !(r.is_finite() && r > 0.0))
-        {
-            return Err("input.range_max_m must be finite and > 0".into());
-        }
-        for (k, v) in [("start_s", self.start_s), ("end_s", self.end_s)] {
-            if v.is_some_and(|s| !(s.is_finite() && s >= 0.0)) {
-                return Err(format!("input.{k} must be finite and >= 0"));
-            }
-        }
-        if let (Some(a), Some(b)) = (self.start_s, self.end_s)
-            && a >= b
-        {
-            return Err("input: start_s must be below end_s".into());
-        }
-        Ok(())
-    }
 }
 
 /// A recording and the account of its reading.
@@ -182,8 +102,8 @@ pub fn open_recording(path: &Path, options: &ReaderOptions) -> Result<Opened, Re
             let log = read_carmen(path, &options.carmen())?;
             (log.recording, log.account)
         }
-        Some(RecordingFormat::Ros1Bag) => read_ros1_bag_with_account(path, &options.ros())?,
-        Some(RecordingFormat::Mcap) => read_mcap_with_account(path, &options.ros())?,
+        Some(RecordingFormat::Ros1Bag) => read_ros1_bag_with_account(path, options)?,
+        Some(RecordingFormat::Mcap) => read_mcap_with_account(path, options)?,
         None => {
             return Err(ReadError::Unsupported {
                 path: path.to_path_buf(),

@@ -10,9 +10,9 @@
 
 use super::IoError;
 use super::account::InputAccount;
+use super::options::ReaderOptions;
 use super::ros_assemble::{
-    ChosenTopics, MsgKind, RecordingBuilder, RosOptions, TopicInfo, TopicTable, choose_topics,
-    msg_kind,
+    ChosenTopics, MsgKind, RecordingBuilder, TopicInfo, TopicTable, choose_topics, msg_kind,
 };
 use super::ros_msgs::{
     Decoder, RosError, decode_imu, decode_multi_echo_scan, decode_odometry, decode_scan, decode_tf,
@@ -90,7 +90,7 @@ fn check_header(path: &Path) -> Result<(u64, u64), RosError> {
 }
 
 /// Reads a ROS 1 bag into a [`Recording`].
-pub fn read_ros1_bag(path: &Path, options: &RosOptions) -> Result<Recording, RosError> {
+pub fn read_ros1_bag(path: &Path, options: &ReaderOptions) -> Result<Recording, RosError> {
     read_ros1_bag_with_account(path, options).map(|(r, _)| r)
 }
 
@@ -154,7 +154,7 @@ fn ros_time_ns(t: u64) -> i64 {
 /// Reads a ROS 1 bag into a [`Recording`], with what was read, dropped and repaired.
 pub fn read_ros1_bag_with_account(
     path: &Path,
-    options: &RosOptions,
+    options: &ReaderOptions,
 ) -> Result<(Recording, InputAccount), RosError> {
     let topics = ros1_topics(path)?.topics;
     let chosen =
@@ -207,7 +207,7 @@ pub fn read_ros1_bag_with_account(
 pub(crate) fn add_message(
     builder: &mut RecordingBuilder,
     chosen: &ChosenTopics,
-    options: &RosOptions,
+    options: &ReaderOptions,
     topic: &str,
     type_name: &str,
     d: &mut Decoder<'_>,

@@ -23,6 +23,7 @@
 
 use super::account::InputAccount;
 use super::clock::{longest_increasing, sort_scans};
+use super::options::ReaderOptions;
 use super::ros_msgs::{OdomMsg, ScanMsg, TfMsg};
 use crate::geometry::{Rigid3, StampedPose2, Trajectory};
 use crate::sensors::{LidarGeometry, Recording, ScanSet};
@@ -39,31 +40,6 @@ pub enum BeamGeometry {
     AsRecorded,
     /// Always the CARMEN convention (-90 deg + i * 1 deg or 0.5 deg).
     Carmen,
-}
-
-/// Topic and frame choices of the ROS readers (part of `[input]`).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct RosOptions {
-    /// Topic of the scans; unset: the only `LaserScan` topic, or `/scan` among several.
-    pub scan_topic: Option<String>,
-    /// Topic of the odometry; unset: the only `Odometry` topic, or `/odom` among several,
-    /// or none (odometry from `/tf`).
-    pub odom_topic: Option<String>,
-    /// The robot's body frame; unset: the odometry's `child_frame_id`, or the first child of
-    /// `odom_frame` in `/tf`.
-    pub base_frame: Option<String>,
-    /// The odometry frame of `/tf`; unset: `odom`.
-    pub odom_frame: Option<String>,
-    /// Topic of `sensor_msgs/Imu` messages whose yaw replaces the odometry's turning (the
-    /// odometry's translation is kept); unset: no IMU.
-    pub imu_topic: Option<String>,
-    /// Beam angles.
-    pub beam_geometry: BeamGeometry,
-    /// Readings at or above this range (m) mean "no return"; unset: 50 m with the CARMEN
-    /// geometry (the Freiburg files write 81.83/81.91 m or 50 m for no return), else each
-    /// message's `range_max`.
-    pub range_max_m: Option<f32>,
 }
 
 /// One topic of a recording.
@@ -141,7 +117,10 @@ pub fn list_topics(topics: &[TopicInfo]) -> String {
 }
 
 /// Chooses the topics by the rules of the module docs.
-pub fn choose_topics(topics: &[TopicInfo], options: &RosOptions) -> Result<ChosenTopics, String> {
+pub fn choose_topics(
+    topics: &[TopicInfo],
+    options: &ReaderOptions,
+) -> Result<ChosenTopics, String> {
     let of = |kinds: &[MsgKind]| -> Vec<&TopicInfo> {
         topics
             .iter()
@@ -291,7 +270,7 @@ impl RecordingBuilder {
 
     /// Adds dynamic transforms: `odom_frame -> base` ones become odometry, the first of every
     /// other edge may serve for the laser mount.
-    pub fn add_tf(&mut self, tfs: Vec<TfMsg>, options: &RosOptions) {
+    pub fn add_tf(&mut self, tfs: Vec<TfMsg>, options: &ReaderOptions) {
         let odom_frame = options.odom_frame.as_deref().unwrap_or("odom");
         for t in tfs {
             let base = options.base_frame.as_deref().or(self.tf_base.as_deref());
@@ -352,7 +331,7 @@ impl RecordingBuilder {
         self,
         name: String,
         topics: &ChosenTopics,
-        options: &RosOptions,
+        options: &ReaderOptions,
         mut acc: InputAccount,
     ) -> Result<(Recording, InputAccount), String> {
         if self.scans.is_empty() {
@@ -453,7 +432,7 @@ impl RecordingBuilder {
     }
 
     /// Each scan's geometry by [`BeamGeometry`].
-    fn geometries(&self, options: &RosOptions) -> Vec<LidarGeometry> {
+    fn geometries(&self, options: &ReaderOptions) -> Vec<LidarGeometry> {
         let n_of = |i: usize| self.scans.ranges(i).len();
         let first = self.layouts[0];
         let same = self.layouts.iter().all(|l| *l == first)
@@ -551,7 +530,7 @@ mod tests {
         ]);
         let acc = InputAccount::default();
         let (rec, acc) = b
-            .finish("t".into(), &topics(), &RosOptions::default(), acc)
+            .finish("t".into(), &topics(), &ReaderOptions::default(), acc)
             .unwrap();
         assert!(
             acc.mount_source.starts_with("/tf_static"),
@@ -574,7 +553,7 @@ mod tests {
     #[test]
     fn mixed_layouts_and_odometry_from_tf() {
         let mut b = RecordingBuilder::new();
-        let opts = RosOptions::default();
+        let opts = ReaderOptions::default();
         for k in 0..4i64 {
             let n = if k % 2 == 0 { 181 } else { 180 };
             b.add_scan(scan(10 + k, "laser", n, -1.5 + 0.001 * k as f32));
@@ -620,15 +599,15 @@ mod tests {
             t("/pose", "nav_msgs/Odometry"),
             t("/tf", "tf2_msgs/TFMessage"),
         ];
-        let c = choose_topics(&all, &RosOptions::default()).unwrap();
+        let c = choose_topics(&all, &ReaderOptions::default()).unwrap();
         assert_eq!(
             (c.scan.as_str(), c.odom.as_deref()),
             ("/base_scan", Some("/pose"))
         );
         assert_eq!(c.tf.as_deref(), Some("/tf"));
-        let asked = RosOptions {
+        let asked = ReaderOptions {
             scan_topic: Some("/scan".into()),
-            ..RosOptions::default()
+            ..ReaderOptions::default()
         };
         let e = choose_topics(&all, &asked).unwrap_err();
         assert!(
@@ -640,7 +619,7 @@ mod tests {
             t("/a", "sensor_msgs/msg/LaserScan"),
             t("/b", "sensor_msgs/LaserScan"),
         ];
-        let e = choose_topics(&two, &RosOptions::default()).unwrap_err();
+        let e = choose_topics(&two, &ReaderOptions::default()).unwrap_err();
         assert!(e.contains("several scan topics"), "{e}");
     }
 }

@@ -425,6 +425,13 @@ pub mod encode {
             self.u32(stamp_ns.rem_euclid(1_000_000_000) as u32);
             self.string(frame);
         }
+        /// A planar pose as `geometry_msgs/Pose` (position, then the yaw's quaternion).
+        fn planar_pose(&mut self, pose: &crate::geometry::Pose2) {
+            let half = 0.5 * pose.yaw_rad;
+            for v in [pose.x_m, pose.y_m, 0.0, 0.0, 0.0, half.sin(), half.cos()] {
+                self.f64(v);
+            }
+        }
         /// The bytes.
         pub fn into_bytes(self) -> Vec<u8> {
             self.buf
@@ -486,18 +493,7 @@ pub mod encode {
         w.u32(1);
         w.header(m.stamp_ns, &m.frame_id);
         w.string(&m.child_frame_id);
-        let half = 0.5 * m.pose.yaw_rad;
-        for v in [
-            m.pose.x_m,
-            m.pose.y_m,
-            0.0,
-            0.0,
-            0.0,
-            half.sin(),
-            half.cos(),
-        ] {
-            w.f64(v);
-        }
+        w.planar_pose(&m.pose);
         w.into_bytes()
     }
 
@@ -528,18 +524,7 @@ pub mod encode {
         let mut w = CdrWriter::new();
         w.header(m.stamp_ns, &m.frame_id);
         w.string(&m.child_frame_id);
-        let half = 0.5 * m.pose.yaw_rad;
-        for v in [
-            m.pose.x_m,
-            m.pose.y_m,
-            0.0,
-            0.0,
-            0.0,
-            half.sin(),
-            half.cos(),
-        ] {
-            w.f64(v);
-        }
+        w.planar_pose(&m.pose);
         for _ in 0..36 {
             w.f64(0.0);
         }

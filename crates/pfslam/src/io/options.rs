@@ -1,0 +1,72 @@
+//! The options of every recording reader: the `[input]` section of the configuration.
+
+use super::carmen::{CarmenLaser, CarmenOptions};
+use super::ros_assemble::BeamGeometry;
+use serde::{Deserialize, Serialize};
+
+/// Options of all recording readers (`[input]`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ReaderOptions {
+    /// ROS topic of the scans; unset: the only `LaserScan` topic, or `/scan` among several.
+    pub scan_topic: Option<String>,
+    /// ROS topic of the odometry; unset: the only `Odometry` topic, or `/odom` among
+    /// several, or odometry from `/tf` when there is none.
+    pub odom_topic: Option<String>,
+    /// ROS body frame; unset: the odometry's `child_frame_id`, or the first child of
+    /// `odom_frame` in `/tf`.
+    pub base_frame: Option<String>,
+    /// ROS odometry frame in `/tf`; unset: `odom`.
+    pub odom_frame: Option<String>,
+    /// ROS topic of `sensor_msgs/Imu` whose yaw replaces the odometry's turning (its
+    /// translation is kept); unset: no IMU.
+    pub imu_topic: Option<String>,
+    /// ROS beam angles: `auto` (CARMEN geometry for bags converted from CARMEN logs, else as
+    /// recorded), `as_recorded`, `carmen`.
+    pub beam_geometry: BeamGeometry,
+    /// Readings at or above this range (m) mean "no return"; unset: 50 m for CARMEN logs and
+    /// CARMEN-converted bags, else each scan's own maximum.
+    pub range_max_m: Option<f32>,
+    /// The laser of a CARMEN log: `front` (FLASER, else ROBOTLASER1) or `rear` (RLASER).
+    pub carmen_laser: CarmenLaser,
+    /// A malformed line is an error naming the file and line, instead of a counted drop.
+    pub strict: bool,
+    /// Only the part of the recording from this many seconds after its first scan.
+    pub start_s: Option<f64>,
+    /// Only the part of the recording up to this many seconds after its first scan.
+    pub end_s: Option<f64>,
+}
+
+impl ReaderOptions {
+    /// The CARMEN reader's options.
+    pub fn carmen(&self) -> CarmenOptions {
+        CarmenOptions {
+            laser: self.carmen_laser,
+            range_max_m: self
+                .range_max_m
+                .unwrap_or(CarmenOptions::default().range_max_m),
+            strict: self.strict,
+        }
+    }
+
+    /// Checks the values; the message names the key.
+    pub fn validate(&self) -> Result<(), String> {
+        if self
+            .range_max_m
+            .is_some_and(|r| !(r.is_finite() && r > 0.0))
+        {
+            return Err("input.range_max_m must be finite and > 0".into());
+        }
+        for (k, v) in [("start_s", self.start_s), ("end_s", self.end_s)] {
+            if v.is_some_and(|s| !(s.is_finite() && s >= 0.0)) {
+                return Err(format!("input.{k} must be finite and >= 0"));
+            }
+        }
+        if let (Some(a), Some(b)) = (self.start_s, self.end_s)
+            && a >= b
+        {
+            return Err("input: start_s must be below end_s".into());
+        }
+        Ok(())
+    }
+}
