@@ -512,3 +512,42 @@ fn outputs_are_one_unit_and_checked_before_work() {
         staging_dirs(dir.path())
     );
 }
+
+#[test]
+fn benchmark_corpus_scores_logs_against_their_reference() {
+    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+        eprintln!("SKIP benchmark_corpus_scores_logs_against_their_reference: no real data");
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let corpus = dir.path().join("corpus");
+    std::fs::create_dir(&corpus).unwrap();
+    std::fs::copy(
+        data.join("carmen/seattle-corrected.log.gz"),
+        corpus.join("seattle-corrected.log.gz"),
+    )
+    .unwrap();
+    let out = dir.path().join("out");
+    let o = super::run_ok(
+        super::pfslam()
+            .args(["benchmark", "--levels", "0,1", "--corpus"])
+            .arg(&corpus)
+            .arg("--out")
+            .arg(&out),
+    );
+    let text = String::from_utf8_lossy(&o.stdout);
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("corpus.json")).unwrap()).unwrap();
+    let rows = v["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 2, "{text}");
+    let f = |r: &serde_json::Value, k: &str| r[k].as_f64().unwrap();
+    // the log's own odometry is its reference; level 1 is metres off
+    assert!(
+        f(&rows[0], "odometry_ate_m") < 1e-9 && f(&rows[1], "odometry_ate_m") > 0.5,
+        "{text}"
+    );
+    // seed 1 measured 0.064 / 0.037 m on this building
+    for r in rows {
+        assert!(f(r, "slam_ate_m") < 0.2, "{text}");
+    }
+}

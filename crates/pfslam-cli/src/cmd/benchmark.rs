@@ -37,6 +37,13 @@ pub struct Args {
     /// instead of the filter's trajectory (to measure the back end alone).
     #[arg(long)]
     pub graph_on_odometry: bool,
+    /// Instead of the Freiburg recordings: every CARMEN log in this directory whose laser
+    /// lines carry reference poses (corrected logs), scored by ATE against them.
+    #[arg(long)]
+    pub corpus: Option<PathBuf>,
+    /// With `--corpus`: the odometry perturbation levels to run each log at (0 = as it is).
+    #[arg(long, value_delimiter = ',', default_value = "0,1,2")]
+    pub levels: Vec<u8>,
 }
 
 /// Published mean translational (m) / rotational (deg) errors on the relations (from
@@ -132,6 +139,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(p) => Config::from_toml_file(p)?,
         None => Config::default(),
     };
+    config.validate()?;
+    if let Some(dir) = &args.corpus {
+        if let Some(out) = &args.out {
+            std::fs::create_dir_all(out).with_context(|| out.display().to_string())?;
+        }
+        super::corpus::run_corpus(dir, &args.levels, &config, args.seed, args.out.as_deref())?;
+        return Ok(());
+    }
     let data = match &args.data {
         Some(d) => d.clone(),
         None => default_data_dir().ok_or_else(|| {

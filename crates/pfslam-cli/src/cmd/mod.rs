@@ -2,6 +2,7 @@
 
 pub mod bench_e2e;
 pub mod benchmark;
+pub mod corpus;
 pub mod dataset;
 pub mod dead_reckon;
 pub mod demo;

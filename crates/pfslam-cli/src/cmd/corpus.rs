@@ -1,0 +1,127 @@
+//! `pfslam benchmark --corpus DIR`: SLAM on every CARMEN log in a directory whose laser lines
+//! carry reference poses (Radish's corrected logs), as it is and with its odometry perturbed
+//! at each `--levels` severity (`pfslam::motion::perturb`), scored by ATE against the
+//! reference: one table, to judge a configuration on buildings, lasers and odometry it was
+//! not tuned on.
+
+use anyhow::Context;
+use pfslam::config::Config;
+use pfslam::eval::{Association, ate::ate};
+use pfslam::geometry::Trajectory;
+use pfslam::motion::perturb::{OdometryErrors, perturb_odometry};
+use pfslam::pipeline::{PipelineOptions, run_pipeline};
+use pfslam::sensors::sync::poses_at_stamps;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// One row: a log at one perturbation level.
+#[derive(Debug, serde::Serialize)]
+pub struct CorpusRow {
+    /// The log's name.
+    pub name: String,
+    /// Perturbation severity (0 = the log's own odometry).
+    pub level: u8,
+    /// Scans.
+    pub scans: usize,
+    /// ATE RMSE (SE(2)-aligned) of the odometry against the reference (m).
+    pub odometry_ate_m: f64,
+    /// ATE RMSE (SE(2)-aligned) of SLAM against the reference (m).
+    pub slam_ate_m: f64,
+    /// Wall time of SLAM (s).
+    pub wall_s: f64,
+}
+
+/// The CARMEN logs in `dir`, sorted.
+fn logs_in(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    let mut logs: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("--corpus {}", dir.display()))?
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| {
+            let n = p
+                .file_name()
+                .map(|n| n.to_string_lossy().to_lowercase())
+                .unwrap_or_default();
+            let base = n.strip_suffix(".gz").unwrap_or(&n);
+            base.ends_with(".log") || base.ends_with(".clf")
+        })
+        .collect();
+    logs.sort();
+    if logs.is_empty() {
+        anyhow::bail!(
+            "--corpus {}: no CARMEN log (.log, .clf, optionally .gz)",
+            dir.display()
+        );
+    }
+    Ok(logs)
+}
+
+/// ATE RMSE (SE(2)-aligned) of `estimate` against `reference`, paired by stamp.
+fn ate_rmse(estimate: &Trajectory, reference: &Trajectory) -> anyhow::Result<f64> {
+    Ok(ate(
+        estimate,
+        reference,
+        Association::Nearest { tolerance_ns: 0 },
+    )?
+    .aligned_m
+    .rmse)
+}
+
+/// Runs every log at every level and prints (and with `out`, writes) the table.
+pub fn run_corpus(
+    dir: &Path,
+    levels: &[u8],
+    config: &Config,
+    seed: u64,
+    out: Option<&Path>,
+) -> anyhow::Result<Vec<CorpusRow>> {
+    let errors: Vec<(u8, OdometryErrors)> = levels
+        .iter()
+        .map(|&l| {
+            OdometryErrors::level(l)
+                .map(|e| (l, e))
+                .ok_or_else(|| anyhow::anyhow!("--levels: {l} is not 0-3"))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    let mut rows = Vec::new();
+    println!("| log | level | scans | odometry ATE (m) | SLAM ATE (m) | wall (s) |");
+    println!("|---|---|---|---|---|---|");
+    for path in logs_in(dir)? {
+        let log = pfslam::io::carmen::read_carmen(&path, &config.input.carmen())?;
+        for &(level, e) in &errors {
+            let mut rec = log.recording.clone();
+            rec.odometry = perturb_odometry(&rec.odometry, &e, seed);
+            let (at_scans, _) = poses_at_stamps(&rec.odometry, &rec.scans.stamps_ns);
+            let odometry_ate_m = ate_rmse(&Trajectory::new(at_scans), &log.laser_poses)?;
+            let t = Instant::now();
+            let options = PipelineOptions {
+                rebuild_map: false,
+                ..PipelineOptions::default()
+            };
+            let result = run_pipeline(&rec, config, seed, &options, &mut |_| {})
+                .with_context(|| format!("SLAM on {} at level {level}", path.display()))?;
+            let wall_s = t.elapsed().as_secs_f64();
+            let slam_ate_m =
+                ate_rmse(&Trajectory::new(result.result.trajectory), &log.laser_poses)?;
+            let row = CorpusRow {
+                name: rec.name.clone(),
+                level,
+                scans: rec.scans.len(),
+                odometry_ate_m,
+                slam_ate_m,
+                wall_s,
+            };
+            println!(
+                "| {} | {} | {} | {:.3} | {:.3} | {:.1} |",
+                row.name, row.level, row.scans, row.odometry_ate_m, row.slam_ate_m, row.wall_s
+            );
+            rows.push(row);
+        }
+    }
+    if let Some(out) = out {
+        let text =
+            serde_json::to_string_pretty(&serde_json::json!({ "seed": seed, "rows": rows }))?;
+        pfslam::io::write_bytes_atomic(&out.join("corpus.json"), text.as_bytes())?;
+    }
+    Ok(rows)
+}
