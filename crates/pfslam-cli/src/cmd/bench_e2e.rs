@@ -228,7 +228,7 @@ fn bench(args: &Args, config: &Config, work: &Path) -> anyhow::Result<()> {
             let out = pfslam::sim::simulate_car(&world, &opts)?;
             pfslam::sim::write_car_sim(&dir, &out)
                 .with_context(|| format!("writing {}", dir.display()))?;
-            println!(
+            say!(
                 "simulated {:.1} s ({} scans, {} FOG rows) into {} in {:.1} s (not timed below)",
                 opts.duration_s,
                 out.dataset.lidar.len(),
@@ -254,7 +254,7 @@ fn bench(args: &Args, config: &Config, work: &Path) -> anyhow::Result<()> {
                 span_s = (b.stamp_ns - a.stamp_ns) as f64 * 1e-9;
             }
         }
-        println!(
+        say!(
             "run {}: total {:.2} s wall / {:.2} s CPU; load {:.2} / {:.2}, SLAM {:.2} / {:.2} \
              (match {:.2}, map {:.2}, predict {:.2}), back end {:.2} / {:.2} (of which the map \
              rebuild {:.2} / {:.2}), write {:.2} / {:.2}; peak RSS {}",
@@ -315,7 +315,7 @@ fn bench(args: &Args, config: &Config, work: &Path) -> anyhow::Result<()> {
     });
     let m = &summary["median"];
     let f = |k: &str| m[k].as_f64().unwrap_or(f64::NAN);
-    println!(
+    say!(
         "median of {} runs ({} scans, {} particles, {} m cells, {:.0} MB input, {} threads): \
          total {:.2} s wall / {:.2} s CPU (load {:.2}, SLAM {:.2}, write {:.2} s wall), \
          {:.0} scans/s, {:.1}x real time, peak RSS {:.0} MB",
@@ -335,7 +335,7 @@ fn bench(args: &Args, config: &Config, work: &Path) -> anyhow::Result<()> {
         f("peak_rss_mb"),
     );
     // One markdown row for tables (scripts/scaling.sh collects them).
-    println!(
+    say!(
         "row: | {} | {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.0} | {:.0} |",
         scans,
         config.filter.particles,

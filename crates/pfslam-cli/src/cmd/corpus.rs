@@ -84,8 +84,8 @@ pub fn run_corpus(
         })
         .collect::<anyhow::Result<_>>()?;
     let mut rows = Vec::new();
-    println!("| log | level | scans | odometry ATE (m) | SLAM ATE (m) | wall (s) |");
-    println!("|---|---|---|---|---|---|");
+    say!("| log | level | scans | odometry ATE (m) | SLAM ATE (m) | wall (s) |");
+    say!("|---|---|---|---|---|---|");
     for path in logs_in(dir)? {
         let log = pfslam::io::carmen::read_carmen(&path, &config.input.carmen())?;
         for &(level, e) in &errors {
@@ -111,9 +111,14 @@ pub fn run_corpus(
                 slam_ate_m,
                 wall_s,
             };
-            println!(
+            say!(
                 "| {} | {} | {} | {:.3} | {:.3} | {:.1} |",
-                row.name, row.level, row.scans, row.odometry_ate_m, row.slam_ate_m, row.wall_s
+                row.name,
+                row.level,
+                row.scans,
+                row.odometry_ate_m,
+                row.slam_ate_m,
+                row.wall_s
             );
             rows.push(row);
         }

@@ -72,22 +72,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let last = traj.poses.last().copied();
     let duration_s = last.map(|p| p.stamp_ns - first).unwrap_or(0) as f64 * 1e-9;
     match &ds.car {
-        Some(car) => println!(
+        Some(car) => say!(
             "rows: {} encoder, {} FOG, {} LiDAR scans",
             car.encoder.len(),
             car.fog.len(),
             ds.recording.scans.len()
         ),
-        None => println!(
+        None => say!(
             "odometry poses: {}, scans: {}",
             traj.len(),
             ds.recording.scans.len()
         ),
     }
-    println!("distance: {:.3} m", traj.path_length_m());
-    println!("duration: {duration_s:.3} s");
+    say!("distance: {:.3} m", traj.path_length_m());
+    say!("duration: {duration_s:.3} s");
     if let Some(p) = last {
-        println!(
+        say!(
             "final pose: x {:.3} m, y {:.3} m, yaw {:.2} deg (t = {} s)",
             p.pose.x_m,
             p.pose.y_m,
@@ -95,7 +95,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             format_stamp_s(p.stamp_ns)
         );
     }
-    println!(
+    say!(
         "wrote {}/trajectory.tum, trajectory.csv, trajectory.png ({} poses at LiDAR stamps)",
         args.out.display(),
         at_scans.len()

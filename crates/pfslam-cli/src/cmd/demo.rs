@@ -46,8 +46,8 @@ impl Default for Args {
 }
 
 fn stage(n: usize, what: &str) {
-    println!();
-    println!("== {n}/4 {what}");
+    say!();
+    say!("== {n}/4 {what}");
 }
 
 /// Runs the demo.
@@ -64,7 +64,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let dr_dir = out.join("dead_reckoning");
     let map_dir = out.join("map_ground_truth");
     let slam_dir = out.join("slam");
-    println!(
+    say!(
         "pfslam demo: simulating {} s of the seed car in the built-in campus world, then dead \
          reckoning, mapping with known poses, particle-filter SLAM and the ground's colours from \
          the stereo pairs along the SLAM path; outputs in {}",
@@ -131,10 +131,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     })
     .context("run")?;
 
-    println!();
-    println!("== summary ({:.1} s)", t0.elapsed().as_secs_f64());
+    say!();
+    say!("== summary ({:.1} s)", t0.elapsed().as_secs_f64());
     print_summary(&slam_dir.join("summary.json"))?;
-    println!("pictures:");
+    say!("pictures:");
     for p in [
         sim_dir.join("true_map.png"),
         dr_dir.join("trajectory.png"),
@@ -144,7 +144,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         slam_dir.join("texture.png"),
     ] {
         if p.is_file() {
-            println!("  {}", p.display());
+            say!("  {}", p.display());
         }
     }
     Ok(())
@@ -159,7 +159,7 @@ fn print_summary(path: &Path) -> anyhow::Result<()> {
         rmse("slam_vs_ground_truth"),
         rmse("dead_reckoning_vs_ground_truth"),
     ) {
-        println!(
+        say!(
             "ATE RMSE vs ground truth (SE(2)-aligned): SLAM {slam:.3} m, dead reckoning {dr:.3} m \
              (SLAM/DR = {:.2})",
             slam / dr
@@ -173,7 +173,7 @@ fn print_summary(path: &Path) -> anyhow::Result<()> {
         ),
     ] {
         if let Some(m) = v.get(key) {
-            println!(
+            say!(
                 "SLAM map vs true map (1 cell), {how}: precision {:.3}, recall {:.3}",
                 m["precision"].as_f64().unwrap_or(f64::NAN),
                 m["recall"].as_f64().unwrap_or(f64::NAN)

@@ -93,7 +93,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             let slam = ate_rmse(&res.trajectory, gt)?;
             dr_ate = ate_rmse(&res.dead_reckoning, gt)?;
             let t = res.stats.timings.total_s;
-            println!("{label}, {n} particles: ATE {slam:.3} m, {t:.2} s");
+            say!("{label}, {n} particles: ATE {slam:.3} m, {t:.2} s");
             rows.push(serde_json::json!({
                 "noise": label,
                 "sigma_v_mps": noise.sigma_v_mps,

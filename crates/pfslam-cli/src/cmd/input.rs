@@ -69,7 +69,7 @@ impl InputArgs {
 
 /// Prints the account on stdout and its warnings on stderr.
 pub fn report(account: &InputAccount) {
-    println!("{}", account.one_line());
+    say!("{}", account.one_line());
     for w in account.all_warnings() {
         eprintln!("warning: {w}");
     }

@@ -190,12 +190,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "estimated_free": c.estimated_free,
             "estimated_free_truly_occupied": c.estimated_free_truly_occupied,
         });
-        println!("{c}");
+        say!("{c}");
     }
     let text = serde_json::to_string_pretty(&report)? + "\n";
     write_bytes_atomic(&out.join("map_stats.json"), text.as_bytes())?;
     staging.commit()?;
-    println!(
+    say!(
         "map: {} scans, {} x {} cells at {} m -> {}",
         stats.scans_inserted,
         rect.width(),

@@ -1,5 +1,16 @@
 //! One module per subcommand: its clap `Args` and its `run`.
 
+/// `println!` for the commands' reports: a closed pipe (`pfslam run ... | head -1`) ends
+/// the printing quietly instead of panicking, as Unix tools do.
+macro_rules! say {
+    () => {
+        say!("")
+    };
+    ($($arg:tt)*) => {{
+        let _ = $crate::cmd::print_stdout(&format!("{}\n", format_args!($($arg)*)));
+    }};
+}
+
 pub mod bench_e2e;
 pub mod benchmark;
 pub mod corpus;

@@ -71,7 +71,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &reference,
         Association::Nearest { tolerance_ns: 0 },
     )?;
-    println!(
+    say!(
         "wrote {} ({written} scans, odometry at level {}, seed {}: ATE {:.3} m RMSE against the reference) and {}",
         args.out.display(),
         args.level,

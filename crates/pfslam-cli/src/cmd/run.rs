@@ -183,7 +183,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let (traj, map) = (&result.trajectory, &result.map);
     super::texture::texture_after_run(&args.dataset, traj, &config, map, &out_dir);
     staging.commit()?;
-    println!("wrote {}", args.out.display());
+    say!("wrote {}", args.out.display());
     Ok(())
 }
 
@@ -322,7 +322,7 @@ fn write_outputs(
     pfslam::io::write_bytes_atomic(&out.join("summary.json"), text.as_bytes())?;
 
     let s = &result.stats;
-    println!(
+    say!(
         "{}: {} of {} scans, {} particles, {} updates, {} resamples, Neff mean {:.1} min {:.1}",
         recording.name,
         s.scans_processed,
@@ -333,7 +333,7 @@ fn write_outputs(
         s.neff_mean,
         s.neff_min
     );
-    println!(
+    say!(
         "time: load {load_s:.2} s, SLAM {:.2} s (predict {:.2}, correlate {:.2} of which fields {:.2}, resample {:.3}, map {:.2}), outputs {write_s:.2} s",
         s.timings.total_s,
         s.timings.predict_s,
@@ -343,7 +343,7 @@ fn write_outputs(
         s.timings.map_update_s
     );
     if let Some((g, remap_s, _)) = graph {
-        println!(
+        say!(
             "graph: {} keyframes, {} loop closures kept ({} candidates, {} removed as outliers), \
              {:.2} s (matching {:.2}, refinement {:.2}, optimiser {:.2}); map rebuilt along it \
              in {:.2} s",
@@ -363,7 +363,7 @@ fn write_outputs(
         .map(|v| &v["odometry_calibration"])
         && !c.is_null()
     {
-        println!(
+        say!(
             "back end fed the odometry calibrated against the filter: scale {:.5}, yaw-rate bias {:.2e} rad/s",
             c["calibration"]["scale"].as_f64().unwrap_or(f64::NAN),
             c["calibration"]["yaw_rate_bias_rad_per_s"]
@@ -372,28 +372,28 @@ fn write_outputs(
         );
     }
     if let Some(f) = summary.get("front_end_vs_ground_truth") {
-        println!(
+        say!(
             "ATE RMSE (SE(2)-aligned) of the filter before the back end: {:.3} m",
             f["ate"]["aligned_m"]["rmse"].as_f64().unwrap_or(f64::NAN)
         );
     }
     if let Some(v) = summary.get("slam_vs_ground_truth") {
         let d = &summary["dead_reckoning_vs_ground_truth"];
-        println!(
+        say!(
             "ATE RMSE (SE(2)-aligned): SLAM {:.3} m, dead reckoning {:.3} m",
             v["ate"]["aligned_m"]["rmse"].as_f64().unwrap_or(f64::NAN),
             d["ate"]["aligned_m"]["rmse"].as_f64().unwrap_or(f64::NAN)
         );
     }
     if let Some(m) = summary.get("map_vs_true_map") {
-        println!(
+        say!(
             "map vs true map (1 cell tolerance), as written: precision {:.3}, recall {:.3}",
             m["precision"].as_f64().unwrap_or(f64::NAN),
             m["recall"].as_f64().unwrap_or(f64::NAN)
         );
     }
     if let Some(m) = summary.get("map_vs_true_map_aligned") {
-        println!(
+        say!(
             "map vs true map (1 cell tolerance), through the ATE's SE(2) alignment: precision {:.3}, recall {:.3}",
             m["precision"].as_f64().unwrap_or(f64::NAN),
             m["recall"].as_f64().unwrap_or(f64::NAN)

@@ -83,7 +83,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .with_context(|| format!("writing {}", args.out.display()))?;
             let t_all = t0.elapsed().as_secs_f64();
             let ds = &out.dataset;
-            println!(
+            say!(
                 "simulated the car in world {:?} for {:.1} s ({:.0} m driven): {} encoder rows, {} FOG rows, {} LiDAR scans, {} stereo pairs",
                 world.name,
                 opts.duration_s,
@@ -93,7 +93,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 ds.lidar.len(),
                 out.stereo_poses.len()
             );
-            println!(
+            say!(
                 "simulation {t_sim:.2} s, simulation + writing{} {t_all:.2} s; wrote {}",
                 if out.stereo_poses.is_empty() {
                     ""
@@ -109,7 +109,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             pfslam::sim::write_humanoid_sim(&args.out, &out)
                 .with_context(|| format!("writing {}", args.out.display()))?;
             let t_all = t0.elapsed().as_secs_f64();
-            println!(
+            say!(
                 "simulated the humanoid in world {:?} for {:.1} s ({:.0} m walked): {} odometry rows, {} scans ({} beams marked as floor hits)",
                 world.name,
                 opts.duration_s,
@@ -118,7 +118,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 out.dataset.lidar.len(),
                 out.ground_beam_count()
             );
-            println!(
+            say!(
                 "simulation {t_sim:.2} s, simulation + writing {t_all:.2} s; wrote {}",
                 args.out.display()
             );

@@ -177,7 +177,7 @@ fn write_texture(
         serde_json::to_writer_pretty(&mut *wr, &meta)?;
         wr.write_all(b"\n")
     })?;
-    println!(
+    say!(
         "texture: {} pairs, {} cells coloured -> {}",
         stats.pairs_used,
         texture.cells.len(),
