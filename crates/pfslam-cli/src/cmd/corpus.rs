@@ -10,6 +10,7 @@ use pfslam::eval::{Association, ate::ate};
 use pfslam::geometry::Trajectory;
 use pfslam::motion::perturb::{OdometryErrors, perturb_odometry};
 use pfslam::pipeline::{PipelineOptions, run_pipeline};
+use pfslam::sensors::Recording;
 use pfslam::sensors::sync::poses_at_stamps;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -56,6 +57,12 @@ fn logs_in(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
     Ok(logs)
 }
 
+/// ATE RMSE (SE(2)-aligned) of a recording's odometry at its scans against `reference`.
+pub(crate) fn odometry_ate_m(rec: &Recording, reference: &Trajectory) -> anyhow::Result<f64> {
+    let (at_scans, _) = poses_at_stamps(&rec.odometry, &rec.scans.stamps_ns);
+    ate_rmse(&Trajectory::new(at_scans), reference)
+}
+
 /// ATE RMSE (SE(2)-aligned) of `estimate` against `reference`, paired by stamp.
 fn ate_rmse(estimate: &Trajectory, reference: &Trajectory) -> anyhow::Result<f64> {
     Ok(ate(
@@ -88,11 +95,11 @@ pub fn run_corpus(
     say!("|---|---|---|---|---|---|");
     for path in logs_in(dir)? {
         let log = pfslam::io::carmen::read_carmen(&path, &config.input.carmen())?;
+        let mut rec = log.recording;
+        let original = rec.odometry.clone();
         for &(level, e) in &errors {
-            let mut rec = log.recording.clone();
-            rec.odometry = perturb_odometry(&rec.odometry, &e, seed);
-            let (at_scans, _) = poses_at_stamps(&rec.odometry, &rec.scans.stamps_ns);
-            let odometry_ate_m = ate_rmse(&Trajectory::new(at_scans), &log.laser_poses)?;
+            rec.odometry = perturb_odometry(&original, &e, seed);
+            let odometry_ate_m = odometry_ate_m(&rec, &log.laser_poses)?;
             let t = Instant::now();
             let options = PipelineOptions {
                 rebuild_map: false,

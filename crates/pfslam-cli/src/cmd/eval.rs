@@ -8,7 +8,6 @@ use pfslam::eval::{Association, ErrorStats, associate, ate::ate_of_pairs};
 use pfslam::io::recording::{ReaderOptions, detect_format, read_recording};
 use pfslam::io::tum::read_tum;
 use pfslam::sensors::sync::poses_at_stamps;
-use std::fmt::Write;
 use std::path::PathBuf;
 
 /// Arguments of `eval`.
@@ -90,18 +89,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             tolerance_ns: args.tolerance_ns.unwrap_or(1_000),
         },
     };
-    let mut text = String::new();
     let estimate = match detect_format(&args.trajectory)? {
         Some(_) => {
             let rec = read_recording(&args.trajectory, &ReaderOptions::default())?;
             let (poses, clamped) = poses_at_stamps(&rec.odometry, &rec.scans.stamps_ns);
             if !args.json {
-                writeln!(
-                    text,
+                say!(
                     "raw odometry of {} at its {} scan stamps ({clamped} outside the odometry's time span, given its first/last pose)",
                     args.trajectory.display(),
                     rec.scans.len(),
-                )?;
+                );
             }
             pfslam::geometry::Trajectory::new(poses)
         }
@@ -119,47 +116,38 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             json.insert("ate".into(), serde_json::to_value(&ate)?);
             json.insert("rpe".into(), serde_json::to_value(&rpe)?);
         } else {
-            writeln!(
-                text,
+            say!(
                 "associated poses: {} ({} estimate poses without ground truth)",
-                ate.pairs, ate.unmatched
-            )?;
-            writeln!(
-                text,
-                "ATE aligned (SE(2)):   {}",
-                stats_line(&ate.aligned_m, "m")
-            )?;
-            writeln!(
-                text,
+                ate.pairs,
+                ate.unmatched
+            );
+            say!("ATE aligned (SE(2)):   {}", stats_line(&ate.aligned_m, "m"));
+            say!(
                 "ATE unaligned:         {}",
                 stats_line(&ate.unaligned_m, "m")
-            )?;
-            writeln!(
-                text,
+            );
+            say!(
                 "heading aligned:       {}",
                 stats_line(&ate.aligned_rot_deg, "deg")
-            )?;
-            writeln!(
-                text,
+            );
+            say!(
                 "alignment gt_from_estimate: x {:.4} m, y {:.4} m, yaw {:.4} deg",
                 ate.alignment.x_m,
                 ate.alignment.y_m,
                 ate.alignment.yaw_rad.to_degrees()
-            )?;
+            );
             let d = match rpe.delta {
                 RpeDelta::Frames(k) => format!("{k} frame(s)"),
                 RpeDelta::Metres(m) => format!("{m} m"),
             };
-            writeln!(
-                text,
+            say!(
                 "RPE over {d}: translation {}",
                 stats_line(&rpe.trans_m, "m")
-            )?;
-            writeln!(
-                text,
+            );
+            say!(
                 "RPE over {d}: rotation    {}",
                 stats_line(&rpe.rot_deg, "deg")
-            )?;
+            );
         }
     }
     if let Some(rel_path) = &args.relations {
@@ -172,13 +160,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         if args.json {
             json.insert("relations".into(), serde_json::to_value(&r)?);
         } else {
-            writeln!(
-                text,
+            say!(
                 "relations: {} used of {} ({} skipped: a stamp without pose)",
-                r.used, r.relations, r.skipped
-            )?;
-            writeln!(
-                text,
+                r.used,
+                r.relations,
+                r.skipped
+            );
+            say!(
                 "translational error: {:.4} +- {:.4} m (max {:.4}); squared {:.5} +- {:.5} m^2 (max {:.4})",
                 r.trans_m.abs.mean,
                 r.trans_m.abs.std,
@@ -186,9 +174,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 r.trans_m.squared.mean,
                 r.trans_m.squared.std,
                 r.trans_m.squared.max
-            )?;
-            writeln!(
-                text,
+            );
+            say!(
                 "rotational error:    {:.4} +- {:.4} deg (max {:.4}); squared {:.4} +- {:.4} deg^2 (max {:.4})",
                 r.rot_deg.abs.mean,
                 r.rot_deg.abs.std,
@@ -196,11 +183,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 r.rot_deg.squared.mean,
                 r.rot_deg.squared.std,
                 r.rot_deg.squared.max
-            )?;
+            );
         }
     }
     if args.json {
-        writeln!(text, "{}", serde_json::to_string_pretty(&json)?)?;
+        say!("{}", serde_json::to_string_pretty(&json)?);
     }
-    super::print_stdout(&text)
+    Ok(())
 }

@@ -3,7 +3,6 @@
 //! `pfslam::motion::perturb`), written as a CARMEN log, and the reference trajectory it
 //! came from beside it (`FILE.reference.tum`), to check that SLAM recovers the path.
 
-use pfslam::eval::{Association, ate::ate};
 use pfslam::io::carmen::write_carmen;
 use pfslam::io::tum::write_tum;
 use pfslam::motion::perturb::{OdometryErrors, perturb_odometry};
@@ -65,18 +64,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     rec.odometry = perturb_odometry(&rec.odometry, &errors, args.seed);
     let written = write_carmen(&args.out, &rec, Some(&reference))?;
     write_tum(&reference_path, &reference.poses)?;
-    let (degraded, _) = poses_at_stamps(&rec.odometry, &rec.scans.stamps_ns);
-    let a = ate(
-        &pfslam::geometry::Trajectory::new(degraded),
-        &reference,
-        Association::Nearest { tolerance_ns: 0 },
-    )?;
+    let ate_m = super::corpus::odometry_ate_m(&rec, &reference)?;
     say!(
         "wrote {} ({written} scans, odometry at level {}, seed {}: ATE {:.3} m RMSE against the reference) and {}",
         args.out.display(),
         args.level,
         args.seed,
-        a.aligned_m.rmse,
+        ate_m,
         reference_path.display()
     );
     Ok(())

@@ -110,7 +110,14 @@ impl InputAccount {
 
     /// Counts one record of a kind the reader does not use.
     pub fn ignore_one(&mut self, kind: &str, unit: &str) {
-        tally(&mut self.ignored, unit, kind, 1, String::new);
+        self.ignore_many(kind, unit, 1);
+    }
+
+    /// Counts `count` records of a kind the reader does not use.
+    pub fn ignore_many(&mut self, kind: &str, unit: &str, count: usize) {
+        if count > 0 {
+            tally(&mut self.ignored, unit, kind, count, String::new);
+        }
     }
 
     /// Counts one scan of layout `g`.

@@ -10,7 +10,6 @@ use super::account::InputAccount;
 use super::options::ReaderOptions;
 use super::ros_assemble::{RecordingBuilder, TopicInfo, TopicTable, choose_topics};
 use super::ros_msgs::{Decoder, OdomMsg, RosError, ScanMsg, encode};
-use super::ros1::add_message;
 use crate::sensors::Recording;
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -186,10 +185,14 @@ fn for_each_message(
 /// The file's topics with their types and message counts, and its time span (ns, by the
 /// messages' log times) when it has messages.
 pub fn mcap_topics(path: &Path) -> Result<TopicTable, RosError> {
-    let map = map_checked(path)?;
+    topics_in(path, &map_checked(path)?)
+}
+
+/// [`mcap_topics`] of an already mapped and checked file.
+fn topics_in(path: &Path, map: &[u8]) -> Result<TopicTable, RosError> {
     let mut topics: Vec<TopicInfo> = Vec::new();
     let mut span: Option<(i64, i64)> = None;
-    for_each_message(path, &map, |_, msg, type_name| {
+    for_each_message(path, map, |_, msg, type_name| {
         let t = i64::try_from(msg.log_time).unwrap_or(i64::MAX);
         span = Some(span.map_or((t, t), |(a, b)| (a.min(t), b.max(t))));
         let topic = msg.channel.topic.as_str();
@@ -214,21 +217,16 @@ pub fn read_mcap_with_account(
     path: &Path,
     options: &ReaderOptions,
 ) -> Result<(Recording, InputAccount), RosError> {
-    let topics = mcap_topics(path)?.topics;
+    let map = map_checked(path)?;
+    let topics = topics_in(path, &map)?.topics;
     let chosen =
         choose_topics(&topics, options).map_err(|e| RosError::format(path, "topics", e))?;
-    let map = map_checked(path)?;
     let mut acc = InputAccount::new("mcap", path, "messages");
     let mut builder = RecordingBuilder::new();
     for_each_message(path, &map, |k, msg, type_name| {
         acc.records_read += 1;
         let topic = msg.channel.topic.as_str();
-        let used = topic == chosen.scan
-            || Some(topic) == chosen.odom.as_deref()
-            || Some(topic) == chosen.tf.as_deref()
-            || Some(topic) == chosen.tf_static.as_deref()
-            || Some(topic) == chosen.imu.as_deref();
-        if !used {
+        if !chosen.uses(topic) {
             return Ok(());
         }
         let pos = format!("message {k}");
@@ -244,7 +242,9 @@ pub fn read_mcap_with_account(
         }
         let err = |e: String| RosError::format(path, &pos, format!("{type_name} on {topic}: {e}"));
         let mut d = Decoder::cdr(&msg.data).map_err(err)?;
-        add_message(&mut builder, &chosen, options, topic, type_name, &mut d).map_err(err)
+        builder
+            .add_message(&chosen, options, topic, type_name, &mut d)
+            .map_err(err)
     })?;
     builder
         .finish(super::carmen::recording_name(path), &chosen, options, acc)

@@ -11,12 +11,8 @@
 use super::IoError;
 use super::account::InputAccount;
 use super::options::ReaderOptions;
-use super::ros_assemble::{
-    ChosenTopics, MsgKind, RecordingBuilder, TopicInfo, TopicTable, choose_topics, msg_kind,
-};
-use super::ros_msgs::{
-    Decoder, RosError, decode_imu, decode_multi_echo_scan, decode_odometry, decode_scan, decode_tf,
-};
+use super::ros_assemble::{RecordingBuilder, TopicInfo, TopicTable, choose_topics};
+use super::ros_msgs::{Decoder, RosError};
 use crate::sensors::Recording;
 use rosbag::{ChunkRecord, IndexRecord, MessageRecord, RosBag};
 use std::collections::HashMap;
@@ -192,7 +188,9 @@ pub fn read_ros1_bag_with_account(
                         RosError::format(path, pos(Some(ri)), format!("{tp} on {topic}: {e}"))
                     };
                     let mut d = Decoder::ros1(md.data);
-                    add_message(&mut builder, &chosen, options, topic, tp, &mut d).map_err(err)?;
+                    builder
+                        .add_message(&chosen, options, topic, tp, &mut d)
+                        .map_err(err)?;
                 }
             }
         }
@@ -200,33 +198,4 @@ pub fn read_ros1_bag_with_account(
     builder
         .finish(super::carmen::recording_name(path), &chosen, options, acc)
         .map_err(|e| RosError::format(path, "whole file", e))
-}
-
-/// Decodes one message of a chosen topic into the builder; messages of other topics are
-/// skipped.
-pub(crate) fn add_message(
-    builder: &mut RecordingBuilder,
-    chosen: &ChosenTopics,
-    options: &ReaderOptions,
-    topic: &str,
-    type_name: &str,
-    d: &mut Decoder<'_>,
-) -> Result<(), String> {
-    let kind = msg_kind(type_name);
-    if topic == chosen.scan {
-        let scan = match kind {
-            Some(MsgKind::MultiEchoScan) => decode_multi_echo_scan(d)?,
-            _ => decode_scan(d)?,
-        };
-        builder.add_scan(scan);
-    } else if Some(topic) == chosen.odom.as_deref() {
-        builder.add_odometry(decode_odometry(d)?);
-    } else if Some(topic) == chosen.tf_static.as_deref() {
-        builder.add_tf_static(decode_tf(d)?);
-    } else if Some(topic) == chosen.tf.as_deref() {
-        builder.add_tf(decode_tf(d)?, options);
-    } else if Some(topic) == chosen.imu.as_deref() {
-        builder.add_imu(decode_imu(d)?);
-    }
-    Ok(())
 }

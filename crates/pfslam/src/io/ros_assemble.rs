@@ -24,7 +24,10 @@
 use super::account::InputAccount;
 use super::clock::{longest_increasing, sort_scans};
 use super::options::ReaderOptions;
-use super::ros_msgs::{OdomMsg, ScanMsg, TfMsg};
+use super::ros_msgs::{
+    Decoder, OdomMsg, ScanMsg, TfMsg, decode_imu, decode_multi_echo_scan, decode_odometry,
+    decode_scan, decode_tf,
+};
 use crate::geometry::{Rigid3, StampedPose2, Trajectory};
 use crate::sensors::{LidarGeometry, Recording, ScanSet};
 use serde::{Deserialize, Serialize};
@@ -102,6 +105,16 @@ pub struct ChosenTopics {
     pub tf_static: Option<String>,
     /// IMU, when asked for.
     pub imu: Option<String>,
+}
+
+impl ChosenTopics {
+    /// True when messages on `topic` are read.
+    pub fn uses(&self, topic: &str) -> bool {
+        topic == self.scan
+            || [&self.odom, &self.tf, &self.tf_static, &self.imu]
+                .iter()
+                .any(|t| t.as_deref() == Some(topic))
+    }
 }
 
 /// The topics as a list for error messages.
@@ -234,6 +247,34 @@ impl RecordingBuilder {
         RecordingBuilder::default()
     }
 
+    /// Decodes one message of a chosen topic into the builder (`d` positioned at its
+    /// payload); messages of other topics are skipped.
+    pub fn add_message(
+        &mut self,
+        chosen: &ChosenTopics,
+        options: &ReaderOptions,
+        topic: &str,
+        type_name: &str,
+        d: &mut Decoder<'_>,
+    ) -> Result<(), String> {
+        if topic == chosen.scan {
+            let scan = match msg_kind(type_name) {
+                Some(MsgKind::MultiEchoScan) => decode_multi_echo_scan(d)?,
+                _ => decode_scan(d)?,
+            };
+            self.add_scan(scan);
+        } else if Some(topic) == chosen.odom.as_deref() {
+            self.add_odometry(decode_odometry(d)?);
+        } else if Some(topic) == chosen.tf_static.as_deref() {
+            self.add_tf_static(decode_tf(d)?);
+        } else if Some(topic) == chosen.tf.as_deref() {
+            self.add_tf(decode_tf(d)?, options);
+        } else if Some(topic) == chosen.imu.as_deref() {
+            self.add_imu(decode_imu(d)?);
+        }
+        Ok(())
+    }
+
     /// Adds a scan (one with no range is dropped and counted).
     pub fn add_scan(&mut self, msg: ScanMsg) {
         if msg.ranges.is_empty() {
@@ -296,11 +337,6 @@ impl RecordingBuilder {
             .push((msg.stamp_ns, msg.yaw_rad, msg.yaw_rate_rad_per_s));
     }
 
-    /// Number of scans so far.
-    pub fn scan_count(&self) -> usize {
-        self.scans.len()
-    }
-
     /// `body_from_lidar` by walking the transforms from the scan frame up to the body frame;
     /// `None` when there is no such chain.
     fn mount(&self, body: &str) -> Option<(Rigid3, &'static str)> {
@@ -328,7 +364,7 @@ impl RecordingBuilder {
     /// The recording, its account filled in; `Err` with a message when there is no scan or
     /// no odometry.
     pub fn finish(
-        self,
+        mut self,
         name: String,
         topics: &ChosenTopics,
         options: &ReaderOptions,
@@ -344,11 +380,15 @@ impl RecordingBuilder {
         acc.drop_many("scans", "without any range", self.dropped_empty);
         let (odometry_src, source) = if !self.odom.is_empty() {
             let t = topics.odom.as_deref().unwrap_or("?");
-            (self.odom.clone(), format!("{t} (nav_msgs/Odometry)"))
+            (
+                std::mem::take(&mut self.odom),
+                format!("{t} (nav_msgs/Odometry)"),
+            )
         } else if !self.tf_odom.is_empty() {
             let base = self.tf_base.as_deref().unwrap_or("?");
             let odom = options.odom_frame.as_deref().unwrap_or("odom");
-            (self.tf_odom.clone(), format!("/tf {odom} -> {base}"))
+            let source = format!("/tf {odom} -> {base}");
+            (std::mem::take(&mut self.tf_odom), source)
         } else {
             acc.warnings.push(format!(
                 "no odometry (no Odometry topic, no /tf transform from {:?}): LiDAR-only, the motion comes from scan matching",
@@ -398,9 +438,8 @@ impl RecordingBuilder {
         acc.odometry_kept = keep.len();
         let mut odometry = Trajectory::new(keep.iter().map(|&i| odometry_src[i]).collect());
         if let Some(topic) = &topics.imu {
-            let mut imu = self.imu.clone();
-            imu.sort_by_key(|s| s.0);
-            let series = crate::motion::imu_yaw::yaw_series(&imu);
+            self.imu.sort_by_key(|s| s.0);
+            let series = crate::motion::imu_yaw::yaw_series(&self.imu);
             if series.is_empty() {
                 return Err(format!("no IMU message on {topic}"));
             }
@@ -435,8 +474,7 @@ impl RecordingBuilder {
     fn geometries(&self, options: &ReaderOptions) -> Vec<LidarGeometry> {
         let n_of = |i: usize| self.scans.ranges(i).len();
         let first = self.layouts[0];
-        let same = self.layouts.iter().all(|l| *l == first)
-            && (0..self.scans.len()).all(|i| n_of(i) == n_of(0));
+        let same = self.scans.is_uniform() && self.layouts.iter().all(|l| *l == first);
         let carmen = match options.beam_geometry {
             BeamGeometry::Auto => same && looks_carmen(&first, n_of(0)),
             BeamGeometry::AsRecorded => false,
@@ -446,7 +484,8 @@ impl RecordingBuilder {
             .map(|i| {
                 let (l, n) = (self.layouts[i], n_of(i));
                 if carmen {
-                    super::carmen::carmen_geometry(n, options.range_max_m.unwrap_or(50.0))
+                    let max = super::carmen::CarmenOptions::default().range_max_m;
+                    super::carmen::carmen_geometry(n, options.range_max_m.unwrap_or(max))
                 } else {
                     let max = if l.range_max.is_finite() && l.range_max > 0.0 {
                         l.range_max

@@ -413,7 +413,6 @@ pub fn map_with_poses(
     let mut grid = OccupancyGrid::new(opts)?;
     let projector = ScanProjector::new(&recording.lidar, &recording.body_from_lidar, &opts.scan)?;
     let mut stats = MappingStats::default();
-
     let scans: Vec<(usize, bool)> = scans_to_map(recording, poses, opts)
         .into_iter()
         .enumerate()

@@ -33,6 +33,17 @@ pub struct OdometryErrors {
 }
 
 impl OdometryErrors {
+    /// No error at all (level 0).
+    pub const NONE: OdometryErrors = OdometryErrors {
+        scale_error: 0.0,
+        turn_scale_error: 0.0,
+        yaw_drift_rad_per_m: 0.0,
+        walk_xy_m: 0.0,
+        walk_yaw_rad: 0.0,
+        slips_per_m: 0.0,
+        slip_yaw_rad: 0.0,
+    };
+
     /// The errors of severity `level` (0-3; see the module docs).
     pub fn level(level: u8) -> Option<OdometryErrors> {
         let deg = |d: f64| d.to_radians();
@@ -46,7 +57,7 @@ impl OdometryErrors {
             slip_yaw_rad: slip_yaw,
         };
         match level {
-            0 => Some(e(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
+            0 => Some(Self::NONE),
             1 => Some(e(0.01, 0.01, deg(0.1), 0.005, deg(0.1), 0.002, deg(2.0))),
             2 => Some(e(0.02, 0.05, deg(1.5), 0.01, deg(0.5), 0.005, deg(5.0))),
             3 => Some(e(0.05, 0.08, deg(3.0), 0.02, deg(1.0), 0.01, deg(10.0))),
@@ -59,7 +70,7 @@ impl OdometryErrors {
 /// pose is kept, every later one is the previous perturbed pose composed with the perturbed
 /// increment. The same seed gives the same odometry.
 pub fn perturb_odometry(odometry: &Trajectory, errors: &OdometryErrors, seed: u64) -> Trajectory {
-    if *errors == OdometryErrors::level(0).unwrap_or(*errors) {
+    if *errors == OdometryErrors::NONE {
         // no error: the poses as they are, not recomposed from their increments
         return odometry.clone();
     }

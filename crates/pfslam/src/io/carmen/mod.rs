@@ -144,7 +144,6 @@ struct LaserStream {
     geometry: Vec<LidarGeometry>,
     odom: Vec<Pose2>,
     pose: Vec<Pose2>,
-    stamps: Vec<i64>,
     /// `ODOM` lines before each laser line.
     odom_before: Vec<usize>,
     first_robot_mount: Option<Pose2>,
@@ -156,7 +155,6 @@ impl LaserStream {
         self.geometry.push(g);
         self.odom.push(l.odom);
         self.pose.push(l.pose);
-        self.stamps.push(l.stamp_ns);
         self.odom_before.push(odom_before);
         if l.kind == LaserKind::Robot && self.first_robot_mount.is_none() {
             self.first_robot_mount = Some(l.odom.between(&l.pose));
@@ -272,7 +270,8 @@ fn read_lines(
             Err(why) if options.strict => return Err(IoError::parse(path, line_no, why)),
             Err(why) => {
                 let kind = first_word(&buf);
-                let what = if matches!(kind.as_str(), "FLASER" | "RLASER" | "ROBOTLASER1") {
+                let laser = ["FLASER", "RLASER", "ROBOTLASER1", "RAWLASER1", "RAWLASER2"];
+                let what = if laser.contains(&kind.as_str()) {
                     acc.scans_read += 1;
                     "scans"
                 } else {
@@ -344,9 +343,7 @@ fn assemble(
         (&content.raw[0], "RAWLASER1"),
         (&content.raw[1], "RAWLASER2"),
     ] {
-        for _ in 0..s.scans.len() {
-            acc.ignore_one(name, "lines (another laser)");
-        }
+        acc.ignore_many(name, "lines (another laser)", s.scans.len());
     }
     if stream.scans.is_empty() {
         return Err(IoError::parse(
@@ -370,15 +367,14 @@ fn assemble(
     }
     let stamps = choose_clock(path, &stream, &content.odom_stamps, &mut acc);
     let raw = kind_name.starts_with("RAWLASER");
-    for _ in 0..content.odom_poses.len() * usize::from(!raw) {
-        acc.ignore_one("ODOM", "lines (the laser lines carry the odometry)");
-    }
     let odometry = if raw {
         // these lines carry no pose: the ODOM lines are the odometry
         let odom = odom_lines(&content, &mut acc);
         acc.odometry_source = "the ODOM lines (the RAWLASER lines carry no pose)".into();
         Some(odom)
     } else {
+        let why = "lines (the laser lines carry the odometry)";
+        acc.ignore_many("ODOM", why, content.odom_poses.len());
         acc.odometry_read = n;
         acc.odometry_kept = n;
         acc.odometry_source = format!("the {kind_name} lines' odometry poses");
@@ -425,7 +421,7 @@ fn choose_clock(
     odom: &[Option<i64>],
     acc: &mut InputAccount,
 ) -> Vec<i64> {
-    let laser: Vec<Option<i64>> = stream.stamps.iter().map(|&s| Some(s)).collect();
+    let laser: Vec<Option<i64>> = stream.scans.stamps_ns.iter().map(|&s| Some(s)).collect();
     if let Some(c) = repair_in_file_order(&laser) {
         acc.clock = if c.repaired == 0 {
             "the laser lines' stamps".into()
@@ -449,7 +445,7 @@ fn choose_clock(
             "the ODOM lines' stamps, each scan placed by its file position (laser stamps unusable)",
         ),
         None => (
-            (0..stream.stamps.len() as i64)
+            (0..stream.scans.len() as i64)
                 .map(|k| k * SYNTHETIC_PERIOD_NS)
                 .collect(),
             "one scan per second in file order (no usable stamps)",
@@ -459,7 +455,7 @@ fn choose_clock(
     acc.repair(
         "scans",
         "stamp unusable: placed by file order",
-        stream.stamps.len(),
+        stream.scans.len(),
     );
     acc.warnings.push(format!(
         "{}: the laser stamps are unusable (zero, repeated or not increasing); the clock is {clock}: relations or ground truth named by stamp will not match",
