@@ -68,6 +68,13 @@ fn run_on_a_short_simulated_drive() {
     );
     assert!(summary["stats"]["timings"]["correlate_s"].is_number());
     assert!(summary["stats"]["neff_mean"].as_f64().unwrap() >= 1.0);
+    // The self-check: a verdict, its reasons, and the free share it rests on.
+    let quality = &summary["quality"];
+    let status = quality["status"].as_str().unwrap_or_default();
+    assert!(["ok", "suspect"].contains(&status), "{quality}");
+    assert!(quality["reasons"].is_array(), "{quality}");
+    let share = quality["signals"]["free_share"].as_f64().unwrap();
+    assert!((0.0..=1.0).contains(&share), "{quality}");
 }
 
 #[test]

@@ -41,6 +41,7 @@ pub mod io;
 pub mod map;
 pub mod motion;
 pub mod pipeline;
+pub mod quality;
 pub mod sensors;
 pub mod sim;
 pub mod stereo;

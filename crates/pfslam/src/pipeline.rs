@@ -8,8 +8,10 @@ use crate::filter::slam::{SlamError, SlamEvent, SlamResult, run_slam};
 use crate::geometry::{StampedPose2, Trajectory};
 pub use crate::graph::BackEndInput;
 use crate::graph::{GraphError, GraphStats, optimize_trajectory};
-use crate::map::{MapError, map_with_poses};
+use crate::map::consistency::consistency;
+use crate::map::{MapError, OccupancyGrid, map_with_poses};
 use crate::motion::calibration::{CalibrationFit, fit_odometry_calibration};
+use crate::quality::{Quality, QualitySignals};
 use crate::sensors::Recording;
 use std::time::Instant;
 
@@ -78,10 +80,13 @@ pub struct PipelineResult {
     pub filter_cpu_s: Option<f64>,
     /// CPU seconds of the back end and the map rebuild; `None` off Linux.
     pub back_end_cpu_s: Option<f64>,
-    /// Wall seconds of the map rebuild alone (part of `back_end_s`; 0 when not rebuilt).
+    /// Wall seconds of the maps built along the front end's and the back end's trajectories
+    /// (part of `back_end_s`; 0 without a back end).
     pub rebuild_s: f64,
     /// CPU seconds of the map rebuild alone; `None` off Linux.
     pub rebuild_cpu_s: Option<f64>,
+    /// The self-check.
+    pub quality: Quality,
 }
 
 /// CPU seconds (user + system, all threads) of this process so far; `None` where
@@ -137,6 +142,7 @@ pub fn run_pipeline(
     let mut calibration = None;
     let mut back_end_input = None;
     let mut rebuild = (0.0, Some(0.0));
+    let mut signals = QualitySignals::default();
     let graph = if config.graph.enabled {
         let mut which = options
             .back_end_input
@@ -188,15 +194,50 @@ pub fn run_pipeline(
             config.graph.for_odometry_input()
         };
         let g = optimize_trajectory(recording, &config.map.scan, input, &graph_opts)?;
+        let t = Clock::start();
+        let (back_grid, back_share) = map_and_free_share(recording, &g.trajectory, config)?;
+        let ratio = config.graph.max_free_share_ratio;
+        let (front_grid, front_share) = if ratio > 0.0 {
+            let (grid, share) = map_and_free_share(recording, &front_end, config)?;
+            (Some(grid), Some(share))
+        } else {
+            (None, None)
+        };
+        let kept =
+            front_share.is_none_or(|f| back_share <= (ratio * f).max(f + MIN_FREE_SHARE_RISE));
+        let grid = match front_grid {
+            Some(front_grid) if !kept => {
+                tracing::warn!(
+                    "the back end's map is less consistent than the front end's ({:.1} % of \
+                     returns in free cells against {:.1} %): its trajectory is not used",
+                    100.0 * back_share,
+                    100.0 * front_share.unwrap_or(0.0)
+                );
+                front_grid
+            }
+            _ => {
+                result.trajectory = g.trajectory;
+                back_grid
+            }
+        };
+        signals = QualitySignals {
+            free_share: if kept {
+                back_share
+            } else {
+                front_share.unwrap_or(back_share)
+            },
+            free_share_front_end: front_share,
+            free_share_back_end: Some(back_share),
+            back_end_kept: Some(kept),
+        };
         if options.rebuild_map {
-            let t = Clock::start();
-            let poses = Trajectory::new(g.trajectory.clone());
-            result.map = map_with_poses(recording, &poses, &config.map)?.0;
-            rebuild = t.elapsed();
+            result.map = grid;
         }
-        result.trajectory = g.trajectory;
+        rebuild = t.elapsed();
         Some(g.stats)
     } else {
+        let poses = Trajectory::new(result.trajectory.clone());
+        signals.free_share = free_share(recording, &poses, &result.map, config)?;
         None
     };
     let (back_end_s, back_end_cpu_s) = t.elapsed();
@@ -212,5 +253,38 @@ pub fn run_pipeline(
         back_end_cpu_s,
         rebuild_s: rebuild.0,
         rebuild_cpu_s: rebuild.1,
+        quality: Quality::assess(signals),
     })
+}
+
+/// The back end is rejected only when its free share also exceeds the front end's by this
+/// much: between correct solutions the share moves by up to ~1 point (decision 0006), and on
+/// a clean map (a simulator's, ~0.3 %) a ratio alone would reject noise.
+const MIN_FREE_SHARE_RISE: f64 = 0.02;
+
+/// At most this many scans are scored for the free share (evenly spaced).
+const FREE_SHARE_SCANS: usize = 2000;
+
+/// The map along `poses` and the share of returns landing in its free cells.
+fn map_and_free_share(
+    recording: &Recording,
+    poses: &[StampedPose2],
+    config: &Config,
+) -> Result<(OccupancyGrid, f64), PipelineError> {
+    let poses = Trajectory::new(poses.to_vec());
+    let grid = map_with_poses(recording, &poses, &config.map)?.0;
+    let share = free_share(recording, &poses, &grid, config)?;
+    Ok((grid, share))
+}
+
+/// The share of returns of (at most [`FREE_SHARE_SCANS`]) scans posed by `poses` that land
+/// in cells `grid` calls free.
+fn free_share(
+    recording: &Recording,
+    poses: &Trajectory,
+    grid: &OccupancyGrid,
+    config: &Config,
+) -> Result<f64, PipelineError> {
+    let step = recording.scans.len().div_ceil(FREE_SHARE_SCANS).max(1);
+    Ok(consistency(recording, poses, grid, &config.map.scan, step)?.free_share())
 }

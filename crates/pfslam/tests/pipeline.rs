@@ -110,3 +110,46 @@ fn pipeline_calibrates_the_odometry_or_falls_back_to_the_filter() {
     assert_eq!(with(&front, Switch::On), c.result.trajectory);
     assert_ne!(with(&front, Switch::Off), c.result.trajectory);
 }
+
+/// The self-check's signal: the share of returns landing in cells the map calls free is low
+/// along the pipeline's trajectory and rises when half of the drive is laid 8 deg off the
+/// other (corridors crossing, as a wrong loop closure lays them).
+#[test]
+fn free_share_rises_when_half_of_the_drive_is_turned_against_the_other() {
+    use pfslam::geometry::{Pose2, StampedPose2, Trajectory};
+    use pfslam::map::consistency::consistency;
+    use pfslam::map::map_with_poses;
+    let rec = synthetic::recording(30.0, 5);
+    let config = config();
+    let out = pipeline(&rec, &config, 2);
+    let share = |poses: &[StampedPose2]| {
+        let poses = Trajectory::new(poses.to_vec());
+        let grid = map_with_poses(&rec, &poses, &config.map).unwrap().0;
+        consistency(&rec, &poses, &grid, &config.map.scan, 1)
+            .unwrap()
+            .free_share()
+    };
+    let good = share(&out.result.trajectory);
+    let half = out.result.trajectory.len() / 2;
+    let turn = Pose2::new(0.0, 0.0, 8f64.to_radians());
+    let crossed: Vec<StampedPose2> = out
+        .result
+        .trajectory
+        .iter()
+        .enumerate()
+        .map(|(i, p)| StampedPose2 {
+            stamp_ns: p.stamp_ns,
+            pose: if i < half {
+                p.pose
+            } else {
+                turn.compose(&p.pose)
+            },
+        })
+        .collect();
+    let bad = share(&crossed);
+    eprintln!("free share: {good:.4} along the result, {bad:.4} crossed");
+    assert!(good < pfslam::quality::SUSPECT_FREE_SHARE, "{good}");
+    assert!(bad > 1.5 * good, "{good} {bad}");
+    assert_eq!(out.quality.signals.back_end_kept, Some(true));
+    assert_eq!(out.quality.signals.free_share.to_bits(), good.to_bits());
+}

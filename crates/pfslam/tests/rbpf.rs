@@ -1,5 +1,6 @@
 //! The Rao-Blackwellised mode (`[filter] mode = "rbpf"`): tile sharing between the particles'
-//! maps, loop closure on a synthetic room, thread-count independence, the Freiburg benchmark.
+//! maps, loop closure on a synthetic room, thread-count independence. (The Freiburg bags run
+//! through the whole pipeline in `acceptance.rs`.)
 
 use crate::filter::{ate_rmse, synthetic};
 use pfslam::config::Config;
@@ -131,57 +132,6 @@ fn rbpf_is_bit_identical_with_1_and_2_threads() {
     assert_eq!(a.trajectory, b.trajectory);
     assert_eq!(a.stats.neff_mean.to_bits(), b.stats.neff_mean.to_bits());
     assert_ne!(a.trajectory, on(2, 78).trajectory, "the seed matters");
-}
-
-/// Mean translational / rotational relation error (m, deg) of the rbpf defaults (30
-/// particles) on a Freiburg recording, or `None` when the data is absent.
-fn freiburg(name: &str, seed: u64) -> Option<(f64, f64)> {
-    use pfslam::eval::relations::{RelationsOptions, evaluate_relations, read_relations};
-    use pfslam::geometry::Trajectory;
-    let dir = crate::common::data_dir(&format!("rbpf_freiburg_{name}"))?
-        .join("freiburg")
-        .join(name);
-    let rec = pfslam::io::recording::read_recording(
-        &dir.join(format!("{name}.bag")),
-        &Default::default(),
-    )
-    .unwrap();
-    let relations = read_relations(&dir.join(format!("{name}.relations"))).unwrap();
-    let res = run(&rec, &rbpf_config(30), seed);
-    let r = evaluate_relations(
-        &Trajectory::new(res.trajectory),
-        &relations,
-        &RelationsOptions::default(),
-    )
-    .unwrap();
-    assert_eq!(r.used, r.relations, "every relation stamp has a pose");
-    eprintln!(
-        "{name}: {:.4} m, {:.3} deg ({:?})",
-        r.trans_m.abs.mean, r.rot_deg.abs.mean, res.stats.timings
-    );
-    Some((r.trans_m.abs.mean, r.rot_deg.abs.mean))
-}
-
-/// Issue 6 on MIT-CSAIL (the shortest recording): <= 0.05 m with the rbpf defaults
-/// (measured over 5 seeds: 0.033-0.036 m).
-#[test]
-fn freiburg_mit_csail_meets_issue_6() {
-    if let Some((t, _)) = freiburg("mit-csail", 1) {
-        assert!(t <= 0.05, "{t}");
-    }
-}
-
-/// Issue 6 on Intel and ACES (<= 0.07 m, <= 0.06 m; measured over 5 seeds 0.035-0.037 m and
-/// 0.042-0.059 m). About 35 s of CPU for both.
-#[test]
-#[ignore = "about 35 s of CPU in release; run with --ignored"]
-fn freiburg_intel_and_aces_meet_issue_6() {
-    if let Some((t, _)) = freiburg("intel", 1) {
-        assert!(t <= 0.07, "intel {t}");
-    }
-    if let Some((t, _)) = freiburg("aces", 1) {
-        assert!(t <= 0.06, "aces {t}");
-    }
 }
 
 #[test]

@@ -1,6 +1,7 @@
 //! The library's integration tests: one binary (link time matters on 2 cores), one module per
 //! area.
 
+mod acceptance;
 mod common;
 mod eval;
 mod filter;

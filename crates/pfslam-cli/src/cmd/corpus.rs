@@ -28,6 +28,10 @@ pub struct CorpusRow {
     pub odometry_ate_m: f64,
     /// ATE RMSE (SE(2)-aligned) of SLAM against the reference (m).
     pub slam_ate_m: f64,
+    /// Share of scan returns in cells the final map calls free (the self-check's signal).
+    pub free_share: f64,
+    /// The self-check's verdict.
+    pub verdict: pfslam::quality::QualityStatus,
     /// Wall time of SLAM (s).
     pub wall_s: f64,
 }
@@ -91,8 +95,10 @@ pub fn run_corpus(
         })
         .collect::<anyhow::Result<_>>()?;
     let mut rows = Vec::new();
-    say!("| log | level | scans | odometry ATE (m) | SLAM ATE (m) | wall (s) |");
-    say!("|---|---|---|---|---|---|");
+    say!(
+        "| log | level | scans | odometry ATE (m) | SLAM ATE (m) | free share | verdict | wall (s) |"
+    );
+    say!("|---|---|---|---|---|---|---|---|");
     for path in logs_in(dir)? {
         let log = pfslam::io::carmen::read_carmen(&path, &config.input.carmen())?;
         let mut rec = log.recording;
@@ -116,15 +122,19 @@ pub fn run_corpus(
                 scans: rec.scans.len(),
                 odometry_ate_m,
                 slam_ate_m,
+                free_share: result.quality.signals.free_share,
+                verdict: result.quality.status,
                 wall_s,
             };
             say!(
-                "| {} | {} | {} | {:.3} | {:.3} | {:.1} |",
+                "| {} | {} | {} | {:.3} | {:.3} | {:.3} | {} | {:.1} |",
                 row.name,
                 row.level,
                 row.scans,
                 row.odometry_ate_m,
                 row.slam_ate_m,
+                row.free_share,
+                serde_json::to_value(row.verdict)?.as_str().unwrap_or("?"),
                 row.wall_s
             );
             rows.push(row);

@@ -177,6 +177,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         graph.as_ref(),
         back_end_input,
         &account,
+        &pipeline.quality,
         &out_dir,
     )?;
     // The ground's colours along the SLAM path, when the dataset has stereo images.
@@ -184,6 +185,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     super::texture::texture_after_run(&args.dataset, traj, &config, map, &out_dir);
     staging.commit()?;
     say!("wrote {}", args.out.display());
+    for reason in &pipeline.quality.reasons {
+        eprintln!("warning: suspect result: {reason}");
+    }
     Ok(())
 }
 
@@ -222,6 +226,7 @@ fn write_outputs(
     graph: Option<&(GraphStats, f64, Vec<StampedPose2>)>,
     back_end_input: serde_json::Value,
     account: &pfslam::io::account::InputAccount,
+    quality: &pfslam::quality::Quality,
     out: &std::path::Path,
 ) -> anyhow::Result<()> {
     let t = Instant::now();
@@ -273,6 +278,7 @@ fn write_outputs(
         "seed": args.seed,
         "config": config,
         "stats": result.stats,
+        "quality": quality,
         "timings_s": {
             "load": load_s,
             "slam": result.stats.timings.total_s,

@@ -1,15 +1,18 @@
-//! The Rao-Blackwellised particle filter (`[filter] mode = "rbpf"`, issue 7), after GMapping
+//! The Rao-Blackwellised particle filter (`[filter] mode = "rbpf"`), after GMapping
 //! (Grisetti, Stachniss, Burgard 2007).
 //!
 //! - Every particle carries its own [`OccupancyGrid`]. Grids are tiled with `Arc` tiles and
 //!   copy-on-write, so a resampled copy shares all tiles with its ancestor and memory grows
 //!   with the tiles particles actually changed, not with the particle count.
 //! - Updates happen only once the odometry moved `linear_update_m` or turned
-//!   `angular_update_deg` since the last one. At an update each particle draws its motion from
-//!   the odometry increment (GMapping's four-parameter noise), then scan-matches against its
-//!   OWN map (coarse yaw/x/y search, then a hill climb with step halving on a smooth
-//!   observation model, see [`scan_log_likelihood`]), takes the matched pose, and its
-//!   log-weight grows by the match log-likelihood / `weight_temperature`. Maps are updated
+//!   `angular_update_deg` since the last one. At an update each particle composes the
+//!   odometry increment onto its pose (no noise), scan-matches from there against its OWN
+//!   map (coarse yaw/x/y search, then a hill climb with step halving on a smooth observation
+//!   model, see [`scan_log_likelihood`]; the prior's sigmas are GMapping's four-parameter
+//!   motion noise for the increment), then samples its pose around the match
+//!   (`jitter_xy_m`, `jitter_yaw_deg`); its log-weight grows by the match log-likelihood /
+//!   `weight_temperature`. (`match_from_prediction = false`: GMapping's order, the motion
+//!   noise sampled first and the match started from the sample.) Maps are updated
 //!   with the particle's pose; resampling is selective (Neff below a fraction of N).
 //! - Each particle's trajectory is a chain of [`PathNode`]s with `Arc` parent links, one per
 //!   update, so resampled copies share their history. The output is the FINAL best
@@ -112,6 +115,17 @@ pub struct RbpfOptions {
     pub refine_sigma_xy_m: f64,
     /// Yaw sigma of that re-match's prior (deg).
     pub refine_sigma_yaw_deg: f64,
+    /// The proposal. `true`: each particle is matched from its noise-free prediction (the
+    /// prior centred there) and then sampled around its match (`jitter_*`). `false`
+    /// (GMapping's order): the motion noise is sampled first and the match starts from the
+    /// sample, the prior centred on it; with noise sized for poor odometry the samples land
+    /// in other basins of the likelihood and good odometry is made worse. See
+    /// `docs/decisions/0005-proposal-from-prediction.md`.
+    pub match_from_prediction: bool,
+    /// x/y sigma of the sample around the match (m).
+    pub jitter_xy_m: f64,
+    /// Yaw sigma of the sample around the match (deg).
+    pub jitter_yaw_deg: f64,
 }
 
 impl Default for RbpfOptions {
@@ -146,6 +160,9 @@ impl Default for RbpfOptions {
             final_refine: true,
             refine_sigma_xy_m: 0.03,
             refine_sigma_yaw_deg: 3.0,
+            match_from_prediction: true,
+            jitter_xy_m: 0.01,
+            jitter_yaw_deg: 0.25,
         }
     }
 }
@@ -170,6 +187,8 @@ impl RbpfOptions {
             ("step_xy_m", self.step_xy_m),
             ("step_yaw_deg", self.step_yaw_deg),
             ("prior_scale", self.prior_scale),
+            ("jitter_xy_m", self.jitter_xy_m),
+            ("jitter_yaw_deg", self.jitter_yaw_deg),
         ] {
             if !nonneg(v) {
                 return Err(format!("filter.rbpf.{k} must be finite and >= 0"));
@@ -1257,6 +1276,10 @@ impl Rbpf {
         let (model, search) = (&self.model, &self.search);
         let n = self.particles.len();
         let t = Instant::now();
+        let from_prediction = o.match_from_prediction;
+        let jitter_sigma = [o.jitter_xy_m, o.jitter_xy_m, o.jitter_yaw_deg.to_radians()];
+        // Per particle, drawn before the parallel pass: the jitter added to its match.
+        let mut jitters: Vec<[f64; 3]> = Vec::new();
         if !first {
             // Motion draws per chunk, from the chunk's stream in particle order (cheap).
             for (parts, st) in self
@@ -1265,10 +1288,19 @@ impl Rbpf {
                 .zip(self.chunks.iter_mut())
             {
                 for p in parts.iter_mut() {
-                    p.pose = sample_motion(&p.pose, delta, noise, &mut st.rng);
+                    if from_prediction {
+                        p.pose = p.pose.compose(delta);
+                        p.pose.yaw_rad = wrap_angle(p.pose.yaw_rad);
+                        jitters.push(
+                            jitter_sigma.map(|s| s * st.rng.sample::<f64, _>(StandardNormal)),
+                        );
+                    } else {
+                        p.pose = sample_motion(&p.pose, delta, noise, &mut st.rng);
+                    }
                 }
             }
         }
+        let jitters = &jitters;
         // Then every particle on its own (the threads balance whatever the particle count;
         // 5 chunks of 40 particles would split 3:2 over two threads): match in its map, then
         // map the scan into it, in one pass (a particle's match reads only its own map, and
@@ -1285,10 +1317,18 @@ impl Rbpf {
             .particles
             .par_iter_mut()
             .zip(self.lls.par_iter_mut())
+            .enumerate()
             .with_max_len(1)
-            .map(|(p, ll)| {
+            .map(|(i, (p, ll))| {
                 if !first {
-                    let (pose, l) = match_in_own_map(&p.map, model, points, &p.pose, search);
+                    let (mut pose, l) = match_in_own_map(&p.map, model, points, &p.pose, search);
+                    if let Some(j) = jitters.get(i) {
+                        pose = Pose2::new(
+                            pose.x_m + j[0],
+                            pose.y_m + j[1],
+                            wrap_angle(pose.yaw_rad + j[2]),
+                        );
+                    }
                     p.pose = pose;
                     *ll = l;
                 }

@@ -205,6 +205,12 @@ pub struct GraphOptions {
     /// a closure the back end only re-matches scans. (On the simulated car that re-matching
     /// drifted, 6.7 m: see `sequential_matching`, now off there.)
     pub keep_front_end_without_closures: bool,
+    /// The back end's trajectory replaces the front end's only when the share of scan
+    /// returns that land in cells its own map calls free is at most this multiple of the
+    /// front end's, or at most 2 points above it (0 = always replaces). A wrong closure
+    /// lays corridors over each other and raises that share; see
+    /// `docs/decisions/0006-self-check-and-back-end-guard.md`.
+    pub max_free_share_ratio: f64,
     /// Sequential scan-matching edges: `auto` (on for a level LiDAR fixed on the body, off
     /// for a tilted or moving one), `on`, `off`. A tilted LiDAR's scan is a 3-D surface, so
     /// consecutive scans see roofs, canopies and parked cars at different heights; their
@@ -393,6 +399,7 @@ impl Default for GraphOptions {
             refine_window_m: 0.05,
             refine_window_deg: 1.0,
             keep_front_end_without_closures: true,
+            max_free_share_ratio: 1.5,
             sequential_matching: Switch::Auto,
             front_end_sigma_m_per_sqrt_m: 0.005,
             front_end_sigma_deg_per_sqrt_m: 0.004,
@@ -427,6 +434,9 @@ impl GraphOptions {
             .validate()
             .map_err(|m| format!("graph.calibration: {m}"))?;
         let pos = |v: f64| v.is_finite() && v > 0.0;
+        if !(self.max_free_share_ratio.is_finite() && self.max_free_share_ratio >= 0.0) {
+            return Err("graph.max_free_share_ratio must be finite and >= 0".into());
+        }
         for (k, v) in [
             ("keyframe_distance_m", self.keyframe_distance_m),
             ("keyframe_angle_deg", self.keyframe_angle_deg),

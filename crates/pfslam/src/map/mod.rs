@@ -17,6 +17,7 @@
 //! unknown when none is observed. Level LiDARs produce no heights and keep the 2-D insertion.
 pub mod binary;
 pub mod compare;
+pub mod consistency;
 pub mod grid;
 pub mod limits;
 pub mod logodds;
