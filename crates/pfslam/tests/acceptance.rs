@@ -41,7 +41,7 @@ fn freiburg_relations_m(name: &str) -> Option<f64> {
 }
 
 /// Each bag's seed-1 error may not rise above its recorded figure by more than the spread of
-/// seeds 1-3 (`docs/decisions/0005-proposal-from-prediction.md`).
+/// seeds 1-3 (`docs/benchmarks.md`).
 #[test]
 fn freiburg_bags_stay_within_their_recorded_errors() {
     for (name, recorded_m, spread_m) in [

@@ -44,6 +44,10 @@ pub struct Args {
     /// With `--corpus`: the odometry perturbation levels to run each log at (0 = as it is).
     #[arg(long, value_delimiter = ',', default_value = "0,1,2")]
     pub levels: Vec<u8>,
+    /// With `--corpus`: run every log and level with each of these seeds (of the filter and
+    /// of the perturbation; default: `--seed`).
+    #[arg(long, value_delimiter = ',')]
+    pub seeds: Vec<u64>,
 }
 
 /// Published mean translational (m) / rotational (deg) errors on the relations (from
@@ -144,7 +148,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         if let Some(out) = &args.out {
             std::fs::create_dir_all(out).with_context(|| out.display().to_string())?;
         }
-        super::corpus::run_corpus(dir, &args.levels, &config, args.seed, args.out.as_deref())?;
+        let seeds = if args.seeds.is_empty() {
+            vec![args.seed]
+        } else {
+            args.seeds.clone()
+        };
+        super::corpus::run_corpus(dir, &args.levels, &config, &seeds, args.out.as_deref())?;
         return Ok(());
     }
     let data = match &args.data {

@@ -2,6 +2,7 @@
 //! odometry degraded (scale and turning errors, yaw drift, random walk, slips;
 //! `pfslam::motion::perturb`), written as a CARMEN log, and the reference trajectory it
 //! came from beside it (`FILE.reference.tum`), to check that SLAM recovers the path.
+//! `--keyframes-m` thins the scans to keyframes first.
 
 use pfslam::io::carmen::write_carmen;
 use pfslam::io::tum::write_tum;
@@ -25,6 +26,11 @@ pub struct Args {
     /// Seed of the errors.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Keep only keyframe scans: the first, then each after this much travel (m) or ten
+    /// times as many degrees of turning since the last kept one, by the original odometry
+    /// (as the Radish logs were thinned).
+    #[arg(long)]
+    pub keyframes_m: Option<f64>,
     /// TOML configuration (its `[input]` section applies).
     #[arg(long)]
     pub config: Option<PathBuf>,
@@ -59,7 +65,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let ds = super::dataset::load_dataset(&args.recording, &config, false)?;
     super::input::report(&ds.account);
     let mut rec = ds.recording;
-    let (reference, _) = poses_at_stamps(&rec.odometry, &rec.scans.stamps_ns);
+    let (mut reference, _) = poses_at_stamps(&rec.odometry, &rec.scans.stamps_ns);
+    if let Some(m) = args.keyframes_m {
+        anyhow::ensure!(
+            m.is_finite() && m > 0.0,
+            "--keyframes-m must be positive, got {m}"
+        );
+        anyhow::ensure!(
+            reference.len() == rec.scans.len(),
+            "--keyframes-m: {} has no odometry to choose keyframes by",
+            args.recording.display()
+        );
+        let keep = keyframes(&reference, m);
+        let kept_stamps: Vec<i64> = keep.iter().map(|&i| rec.scans.stamps_ns[i]).collect();
+        rec.keep_scans(&keep);
+        reference.retain(|p| kept_stamps.binary_search(&p.stamp_ns).is_ok());
+    }
     let reference = pfslam::geometry::Trajectory::new(reference);
     rec.odometry = perturb_odometry(&rec.odometry, &errors, args.seed);
     let written = write_carmen(&args.out, &rec, Some(&reference))?;
@@ -74,4 +95,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         reference_path.display()
     );
     Ok(())
+}
+
+/// Indices of the keyframes of `poses`: the first, then each pose at least `travel_m` or
+/// `10 * travel_m` degrees of turning from the last kept one.
+fn keyframes(poses: &[pfslam::geometry::StampedPose2], travel_m: f64) -> Vec<usize> {
+    let turn_rad = (10.0 * travel_m).to_radians();
+    let mut keep = Vec::new();
+    let mut last: Option<pfslam::geometry::Pose2> = None;
+    for (i, p) in poses.iter().enumerate() {
+        let due = last.is_none_or(|l| {
+            let d = l.between(&p.pose);
+            d.translation_norm_m() >= travel_m || d.yaw_rad.abs() >= turn_rad
+        });
+        if due {
+            keep.push(i);
+            last = Some(p.pose);
+        }
+    }
+    keep
 }

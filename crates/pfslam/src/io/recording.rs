@@ -132,13 +132,7 @@ impl Opened {
             .filter(|&i| (lo..=hi).contains(&rec.scans.stamps_ns[i]))
             .collect();
         let outside = rec.scans.len() - keep.len();
-        rec.scans = rec.scans.select(&keep);
-        if let Some(g) = &mut rec.lidar_per_scan {
-            *g = keep.iter().map(|&i| g[i]).collect();
-        }
-        if let Some(m) = &mut rec.body_from_lidar_per_scan {
-            *m = keep.iter().map(|&i| m[i]).collect();
-        }
+        rec.keep_scans(&keep);
         // the odometry around the kept scans: one pose on either side for interpolation
         let (a, b) = match (rec.scans.stamps_ns.first(), rec.scans.stamps_ns.last()) {
             (Some(&a), Some(&b)) => (a, b),

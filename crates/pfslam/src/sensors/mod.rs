@@ -451,6 +451,18 @@ impl Recording {
         }
     }
 
+    /// Keeps only the scans at `keep` (increasing indices), with their per-scan geometry and
+    /// mount; the odometry and the other sensors stay as they are.
+    pub fn keep_scans(&mut self, keep: &[usize]) {
+        self.scans = self.scans.select(keep);
+        if let Some(g) = &mut self.lidar_per_scan {
+            *g = keep.iter().map(|&i| g[i]).collect();
+        }
+        if let Some(m) = &mut self.body_from_lidar_per_scan {
+            *m = keep.iter().map(|&i| m[i]).collect();
+        }
+    }
+
     /// True when the mount or the beam geometry changes from scan to scan: a scan projector
     /// must then be re-aimed ([`crate::map::ScanProjector::aim`]) before each scan.
     #[inline]
