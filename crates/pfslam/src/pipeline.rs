@@ -195,46 +195,16 @@ pub fn run_pipeline(
         };
         let g = optimize_trajectory(recording, &config.map.scan, input, &graph_opts)?;
         let t = Clock::start();
-        let (back_grid, back_share) = map_and_free_share(recording, &g.trajectory, config)?;
-        let ratio = config.graph.max_free_share_ratio;
-        let (front_grid, front_share) = if ratio > 0.0 {
-            let (grid, share) = map_and_free_share(recording, &front_end, config)?;
-            (Some(grid), Some(share))
-        } else {
-            (None, None)
-        };
-        let kept =
-            front_share.is_none_or(|f| back_share <= (ratio * f).max(f + MIN_FREE_SHARE_RISE));
-        let grid = match front_grid {
-            Some(front_grid) if !kept => {
-                tracing::warn!(
-                    "the back end's map is less consistent than the front end's ({:.1} % of \
-                     returns in free cells against {:.1} %): its trajectory is not used",
-                    100.0 * back_share,
-                    100.0 * front_share.unwrap_or(0.0)
-                );
-                front_grid
-            }
-            _ => {
-                result.trajectory = g.trajectory;
-                back_grid
-            }
-        };
-        signals = QualitySignals {
-            free_share: if kept {
-                back_share
-            } else {
-                front_share.unwrap_or(back_share)
-            },
-            free_share_front_end: front_share,
-            free_share_back_end: Some(back_share),
-            back_end_kept: Some(kept),
-        };
+        let chosen = choose_trajectory(recording, config, &front_end, input, &graph_opts, g)?;
+        if let Some(trajectory) = chosen.trajectory {
+            result.trajectory = trajectory;
+        }
+        signals = chosen.signals;
         if options.rebuild_map {
-            result.map = grid;
+            result.map = chosen.grid;
         }
         rebuild = t.elapsed();
-        Some(g.stats)
+        Some(chosen.stats)
     } else {
         let poses = Trajectory::new(result.trajectory.clone());
         signals.free_share = free_share(recording, &poses, &result.map, config)?;
@@ -254,6 +224,101 @@ pub fn run_pipeline(
         rebuild_s: rebuild.0,
         rebuild_cpu_s: rebuild.1,
         quality: Quality::assess(signals),
+    })
+}
+
+/// What [`choose_trajectory`] kept.
+struct Chosen {
+    /// The back end's trajectory, or `None` for the front end's.
+    trajectory: Option<Vec<StampedPose2>>,
+    /// The map along the kept trajectory.
+    grid: OccupancyGrid,
+    /// The self-check's signals.
+    signals: QualitySignals,
+    /// The statistics of the back end that ran last.
+    stats: GraphStats,
+}
+
+/// The back end's trajectory unless its map is much less consistent than the front end's
+/// (`[graph] max_free_share_ratio`). Then, when it matched consecutive keyframes itself, it
+/// runs again tied by the front end's motion alone (`sequential_matching = "off"`, no
+/// odometry-yaw edges): on Intel its own sequential matches led its closures astray on half
+/// of the seeds (decision 0006). The front end's trajectory when that fails too.
+fn choose_trajectory(
+    recording: &Recording,
+    config: &Config,
+    front_end: &[StampedPose2],
+    input: &[StampedPose2],
+    graph_opts: &crate::graph::GraphOptions,
+    g: crate::graph::GraphResult,
+) -> Result<Chosen, PipelineError> {
+    let (back_grid, back_share) = map_and_free_share(recording, &g.trajectory, config)?;
+    let ratio = config.graph.max_free_share_ratio;
+    let mut signals = QualitySignals {
+        free_share: back_share,
+        free_share_back_end: Some(back_share),
+        back_end_kept: Some(true),
+        ..QualitySignals::default()
+    };
+    if ratio <= 0.0 {
+        return Ok(Chosen {
+            trajectory: Some(g.trajectory),
+            grid: back_grid,
+            signals,
+            stats: g.stats,
+        });
+    }
+    let (front_grid, front_share) = map_and_free_share(recording, front_end, config)?;
+    signals.free_share_front_end = Some(front_share);
+    let acceptable =
+        |share: f64| share <= (ratio * front_share).max(front_share + MIN_FREE_SHARE_RISE);
+    if acceptable(back_share) {
+        return Ok(Chosen {
+            trajectory: Some(g.trajectory),
+            grid: back_grid,
+            signals,
+            stats: g.stats,
+        });
+    }
+    tracing::warn!(
+        "the back end's map is less consistent than the front end's ({:.1} % of returns in \
+         free cells against {:.1} %)",
+        100.0 * back_share,
+        100.0 * front_share
+    );
+    let mut stats = g.stats;
+    if stats.sequential_matched > 0 {
+        let mut retry = graph_opts.clone();
+        retry.sequential_matching = crate::graph::Switch::Off;
+        retry.odometry_yaw_edges = crate::graph::Switch::Off;
+        let g2 = optimize_trajectory(recording, &config.map.scan, input, &retry)?;
+        let (grid, share) = map_and_free_share(recording, &g2.trajectory, config)?;
+        signals.back_end_retried = true;
+        signals.free_share_back_end = Some(share);
+        stats = g2.stats;
+        if acceptable(share) {
+            tracing::warn!(
+                "the back end tied by the front end's motion alone: {:.1} % of returns in free \
+                 cells; its trajectory is used",
+                100.0 * share
+            );
+            signals.free_share = share;
+            return Ok(Chosen {
+                trajectory: Some(g2.trajectory),
+                grid,
+                signals,
+                stats,
+            });
+        }
+    }
+    tracing::warn!("the front end's trajectory is used");
+    signals.free_share = front_share;
+    signals.back_end_kept = Some(false);
+    Ok(Chosen {
+        trajectory: None,
+        grid: front_grid,
+        signals,
+        stats,
     })
 }
 

@@ -19,6 +19,9 @@ pub struct QualitySignals {
     pub free_share_back_end: Option<f64>,
     /// Whether the back end's trajectory was kept (`None` when it did not run).
     pub back_end_kept: Option<bool>,
+    /// Whether the back end ran a second time, tied by the front end's motion alone,
+    /// because its first map was much less consistent than the front end's.
+    pub back_end_retried: bool,
 }
 
 /// `ok` or `suspect`.

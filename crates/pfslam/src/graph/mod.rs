@@ -208,8 +208,9 @@ pub struct GraphOptions {
     /// The back end's trajectory replaces the front end's only when the share of scan
     /// returns that land in cells its own map calls free is at most this multiple of the
     /// front end's, or at most 2 points above it (0 = always replaces). A wrong closure
-    /// lays corridors over each other and raises that share; see
-    /// `docs/decisions/0006-self-check-and-back-end-guard.md`.
+    /// lays corridors over each other and raises that share. A back end that fails it and
+    /// matched consecutive keyframes itself runs again without (`sequential_matching`
+    /// off), guarded alike; see `docs/decisions/0006-self-check-and-back-end-guard.md`.
     pub max_free_share_ratio: f64,
     /// Sequential scan-matching edges: `auto` (on for a level LiDAR fixed on the body, off
     /// for a tilted or moving one), `on`, `off`. A tilted LiDAR's scan is a 3-D surface, so
