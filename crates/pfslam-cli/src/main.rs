@@ -87,6 +87,7 @@ fn init_logging(level: &str) {
 }
 
 fn main() -> ExitCode {
+    cmd::interrupt::install();
     let cli = Cli::parse();
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,

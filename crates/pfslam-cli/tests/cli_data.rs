@@ -529,15 +529,18 @@ fn outputs_are_one_unit_and_checked_before_work() {
     // a run killed midway leaves the previous outputs as they were; the next run clears its
     // staging directory
     let before = std::fs::read(out.join("trajectory.tum")).unwrap();
-    let mut child = super::pfslam()
-        .arg("run")
-        .arg(data.join("freiburg/intel/intel.bag"))
-        .arg("--out")
-        .arg(&out)
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
+    let spawn_intel = || {
+        super::pfslam()
+            .arg("run")
+            .arg(data.join("freiburg/intel/intel.bag"))
+            .arg("--out")
+            .arg(&out)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap()
+    };
+    let mut child = spawn_intel();
     std::thread::sleep(std::time::Duration::from_millis(1500));
     child.kill().unwrap();
     child.wait().unwrap();
@@ -554,6 +557,36 @@ fn outputs_are_one_unit_and_checked_before_work() {
         "{:?}",
         staging_dirs(dir.path())
     );
+    // Ctrl-C or `kill` ends the run at once, with 128 + the signal, and takes its staging
+    // directory with it
+    #[cfg(unix)]
+    for (signal, code) in [("-INT", 130), ("-TERM", 143)] {
+        let mut child = spawn_intel();
+        let t = std::time::Instant::now();
+        while staging_dirs(dir.path()).is_empty() && t.elapsed().as_secs() < 20 {
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        assert_eq!(
+            staging_dirs(dir.path()).len(),
+            1,
+            "the run's staging directory"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(500));
+        let kill = std::process::Command::new("kill")
+            .arg(signal)
+            .arg(child.id().to_string())
+            .status()
+            .unwrap();
+        assert!(kill.success());
+        let status = child.wait().unwrap();
+        assert_eq!(status.code(), Some(code), "{signal}");
+        assert!(
+            staging_dirs(dir.path()).is_empty(),
+            "{signal}: {:?}",
+            staging_dirs(dir.path())
+        );
+        assert_eq!(std::fs::read(out.join("trajectory.tum")).unwrap(), before);
+    }
 }
 
 #[test]

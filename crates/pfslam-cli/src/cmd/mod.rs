@@ -21,6 +21,7 @@ pub mod eval;
 pub mod experiment;
 pub mod info;
 pub mod input;
+pub mod interrupt;
 pub mod map;
 pub mod output;
 pub mod perturb;

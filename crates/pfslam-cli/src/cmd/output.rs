@@ -55,6 +55,7 @@ impl Staging {
                 .tempfile_in(out)
                 .with_context(|| format!("--out {}: cannot write into it", out.display()))?;
         }
+        super::interrupt::remember(dir.path());
         Ok(Staging {
             out: out.to_path_buf(),
             dir,
@@ -69,6 +70,8 @@ impl Staging {
     /// Moves the outputs into `--out`, writes its manifest and removes the stale files of
     /// the previous run.
     pub fn commit(self) -> anyhow::Result<()> {
+        // from here a signal leaves the files to finish moving (the next run sweeps the rest)
+        super::interrupt::forget(self.dir.path());
         let files = relative_files(self.dir.path())?;
         let manifest = serde_json::to_string_pretty(&serde_json::json!({ "files": files }))?;
         std::fs::write(self.dir.path().join(MANIFEST), manifest)?;
