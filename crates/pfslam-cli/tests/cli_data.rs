@@ -429,7 +429,7 @@ fn perturb_thins_a_recording_to_keyframes() {
     let src = data.join("freiburg/mit-csail/mit-csail.clf");
     let original = pfslam::io::carmen::read_carmen(&src, &Default::default()).unwrap();
     let out = dir.path().join("kf.log");
-    super::run_ok(
+    let o = super::run_ok(
         super::pfslam()
             .arg("perturb")
             .arg(&src)
@@ -439,6 +439,12 @@ fn perturb_thins_a_recording_to_keyframes() {
     let kf = pfslam::io::carmen::read_carmen(&out, &Default::default()).unwrap();
     let (n, n0) = (kf.recording.scans.len(), original.recording.scans.len());
     assert!(n > 20 && 2 * n < n0, "{n} of {n0}");
+    // the thinning is reported
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains(&format!("keyframes: {n} of {n0} scans")),
+        "{text}"
+    );
     let reference = pfslam::io::tum::read_tum(&dir.path().join("kf.reference.tum")).unwrap();
     assert_eq!(reference.len(), n);
     let o = &original.recording.scans;

@@ -80,10 +80,11 @@ pub struct PipelineResult {
     pub filter_cpu_s: Option<f64>,
     /// CPU seconds of the back end and the map rebuild; `None` off Linux.
     pub back_end_cpu_s: Option<f64>,
-    /// Wall seconds of the maps built along the front end's and the back end's trajectories
-    /// (part of `back_end_s`; 0 without a back end).
+    /// Wall seconds of the maps built along the front end's and the back end's trajectories,
+    /// and of the back end's second run when the guard asked for it (part of `back_end_s`;
+    /// 0 without a back end).
     pub rebuild_s: f64,
-    /// CPU seconds of the map rebuild alone; `None` off Linux.
+    /// CPU seconds of the same; `None` off Linux.
     pub rebuild_cpu_s: Option<f64>,
     /// The self-check.
     pub quality: Quality,

@@ -34,6 +34,16 @@ pub enum QualityStatus {
     Suspect,
 }
 
+impl QualityStatus {
+    /// `"ok"` or `"suspect"`, as in `summary.json`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            QualityStatus::Ok => "ok",
+            QualityStatus::Suspect => "suspect",
+        }
+    }
+}
+
 /// The verdict with its reasons and signals (`summary.json`'s `"quality"`).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Quality {
@@ -89,6 +99,10 @@ mod tests {
             ..QualitySignals::default()
         });
         assert_eq!((ok.status, ok.reasons.len()), (QualityStatus::Ok, 0));
+        // the label is the serialised name
+        for status in [QualityStatus::Ok, QualityStatus::Suspect] {
+            assert_eq!(serde_json::to_value(status).unwrap(), status.as_str());
+        }
         let crossed = Quality::assess(QualitySignals {
             free_share: 0.34,
             ..QualitySignals::default()

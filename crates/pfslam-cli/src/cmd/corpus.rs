@@ -119,7 +119,7 @@ pub fn run_corpus(
                     row.odometry_ate_m,
                     row.slam_ate_m,
                     row.free_share,
-                    serde_json::to_value(row.verdict)?.as_str().unwrap_or("?"),
+                    row.verdict.as_str(),
                     row.wall_s
                 );
                 rows.push(row);

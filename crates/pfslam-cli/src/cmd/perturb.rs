@@ -76,10 +76,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "--keyframes-m: {} has no odometry to choose keyframes by",
             args.recording.display()
         );
-        let keep = keyframes(&reference, m);
-        let kept_stamps: Vec<i64> = keep.iter().map(|&i| rec.scans.stamps_ns[i]).collect();
+        // the mapper's motion filter picks the keyframes
+        let filter = pfslam::map::MapOptions {
+            scan_step: 1,
+            min_scan_travel_m: m,
+            min_scan_turn_deg: 10.0 * m,
+            ..Default::default()
+        };
+        let keep = pfslam::map::scans_to_map(&rec, &rec.odometry, &filter);
+        say!(
+            "keyframes: {} of {} scans (one per {m} m or {} deg)",
+            keep.len(),
+            rec.scans.len(),
+            10.0 * m
+        );
         rec.keep_scans(&keep);
-        reference.retain(|p| kept_stamps.binary_search(&p.stamp_ns).is_ok());
+        reference = keep.iter().map(|&i| reference[i]).collect();
     }
     let reference = pfslam::geometry::Trajectory::new(reference);
     rec.odometry = perturb_odometry(&rec.odometry, &errors, args.seed);
@@ -95,23 +107,4 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         reference_path.display()
     );
     Ok(())
-}
-
-/// Indices of the keyframes of `poses`: the first, then each pose at least `travel_m` or
-/// `10 * travel_m` degrees of turning from the last kept one.
-fn keyframes(poses: &[pfslam::geometry::StampedPose2], travel_m: f64) -> Vec<usize> {
-    let turn_rad = (10.0 * travel_m).to_radians();
-    let mut keep = Vec::new();
-    let mut last: Option<pfslam::geometry::Pose2> = None;
-    for (i, p) in poses.iter().enumerate() {
-        let due = last.is_none_or(|l| {
-            let d = l.between(&p.pose);
-            d.translation_norm_m() >= travel_m || d.yaw_rad.abs() >= turn_rad
-        });
-        if due {
-            keep.push(i);
-            last = Some(p.pose);
-        }
-    }
-    keep
 }

@@ -100,9 +100,10 @@ pub struct RbpfOptions {
     pub weight_temperature: f64,
     /// Resample when Neff < this fraction of the particle count.
     pub resample_threshold: f64,
-    /// The matcher's prior on the deviation from each particle's sampled pose: a Gaussian
-    /// with the motion model's sigmas for this update times this factor (0 = no prior, the
-    /// match may go anywhere the search reaches). Keeps matches from sliding along corridors.
+    /// The matcher's prior on the deviation from each particle's predicted pose (the sample,
+    /// with `match_from_prediction = false`): a Gaussian with the motion model's sigmas for
+    /// this update times this factor (0 = no prior, the match may go anywhere the search
+    /// reaches). Keeps matches from sliding along corridors.
     pub prior_scale: f64,
     /// Smallest x/y sigma of that prior (m).
     pub prior_min_xy_m: f64,
