@@ -67,7 +67,7 @@ pub struct ScanMatchOptions {
     /// match) or `"gauss_newton"` (Levenberg-Marquardt steps on the analytic gradient of the
     /// bilinear field, Hector-SLAM style, a step kept only when the exact objective
     /// improves; at most 4 passes over the points; `refine_levels = 0` still means no
-    /// refinement). See PERFORMANCE.md for its accuracy against the pattern search.
+    /// refinement). See docs/decisions/0019-scan-match-refinement.md for its accuracy.
     pub refine_method: RefineMethod,
     /// Arithmetic of the refinement's field sums: `"f32"` (the default: 8 points per AVX2
     /// vector, coordinates relative to the field window, ~1e-4 cell, bilinear mix and
@@ -78,7 +78,8 @@ pub struct ScanMatchOptions {
     /// full-size car 0.023 m against 0.049 m (seed 1) and its matching 20-26 % less time;
     /// the front end before the back end is noisier (0.404 against 0.353 m, t 1.5, over 1 m
     /// on 3 of 60 seeds against 2). With `refine_method = "gauss_newton"` it sums only
-    /// that method's last pass (its gradient terms are f64). See PERFORMANCE.md.
+    /// that method's last pass (its gradient terms are f64). See
+    /// docs/decisions/0018-f32-and-f64-in-the-kernels.md.
     pub kernel_precision: KernelPrecision,
     /// Particles are sampled around their match with this standard deviation in x and y
     /// (m); the prediction itself composes the odometry without noise (the match, not the

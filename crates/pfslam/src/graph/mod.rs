@@ -365,7 +365,7 @@ impl Default for GraphOptions {
             loop_every_keyframes: 5,
             // Off: 5 m gaps cut the full-size car's candidates 6,873 -> 2,147 but cost 9-13 %
             // ATE on the long car drives and MIT-CSAIL's back end behind `scan_match`
-            // 0.033 -> 0.041 m (PERFORMANCE.md, fourth pass).
+            // 0.033 -> 0.041 m (docs/decisions/0021-loop-closure-search.md).
             loop_closure_gap_m: 0.0,
             loop_ambiguous_gap_m: 0.0,
             loop_submap_keyframes: 20,

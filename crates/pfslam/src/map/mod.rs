@@ -98,7 +98,8 @@ pub struct MapOptions {
     /// the last inserted scan's, or turned [`MapOptions::min_scan_turn_deg`] (0 = every
     /// `scan_step`-th scan). Off by default: at 0.1 m it halves the car's rebuild (a 100 Hz
     /// LiDAR's scans lie centimetres apart) but costs precision and recall against the true
-    /// map (README, "Mapping motion filter"). The filter's own map is not affected.
+    /// map (docs/decisions/0017-every-scan-mapped-along-known-poses.md). The filter's own
+    /// map is not affected.
     pub min_scan_travel_m: f64,
     /// The turn (deg) that also passes the motion filter (with `min_scan_travel_m > 0`).
     pub min_scan_turn_deg: f64,
@@ -144,7 +145,7 @@ pub struct HeightOptions {
     /// evenly; the first also takes everything below, the last everything above. Default
     /// 0.64-3.04 m in 0.15 m bins: the car LiDAR's height (1.76 m) is the middle of a bin, so
     /// its near-level beams share one bin and a roof 0.1-0.2 m below them gets its own
-    /// (chosen by measurement among 6 layouts, see the README).
+    /// (chosen by measurement among 8 layouts, see docs/decisions/0015-height-bins.md).
     pub z_min_m: f64,
     /// Upper edge of the binned window (m, world z).
     pub z_max_m: f64,

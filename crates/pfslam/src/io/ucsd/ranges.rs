@@ -27,9 +27,10 @@ const INV_POW10: [f64; 16] = [
 ];
 
 /// `mantissa / 10^frac_digits` correctly rounded to f32, for a mantissa below 2^24 and at
-/// most 15 decimals: the product with the f64 reciprocal, rounded to f32 (it replaced an f32
-/// division limited to 10 decimals; the speed-up once credited to it did not reproduce, see
-/// PERFORMANCE.md). The product is within two f64 ulps of the quotient, so it is the correctly rounded f32 unless the quotient lies
+/// most 15 decimals: the product with the f64 reciprocal, rounded to f32 (an f32 division
+/// would reach only 10 decimals and measures no faster; see
+/// docs/decisions/0012-lidar-csv-reader.md). The product is within two f64 ulps of the
+/// quotient, so it is the correctly rounded f32 unless the quotient lies
 /// that close to halfway between two f32s; `small_decimals_are_correctly_rounded_for_every_mantissa`
 /// checks all 268M inputs, the one near halfway exactly.
 #[inline(always)]

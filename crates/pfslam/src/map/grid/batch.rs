@@ -83,7 +83,8 @@ impl Marks for BitMarks<'_> {
 
     /// A block's flag is stored when the line enters the block, not at every cell: about
     /// one cell in three stores it, and the flag stores were ~40 % of this loop's cost on the
-    /// car (`examples/filter_map`: ~370 -> ~310 us per scan on one thread, PERFORMANCE.md);
+    /// car (`examples/filter_map`: ~370 -> ~310 us per scan on one thread,
+    /// docs/decisions/0014-insertion-mask-and-batched-insertion.md);
     /// the branch costs less than the stores it saves.
     #[inline(always)]
     fn mark_free(&mut self, cells: &[u32]) {
