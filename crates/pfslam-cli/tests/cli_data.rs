@@ -211,7 +211,7 @@ fn dead_reckon_takes_the_odometry_of_a_carmen_log() {
             .arg(&out),
     );
     let traj = pfslam::io::tum::read_tum(&out.join("trajectory.tum")).unwrap();
-    // one pose per scan (README table: 1,988 scans), moving: the log's odometry, not zeros
+    // one pose per scan (the data README's table: 1,988 scans), moving: the log's odometry, not zeros
     assert_eq!(traj.len(), 1988);
     assert!(traj.path_length_m() > 100.0, "{}", traj.path_length_m());
 }
@@ -226,7 +226,7 @@ fn run_maps_a_log_without_usable_stamps_and_accounts_for_every_scan() {
     };
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("o");
-    // every laser stamp of this log is 0: 237 laser lines (README table)
+    // every laser stamp of this log is 0: 237 laser lines (the data README's table)
     let o = super::run_ok(
         super::pfslam()
             .arg("run")

@@ -4,7 +4,7 @@
 //!
 //! Each is measured twice: wall time (criterion's default) and the reading thread's CPU time
 //! (`/proc/thread-self/schedstat`, Linux), which does not grow when other processes share
-//! the cores; the target is per core, so the CPU figure is the one to quote on a
+//! the cores; throughput is quoted per core, so the CPU figure is the one to quote on a
 //! busy machine.
 
 mod cpu_time;

@@ -2,7 +2,7 @@
 //! pipeline's map rebuild) on 1,000 scans of the simulated car (tilted LMS511, default
 //! preprocessing: 2-75 m, densified returns), 0.1 m cells:
 //! - `bins/sequential`: the scans inserted one after another (`ScanInserter::insert`, the
-//!   code before batching) with the default `[map.height]` bins;
+//!   sequential baseline) with the default `[map.height]` bins;
 //! - `bins/threads_1`, `bins/threads_2`: `map_with_poses` in a rayon pool of 1 / 2 threads
 //!   (the same grid bit for bit);
 //! - `flat/...`: the same without height bins (one log-odds value per cell).

@@ -591,11 +591,11 @@ fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> 
     }
 }
 
-/// Issue 5's accuracy target on the default simulated drive (180 s, 1359 m, default errors,
+/// The accuracy target on the default simulated drive (180 s, 1359 m, default errors,
 /// 40 particles, filter seed 1), the whole pipeline as `pfslam run` runs it (filter, the
 /// odometry calibrated against it, the `[graph]` back end): ATE RMSE at least 5x below dead
 /// reckoning's. Measured: 0.069 m against 0.550 m (seeds 2-5: 0.046 / 0.067 / 0.058 / 0.050
-/// m; session 8). About 25 s of CPU in release.
+/// m). About 25 s of CPU in release.
 #[test]
 fn simulated_car_slam_ate_is_5x_below_dead_reckoning() {
     let config = pfslam::config::Config::default();
@@ -622,12 +622,11 @@ fn simulated_car_slam_ate_is_5x_below_dead_reckoning() {
     );
 }
 
-/// Issue 5's map target on the same drive, as written: precision and recall >= 0.9 against
+/// The map target on the same drive, as written: precision and recall >= 0.9 against
 /// the scan-surface truth (`pfslam::sim::scan_truth`), the map rebuilt along the final
 /// trajectory with the height bins as `pfslam run` writes it, in the true map's frame (the
 /// SLAM map is anchored at the true start pose, not aligned). Not reached: recall 0.824 /
-/// 0.865 / 0.861 / 0.814 / 0.957 over seeds 1-5 (session 8; precision 0.94-0.98; with the
-/// true poses 0.9855 before session 8). Through the ATE's SE(2) alignment both are >= 0.98 (asserted in
+/// 0.865 / 0.861 / 0.814 / 0.957 over seeds 1-5 (precision 0.94-0.98). Through the ATE's SE(2) alignment both are >= 0.98 (asserted in
 /// `simulated_car_slam_ate_is_5x_below_dead_reckoning`). The trajectory's error relative to
 /// the start (0.11-0.19 m RMS) comes from the odometry calibration's precision on a 180 s
 /// drive (+-0.03 % scale, +-0.4e-5 rad/s bias): with the exact calibration dead reckoning

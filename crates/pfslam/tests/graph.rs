@@ -367,7 +367,7 @@ fn mit_csail_back_end_beats_the_front_end() {
         before.trans_m.abs.mean, after.trans_m.abs.mean, after.rot_deg.abs.mean, g.stats
     );
     assert!(g.stats.loop_accepted > g.stats.loop_removed_outliers);
-    // The target for MIT-CSAIL.
+    // The target for MIT-CSAIL: the back end behind a poor front end within 0.035 m.
     assert!(
         after.trans_m.abs.mean <= 0.035,
         "{}",

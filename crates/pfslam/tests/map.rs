@@ -322,7 +322,7 @@ fn map_files_roundtrip_for_a_mapped_grid() {
     assert!(data.iter().any(|&v| v > 1.0) && data.iter().any(|&v| v < -1.0));
 }
 
-/// Issue 4 on the whole default drive (180 s, default simulated errors) with the true poses,
+/// Mapping the whole default drive (180 s, default simulated errors) with the true poses,
 /// judged by the simulator's scan-surface truth (`pfslam::sim::scan_truth`: what the tilted
 /// LiDAR's beams can face with line of sight within 75 m, traced from the world's solids and
 /// the true poses, never from the simulated ranges). Measured with the default `[map.height]`

@@ -310,7 +310,7 @@ fn ros1_bags_counts_geometry_and_relation_stamps() {
     let Some(root) = data_dir("ros1_bags_counts_geometry_and_relation_stamps") else {
         return;
     };
-    // name, scans, beams, odometry messages, relations (README table)
+    // name, scans, beams, odometry messages, relations (the data README's table)
     for (name, scans, beams, odom, relations) in [
         ("intel", 13_631, 180, 26_915, 2_984),
         ("aces", 7_374, 180, 7_375, 1_279),

@@ -1,4 +1,4 @@
-//! `pfslam bench-e2e`: the end-to-end speed benchmark (issue 9).
+//! `pfslam bench-e2e`: the end-to-end speed benchmark.
 //!
 //! Simulates the car once (by default the full-size recording: 1160.5 s, 116k LiDAR scans,
 //! 1.16M FOG rows) into a scratch directory, or takes `--dataset`, then times `--runs` times
@@ -33,7 +33,7 @@ pub struct Args {
     /// Seed of the simulation and of the filter.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Particles (overrides `[filter] particles`; the issue's full-size figure uses 100).
+    /// Particles (overrides `[filter] particles`; the full-size figures use 100).
     #[arg(long)]
     pub particles: Option<usize>,
     /// Map resolution (m; overrides `[map] resolution_m`).

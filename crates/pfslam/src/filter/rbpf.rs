@@ -1747,7 +1747,7 @@ mod tests {
         }
     }
 
-    /// The matcher before the early stop and the memo of evaluated poses: every candidate
+    /// The matcher without the early stop and the memo of evaluated poses: every candidate
     /// fully evaluated, only the pose just left skipped, the weight recomputed.
     fn match_in_own_map_plain(
         grid: &OccupancyGrid,

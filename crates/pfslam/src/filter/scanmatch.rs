@@ -1,4 +1,4 @@
-//! The scan-matching mode (issue 7): a smooth observation model and a scan-matching proposal.
+//! The scan-matching mode: a smooth observation model and a scan-matching proposal.
 //!
 //! - [`LikelihoodField`]: per update, a local window of the map around the scan where each
 //!   cell holds `255 * exp(-d^2 / 2 sigma^2)`, `d` the distance to the nearest occupied cell
@@ -38,8 +38,8 @@ pub struct ScanMatchOptions {
     /// Half-width of the coarse yaw search (deg). Beyond a few prior sigmas a yaw candidate
     /// pays more prior penalty than a scan's fit can win back (at the default
     /// `prior_sigma_yaw_deg = 0.05`: 12.5 log-units at 0.25 deg, 112.5 at 0.75 deg), and the
-    /// refinement still moves in yaw. Session 6: 0.25 (3 yaws) and 0.75 (7 yaws, the
-    /// default before) gave byte-identical trajectories on the default drive (seeds 1-5),
+    /// refinement still moves in yaw. 0.25 (3 yaws) and 0.75 (7 yaws) give byte-identical
+    /// trajectories on the default drive (seeds 1-5),
     /// the full-size car (seed 1) and the humanoid walk (seeds 1-3), with 3/7 of the coarse
     /// search's work.
     pub yaw_search_deg: f64,
@@ -785,7 +785,7 @@ impl Rotation {
         std::array::from_fn(|k| rots[k].sum_tail(field, limits, at[k][0], at[k][1], sums[k]))
     }
 
-    /// The single-candidate portable sum as first written (before the batched kernels):
+    /// The single-candidate portable sum, written plainly (no batching):
     /// the reference the batched ones must equal.
     #[cfg(test)]
     fn sum_portable(&self, field: &LikelihoodField, limits: &MapLimits, x_m: f64, y_m: f64) -> f64 {
@@ -1902,7 +1902,7 @@ pub fn pattern_search(
     (at, best)
 }
 
-/// [`pattern_search`] as it was before the batched evaluation: one candidate evaluated
+/// [`pattern_search`] without batched evaluation: one candidate evaluated
 /// after the other, `eval(at, same_yaw)`. The reference the batched search must follow.
 #[cfg(test)]
 pub(crate) fn pattern_search_sequential(

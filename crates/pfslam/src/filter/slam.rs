@@ -65,8 +65,8 @@ impl OccupancyLookup for OccupancyGrid {
     }
 }
 
-/// How maps are kept: the seeds' single map written by the best particle, or (issue 7) one
-/// map per particle. The filter sees maps only through this trait.
+/// How maps are kept: the seeds' single map written by the best particle, or one map per
+/// particle. The filter sees maps only through this trait.
 pub trait MapPolicy: ParticleMaps {
     /// Integrates the body-frame scan at the particles' poses (`best` is the heaviest).
     fn integrate(

@@ -1373,7 +1373,7 @@ mod tests {
         }
     }
 
-    /// The refinement as it was before the batched scores: the sequential pattern search,
+    /// The refinement without batched scores (the oracle): the sequential pattern search,
     /// one plain score at a time.
     fn refine_sequential(
         f: &PointField,

@@ -1,4 +1,4 @@
-//! The back end (issue 7): loop closure by pose-graph optimisation after any filter mode.
+//! The back end: loop closure by pose-graph optimisation after any filter mode.
 //!
 //! 1. Keyframes every `keyframe_distance_m` / `keyframe_angle_deg` of the front end's path.
 //! 2. Sequential edges: each keyframe's scan is matched against a submap of the preceding
@@ -195,15 +195,15 @@ pub struct GraphOptions {
     /// 1-5) 0.069 / 0.046 / 0.067 / 0.058 / 0.050 m against 0.074 / 0.053 / 0.072 / 0.064 /
     /// 0.057 m, map precision as written up 0.1-0.3 points, recall as written down 0.4-1.2
     /// points (through the ATE's alignment -0.2 to 0 points; walls drawn from smooth poses
-    /// are thinner), at ~9 s less CPU on the full-size car (session 8).
+    /// are thinner), at ~9 s less CPU on the full-size car.
     pub refine_scans: Switch,
     /// Half-width of that refinement search in x and y (m).
     pub refine_window_m: f64,
     /// Half-width of that refinement search in yaw (deg).
     pub refine_window_deg: f64,
     /// When no loop closure survives, return the front end's trajectory unchanged: without
-    /// a closure the back end only re-matches scans. (On the simulated car that re-matching
-    /// drifted, 6.7 m: see `sequential_matching`, now off there.)
+    /// a closure the back end only re-matches scans. (On the simulated car with sequential
+    /// matching on, that re-matching drifted to 6.7 m: see `sequential_matching`.)
     pub keep_front_end_without_closures: bool,
     /// The back end's trajectory replaces the front end's only when the share of scan
     /// returns that land in cells its own map calls free is at most this multiple of the

@@ -136,7 +136,7 @@ pub struct MapOptions {
 #[serde(default, deny_unknown_fields)]
 pub struct HeightOptions {
     /// Use height bins for scans that carry heights (tilted mounts); false = one log-odds
-    /// value per cell for every scan (as before).
+    /// value per cell for every scan.
     pub enabled: bool,
     /// Number of height bins per cell (2-16). Storage is 16 bytes per visited cell whatever
     /// the count (one fixed column per cell; see `pfslam::map::grid`).

@@ -80,7 +80,7 @@ pub struct ScanOptions {
     /// map`, the rebuild along the back end's trajectory). Default `hit_only`: a joining
     /// return is not a measured beam, so it adds occupancy at its end cell but no free
     /// space; with `full` each one cleared a whole ray (87 % of the car's ray walk, ignoring
-    /// `free_z_max_m`, which its two returns obey). Session 8, maps along the final
+    /// `free_z_max_m`, which its two returns obey). Measured on maps along the final
     /// trajectories (`refine_scans` off), precision / recall as written, `full` ->
     /// `hit_only`: full-size car 0.9996 / 0.9765 -> 0.9971 / 0.9801 (mapping CPU 31.8 ->
     /// 7.4 s); default drive seeds 1-5 0.957 / 0.822, 0.969 / 0.850, 0.962 / 0.840, 0.952 /

@@ -382,7 +382,7 @@ fn height_options_are_validated() {
     assert!(o.validate().is_err());
 }
 
-/// [`map_with_poses`] as it was before batching: each scan inserted in turn (the oracle).
+/// [`map_with_poses`] without batches: each scan inserted in turn (the oracle).
 fn map_with_poses_sequential(
     recording: &Recording,
     poses: &Trajectory,
