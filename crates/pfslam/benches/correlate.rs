@@ -3,7 +3,7 @@
 //! and the default `scan_match` mode's kernels: the likelihood field's build, one particle's
 //! match (7x7 cells x 7 yaws, then the sub-cell refinement), and the update of 40 / 100
 //! particles in parallel; `scan_match_cpu`: 100 jittered particles matched serially, in the
-//! calling thread's CPU time (whole match, with `kernel_precision = "f32"`, with `refine_method = "gauss_newton"`, and the
+//! calling thread's CPU time (whole match with the f64 and the f32 refinement kernel, and the
 //! coarse search alone).
 
 mod cpu_time;
@@ -116,44 +116,18 @@ fn scan_match(c: &mut Criterion) {
             })
         });
     }
-    // A cloud as after resampling: jittered copies of one pose (`proposal_sigma_xy_m`),
-    // every particle searched in full vs shared matching.
-    let shared = |levels: u32, linear: bool| {
-        pfslam::filter::scanmatch::ScanMatchOptions {
-            shared_match_radius_m: 0.05,
-            shared_match_radius_deg: 0.25,
-            shared_match_refine_levels: levels,
-            shared_match_linear_start: linear,
-            ..sm.clone()
-        }
-        .params(config.map.resolution_m)
-    };
-    for (name, p) in [
-        (
-            "every_particle",
-            pfslam::filter::scanmatch::ScanMatchOptions {
-                shared_match_radius_m: 0.0,
-                ..sm.clone()
-            }
-            .params(config.map.resolution_m),
-        ),
-        ("shared_levels_2", shared(2, false)),
-        ("shared_levels_1", shared(1, false)),
-        ("shared_linear_levels_1", shared(1, true)),
-        ("shared_linear_levels_0", shared(0, false)),
-    ] {
-        let mut pf = ParticleFilter::new(100, predicted, 1);
-        g.bench_function(format!("update_jittered_100_{name}"), |b| {
-            b.iter(|| {
-                pf.particles.poses.fill(predicted);
-                pf.jitter(
-                    sm.proposal_sigma_xy_m,
-                    sm.proposal_sigma_yaw_deg.to_radians(),
-                );
-                black_box(pf.scan_match_update(&field, &pts, &p, sm.weight_temperature))
-            })
-        });
-    }
+    // A cloud as after resampling: jittered copies of one pose (`proposal_sigma_xy_m`).
+    let mut pf = ParticleFilter::new(100, predicted, 1);
+    g.bench_function("update_jittered_100", |b| {
+        b.iter(|| {
+            pf.particles.poses.fill(predicted);
+            pf.jitter(
+                sm.proposal_sigma_xy_m,
+                sm.proposal_sigma_yaw_deg.to_radians(),
+            );
+            black_box(pf.scan_match_update(&field, &pts, &params, sm.weight_temperature))
+        })
+    });
     g.finish();
 }
 
@@ -177,40 +151,24 @@ fn scan_match_cpu(c: &mut Criterion<ThreadCpuTime>) {
     let cloud = pf.particles.poses.clone();
     let mut g = c.benchmark_group("scan_match_cpu");
     g.sample_size(20);
-    use pfslam::filter::scanmatch::{KernelPrecision, RefineMethod};
-    for (name, levels, refine_method, kernel_precision) in [
-        (
-            "match_100_jittered",
-            sm.refine_levels,
-            RefineMethod::Pattern,
-            KernelPrecision::F64,
-        ),
+    use pfslam::filter::scanmatch::{KernelPrecision, MatchParams, ScanMatchOptions};
+    for (name, levels, kernel_precision) in [
+        ("match_100_jittered", sm.refine_levels, KernelPrecision::F64),
         (
             "match_100_jittered_f32",
             sm.refine_levels,
-            RefineMethod::Pattern,
             KernelPrecision::F32,
         ),
-        (
-            "match_100_jittered_gn",
-            sm.refine_levels,
-            RefineMethod::GaussNewton,
-            KernelPrecision::F64,
-        ),
-        (
-            "coarse_100_jittered",
-            0,
-            RefineMethod::Pattern,
-            KernelPrecision::F64,
-        ),
+        ("coarse_100_jittered", 0, KernelPrecision::F64),
     ] {
-        let params = pfslam::filter::scanmatch::ScanMatchOptions {
-            refine_levels: levels,
-            refine_method,
+        let params = MatchParams {
             kernel_precision,
-            ..sm.clone()
-        }
-        .params(config.map.resolution_m);
+            ..ScanMatchOptions {
+                refine_levels: levels,
+                ..sm.clone()
+            }
+            .params(config.map.resolution_m)
+        };
         let mut scratch = MatchScratch::default();
         g.bench_function(name, |b| {
             b.iter(|| {

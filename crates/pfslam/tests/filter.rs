@@ -645,7 +645,7 @@ fn simulated_car_slam_map_acceptance() {
 
 /// Exploration helper (ignored), configured by environment variables: `PF_DUR` (s), `PF_N`,
 /// `PF_T`, `PF_NOISE` (0/1/2/3 = off/Table 1), `PF_K`, `PF_R` (search radius), `PF_YAW` (deg
-/// step), `SM_GAIN` (`match_gain`), `PF_RES`, `PF_ZMIN`, `PF_MOVE`, `PF_MAPALL`, `PF_PEN`,
+/// step), `PF_RES`, `PF_ZMIN`, `PF_MOVE`, `PF_MAPALL`, `PF_PEN`,
 /// `PF_DIL`; simulator:
 /// `PF_NOISEFREE`, `PF_BAND`; `PF_GTMAP` also maps with true poses, `PF_DUMP=FILE.tum`.
 #[test]
@@ -680,9 +680,6 @@ fn explore_sim() {
     sm.beam_decimation = env("SM_DEC", sm.beam_decimation as f64) as usize;
     sm.weight_temperature = env("SM_T", sm.weight_temperature);
     sm.xy_search_radius_cells = env("SM_R", sm.xy_search_radius_cells as f64) as u32;
-    sm.field_occupied_prob = env("SM_SRC", sm.field_occupied_prob);
-    sm.min_update_travel_m = env("SM_MT", sm.min_update_travel_m);
-    sm.match_gain = env("SM_GAIN", sm.match_gain);
     sm.yaw_search_deg = env("SM_YS", sm.yaw_search_deg);
     sm.refine_levels = env("SM_RL", sm.refine_levels as f64) as u32;
     if env("PF_SEED", 0.0) > 0.5 {

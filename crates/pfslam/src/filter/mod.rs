@@ -324,10 +324,6 @@ pub struct ParticleFilter {
     matches: Vec<ScanMatch>,
     ancestors: Vec<usize>,
     pose_scratch: Vec<Pose2>,
-    share_scratch: scanmatch::ShareScratch,
-    /// Full scan-match searches so far (the particles matched, or with shared matching the
-    /// anchors).
-    pub full_matches: u64,
 }
 
 impl ParticleFilter {
@@ -340,8 +336,6 @@ impl ParticleFilter {
             matches: Vec::with_capacity(n),
             ancestors: Vec::with_capacity(n),
             pose_scratch: Vec::with_capacity(n),
-            share_scratch: scanmatch::ShareScratch::default(),
-            full_matches: 0,
         }
     }
 
@@ -477,15 +471,13 @@ impl ParticleFilter {
             };
             n
         ];
-        self.full_matches += scanmatch::match_particles(
+        scanmatch::match_particles(
             field,
             points_body,
             &self.particles.poses,
-            &self.particles.weights,
             params,
-            &mut self.share_scratch,
             &mut results,
-        ) as u64;
+        );
         self.scores.clear();
         self.scores.extend(results.iter().map(|m| m.objective));
         for (p, m) in self.particles.poses.iter_mut().zip(&results) {

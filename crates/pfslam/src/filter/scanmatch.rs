@@ -12,9 +12,8 @@
 //!   previous scan's beam pattern.
 //! - The particle moves to the optimum and its log-weight grows by the objective divided by a
 //!   temperature; resampling is selective (Neff below a fraction of N).
-//! - [`match_particles`]: particles within a few cm of an already searched one (its
-//!   "anchor") skip the coarse search and refine from the anchor's offset (shared matching,
-//!   `shared_match_radius_m`): after resampling most particles are jittered copies.
+//! - [`match_particles`]: every particle matched in full (see
+//!   `docs/decisions/0019-scan-match-refinement.md`).
 
 use super::field_cache::FieldCache;
 use crate::geometry::Pose2;
@@ -36,12 +35,8 @@ pub struct ScanMatchOptions {
     /// Half-width of the coarse x/y search in cells.
     pub xy_search_radius_cells: u32,
     /// Half-width of the coarse yaw search (deg). Beyond a few prior sigmas a yaw candidate
-    /// pays more prior penalty than a scan's fit can win back (at the default
-    /// `prior_sigma_yaw_deg = 0.05`: 12.5 log-units at 0.25 deg, 112.5 at 0.75 deg), and the
-    /// refinement still moves in yaw. 0.25 (3 yaws) and 0.75 (7 yaws) give byte-identical
-    /// trajectories on the default drive (seeds 1-5),
-    /// the full-size car (seed 1) and the humanoid walk (seeds 1-3), with 3/7 of the coarse
-    /// search's work.
+    /// pays more prior penalty than a scan's fit can win back; the refinement still moves in
+    /// yaw (`docs/decisions/0019-scan-match-refinement.md`).
     pub yaw_search_deg: f64,
     /// Step of the coarse yaw search (deg).
     pub yaw_step_deg: f64,
@@ -62,105 +57,14 @@ pub struct ScanMatchOptions {
     pub resample_threshold: f64,
     /// Halvings of the step in the sub-cell refinement (0 = coarse search only).
     pub refine_levels: u32,
-    /// How the sub-cell refinement climbs from the coarse optimum: `"pattern"` (the
-    /// default: a pattern search with `refine_levels` step halvings, ~21 field sums per
-    /// match) or `"gauss_newton"` (Levenberg-Marquardt steps on the analytic gradient of the
-    /// bilinear field, Hector-SLAM style, a step kept only when the exact objective
-    /// improves; at most 4 passes over the points; `refine_levels = 0` still means no
-    /// refinement). See docs/decisions/0019-scan-match-refinement.md for its accuracy.
-    pub refine_method: RefineMethod,
-    /// Arithmetic of the refinement's field sums: `"f32"` (the default: 8 points per AVX2
-    /// vector, coordinates relative to the field window, ~1e-4 cell, bilinear mix and
-    /// per-lane partial sums in f32; sums within 1e-5 of full scale per point of the f64
-    /// ones; the refinement ~1.9x cheaper) or `"f64"` (the reference bits, 4 points per
-    /// vector). The trajectories differ (near-ties flip), not the accuracy: default drive
-    /// seeds 1-60 SLAM ATE 0.0596 m against 0.0606 m (paired -0.0010 +- 0.0031), the
-    /// full-size car 0.023 m against 0.049 m (seed 1) and its matching 20-26 % less time;
-    /// the front end before the back end is noisier (0.404 against 0.353 m, t 1.5, over 1 m
-    /// on 3 of 60 seeds against 2). With `refine_method = "gauss_newton"` it sums only
-    /// that method's last pass (its gradient terms are f64). See
-    /// docs/decisions/0018-f32-and-f64-in-the-kernels.md.
-    pub kernel_precision: KernelPrecision,
     /// Particles are sampled around their match with this standard deviation in x and y
-    /// (m); the prediction itself composes the odometry without noise (the match, not the
-    /// motion noise, is the proposal). Small, because the best particle changes from update
-    /// to update and each change is a jump of this order, which the car's odometry
-    /// calibration then reads as travel: on the default drive (seeds 1-5, true scale
-    /// 1.00300) the filter's travel gave the scales 1.00276 / 1.00264 / 1.00289 / 1.00188 /
-    /// 1.00180 with 0.01 m (the jittered particles that fall behind fit the map best) and
-    /// 1.00326 / 1.00281 / 1.00293 / 1.00266 / 1.00285 with 0.003 m; the humanoid's ATE was
-    /// 0.130 / 0.132 / 0.129 m with 0.01 m and 0.132 / 0.119 / 0.134 m with 0.003 m (seeds
-    /// 1-3); 0.001 m let the car's filter diverge (seed 1: 0.62 m).
+    /// (m); the prediction itself composes the odometry without noise (the match is the
+    /// proposal). Small: each change of best particle is a jump of this order, which the
+    /// car's odometry calibration reads as travel
+    /// (`docs/decisions/0022-car-back-end-on-calibrated-odometry.md`).
     pub proposal_sigma_xy_m: f64,
     /// Standard deviation of the yaw sampled around the match (deg).
     pub proposal_sigma_yaw_deg: f64,
-    /// Cells at least this likely occupied are walls of the likelihood field (0 = the map's
-    /// own `occupied_prob`, the default). Lower, a surface first seen one or two scans ago
-    /// attracts points at once (held at 0, observed but not yet occupied, it repels them
-    /// towards the unknown beyond); but contested cells (canopy undersides, car roofs seen
-    /// at one height and passed at another) join too: 0.6 gave 0.53 m ATE on the default
-    /// drive (seed 1) against 0.18 m, 0.97 0.24 m, 0.995 diverged.
-    pub field_occupied_prob: f64,
-    /// An update needs at least this much travel (m) or turn (10 x this, deg) since the
-    /// previous one; otherwise the scan is only mapped at the odometry pose (0 = update
-    /// every `update_every_scans` scans regardless). Standing still, matching a scan
-    /// against copies of itself only walks the pose: the simulated car's 2 s standstill
-    /// moved it 6 cm and 0.14 deg before it started. Not the default: with 0.05 the default
-    /// drive's ATE RMSE over filter seeds 1-5 was 0.143 / 0.269 / 0.632 / 0.272 / 0.179 m
-    /// against 0.183 / 0.223 / 0.304 / 0.316 / 0.258 m without (noise-dominated), and the
-    /// Freiburg figures moved by < 1 %.
-    pub min_update_travel_m: f64,
-    /// Each particle moves this fraction of the way from its prediction to its match (1 =
-    /// to the match, the default). Below 1 the match's noise (whole refinement steps of a
-    /// few mm, per update) is averaged over updates instead of accumulating as a random
-    /// walk: on the noise-free default drive (dead reckoning exact) 0.1 with a tight yaw
-    /// (`prior_sigma_yaw_deg = 0.005`, `proposal_sigma_yaw_deg = 0.0005`,
-    /// `proposal_sigma_xy_m = 0.002`) gave 0.049 m ATE RMSE and map precision / recall
-    /// 0.996 / 0.671 against 0.43 m with the defaults; but with the default odometry
-    /// errors 0.31 m (seed 1) against 0.18 m: the odometry's scale error (wheel diameters,
-    /// 0.3 %) is then corrected too slowly (the map the scan is matched against drifts with
-    /// the poses).
-    pub match_gain: f64,
-    /// The map this mode matches against uses `[map.height]` bins when they are enabled
-    /// (false, the default: one log-odds value per cell). The bins' projection marks a cell
-    /// occupied when any height hit it — canopy undersides, car roofs — and those returns
-    /// move with the car: on the default drive (seed 1) ATE RMSE 0.57 m with the bins
-    /// against 0.18 m without, at twice the CPU. The output map of `pfslam run` is rebuilt
-    /// along the final trajectory with `[map]` as configured (bins included).
-    pub map_height_bins: bool,
-    /// Shared matching: particles whose predicted poses lie within this distance (m, in x
-    /// and in y) of an already matched particle's (an "anchor", taken heaviest first) are
-    /// not searched in full: they skip the coarse search and start their refinement from
-    /// the anchor's offset from its prediction (see `shared_match_refine_levels`). After
-    /// resampling the particles are jittered copies of a few (`proposal_sigma_xy_m`), so
-    /// ~3 full searches per update replace N. 0 (the default) = every particle is searched
-    /// in full. With 0.05 (and `shared_match_radius_deg = 0.25`, 2 levels): default drive,
-    /// 40 particles, ATE RMSE seeds 1-5 0.051 / 0.055 / 0.054 / 0.057 / 0.052 m (mean
-    /// 0.054) against 0.074 / 0.053 / 0.072 / 0.064 / 0.057 m (mean 0.064), one update of
-    /// 100 particles 2.7x cheaper, the full-size car's filter 31 % less CPU; but the
-    /// full-size car's ATE 0.090 m against 0.036 m (fitted odometry scale 1.00345 against
-    /// 1.00302, true 1.00300; 3 levels: 0.069 m), and MIT-CSAIL's back end on this filter
-    /// 0.045 m against <= 0.035 m: not the default.
-    pub shared_match_radius_m: f64,
-    /// The yaw half of `shared_match_radius_m`'s box (deg).
-    pub shared_match_radius_deg: f64,
-    /// With shared matching, a member particle runs the last `n` levels of the refinement
-    /// (the same steps as its own full search would use), from its anchor's offset: its
-    /// pose stays on that search's lattice. 0: no search, the member is placed by the
-    /// linear response of the anchor's optimum to the shift of the prior's centre, `(H +
-    /// W)^-1 W (p - a)` (`H` the curvature of the anchor's field term by finite differences,
-    /// `W` the prior's precision), and weighted by the exact objective there. Default drive,
-    /// seeds 1-5: 2 levels (the default) as above; 1 level 0.060 / 0.059 / 0.088 / 0.054 /
-    /// 0.079 m (5.5x cheaper than every particle searched); 1 level from the linear response
-    /// (`shared_match_linear_start`) 0.053 / 0.068 / 0.052 / 0.074 / 0.069 m (7.7x, but the
-    /// filter's own trajectory and the odometry scale fitted to it were worse); 0 levels
-    /// 0.055 / 0.376 / 0.109 / 0.062 / 0.061 m (27x: the particles collapse onto the
-    /// anchor's optimum where the walls pin the pose).
-    pub shared_match_refine_levels: u32,
-    /// With shared matching and `shared_match_refine_levels > 0`, a member's own search
-    /// starts at the linear response (see `shared_match_refine_levels`) instead of its
-    /// anchor's offset.
-    pub shared_match_linear_start: bool,
 }
 
 impl Default for ScanMatchOptions {
@@ -179,18 +83,8 @@ impl Default for ScanMatchOptions {
             weight_temperature: 10.0,
             resample_threshold: 0.5,
             refine_levels: 3,
-            refine_method: RefineMethod::Pattern,
-            kernel_precision: KernelPrecision::F32,
             proposal_sigma_xy_m: 0.003,
             proposal_sigma_yaw_deg: 0.02,
-            field_occupied_prob: 0.0,
-            min_update_travel_m: 0.0,
-            match_gain: 1.0,
-            map_height_bins: false,
-            shared_match_radius_m: 0.0,
-            shared_match_radius_deg: 0.25,
-            shared_match_refine_levels: 2,
-            shared_match_linear_start: false,
         }
     }
 }
@@ -221,43 +115,13 @@ impl ScanMatchOptions {
         if self.xy_search_radius_cells > 32 {
             return Err("filter.scan_match.xy_search_radius_cells must be at most 32".into());
         }
-        if !(self.match_gain > 0.0 && self.match_gain <= 1.0) {
-            return Err("filter.scan_match.match_gain must lie in (0, 1]".into());
-        }
         if self.refine_levels > 8 {
             return Err("filter.scan_match.refine_levels must be at most 8".into());
         }
         if !(0.0..=1.0).contains(&self.resample_threshold) {
             return Err("filter.scan_match.resample_threshold must lie in [0, 1]".into());
         }
-        if !(0.0..1.0).contains(&self.field_occupied_prob) {
-            return Err("filter.scan_match.field_occupied_prob must lie in [0, 1)".into());
-        }
-        for (k, v) in [
-            ("shared_match_radius_m", self.shared_match_radius_m),
-            ("shared_match_radius_deg", self.shared_match_radius_deg),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(format!("filter.scan_match.{k} must be finite and >= 0"));
-            }
-        }
-        if !(self.min_update_travel_m.is_finite() && self.min_update_travel_m >= 0.0) {
-            return Err("filter.scan_match.min_update_travel_m must be finite and >= 0".into());
-        }
         Ok(())
-    }
-
-    /// The fixed-point log-odds from which a cell is a wall of the likelihood field (`None`:
-    /// the map's occupied threshold).
-    pub fn field_source_threshold(&self) -> Option<i16> {
-        (self.field_occupied_prob > 0.0)
-            .then(|| crate::map::logodds::to_fixed(crate::map::logit(self.field_occupied_prob)))
-    }
-
-    /// True when the odometry moved enough since the last update for a new one.
-    pub fn moved_enough(&self, since_last_update: &Pose2) -> bool {
-        since_last_update.translation_norm_m() >= self.min_update_travel_m
-            || since_last_update.yaw_rad.abs().to_degrees() >= 10.0 * self.min_update_travel_m
     }
 
     /// The per-update search parameters for a map of `resolution_m`.
@@ -279,35 +143,19 @@ impl ScanMatchOptions {
             inv_var_yaw: 1.0 / self.prior_sigma_yaw_deg.to_radians().powi(2),
             gain_per_unit: self.point_gain / 255.0,
             refine_levels: self.refine_levels,
-            refine_method: self.refine_method,
-            kernel_precision: self.kernel_precision,
-            share_radius_xy_m: self.shared_match_radius_m,
-            share_radius_yaw_rad: self.shared_match_radius_deg.to_radians(),
-            share_refine_levels: self.shared_match_refine_levels.min(self.refine_levels),
-            share_linear_start: self.shared_match_linear_start,
+            kernel_precision: KernelPrecision::F32,
         }
     }
 }
 
-/// The sub-cell refinement of [`match_scan`] (`[filter.scan_match] refine_method`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum RefineMethod {
-    /// Pattern search with step halving (see [`pattern_search`]).
-    #[default]
-    Pattern,
-    /// Levenberg-Marquardt on the analytic gradient of the bilinear field.
-    GaussNewton,
-}
-
-/// The arithmetic of the refinement's field sums (`[filter.scan_match] kernel_precision`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
+/// The arithmetic of the refinement's field sums: f32 (see
+/// `docs/decisions/0018-f32-and-f64-in-the-kernels.md`); f64 for windows beyond the f32 kernel's
+/// bound, and the tests' reference.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum KernelPrecision {
     /// f64 throughout: the reference bits.
     F64,
     /// Window-relative f32 coordinates, f32 mix and per-lane sums (8 points per vector).
-    #[default]
     F32,
 }
 
@@ -330,18 +178,8 @@ pub struct MatchParams {
     pub gain_per_unit: f64,
     /// Step halvings of the refinement.
     pub refine_levels: u32,
-    /// The refinement's method.
-    pub refine_method: RefineMethod,
-    /// The refinement's field-sum arithmetic.
+    /// The refinement's field-sum arithmetic (f32 from [`ScanMatchOptions::params`]).
     pub kernel_precision: KernelPrecision,
-    /// Shared matching's box half-width in x and y (m; 0 = off).
-    pub share_radius_xy_m: f64,
-    /// Shared matching's box half-width in yaw (rad).
-    pub share_radius_yaw_rad: f64,
-    /// Shared matching: pattern-search levels of a member (0 = the linear response).
-    pub share_refine_levels: u32,
-    /// Shared matching: a refined member starts at the linear response.
-    pub share_linear_start: bool,
 }
 
 /// Rows per parallel band of the field build.
@@ -363,19 +201,12 @@ pub struct LikelihoodField {
     kernel_radius: i32,
     /// Occupied cells reaching each band of rows (pass 1 of the build).
     occupied: Vec<Vec<(i32, i32)>>,
-    source_threshold: Option<i16>,
 }
 
 impl LikelihoodField {
     /// An empty field (every lookup 0).
     pub fn new() -> Self {
         LikelihoodField::default()
-    }
-
-    /// Cells with fixed-point log-odds at least `threshold` are the field's walls (`None`, the
-    /// default: the grid's occupied threshold).
-    pub fn set_source_threshold(&mut self, threshold: Option<i16>) {
-        self.source_threshold = threshold;
     }
 
     /// The field as [`Self::build`] gives it, from `cache` ([`FieldCache`]: the same values,
@@ -403,9 +234,10 @@ impl LikelihoodField {
         self.values.extend_from_slice(&[0; FIELD_PAD]);
     }
 
-    /// The wall threshold this field uses on `grid` (fixed-point log-odds).
+    /// The wall threshold this field uses on `grid` (fixed-point log-odds): the grid's
+    /// occupied threshold (`docs/decisions/0040-likelihood-field-walls-at-the-maps-threshold.md`).
     pub fn source_threshold_on(&self, grid: &OccupancyGrid) -> i16 {
-        self.source_threshold.unwrap_or(grid.fixed().occupied)
+        grid.fixed().occupied
     }
 
     /// Sets the kernel for `sigma_m` on `grid`'s cells and the window `rect`; returns the
@@ -1338,7 +1170,7 @@ impl RotationF32 {
     /// window's cell frame, less half a cell (see [`LikelihoodField::f32_origin`]); per
     /// point `at + offset` and [`LikelihoodField::bilinear_f32`], summed per lane in f32
     /// (lane `l` holds the points `l`, `l + 8`, ...), the 8 lanes added in f64 at the end.
-    /// Not the bits of the f64 kernel (see `kernel_precision`); the portable and the AVX2
+    /// Not the bits of the f64 kernel (see [`KernelPrecision`]); the portable and the AVX2
     /// versions give the same bits.
     fn sums<const K: usize>(
         rots: [&RotationF32; K],
@@ -2067,50 +1899,31 @@ fn refine_from(
             rot.field_sum(field, limits, points_body, &pose, keep),
         )
     };
-    let ([dx, dy, dyaw], (obj, sum)) = if params.refine_method == RefineMethod::GaussNewton {
-        let (at, obj, sum) = if levels == 0 {
-            let (obj, sum) = eval(dx, dy, dyaw, true);
-            (start, obj, sum)
-        } else {
-            gauss_newton(
-                field,
-                limits,
-                points_body,
-                predicted,
-                params,
-                &mut rot,
-                start,
-                steps.map(|s| 2.0 * s),
-            )
-        };
-        (at, (obj, sum))
-    } else {
-        let first = eval(dx, dy, dyaw, true);
-        // Refinement: pattern search with step halving on the interpolated field, an
-        // iteration's candidates summed in one pass.
-        pattern_search(
-            [dx, dy, dyaw],
-            first,
-            steps[0],
-            steps[1],
-            levels,
-            64,
-            |cands, values| {
-                for (cands, values) in cands.chunks(NEIGHBOURS).zip(values.chunks_mut(NEIGHBOURS)) {
-                    let mut poses = [(Pose2::default(), false); NEIGHBOURS];
-                    let mut sums = [0.0; NEIGHBOURS];
-                    for (p, &(d, keep)) in poses.iter_mut().zip(cands) {
-                        *p = (offset_pose(predicted, d), keep);
-                    }
-                    let n = cands.len();
-                    rot.field_sums(field, limits, points_body, &poses[..n], &mut sums[..n]);
-                    for ((v, &(d, _)), sum) in values.iter_mut().zip(cands).zip(sums) {
-                        *v = value(d, sum);
-                    }
+    let first = eval(dx, dy, dyaw, true);
+    // Refinement: pattern search with step halving on the interpolated field, an
+    // iteration's candidates summed in one pass.
+    let ([dx, dy, dyaw], (obj, sum)) = pattern_search(
+        [dx, dy, dyaw],
+        first,
+        steps[0],
+        steps[1],
+        levels,
+        64,
+        |cands, values| {
+            for (cands, values) in cands.chunks(NEIGHBOURS).zip(values.chunks_mut(NEIGHBOURS)) {
+                let mut poses = [(Pose2::default(), false); NEIGHBOURS];
+                let mut sums = [0.0; NEIGHBOURS];
+                for (p, &(d, keep)) in poses.iter_mut().zip(cands) {
+                    *p = (offset_pose(predicted, d), keep);
                 }
-            },
-        )
-    };
+                let n = cands.len();
+                rot.field_sums(field, limits, points_body, &poses[..n], &mut sums[..n]);
+                for ((v, &(d, _)), sum) in values.iter_mut().zip(cands).zip(sums) {
+                    *v = value(d, sum);
+                }
+            }
+        },
+    );
     rot.give_back(&mut scratch.rotated);
     MatchResult {
         pose: offset_pose(predicted, [dx, dy, dyaw]),
@@ -2128,451 +1941,21 @@ fn offset_pose(predicted: &Pose2, d: [f64; 3]) -> Pose2 {
     )
 }
 
-/// Passes over the points of [`gauss_newton`] (the start's included).
-const GN_PASSES: u32 = 4;
-
-/// The field term at `pose`: the sum of bilinear field values of the points (the same
-/// operations per point, in the same order, as [`Rotation::sums`], so the same bits), its
-/// gradient with respect to (x m, y m, yaw rad) of the pose, and the sum of the outer
-/// products of the per-point gradients (upper triangle: xx, xy, xt, yy, yt, tt).
-fn field_terms(
-    field: &LikelihoodField,
-    limits: &MapLimits,
-    points_body: &[[f64; 2]],
-    pose: &Pose2,
-    inv_res: f64,
-) -> (f64, [f64; 3], [f64; 6]) {
-    const LIM: f64 = 1e9;
-    let (s, c) = pose.yaw_rad.sin_cos();
-    let mut sum = -0.0;
-    let mut grad = [0.0; 3];
-    let mut outer = [0.0; 6];
-    for p in points_body {
-        let (r0, r1, r2, r3) = (c * p[0], s * p[1], s * p[0], c * p[1]);
-        let (u, v) = limits.cell_coords(pose.x_m + r0 - r1, pose.y_m + r2 + r3);
-        let (x, y) = (u - 0.5, v - 0.5);
-        if !(x.abs() < LIM && y.abs() < LIM) {
-            sum += field.bilinear_reference(u, v);
-            continue;
-        }
-        let (i, j) = (floor_to_i32(x), floor_to_i32(y));
-        let (ax, ay) = (x - f64::from(i), y - f64::from(j));
-        let [f00, f10, f01, f11] = field.corners(i, j);
-        let bottom = f00 * (1.0 - ax) + f10 * ax;
-        let top = f01 * (1.0 - ax) + f11 * ax;
-        let value = bottom * (1.0 - ay) + top * ay;
-        sum += value;
-        // The bilinear's partial derivatives (per cell), chained through the rotation:
-        // d(world x)/d yaw = -(s px + c py), d(world y)/d yaw = c px - s py.
-        let gx = ((1.0 - ay) * (f10 - f00) + ay * (f11 - f01)) * inv_res;
-        let gy = ((1.0 - ax) * (f01 - f00) + ax * (f11 - f10)) * inv_res;
-        let gt = gy * (r0 - r1) - gx * (r2 + r3);
-        grad[0] += gx;
-        grad[1] += gy;
-        grad[2] += gt;
-        // Curvature weight 1 / (255 - f): where the interpolated field is a tent (a wall
-        // cell's neighbourhood) the step `g / (g^2 w)` reaches its ridge in one go (the
-        // outer product alone vanishes on a wall); near a smooth Gaussian ridge, half way.
-        let wk = 1.0 / (256.0 - value);
-        let (wx, wy, wt) = (wk * gx, wk * gy, wk * gt);
-        outer[0] += wx * gx;
-        outer[1] += wx * gy;
-        outer[2] += wx * gt;
-        outer[3] += wy * gy;
-        outer[4] += wy * gt;
-        outer[5] += wt * gt;
-    }
-    (sum, grad, outer)
-}
-
-/// Solves the symmetric 3x3 system `h x = b` (upper triangle of `h` as in [`field_terms`])
-/// by Cramer's rule; `None` when singular or not finite.
-fn solve_sym3(h: &[f64; 6], b: &[f64; 3]) -> Option<[f64; 3]> {
-    let [a, d, e, bb, f, cc] = *h;
-    // Cofactors of [[a d e] [d bb f] [e f cc]].
-    let c00 = bb * cc - f * f;
-    let c01 = e * f - d * cc;
-    let c02 = d * f - bb * e;
-    let c11 = a * cc - e * e;
-    let c12 = d * e - a * f;
-    let c22 = a * bb - d * d;
-    let det = a * c00 + d * c01 + e * c02;
-    if !(det.is_finite() && det > 0.0) {
-        return None;
-    }
-    let x = [
-        (c00 * b[0] + c01 * b[1] + c02 * b[2]) / det,
-        (c01 * b[0] + c11 * b[1] + c12 * b[2]) / det,
-        (c02 * b[0] + c12 * b[1] + c22 * b[2]) / det,
-    ];
-    x.iter().all(|v| v.is_finite()).then_some(x)
-}
-
-/// The Gauss-Newton refinement (`refine_method = "gauss_newton"`): from the offset `start`,
-/// Levenberg-Marquardt steps on the objective `gain * sum_k f(T p_k) - prior`. The
-/// gradient is exact (the bilinear's); the curvature is approximated Hector-SLAM style by
-/// `gain / 255 * sum_k g_k g_k^T` (for a Gaussian field the outer products at one sigma
-/// from a wall equal the curvature on it) plus the prior's precision. A step is clamped to
-/// `max_step` (x/y m, yaw rad) and kept only when the exact objective improves; otherwise
-/// the damping grows. At most [`GN_PASSES`] passes over the points (the last candidate is
-/// only evaluated). Returns the offset, its objective and its field sum; the objective is
-/// never below the start's.
-#[allow(clippy::too_many_arguments)]
-fn gauss_newton(
-    field: &LikelihoodField,
-    limits: &MapLimits,
-    points_body: &[[f64; 2]],
-    predicted: &Pose2,
-    params: &MatchParams,
-    rot: &mut RotatedPoints,
-    start: [f64; 3],
-    max_step: [f64; 2],
-) -> ([f64; 3], f64, f64) {
-    let g = params.gain_per_unit;
-    let w = [params.inv_var_xy, params.inv_var_xy, params.inv_var_yaw];
-    let inv_res = 1.0 / params.resolution_m;
-    let objective = |d: [f64; 3], sum: f64| g * sum - prior_penalty(params, d[0], d[1], d[2]);
-    let mut at = start;
-    let (mut sum, mut grad, mut outer) = field_terms(
-        field,
-        limits,
-        points_body,
-        &offset_pose(predicted, at),
-        inv_res,
-    );
-    let mut obj = objective(at, sum);
-    let mut lambda = 0.0;
-    for pass in 1..GN_PASSES {
-        let b = [
-            g * grad[0] - w[0] * at[0],
-            g * grad[1] - w[1] * at[1],
-            g * grad[2] - w[2] * at[2],
-        ];
-        let mut h = outer.map(|o| g * o);
-        for (idx, wi) in [(0, w[0]), (3, w[1]), (5, w[2])] {
-            h[idx] = (h[idx] + wi) * (1.0 + lambda);
-        }
-        let Some(mut step) = solve_sym3(&h, &b) else {
-            break;
-        };
-        let over = (step[0].abs() / max_step[0])
-            .max(step[1].abs() / max_step[0])
-            .max(step[2].abs() / max_step[1]);
-        if over > 1.0 {
-            step = step.map(|v| v / over);
-        }
-        // Converged (far below the pattern search's finest step): stop. Not much coarser:
-        // the odometry's scale error is corrected by sub-mm moves per update.
-        if step[0].abs().max(step[1].abs()) < max_step[0] * 1e-3
-            && step[2].abs() < max_step[1] * 1e-3
-        {
-            break;
-        }
-        let cand = [at[0] + step[0], at[1] + step[1], at[2] + step[2]];
-        let pose = offset_pose(predicted, cand);
-        let improved = if pass + 1 == GN_PASSES {
-            let cand_sum = rot.field_sum(field, limits, points_body, &pose, true);
-            let cand_obj = objective(cand, cand_sum);
-            (cand_obj > obj).then(|| {
-                (at, sum, obj) = (cand, cand_sum, cand_obj);
-            })
-        } else {
-            let terms = field_terms(field, limits, points_body, &pose, inv_res);
-            let cand_obj = objective(cand, terms.0);
-            (cand_obj > obj).then(|| {
-                (at, obj) = (cand, cand_obj);
-                (sum, grad, outer) = terms;
-            })
-        };
-        lambda = match improved {
-            Some(()) => lambda * 0.25,
-            None if lambda == 0.0 => 1.0,
-            None => lambda * 4.0,
-        };
-    }
-    (at, obj, sum)
-}
-
-/// Which particles shared matching searches in full: `anchor_of[i] == i` for an anchor, else
-/// the anchor whose result particle `i` starts from. Particles are visited heaviest first
-/// (ties: lower index); one inside the box (`radius_xy_m` in x and in y, `radius_yaw_rad` in
-/// yaw) around an earlier anchor's pose joins the first such anchor, otherwise it becomes an
-/// anchor. Deterministic: a sort and a sequential scan. Returns the number of anchors.
-pub fn assign_anchors(
-    poses: &[Pose2],
-    weights: &[f64],
-    radius_xy_m: f64,
-    radius_yaw_rad: f64,
-    order: &mut Vec<usize>,
-    anchor_of: &mut Vec<usize>,
-) -> usize {
-    let n = poses.len();
-    order.clear();
-    order.extend(0..n);
-    let w = |i: usize| weights.get(i).copied().unwrap_or(0.0);
-    order.sort_by(|&a, &b| w(b).total_cmp(&w(a)).then(a.cmp(&b)));
-    anchor_of.clear();
-    anchor_of.resize(n, usize::MAX);
-    // Anchors in the order they were made (few: a linear scan is cheaper than a grid).
-    let mut anchors: Vec<usize> = Vec::new();
-    for &i in order.iter() {
-        let p = &poses[i];
-        let joined = anchors.iter().copied().find(|&a| {
-            let q = &poses[a];
-            (p.x_m - q.x_m).abs() <= radius_xy_m
-                && (p.y_m - q.y_m).abs() <= radius_xy_m
-                && crate::geometry::wrap_angle(p.yaw_rad - q.yaw_rad).abs() <= radius_yaw_rad
-        });
-        match joined {
-            Some(a) => anchor_of[i] = a,
-            None => {
-                anchor_of[i] = i;
-                anchors.push(i);
-            }
-        }
-    }
-    anchors.len()
-}
-
-/// Finite-difference steps of [`field_curvature`] in x, y (m) and yaw (rad): half the coarse
-/// steps, so the bilinear field's kinks at cell borders average into a curvature.
-fn curvature_steps(params: &MatchParams) -> [f64; 3] {
-    [
-        0.5 * params.resolution_m,
-        0.5 * params.resolution_m,
-        0.5 * params.yaw_step_rad,
-    ]
-}
-
-/// `H`, minus the Hessian of the field term (`gain_per_unit * field sum`) of the objective at
-/// `at`, in (x m, y m, yaw rad), by central differences (18 field sums).
-pub fn field_curvature(
-    field: &LikelihoodField,
-    points_body: &[[f64; 2]],
-    at: &Pose2,
-    params: &MatchParams,
-) -> [[f64; 3]; 3] {
-    let Some(limits) = field.limits else {
-        return [[0.0; 3]; 3];
-    };
-    let steps = curvature_steps(params);
-    let mut rot = RotatedPoints::take(&mut Default::default(), KernelPrecision::F64);
-    let mut f = |e: [f64; 3]| {
-        let pose = Pose2::new(at.x_m + e[0], at.y_m + e[1], at.yaw_rad + e[2]);
-        params.gain_per_unit * rot.field_sum(field, &limits, points_body, &pose, false)
-    };
-    let f0 = f([0.0; 3]);
-    let mut h = [[0.0; 3]; 3];
-    let unit = |i: usize, sign: f64| {
-        let mut e = [0.0; 3];
-        e[i] = sign * steps[i];
-        e
-    };
-    for i in 0..3 {
-        let (plus, minus) = (f(unit(i, 1.0)), f(unit(i, -1.0)));
-        h[i][i] = -(plus - 2.0 * f0 + minus) / (steps[i] * steps[i]);
-        for j in 0..i {
-            let mut corner = |si: f64, sj: f64| {
-                let mut e = unit(i, si);
-                e[j] = sj * steps[j];
-                f(e)
-            };
-            let d = corner(1.0, 1.0) - corner(1.0, -1.0) - corner(-1.0, 1.0) + corner(-1.0, -1.0);
-            h[i][j] = -d / (4.0 * steps[i] * steps[j]);
-            h[j][i] = h[i][j];
-        }
-    }
-    h
-}
-
-/// The response `K = (H+ + W)^-1 W` of the optimum to a shift of the prior's centre (see
-/// [`ScanMatchOptions::shared_match_radius_m`]): `H+` is `h` with negative curvatures (in
-/// the prior's whitened coordinates) set to 0, so `K`'s eigenvalues lie in (0, 1]: 1 along
-/// directions the scan does not fix (the particle keeps its own offset), towards 0 where it
-/// pins the pose (particles collapse onto the anchor's optimum).
-pub fn shared_gain(h: &[[f64; 3]; 3], params: &MatchParams) -> [[f64; 3]; 3] {
-    use nalgebra::{Matrix3, SymmetricEigen};
-    let s = [
-        params.inv_var_xy.sqrt(),
-        params.inv_var_xy.sqrt(),
-        params.inv_var_yaw.sqrt(),
-    ];
-    let white = Matrix3::from_fn(|i, j| h[i][j] / (s[i] * s[j]));
-    let identity = Matrix3::identity();
-    let k_white = if white.iter().all(|v| v.is_finite()) {
-        let eig = SymmetricEigen::new(white);
-        let clamped = eig.eigenvalues.map(|l| 1.0 / (1.0 + l.max(0.0)));
-        eig.eigenvectors * Matrix3::from_diagonal(&clamped) * eig.eigenvectors.transpose()
-    } else {
-        identity
-    };
-    std::array::from_fn(|i| std::array::from_fn(|j| k_white[(i, j)] * s[j] / s[i]))
-}
-
-/// A member particle's starting offset (x m, y m, yaw rad) from its prediction `member` under
-/// shared matching: its anchor's offset from the anchor's prediction, plus with `gain` (`K`)
-/// the linear response `(K - I) (member - anchor_predicted)`.
-pub fn member_offset(
-    anchor_predicted: &Pose2,
-    anchor: &MatchResult,
-    gain: Option<&[[f64; 3]; 3]>,
-    member: &Pose2,
-) -> [f64; 3] {
-    let base = [
-        anchor.pose.x_m - anchor_predicted.x_m,
-        anchor.pose.y_m - anchor_predicted.y_m,
-        anchor.pose.yaw_rad - anchor_predicted.yaw_rad,
-    ];
-    let Some(gain) = gain else {
-        return base;
-    };
-    let d = [
-        member.x_m - anchor_predicted.x_m,
-        member.y_m - anchor_predicted.y_m,
-        crate::geometry::wrap_angle(member.yaw_rad - anchor_predicted.yaw_rad),
-    ];
-    std::array::from_fn(|i| base[i] - d[i] + (0..3).map(|j| gain[i][j] * d[j]).sum::<f64>())
-}
-
-/// A member particle's match placed at `offset` from its prediction `member`, scored by the
-/// exact objective there (one field sum).
-pub fn member_match(
-    field: &LikelihoodField,
-    points_body: &[[f64; 2]],
-    offset: [f64; 3],
-    member: &Pose2,
-    params: &MatchParams,
-) -> MatchResult {
-    let Some(limits) = field.limits else {
-        return MatchResult::unmatched(*member);
-    };
-    let n = points_body.len().max(1) as f64;
-    let off = offset;
-    let pose = Pose2::new(
-        member.x_m + off[0],
-        member.y_m + off[1],
-        member.yaw_rad + off[2],
-    );
-    let mut rot = RotatedPoints::take(&mut Default::default(), KernelPrecision::F64);
-    let sum = rot.field_sum(field, &limits, points_body, &pose, false);
-    MatchResult {
-        pose,
-        objective: params.gain_per_unit * sum - prior_penalty(params, off[0], off[1], off[2]),
-        fit: sum / (255.0 * n),
-    }
-}
-
-/// A member particle's match under shared matching with `params.share_refine_levels > 0`:
-/// the last levels of [`match_scan`]'s refinement (the same steps), started at `offset`
-/// from its prediction `member` (see [`member_offset`]).
-pub fn member_refined(
-    field: &LikelihoodField,
-    points_body: &[[f64; 2]],
-    offset: [f64; 3],
-    member: &Pose2,
-    params: &MatchParams,
-    scratch: &mut MatchScratch,
-) -> MatchResult {
-    let Some(limits) = field.limits else {
-        return MatchResult::unmatched(*member);
-    };
-    let levels = params.share_refine_levels.min(params.refine_levels);
-    let halvings = params.refine_levels - levels;
-    let scale = 0.5f64.powi(halvings as i32);
-    refine_from(
-        field,
-        &limits,
-        points_body,
-        member,
-        params,
-        scratch,
-        offset,
-        [
-            0.5 * params.resolution_m * scale,
-            0.5 * params.yaw_step_rad * scale,
-        ],
-        levels,
-    )
-}
-
-/// Buffers of [`match_particles`].
-#[derive(Debug, Clone, Default)]
-pub struct ShareScratch {
-    order: Vec<usize>,
-    anchor_of: Vec<usize>,
-    anchors: Vec<(usize, MatchResult, [[f64; 3]; 3])>,
-}
-
-/// Matches every particle (`predicted[i]` -> `results[i]`): each with [`match_scan`], or with
-/// shared matching when `params.share_radius_xy_m > 0` (anchors searched in full, the others
-/// from their anchor, see [`ScanMatchOptions::shared_match_radius_m`]). Deterministic for
-/// any thread count (each result depends only on its inputs). Returns the full searches.
+/// Matches every particle (`predicted[i]` -> `results[i]`) with [`match_scan`], in
+/// parallel; deterministic for any thread count (each result depends only on its inputs).
 pub fn match_particles(
     field: &LikelihoodField,
     points_body: &[[f64; 2]],
     predicted: &[Pose2],
-    weights: &[f64],
     params: &MatchParams,
-    share: &mut ShareScratch,
     results: &mut [MatchResult],
-) -> usize {
-    if params.share_radius_xy_m <= 0.0 || field.limits.is_none() {
-        results
-            .par_iter_mut()
-            .zip(predicted.par_iter())
-            .for_each_init(MatchScratch::default, |scratch, (m, pose)| {
-                *m = match_scan(field, points_body, pose, params, scratch);
-            });
-        return predicted.len();
-    }
-    let count = assign_anchors(
-        predicted,
-        weights,
-        params.share_radius_xy_m,
-        params.share_radius_yaw_rad,
-        &mut share.order,
-        &mut share.anchor_of,
-    );
-    let unmatched = MatchResult::unmatched(Pose2::IDENTITY);
-    share.anchors.clear();
-    share.anchors.extend(
-        (0..predicted.len())
-            .filter(|&i| share.anchor_of[i] == i)
-            .map(|i| (i, unmatched, [[0.0; 3]; 3])),
-    );
-    share
-        .anchors
-        .par_iter_mut()
-        .for_each_init(MatchScratch::default, |scratch, (i, m, gain)| {
-            *m = match_scan(field, points_body, &predicted[*i], params, scratch);
-            if params.share_refine_levels == 0 || params.share_linear_start {
-                let h = field_curvature(field, points_body, &m.pose, params);
-                *gain = shared_gain(&h, params);
-            }
-        });
-    let anchors = &share.anchors;
-    let anchor_of = &share.anchor_of;
+) {
     results
         .par_iter_mut()
-        .enumerate()
-        .for_each_init(MatchScratch::default, |scratch, (i, m)| {
-            let a = anchor_of[i];
-            let Ok(k) = anchors.binary_search_by_key(&a, |e| e.0) else {
-                return;
-            };
-            let (_, anchor, gain) = &anchors[k];
-            let linear = params.share_refine_levels == 0 || params.share_linear_start;
-            let offset =
-                member_offset(&predicted[a], anchor, linear.then_some(gain), &predicted[i]);
-            *m = if a == i {
-                *anchor
-            } else if params.share_refine_levels > 0 {
-                member_refined(field, points_body, offset, &predicted[i], params, scratch)
-            } else {
-                member_match(field, points_body, offset, &predicted[i], params)
-            };
+        .zip(predicted.par_iter())
+        .for_each_init(MatchScratch::default, |scratch, (m, pose)| {
+            *m = match_scan(field, points_body, pose, params, scratch);
         });
-    count
 }
 
 /// The returns of `scan` within `range_max_m` of the sensor, every `decimation`-th, as
@@ -2659,11 +2042,10 @@ mod tests {
         };
         let mut ms = MatchScratch::default();
         for precision in [KernelPrecision::F64, KernelPrecision::F32] {
-            let params = ScanMatchOptions {
+            let params = MatchParams {
                 kernel_precision: precision,
-                ..o.clone()
-            }
-            .params(0.1);
+                ..o.params(0.1)
+            };
             for (dx, dy, dyaw_deg) in [(0.17, -0.12, 0.4), (-0.23, 0.08, -0.6), (0.04, 0.26, 0.0)] {
                 let predicted = Pose2::new(dx, dy, f64::to_radians(dyaw_deg));
                 let m = match_scan(&field, &pts, &predicted, &params, &mut ms);
@@ -2674,94 +2056,6 @@ mod tests {
                 assert!(m.pose.yaw_rad.abs() < 0.15f64.to_radians(), "{m:?}");
                 assert!(m.fit > 0.8, "{m:?}");
             }
-        }
-    }
-
-    #[test]
-    fn kernel_precision_parses_and_defaults_to_f32() {
-        assert_eq!(
-            ScanMatchOptions::default().kernel_precision,
-            KernelPrecision::F32
-        );
-        let o: ScanMatchOptions = toml::from_str("kernel_precision = \"f32\"").unwrap();
-        assert_eq!(o.params(0.1).kernel_precision, KernelPrecision::F32);
-        let o: ScanMatchOptions = toml::from_str("kernel_precision = \"f64\"").unwrap();
-        assert_eq!(o.kernel_precision, KernelPrecision::F64);
-        assert!(toml::from_str::<ScanMatchOptions>("kernel_precision = \"f16\"").is_err());
-    }
-
-    #[test]
-    fn refine_method_parses_and_defaults_to_the_pattern_search() {
-        assert_eq!(
-            ScanMatchOptions::default().refine_method,
-            RefineMethod::Pattern
-        );
-        let o: ScanMatchOptions = toml::from_str("refine_method = \"gauss_newton\"").unwrap();
-        assert_eq!(o.refine_method, RefineMethod::GaussNewton);
-        assert_eq!(o.params(0.1).refine_method, RefineMethod::GaussNewton);
-        assert!(toml::from_str::<ScanMatchOptions>("refine_method = \"newton\"").is_err());
-    }
-
-    #[test]
-    fn gauss_newton_recovers_sub_cell_offsets_as_well_as_the_pattern_search() {
-        let (field, pts) = room_field(0.0);
-        for wide_prior in [true, false] {
-            let base = if wide_prior {
-                ScanMatchOptions {
-                    prior_sigma_xy_m: 10.0,
-                    prior_sigma_yaw_deg: 50.0,
-                    ..ScanMatchOptions::default()
-                }
-            } else {
-                ScanMatchOptions::default()
-            };
-            let with = |refine_method, refine_levels| {
-                ScanMatchOptions {
-                    refine_method,
-                    refine_levels,
-                    // Gauss-Newton's gradient terms are f64; compare in one arithmetic.
-                    kernel_precision: KernelPrecision::F64,
-                    ..base.clone()
-                }
-                .params(0.1)
-            };
-            let pattern = with(RefineMethod::Pattern, 3);
-            let gn = with(RefineMethod::GaussNewton, 3);
-            let coarse = with(RefineMethod::Pattern, 0);
-            let mut ms = MatchScratch::default();
-            let (mut err_p, mut err_g, mut gain_p, mut gain_g) = (0.0, 0.0, 0.0, 0.0);
-            for k in 0..40 {
-                let kf = f64::from(k);
-                let (dx, dy) = (
-                    (kf * 0.618).fract() * 0.2 - 0.1,
-                    (kf * 0.381).fract() * 0.2 - 0.1,
-                );
-                let dyaw = ((kf * 0.271).fract() - 0.5).to_radians();
-                let predicted = Pose2::new(dx, dy, dyaw);
-                let p = match_scan(&field, &pts, &predicted, &pattern, &mut ms);
-                let g = match_scan(&field, &pts, &predicted, &gn, &mut ms);
-                let c = match_scan(&field, &pts, &predicted, &coarse, &mut ms);
-                // The same coarse search, then only improvements: never below its optimum.
-                assert!(g.objective >= c.objective, "{g:?} {c:?}");
-                // The objective reported is the exact one at the pose returned.
-                let mut rot = RotatedPoints::take(&mut ms.rotated, KernelPrecision::F64);
-                let limits = field.limits.unwrap();
-                let sum = rot.field_sum(&field, &limits, &pts, &g.pose, true);
-                rot.give_back(&mut ms.rotated);
-                assert_eq!(g.fit, sum / (255.0 * pts.len() as f64));
-                err_p += p.pose.translation_norm_m().powi(2) / 40.0;
-                err_g += g.pose.translation_norm_m().powi(2) / 40.0;
-                gain_p += (p.objective - c.objective) / 40.0;
-                gain_g += (g.objective - c.objective) / 40.0;
-            }
-            let (rms_p, rms_g) = (err_p.sqrt(), err_g.sqrt());
-            eprintln!("wide {wide_prior}: rms pattern {rms_p} gn {rms_g}, gain {gain_p} {gain_g}");
-            if wide_prior {
-                // The truth is the optimum: both land within a fraction of a cell of it.
-                assert!(rms_g < 0.015 && rms_g < 1.25 * rms_p, "{rms_g} vs {rms_p}");
-            }
-            // Most of the pattern search's improvement over the coarse optimum.
-            assert!(gain_g > 0.8 * gain_p, "{gain_g} vs {gain_p}");
         }
     }
 
@@ -3028,11 +2322,13 @@ mod tests {
                 yaw_search_deg: rng.random_range(0.0..2.0),
                 prior_sigma_xy_m: rng.random_range(0.01..1.0),
                 refine_levels: rng.random_range(0..5),
-                // The reference is f64 throughout.
-                kernel_precision: KernelPrecision::F64,
                 ..ScanMatchOptions::default()
             };
-            let params = o.params(0.1);
+            // The reference is f64 throughout.
+            let params = MatchParams {
+                kernel_precision: KernelPrecision::F64,
+                ..o.params(0.1)
+            };
             let predicted = Pose2::new(
                 rng.random_range(-0.5..0.5),
                 rng.random_range(-0.5..0.5),
@@ -3544,170 +2840,5 @@ mod tests {
         let mut pts = Vec::new();
         match_points(scan, 40.0, decimation, &mut pts);
         (field, pts)
-    }
-
-    #[test]
-    fn shared_gain_is_the_linear_response_and_clamps_negative_curvature() {
-        let params = ScanMatchOptions::default().params(0.1);
-        let w = [params.inv_var_xy, params.inv_var_xy, params.inv_var_yaw];
-        // A positive definite curvature: K = (H + W)^-1 W, checked as (H + W) K = W.
-        let h = [
-            [9000.0, 1200.0, -3.0e4],
-            [1200.0, 400.0, 2.0e3],
-            [-3.0e4, 2.0e3, 4.0e6],
-        ];
-        let k = shared_gain(&h, &params);
-        for i in 0..3 {
-            for j in 0..3 {
-                let lhs: f64 = (0..3)
-                    .map(|m| (h[i][m] + if i == m { w[i] } else { 0.0 }) * k[m][j])
-                    .sum();
-                let rhs = if i == j { w[i] } else { 0.0 };
-                assert!(
-                    (lhs - rhs).abs() <= 1e-9 * w[i].max(w[j]),
-                    "{i} {j} {lhs} {rhs}"
-                );
-            }
-        }
-        // No curvature: the particle keeps its own offset (K = I); negative curvature is
-        // treated as none.
-        for h in [
-            [[0.0; 3]; 3],
-            [[-500.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -9.0]],
-        ] {
-            let k = shared_gain(&h, &params);
-            for (i, row) in k.iter().enumerate() {
-                for (j, v) in row.iter().enumerate() {
-                    let want = if i == j { 1.0 } else { 0.0 };
-                    assert!((v - want).abs() < 1e-12, "{k:?}");
-                }
-            }
-        }
-    }
-
-    #[test]
-    fn anchors_cover_every_particle_heaviest_first() {
-        use rand::{RngExt, SeedableRng};
-        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(9);
-        let (rx, ryaw) = (0.05, 0.004);
-        let (mut order, mut anchor_of) = (Vec::new(), Vec::new());
-        for _ in 0..20 {
-            let n = rng.random_range(1..120);
-            let poses: Vec<Pose2> = (0..n)
-                .map(|_| {
-                    Pose2::new(
-                        rng.random_range(-0.2..0.2),
-                        rng.random_range(-0.2..0.2),
-                        rng.random_range(-0.01..0.01),
-                    )
-                })
-                .collect();
-            let weights: Vec<f64> = (0..n).map(|_| rng.random_range(0.0..1.0)).collect();
-            let count = assign_anchors(&poses, &weights, rx, ryaw, &mut order, &mut anchor_of);
-            let anchors: Vec<usize> = (0..n).filter(|&i| anchor_of[i] == i).collect();
-            assert_eq!(anchors.len(), count);
-            let heaviest = (0..n)
-                .max_by(|&a, &b| weights[a].total_cmp(&weights[b]).then(b.cmp(&a)))
-                .unwrap();
-            assert_eq!(anchor_of[heaviest], heaviest);
-            let inside =
-                |p: &Pose2, q: &Pose2| (p.x_m - q.x_m).abs() <= rx && (p.y_m - q.y_m).abs() <= rx;
-            for i in 0..n {
-                let a = anchor_of[i];
-                assert_eq!(anchor_of[a], a, "a member's anchor is an anchor");
-                assert!(inside(&poses[i], &poses[a]));
-                assert!((poses[i].yaw_rad - poses[a].yaw_rad).abs() <= ryaw);
-                assert!(weights[a] >= weights[i]);
-            }
-        }
-    }
-
-    #[test]
-    fn shared_matching_is_close_to_matching_every_particle() {
-        let (field, pts) = room_field(0.01);
-        // A cloud of jittered copies around a prediction 8 cm and 0.3 deg off.
-        let base = Pose2::new(0.08, -0.05, 0.3f64.to_radians());
-        let predicted: Vec<Pose2> = (0..30)
-            .map(|k| {
-                let t = f64::from(k);
-                Pose2::new(
-                    base.x_m + 0.004 * (1.3 * t).sin(),
-                    base.y_m + 0.004 * (0.7 * t).cos(),
-                    base.yaw_rad + 0.0004 * (2.1 * t).sin(),
-                )
-            })
-            .collect();
-        let weights: Vec<f64> = (0..30).map(|k| 1.0 + f64::from(k % 7)).collect();
-        let empty = MatchResult {
-            pose: Pose2::IDENTITY,
-            objective: 0.0,
-            fit: 0.0,
-        };
-        let mut share = ShareScratch::default();
-        // Every particle searched in full: the plain rule (radius 0 = `match_scan` each).
-        let plain = ScanMatchOptions {
-            shared_match_radius_m: 0.0,
-            ..ScanMatchOptions::default()
-        }
-        .params(0.1);
-        let mut want = vec![empty; 30];
-        let full = match_particles(
-            &field, &pts, &predicted, &weights, &plain, &mut share, &mut want,
-        );
-        assert_eq!(full, 30);
-        let mut ms = MatchScratch::default();
-        for (w, p) in want.iter().zip(&predicted) {
-            assert_eq!(*w, match_scan(&field, &pts, p, &plain, &mut ms));
-        }
-        for (levels, linear) in [(0, false), (1, false), (2, false), (3, false), (1, true)] {
-            let params = ScanMatchOptions {
-                shared_match_radius_m: 0.05,
-                shared_match_radius_deg: 0.25,
-                shared_match_refine_levels: levels,
-                shared_match_linear_start: linear,
-                ..ScanMatchOptions::default()
-            }
-            .params(0.1);
-            let mut got = vec![empty; 30];
-            let full = match_particles(
-                &field, &pts, &predicted, &weights, &params, &mut share, &mut got,
-            );
-            assert_eq!(full, 1, "one cloud, one search");
-            let anchor = 6; // the first of the heaviest (weight 7)
-            for i in 0..30 {
-                let (g, w) = (&got[i], &want[i]);
-                if i == anchor {
-                    assert_eq!(g, w, "the anchor is matched in full");
-                }
-                // The walls pin the pose: every particle lands where its own search does, to
-                // within the search's last steps (1.25 cm, 0.03 deg) ...
-                let msg = format!("levels {levels} {linear}, particle {i}: {g:?} {w:?}");
-                assert!((g.pose.x_m - w.pose.x_m).abs() < 0.0126, "{msg}");
-                assert!((g.pose.y_m - w.pose.y_m).abs() < 0.0126, "{msg}");
-                assert!((g.pose.yaw_rad - w.pose.yaw_rad).abs() < 0.05f64.to_radians());
-                // ... near the truth, with an objective about as good.
-                assert!(g.pose.translation_norm_m() < 0.03, "{msg}");
-                assert!(g.objective > w.objective - 0.5, "{msg}");
-                assert!(g.fit > 0.8);
-                if levels > 0 && !linear {
-                    // A refined member sits on its own search's lattice: prediction + the
-                    // anchor's offset + whole finest steps.
-                    let step = 0.5 * 0.1 * 0.25; // the finest of the 3 default levels
-                    let a = (&got[anchor], &predicted[anchor]);
-                    let lattice = |v: f64, p: f64, av: f64, ap: f64| {
-                        let k = ((v - p) - (av - ap)) / step;
-                        (k - k.round()).abs() < 1e-6
-                    };
-                    assert!(
-                        lattice(g.pose.x_m, predicted[i].x_m, a.0.pose.x_m, a.1.x_m),
-                        "{msg}"
-                    );
-                    assert!(
-                        lattice(g.pose.y_m, predicted[i].y_m, a.0.pose.y_m, a.1.y_m),
-                        "{msg}"
-                    );
-                }
-            }
-        }
     }
 }

@@ -421,7 +421,9 @@ pub fn run_slam(
         return super::rbpf::run_rbpf(recording, config, seed, observer);
     }
     let motion = super::motion_model(config, recording)?;
-    let grid = if mode == FilterMode::ScanMatch && !config.filter.scan_match.map_height_bins {
+    // `scan_match` matches against a map without height bins
+    // (docs/decisions/0015-height-bins.md).
+    let grid = if mode == FilterMode::ScanMatch {
         let mut map = config.map.clone();
         map.height.enabled = false;
         OccupancyGrid::new(&map)?
@@ -484,7 +486,6 @@ pub fn run_slam_with<P: MapPolicy>(
     let mut last_update_odom = start;
     let mut match_pts: Vec<[f64; 2]> = Vec::new();
     let mut field = scanmatch::LikelihoodField::new();
-    field.set_source_threshold(opts.scan_match.field_source_threshold());
     let mut field_cache = super::field_cache::FieldCache::new();
     policy.log_changes(field.source_threshold_on(policy.map_for_output(0)));
     let match_params = opts.scan_match.params(config.map.resolution_m);
@@ -496,7 +497,6 @@ pub fn run_slam_with<P: MapPolicy>(
     };
     let mut neff_sum = 0.0;
     let mut score_sum = 0.0;
-    let mut predicted: Vec<Pose2> = Vec::new();
     let mut increments: Vec<Pose2> = Vec::new();
     for i in first..total {
         let stamp_ns = scans.stamps_ns[i];
@@ -519,12 +519,7 @@ pub fn run_slam_with<P: MapPolicy>(
         }
         stats.timings.predict_s += t.elapsed().as_secs_f64();
         let k = i - first;
-        let due = k.is_multiple_of(opts.update_every_scans)
-            && (k == 0
-                || mode != FilterMode::ScanMatch
-                || opts
-                    .scan_match
-                    .moved_enough(&last_update_odom.between(&odom.pose)));
+        let due = k.is_multiple_of(opts.update_every_scans);
         let estimate = if due {
             let t = Instant::now();
             projector.aim(recording, i);
@@ -576,20 +571,12 @@ pub fn run_slam_with<P: MapPolicy>(
                             )
                         });
                         stats.timings.field_s += tb.elapsed().as_secs_f64();
-                        if sm.match_gain < 1.0 {
-                            predicted.clone_from(&pf.particles.poses);
-                        }
                         let report = pf.scan_match_update(
                             &field,
                             &match_pts,
                             &match_params,
                             sm.weight_temperature,
                         );
-                        if sm.match_gain < 1.0 {
-                            for (p, q) in pf.particles.poses.iter_mut().zip(&predicted) {
-                                *p = blend(q, p, sm.match_gain);
-                            }
-                        }
                         let best = pf.particles.poses[report.best];
                         pf.jitter(
                             sm.proposal_sigma_xy_m,
@@ -660,13 +647,6 @@ pub fn run_slam_with<P: MapPolicy>(
     stats.timings.map_update_s += t.elapsed().as_secs_f64();
     stats.finish_means(neff_sum, score_sum);
     stats.timings.total_s = t_start.elapsed().as_secs_f64();
-    if stats.updates > 0 {
-        tracing::info!(
-            "scan matching: {:.2} full searches per update ({} particles)",
-            pf.full_matches as f64 / stats.updates as f64,
-            opts.particles
-        );
-    }
     let map = policy.map_for_output(pf.particles.best_index()).clone();
     Ok(SlamResult {
         trajectory,
@@ -723,13 +703,6 @@ impl MotionModel for ExactOdometry {
     ) -> Pose2 {
         pose.compose(&from.pose.between(&to.pose))
     }
-}
-
-/// `from` moved by `gain` of the way to `to` (yaw along the shorter arc, wrapped).
-fn blend(from: &Pose2, to: &Pose2, gain: f64) -> Pose2 {
-    let mut p = from.interpolate(to, gain);
-    p.yaw_rad = crate::geometry::wrap_angle(p.yaw_rad);
-    p
 }
 
 /// The window of the likelihood field for one update: the matching points seen from `best`,
@@ -870,18 +843,6 @@ mod tests {
                 );
             }
         }
-    }
-
-    #[test]
-    fn blend_moves_part_of_the_way_along_the_shorter_yaw_arc() {
-        let from = Pose2::new(1.0, 2.0, 3.1);
-        let to = Pose2::new(2.0, 0.0, -3.1);
-        let b = blend(&from, &to, 0.25);
-        assert!((b.x_m - 1.25).abs() < 1e-12 && (b.y_m - 1.5).abs() < 1e-12);
-        // -3.1 is 0.083 rad counter-clockwise of 3.1 across +-pi, not 6.2 rad clockwise.
-        let want = crate::geometry::wrap_angle(3.1 + 0.25 * (2.0 * std::f64::consts::PI - 6.2));
-        assert!((b.yaw_rad - want).abs() < 1e-12, "{b:?}");
-        assert_eq!(blend(&from, &to, 1.0).x_m, to.x_m);
     }
 }
 
