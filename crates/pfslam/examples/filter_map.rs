@@ -1,11 +1,10 @@
 //! The SLAM filter's map insertion alone, on a car-layout dataset at its ground-truth poses:
 //! the scans in flushes of `FLUSH` (as between two filter updates), inserted scan by scan
 //! (`trace_updates_part` + `apply_updates`, the path before batches) and as batches
-//! (`insert_planar_batch`), with and without the fan fill; prints the process CPU per scan
-//! on one thread and the wall time on the pool's threads, and a hash of the cells of each
-//! map (the scan-by-scan and the batch map without fans must be equal).
+//! (`insert_planar_batch`); prints the process CPU per scan on one thread and the wall time
+//! on the pool's threads, and a hash of the cells of each map (the two must be equal).
 //! `cargo run --release -p pfslam --example filter_map -- DATASET [SCANS] [FLUSH] [ONLY]`
-//! (`ONLY` = `batch`: the batch without fans on one thread alone, to profile it).
+//! (`ONLY` = `batch`: the batch on one thread alone, to profile it).
 
 use pfslam::config::Config;
 use pfslam::geometry::Trajectory;
@@ -71,18 +70,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         report("1 thread", "batch", cpu, t, n, hash(&g));
         return Ok(());
     }
-    {
-        let mut g = OccupancyGrid::new(&opts)?;
-        g.set_fill_fans(true);
-        let mut s = InsertScratch::new();
-        for w in &worlds {
-            g.insert_scan(w, &mut s)?;
-        }
-        println!(
-            "insert_scan one by one with fans: cells hash {:016x}",
-            hash(&g)
-        );
-    }
     let one = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
     let all = rayon::ThreadPoolBuilder::new().build()?;
     for (name, threads) in [("1 thread", 1usize), ("pool", all.current_num_threads())] {
@@ -107,21 +94,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             Ok(())
         })?;
         report(name, "scan by scan", cpu, t, n, hash(&g));
-        for fans in [false, true] {
-            let (cpu, t) = (pfslam::pipeline::process_cpu_s(), Instant::now());
-            let mut g = OccupancyGrid::new(&opts)?;
-            g.set_fill_fans(fans);
-            let mut batches: Vec<BatchScratch> = Vec::new();
-            let mut work = Vec::new();
-            pool.install(|| -> Result<(), pfslam::map::MapError> {
-                for group in worlds.chunks(flush) {
-                    g.insert_planar_batch(group, threads, &mut batches, &mut work, None)?;
-                }
-                Ok(())
-            })?;
-            let label = if fans { "batch, fans" } else { "batch" };
-            report(name, label, cpu, t, n, hash(&g));
-        }
+        let (cpu, t) = (pfslam::pipeline::process_cpu_s(), Instant::now());
+        let mut g = OccupancyGrid::new(&opts)?;
+        let mut batches: Vec<BatchScratch> = Vec::new();
+        let mut work = Vec::new();
+        pool.install(|| -> Result<(), pfslam::map::MapError> {
+            for group in worlds.chunks(flush) {
+                g.insert_planar_batch(group, threads, &mut batches, &mut work, None)?;
+            }
+            Ok(())
+        })?;
+        report(name, "batch", cpu, t, n, hash(&g));
     }
     Ok(())
 }

@@ -51,11 +51,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     planar_opts.height.enabled = false;
     let margin = (config.map.free_margin_m / config.map.resolution_m).round() as i32;
     let mut kept: Vec<(DensifyRays, Vec<PlanarScan>)> = Vec::new();
-    for mode in [
-        DensifyRays::Full,
-        DensifyRays::HitOnly,
-        DensifyRays::Interpolated,
-    ] {
+    for mode in [DensifyRays::Full, DensifyRays::HitOnly] {
         let mut worlds = Vec::new();
         let mut scan_opts = config.map.scan;
         scan_opts.densify_rays = mode;
@@ -188,65 +184,5 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             worlds.len()
         );
     }
-    // The filter's fan fill (`[map.scan] filter_fan_fill`) on the `full` scans: its tracing
-    // CPU, and the cells it marks against ray-by-ray insertion (every 100th kept scan).
-    let Some((_, worlds)) = kept.iter().find(|(m, _)| *m == DensifyRays::Full) else {
-        return Ok(());
-    };
-    let mut fan = OccupancyGrid::new(&planar_opts)?;
-    fan.set_fill_fans(true);
-    let cpu = pfslam::pipeline::process_cpu_s();
-    let mut touched = 0u64;
-    for _ in 0..3 {
-        for w in worlds {
-            fan.trace_updates(w, &mut scratch, &mut up)?;
-            touched += up.len() as u64;
-        }
-    }
-    let cpu = pfslam::pipeline::process_cpu_s()
-        .zip(cpu)
-        .map(|(b, a)| b - a);
-    println!(
-        "Full, fan fill: planar tracing {:.1} us CPU per scan, touched {:.0} per scan",
-        cpu.unwrap_or(f64::NAN) * 1e6 / (3 * worlds.len()).max(1) as f64,
-        touched as f64 / (3 * worlds.len()).max(1) as f64
-    );
-    let mut cuts = Vec::new();
-    let (mut places, mut pts) = (0usize, 0usize);
-    for w in worlds {
-        fan.trace_cuts(w, &mut cuts);
-        places += cuts.len() - 1;
-        pts += w.points.len();
-    }
-    println!(
-        "Full, fan fill: {:.1} rays per scan traced as {:.1} single rays or fans",
-        pts as f64 / worlds.len().max(1) as f64,
-        places as f64 / worlds.len().max(1) as f64
-    );
-    let (mut same, mut rays_only, mut fan_only, mut occ_diff) = (0u64, 0u64, 0u64, 0u64);
-    for w in worlds.iter().step_by(100) {
-        let mut a = OccupancyGrid::new(&planar_opts)?;
-        let mut b = OccupancyGrid::new(&planar_opts)?;
-        b.set_fill_fans(true);
-        a.insert_scan(w, &mut scratch)?;
-        b.insert_scan(w, &mut scratch)?;
-        let o = a.limits().cell_of(w.sensor_x_m, w.sensor_y_m);
-        for j in o.j - 800..=o.j + 800 {
-            for i in o.i - 800..=o.i + 800 {
-                let c = pfslam::map::Cell::new(i, j);
-                let (x, y) = (a.logodds_fixed(c), b.logodds_fixed(c));
-                match (x < 0, y < 0) {
-                    (true, true) => same += 1,
-                    (true, false) => rays_only += 1,
-                    (false, true) => fan_only += 1,
-                    _ => {}
-                }
-                occ_diff += u64::from((x > 0) != (y > 0));
-            }
-        }
-    }
-    println!(
-        "Full, fan fill vs ray by ray (every 100th kept scan): free in both {same}, only ray by ray {rays_only}, only fan {fan_only}, occupied differing {occ_diff}"
-    );
     Ok(())
 }

@@ -291,8 +291,7 @@ mod tests {
                 opts.log_odds.clamp_min = -40.0;
                 opts.log_odds.clamp_max = 40.0;
             }
-            let mut grid = crate::map::OccupancyGrid::new(&opts).unwrap();
-            grid.set_fill_fans(true);
+            let grid = crate::map::OccupancyGrid::new(&opts).unwrap();
             let mut policy = BestParticleMap::new(grid);
             let (mut cached, mut fresh) = (LikelihoodField::new(), LikelihoodField::new());
             let threshold = cached.source_threshold_on(&policy.grid);

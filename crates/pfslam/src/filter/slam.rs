@@ -430,8 +430,6 @@ pub fn run_slam(
     } else {
         OccupancyGrid::new(&config.map)?
     };
-    let mut grid = grid;
-    grid.set_fill_fans(config.map.scan.filter_fan_fill);
     let mut policy = BestParticleMap::new(grid);
     run_slam_with(
         recording,

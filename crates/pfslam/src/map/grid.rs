@@ -413,8 +413,6 @@ pub struct InsertScratch {
     walk: RayCells,
     /// [`drain_heights`]' runs of touched cells in one tile: (mask tile, start, end).
     runs: Vec<(u32, u32, u32)>,
-    /// [`fill_fan`]'s buffers.
-    fan: FanScratch,
 }
 
 impl InsertScratch {
@@ -436,7 +434,6 @@ impl InsertScratch {
                 + self.xoff.capacity()
                 + self.yoff.capacity())
             + self.walk.bytes()
-            + self.fan.bytes()
     }
 
     fn ensure_half(&mut self, half: i32) {
@@ -928,181 +925,6 @@ fn trace_planar_ray<M: Marks>(
         marks.mark_free(walk.walk_fresh(origin, clear_end, layout, count));
     }
     marks.mark(layout.index(end), p.hit);
-}
-
-/// The last point of the fan that starts at `points[first]` (see
-/// [`OccupancyGrid::set_fill_fans`]), or `first` when none starts there: consecutive
-/// returns with neighbouring end cells, each pair with at least one ray cleared to its end,
-/// turning one way by less than 90 degrees around `origin`; it starts and ends with a ray
-/// cleared to its end.
-fn fan_end(limits: &MapLimits, points: &[ScanPoint], first: usize, origin: Cell) -> usize {
-    let whole = |p: &ScanPoint| p.hit && p.free_to >= 1.0;
-    let rel = |c: Cell| (i64::from(c.i - origin.i), i64::from(c.j - origin.j));
-    let p0 = &points[first];
-    if !whole(p0) {
-        return first;
-    }
-    let c0 = limits.cell_of(p0.x_m, p0.y_m);
-    let v0 = rel(c0);
-    if v0 == (0, 0) {
-        return first;
-    }
-    let (mut prev, mut prev_whole) = (c0, true);
-    let mut turn = 0i64;
-    let mut last_whole = first;
-    for (k, p) in points.iter().enumerate().skip(first + 1) {
-        if !p.hit {
-            break;
-        }
-        let c = limits.cell_of(p.x_m, p.y_m);
-        let p_whole = whole(p);
-        if (c.i - prev.i).abs().max((c.j - prev.j).abs()) > 1 || !(p_whole || prev_whole) {
-            break;
-        }
-        let (v, vp) = (rel(c), rel(prev));
-        // Within 90 degrees of the first ray, and turning one way (zero turns allowed):
-        // the polygon is then star-shaped around the sensor and simple.
-        if v0.0 * v.0 + v0.1 * v.1 <= 0 {
-            break;
-        }
-        let cross = (vp.0 * v.1 - vp.1 * v.0).signum();
-        if cross != 0 {
-            if turn == 0 {
-                turn = cross;
-            } else if cross != turn {
-                break;
-            }
-        }
-        if p_whole {
-            last_whole = k;
-        }
-        (prev, prev_whole) = (c, p_whole);
-    }
-    last_whole
-}
-
-/// [`fill_fan`]'s buffers: the crossings of the polygon's wall edges with the rows,
-/// bucketed by row.
-#[derive(Debug, Default, Clone)]
-pub(crate) struct FanScratch {
-    /// Crossings per row (then where each row's start in `xs`).
-    starts: Vec<u32>,
-    /// Crossing columns, row by row.
-    xs: Vec<f64>,
-    /// The current row's crossings.
-    row: Vec<f64>,
-    /// The polygon's wall vertices (cells relative to the sensor's).
-    wall: Vec<(i32, i32)>,
-}
-
-impl FanScratch {
-    fn bytes(&self) -> usize {
-        4 * self.starts.capacity()
-            + 8 * (self.xs.capacity() + self.row.capacity() + self.wall.capacity())
-    }
-}
-
-/// Inserts the fan `fan` (from [`fan_end`]): its two side rays traced as any ray, every end
-/// cell marked occupied, and every cell whose centre lies inside the polygon marked free,
-/// row by row (even-odd rule, each edge counted on the rows from its lower end up to, not
-/// including, its upper end). The polygon runs from the sensor's cell along the end cells.
-#[allow(clippy::too_many_arguments)]
-fn fill_fan<M: Marks>(
-    limits: &MapLimits,
-    world_scan: &PlanarScan,
-    fan: &[ScanPoint],
-    origin: Cell,
-    layout: &MaskLayout<'_>,
-    walk: &mut RayCells,
-    fs: &mut FanScratch,
-    marks: &mut M,
-) {
-    let (Some(first), Some(last)) = (fan.first(), fan.last()) else {
-        return;
-    };
-    trace_planar_ray(limits, world_scan, first, 0, origin, layout, walk, marks);
-    trace_planar_ray(limits, world_scan, last, 0, origin, layout, walk, marks);
-    marks.reserve(fan.len());
-    fs.wall.clear();
-    let (mut y_min, mut y_max) = (0i32, 0i32);
-    for (k, p) in fan.iter().enumerate() {
-        let end = limits.cell_of(p.x_m, p.y_m);
-        if k > 0 && k + 1 < fan.len() {
-            marks.mark(layout.index(end), true);
-        }
-        let v = (end.i - origin.i, end.j - origin.j);
-        (y_min, y_max) = (y_min.min(v.1), y_max.max(v.1));
-        fs.wall.push(v);
-    }
-    // The wall edges' crossings, bucketed by row (a counting sort: two passes).
-    let rows = (y_max - y_min + 1) as usize;
-    fs.starts.clear();
-    fs.starts.resize(rows + 1, 0);
-    for e in fs.wall.windows(2) {
-        let (lo, hi) = (e[0].1.min(e[1].1), e[0].1.max(e[1].1));
-        for y in lo..hi {
-            fs.starts[(y - y_min) as usize + 1] += 1;
-        }
-    }
-    for r in 0..rows {
-        fs.starts[r + 1] += fs.starts[r];
-    }
-    fs.xs.clear();
-    fs.xs.resize(fs.starts[rows] as usize, 0.0);
-    {
-        let FanScratch {
-            starts, xs, wall, ..
-        } = fs;
-        for e in wall.windows(2) {
-            let (a, b) = if e[0].1 <= e[1].1 {
-                (e[0], e[1])
-            } else {
-                (e[1], e[0])
-            };
-            for y in a.1..b.1 {
-                let x = f64::from(a.0)
-                    + f64::from(y - a.1) * f64::from(b.0 - a.0) / f64::from(b.1 - a.1);
-                let slot = &mut starts[(y - y_min) as usize];
-                xs[*slot as usize] = x;
-                *slot += 1;
-            }
-        }
-        // `starts[r]` now ends row r: shift back to starts.
-        for r in (0..rows).rev() {
-            starts[r + 1] = starts[r];
-        }
-        starts[0] = 0;
-    }
-    // The two sides from the sensor's cell (0, 0): column at row y, where the side spans it.
-    let side = |v: (i32, i32), y: i32| {
-        let (lo, hi) = (v.1.min(0), v.1.max(0));
-        (v.1 != 0 && y >= lo && y < hi).then(|| f64::from(y) * f64::from(v.0) / f64::from(v.1))
-    };
-    let (a, b) = (fs.wall[0], fs.wall[fs.wall.len() - 1]);
-    for y in y_min..=y_max {
-        let r = (y - y_min) as usize;
-        fs.row.clear();
-        fs.row
-            .extend_from_slice(&fs.xs[fs.starts[r] as usize..fs.starts[r + 1] as usize]);
-        fs.row.extend(side(a, y));
-        fs.row.extend(side(b, y));
-        if fs.row.len() < 2 {
-            continue;
-        }
-        fs.row.sort_unstable_by(f64::total_cmp);
-        let yo = layout.yoff[(origin.j + y - layout.mj0) as usize];
-        for pair in fs.row.chunks_exact(2) {
-            let (from, to) = (pair[0].ceil() as i32, pair[1].floor() as i32);
-            if to < from {
-                continue;
-            }
-            marks.reserve((to - from + 1) as usize);
-            for i in from..=to {
-                let k = layout.xoff[(origin.i + i - layout.mi0) as usize] + yo;
-                marks.mark(k as usize, false);
-            }
-        }
-    }
 }
 
 /// Splits the touched mask indices (in touch order: ray order, so consecutive cells share
@@ -1622,9 +1444,6 @@ pub struct OccupancyGrid {
     fixed: FixedLogOdds,
     dir: TileDir<Tile>,
     free_margin_cells: i32,
-    /// Planar insertion clears a fan of whole rays to adjacent end cells as one polygon
-    /// ([`OccupancyGrid::set_fill_fans`]).
-    fill_fans: bool,
     /// Height bins (`[map.height]` enabled); used by scans that carry heights.
     height: Option<HeightLayer>,
 }
@@ -1660,25 +1479,8 @@ impl OccupancyGrid {
             fixed: params.to_fixed(),
             dir: TileDir::default(),
             free_margin_cells: 0,
-            fill_fans: false,
             height: None,
         }
-    }
-
-    /// Planar insertion (scans without heights, or a grid without height bins) with a zero
-    /// free margin: a run of three or more consecutive returns whose end cells are
-    /// neighbours (Chebyshev distance <= 1) and whose rays are cleared to the end, turning
-    /// one way by less than 90 degrees, is cleared as one polygon (the sensor's cell and the
-    /// end cells) instead of ray by ray: its two side rays are walked as before, its end
-    /// cells marked occupied, and the cells whose centres lie inside the polygon marked
-    /// free. Adjacent end cells leave no cell between two digital rays, so the union of the
-    /// rays is that polygon up to its border cells; walking them visits the cells near the
-    /// sensor once per ray (the car's densified walls: ~2.5 walks per touched cell). A
-    /// return cleared only part of the way may sit inside such a run between two whole
-    /// rays; the polygon clears its wedge too. Off by default; `[map.scan]
-    /// filter_fan_fill` turns it on for the SLAM filter's map.
-    pub fn set_fill_fans(&mut self, on: bool) {
-        self.fill_fans = on;
     }
 
     /// World <-> cell conversion.
@@ -2205,7 +2007,6 @@ impl OccupancyGrid {
             xoff,
             yoff,
             walk,
-            fan,
             ..
         } = scratch;
         let layout = MaskLayout {
@@ -2219,12 +2020,12 @@ impl OccupancyGrid {
             touched,
             len: 0,
         };
-        self.trace_planar_marks(world_scan, points, origin, &layout, walk, fan, &mut marks);
+        self.trace_planar_marks(world_scan, points, origin, &layout, walk, &mut marks);
         marks.len
     }
 
-    /// [`Self::trace_planar`]'s rays (or fans, [`Self::set_fill_fans`]) into `marks`.
-    #[allow(clippy::too_many_arguments)]
+    /// [`Self::trace_planar`]'s rays into `marks`, one after the other (ray by ray, see
+    /// `docs/decisions/0016-joining-returns-in-maps.md`).
     #[inline(always)]
     fn trace_planar_marks<M: Marks>(
         &self,
@@ -2233,93 +2034,38 @@ impl OccupancyGrid {
         origin: Cell,
         layout: &MaskLayout<'_>,
         walk: &mut RayCells,
-        fan: &mut FanScratch,
         marks: &mut M,
     ) {
-        let fill = self.fill_fans && self.free_margin_cells == 0;
         // Another scan, or another piece of one: no ray of it marked yet.
         walk.forget();
-        let mut i = 0;
-        while i < points.len() {
-            if fill {
-                let last = fan_end(&self.limits, points, i, origin);
-                if last >= i + 2 {
-                    fill_fan(
-                        &self.limits,
-                        world_scan,
-                        &points[i..=last],
-                        origin,
-                        layout,
-                        walk,
-                        fan,
-                        marks,
-                    );
-                    i = last + 1;
-                    continue;
-                }
-            }
+        for p in points {
             trace_planar_ray(
                 &self.limits,
                 world_scan,
-                &points[i],
+                p,
                 self.free_margin_cells,
                 origin,
                 layout,
                 walk,
                 marks,
             );
-            i += 1;
         }
     }
 
     /// Where the tracing of `world_scan` may be cut into pieces
     /// ([`Self::trace_updates_part`]) that insert as the whole scan, with the work before
     /// each place, into `out` (cleared first): `(ray, work)` in ray order, from `(0, 0)` to
-    /// `(points, total)`. Every ray is such a place, but the rays inside a fan filled as one
-    /// polygon ([`Self::set_fill_fans`]). Work: cells walked per ray (Chebyshev length plus
-    /// its end cell), for a fan its side rays, end cells and polygon area.
+    /// `(points, total)`. Every ray is such a place. Work: cells walked per ray (Chebyshev
+    /// length plus its end cell).
     pub fn trace_cuts(&self, world_scan: &PlanarScan, out: &mut Vec<(usize, u64)>) {
         out.clear();
         let points = &world_scan.points;
         let o = self.cell_of(world_scan.sensor_x_m, world_scan.sensor_y_m);
-        let length = |p: &ScanPoint| {
-            let c = self.cell_of(p.x_m, p.y_m);
-            u64::from((c.i - o.i).unsigned_abs().max((c.j - o.j).unsigned_abs())) + 1
-        };
-        let fans = self.fill_fans
-            && self.free_margin_cells == 0
-            && !(world_scan.sensor_z_m.is_some() && self.height.is_some());
         let mut work = 0u64;
-        let mut i = 0;
-        while i < points.len() {
+        for (i, p) in points.iter().enumerate() {
             out.push((i, work));
-            let last = if fans {
-                fan_end(&self.limits, points, i, o)
-            } else {
-                i
-            };
-            if last >= i + 2 {
-                let fan = &points[i..=last];
-                work += length(&fan[0]) + length(&fan[fan.len() - 1]);
-                let mut area2 = 0i64;
-                for w in fan.windows(2) {
-                    let (a, b) = (
-                        self.cell_of(w[0].x_m, w[0].y_m),
-                        self.cell_of(w[1].x_m, w[1].y_m),
-                    );
-                    let (a, b) = (
-                        (i64::from(a.i - o.i), i64::from(a.j - o.j)),
-                        (i64::from(b.i - o.i), i64::from(b.j - o.j)),
-                    );
-                    area2 += a.0 * b.1 - a.1 * b.0;
-                }
-                work += area2.unsigned_abs() / 2 + fan.len() as u64;
-                i = last + 1;
-            } else {
-                // As the tracing: a single ray, and the next may start a fan.
-                work += length(&points[i]);
-                i += 1;
-            }
+            let c = self.cell_of(p.x_m, p.y_m);
+            work += u64::from((c.i - o.i).unsigned_abs().max((c.j - o.j).unsigned_abs())) + 1;
         }
         out.push((points.len(), work));
     }

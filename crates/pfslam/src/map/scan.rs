@@ -42,9 +42,6 @@ pub enum DensifyRays {
     /// Only its end cell, marked occupied: no free ray (`free_to` 0). The returns' own rays
     /// clear the space in front of the wall.
     HitOnly,
-    /// A ray cleared as far as its two returns' clearing, interpolated (`free_to` between
-    /// theirs): equal to `full` between two wholly cleared rays.
-    Interpolated,
 }
 
 /// Scan preprocessing options (`[map.scan]`, a field of [`super::MapOptions`]).
@@ -77,35 +74,14 @@ pub struct ScanOptions {
     /// Spacing of the joining returns (m).
     pub densify_step_m: f64,
     /// How the joining returns are inserted into maps built along known poses (`pfslam
-    /// map`, the rebuild along the back end's trajectory). Default `hit_only`: a joining
-    /// return is not a measured beam, so it adds occupancy at its end cell but no free
-    /// space; with `full` each one cleared a whole ray (87 % of the car's ray walk, ignoring
-    /// `free_z_max_m`, which its two returns obey). Measured on maps along the final
-    /// trajectories (`refine_scans` off), precision / recall as written, `full` ->
-    /// `hit_only`: full-size car 0.9996 / 0.9765 -> 0.9971 / 0.9801 (mapping CPU 31.8 ->
-    /// 7.4 s); default drive seeds 1-5 0.957 / 0.822, 0.969 / 0.850, 0.962 / 0.840, 0.952 /
-    /// 0.793, 0.980 / 0.946 -> 0.953 / 0.824, 0.965 / 0.865, 0.960 / 0.861, 0.942 / 0.815,
-    /// 0.977 / 0.957 (CPU ~5.8 -> ~1.3 s); `interpolated` within 0.0007 of `hit_only`
-    /// everywhere at 1.3-1.7x its CPU. The filter's map keeps `full`
-    /// (`filter_densify_rays`): its matching needs that clearing.
+    /// map`, the rebuild along the back end's trajectory): `hit_only` (the default: a
+    /// joining return is not a measured beam, so its end cell only; the rebuild ~4x cheaper
+    /// than `full`, the same trajectories) or `full` (each one a whole ray).
+    /// `docs/decisions/0016-joining-returns-in-maps.md` has the measurements.
     pub densify_rays: DensifyRays,
     /// How the joining returns are inserted into the SLAM filter's map (the map it matches
-    /// against).
+    /// against): `full` (the default: its matching needs that clearing) or `hit_only`.
     pub filter_densify_rays: DensifyRays,
-    /// In maps along known poses, only every this many-th joining return of a gap traces
-    /// its free ray as `densify_rays` says; the others mark their end cell only (as
-    /// `hit_only`). 1 = all.
-    pub densify_free_every: u32,
-    /// `densify_free_every` for the SLAM filter's map.
-    pub filter_densify_free_every: u32,
-    /// The SLAM filter's map clears each fan of whole rays to neighbouring end cells (a
-    /// densified wall: returns and joining points) as one polygon instead of ray by ray
-    /// (see `OccupancyGrid::set_fill_fans`): the same cells but for the wedges past the
-    /// returns cleared only part of the way, each visited once instead of ~2.5 times on
-    /// the car (its map insertion ~45 % cheaper). Off: over default-drive seeds 1-60 the
-    /// filter failed more often with it (SLAM ATE above 0.1 m on 6 seeds instead of 1,
-    /// worst 0.35 m; mean 0.066 against 0.061 m).
-    pub filter_fan_fill: bool,
     /// A beam clears free space only up to where it climbs above this height (m, body
     /// frame); a large value = the whole ray (the seeds). The car's forward beams rise 37 deg: past
     /// a few metres they fly over parked vans and low buildings, and clearing their whole
@@ -127,9 +103,6 @@ impl Default for ScanOptions {
             densify_step_m: 0.1,
             densify_rays: DensifyRays::HitOnly,
             filter_densify_rays: DensifyRays::Full,
-            densify_free_every: 1,
-            filter_densify_free_every: 1,
-            filter_fan_fill: false,
             free_z_max_m: Some(2.5),
         }
     }
@@ -161,12 +134,6 @@ impl ScanOptions {
         if !(self.densify_step_m.is_finite() && self.densify_step_m >= 0.01) {
             return Err("map.scan.densify_step_m must be at least 0.01".into());
         }
-        if self.densify_free_every == 0 || self.filter_densify_free_every == 0 {
-            return Err(
-                "map.scan: densify_free_every and filter_densify_free_every must be at least 1"
-                    .into(),
-            );
-        }
         if self.free_z_max_m.is_some_and(|z| !z.is_finite()) {
             return Err("map.scan.free_z_max_m must be finite".into());
         }
@@ -181,12 +148,10 @@ impl ScanOptions {
         Ok(())
     }
 
-    /// These options for the SLAM filter's map: `densify_rays` = `filter_densify_rays`,
-    /// `densify_free_every` = `filter_densify_free_every`.
+    /// These options for the SLAM filter's map: `densify_rays` = `filter_densify_rays`.
     pub fn for_filter(&self) -> ScanOptions {
         ScanOptions {
             densify_rays: self.filter_densify_rays,
-            densify_free_every: self.filter_densify_free_every,
             ..*self
         }
     }
@@ -384,12 +349,8 @@ impl ScanProjector {
                             y_m: prev.y_m + t * dy,
                             hit: true,
                             free_to: match o.densify_rays {
-                                _ if !k.is_multiple_of(o.densify_free_every as usize) => 0.0,
                                 DensifyRays::Full => 1.0,
                                 DensifyRays::HitOnly => 0.0,
-                                DensifyRays::Interpolated => {
-                                    prev.free_to + t as f32 * (free_to - prev.free_to)
-                                }
                             },
                             z_m: prev.z_m + t as f32 * dz,
                         });
@@ -537,15 +498,9 @@ mod tests {
     /// Two returns 0.5 m apart on a wall 10 m ahead of a sensor at (0, 0, `z`) looking along
     /// x, pitched up by `pitch_deg`: the densification joins them with 4 points.
     fn wall_pair(pitch_deg: f64, rays: DensifyRays) -> PlanarScan {
-        wall_pair_every(pitch_deg, rays, 1)
-    }
-
-    /// [`wall_pair`] with `densify_free_every`.
-    fn wall_pair_every(pitch_deg: f64, rays: DensifyRays, every: u32) -> PlanarScan {
         let opts = ScanOptions {
             range_min_m: 0.1,
             densify_rays: rays,
-            densify_free_every: every,
             ..ScanOptions::default()
         };
         let g = LidarGeometry {
@@ -566,8 +521,6 @@ mod tests {
     fn densify_rays_option_parses_and_sets_the_joining_points_clearing() {
         let o: ScanOptions = toml::from_str("densify_rays = \"hit_only\"").unwrap();
         assert_eq!(o.densify_rays, DensifyRays::HitOnly);
-        let o: ScanOptions = toml::from_str("densify_rays = \"interpolated\"").unwrap();
-        assert_eq!(o.densify_rays, DensifyRays::Interpolated);
         assert_eq!(ScanOptions::default().densify_rays, DensifyRays::HitOnly);
         assert_eq!(
             ScanOptions::default().filter_densify_rays,
@@ -576,20 +529,11 @@ mod tests {
         let o: ScanOptions = toml::from_str("densify_rays = \"full\"").unwrap();
         assert_eq!(o.densify_rays, DensifyRays::Full);
         assert!(toml::from_str::<ScanOptions>("densify_rays = \"half\"").is_err());
+        assert!(toml::from_str::<ScanOptions>("densify_rays = \"interpolated\"").is_err());
         let o: ScanOptions =
-            toml::from_str("densify_rays = \"hit_only\"\nfilter_densify_rays = \"interpolated\"")
-                .unwrap();
-        assert_eq!(o.for_filter().densify_rays, DensifyRays::Interpolated);
-        assert_eq!(o.densify_rays, DensifyRays::HitOnly);
-        let o: ScanOptions = toml::from_str("densify_free_every = 3").unwrap();
-        assert_eq!(
-            (o.densify_free_every, o.for_filter().densify_free_every),
-            (3, 1)
-        );
-        for bad in ["densify_free_every = 0", "filter_densify_free_every = 0"] {
-            let o: ScanOptions = toml::from_str(bad).unwrap();
-            assert!(o.validate().is_err(), "{bad}");
-        }
+            toml::from_str("densify_rays = \"full\"\nfilter_densify_rays = \"hit_only\"").unwrap();
+        assert_eq!(o.for_filter().densify_rays, DensifyRays::HitOnly);
+        assert_eq!(o.densify_rays, DensifyRays::Full);
         let back: ScanOptions = toml::from_str(
             &toml::to_string(&ScanOptions {
                 densify_rays: DensifyRays::HitOnly,
@@ -600,11 +544,7 @@ mod tests {
         .unwrap();
         assert_eq!(back.densify_rays, DensifyRays::HitOnly);
         // Level: the returns are cleared all the way; the joining points by the setting.
-        for (rays, want) in [
-            (DensifyRays::Full, 1.0),
-            (DensifyRays::HitOnly, 0.0),
-            (DensifyRays::Interpolated, 1.0),
-        ] {
+        for (rays, want) in [(DensifyRays::Full, 1.0), (DensifyRays::HitOnly, 0.0)] {
             let s = wall_pair(0.0, rays);
             assert_eq!(s.points.len(), 6, "{rays:?}");
             assert!(s.points.iter().all(|q| q.hit));
@@ -612,20 +552,11 @@ mod tests {
             assert_eq!(ends, [1.0, 1.0], "{rays:?}");
             assert!(joining.iter().all(|q| q.free_to == want), "{rays:?}");
         }
-        // Every 2nd joining point traces its free ray, the others only their end cell.
-        let s = wall_pair_every(0.0, DensifyRays::Full, 2);
-        let f: Vec<f32> = s.points.iter().map(|q| q.free_to).collect();
-        assert_eq!(f, [1.0, 0.0, 1.0, 0.0, 1.0, 1.0]);
         // Pitched up 10 deg at 2 m: the returns end ~3.7 m high, cleared up to 2.5 m only.
         let full = wall_pair(10.0, DensifyRays::Full);
-        let interp = wall_pair(10.0, DensifyRays::Interpolated);
         let ends = [full.points[0].free_to, full.points[5].free_to];
         assert!(ends.iter().all(|&f| f > 0.2 && f < 0.4), "{ends:?}");
         assert!(full.points[1..5].iter().all(|q| q.free_to == 1.0));
-        let (lo, hi) = (ends[0].min(ends[1]), ends[0].max(ends[1]));
-        for q in &interp.points[1..5] {
-            assert!(q.free_to >= lo - 1e-6 && q.free_to <= hi + 1e-6, "{q:?}");
-        }
         // Matching sees the same points whatever the setting.
         let hit_only = wall_pair(10.0, DensifyRays::HitOnly);
         for (a, b) in full.points.iter().zip(&hit_only.points) {

@@ -31,7 +31,6 @@ pub struct BatchScratch {
     xoff: Vec<u32>,
     yoff: Vec<u32>,
     walk: RayCells,
-    fan: FanScratch,
 }
 
 impl BatchScratch {
@@ -46,7 +45,6 @@ impl BatchScratch {
             + self.flags.capacity()
             + 4 * (self.xoff.capacity() + self.yoff.capacity())
             + self.walk.bytes()
-            + self.fan.bytes()
     }
 
     /// Lays the mask out `blocks` tiles a side (zeroed; a no-op when it already is).
@@ -105,8 +103,7 @@ impl Marks for BitMarks<'_> {
 /// to each; empty runs are dropped. The scans of one batch are alike (consecutive sweeps of
 /// the same place), so each counts as one unit of work, and within a scan that is cut the
 /// rays are weighed by the cells they walk (Chebyshev length in cells, plus one for the end
-/// cell: left and right halves of a sweep can differ a lot), a fan filled as one polygon by
-/// its cells; a scan is cut only where [`OccupancyGrid::trace_cuts`] allows, so the pieces
+/// cell: left and right halves of a sweep can differ a lot); a scan is cut only where [`OccupancyGrid::trace_cuts`] allows, so the pieces
 /// insert as the whole scan. `cum` is a reusable buffer.
 pub fn split_rays(
     grid: &OccupancyGrid,
@@ -296,7 +293,6 @@ impl OccupancyGrid {
                 xoff,
                 yoff,
                 walk,
-                fan,
                 ..
             } = scratch;
             let layout = MaskLayout {
@@ -316,7 +312,7 @@ impl OccupancyGrid {
                     free: 1 << (2 * s),
                     occupied: 3 << (2 * s),
                 };
-                grid.trace_planar_marks(scan, points, origin, &layout, walk, fan, &mut marks);
+                grid.trace_planar_marks(scan, points, origin, &layout, walk, &mut marks);
             }
         };
         if pieces.len() > 1 {
@@ -512,7 +508,7 @@ mod tests {
             }
             r = (r + dr).clamp(1.0, 70.0);
             let a = a0 + k as f64 * step;
-            // Range noise: a wall's end cells zigzag, so fans end and start anywhere.
+            // Range noise: a wall's end cells zigzag.
             let rn = r + rng.random_range(-0.05..0.05);
             let (x, y) = (sx + rn * a.cos(), sy + rn * a.sin());
             let free_to = if rng.random_range(0..3) == 0 {
@@ -600,10 +596,9 @@ mod tests {
     }
 
     #[test]
-    fn batches_insert_as_scan_by_scan_for_any_thread_count_with_and_without_fans() {
+    fn batches_insert_as_scan_by_scan_for_any_thread_count() {
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(9);
         for case in 0..16 {
-            let fans = case % 2 == 1;
             let mut opts = MapOptions {
                 resolution_m: [0.1, 0.1, 0.25, 0.25][case % 4],
                 free_margin_m: if case % 8 >= 4 { 0.2 } else { 0.0 },
@@ -627,7 +622,6 @@ mod tests {
                 })
                 .collect();
             let mut want = OccupancyGrid::new(&opts).unwrap();
-            want.set_fill_fans(fans);
             let mut scratch = InsertScratch::new();
             for scan in flushes.iter().flatten() {
                 want.insert_scan(scan, &mut scratch).unwrap();
@@ -641,7 +635,6 @@ mod tests {
                     .build()
                     .unwrap();
                 let mut got = OccupancyGrid::new(&opts).unwrap();
-                got.set_fill_fans(fans);
                 let (mut batches, mut work) = (Vec::new(), Vec::new());
                 for scans in &flushes {
                     pool.install(|| {
