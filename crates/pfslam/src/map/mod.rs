@@ -103,11 +103,6 @@ pub struct MapOptions {
     pub min_scan_travel_m: f64,
     /// The turn (deg) that also passes the motion filter (with `min_scan_travel_m > 0`).
     pub min_scan_turn_deg: f64,
-    /// Mapping with known poses: of the scans inserted, every `free_scan_step`-th traces its
-    /// rays' free space; the others insert only their returns (the end cells of rays with a
-    /// hit: a few hundred cells instead of ~20,000 on the car). 1 = every scan traces its
-    /// free space (the default). The filter's own map is not affected.
-    pub free_scan_step: usize,
     /// Log-odds increments, clamp bounds, thresholds.
     pub log_odds: LogOddsParams,
     /// Scan preprocessing.
@@ -196,7 +191,6 @@ impl Default for MapOptions {
             scan_step: 1,
             min_scan_travel_m: 0.0,
             min_scan_turn_deg: 1.0,
-            free_scan_step: 1,
             log_odds: LogOddsParams::ese650(),
             scan: ScanOptions::default(),
             free_margin_m: 0.0,
@@ -230,9 +224,6 @@ impl MapOptions {
         }
         if self.scan_step == 0 {
             return Err("map.scan_step must be >= 1".into());
-        }
-        if self.free_scan_step == 0 {
-            return Err("map.free_scan_step must be >= 1".into());
         }
         if !(self.min_scan_travel_m.is_finite() && (0.0..=100.0).contains(&self.min_scan_travel_m))
         {
@@ -303,40 +294,9 @@ impl ScanInserter {
         world_from_body: &Pose2,
         out: &mut ScanUpdates,
     ) -> Result<InsertStats, MapError> {
-        self.trace_with(grid, ranges_m, world_from_body, out, false)
-    }
-
-    /// [`Self::trace`] of the scan's returns only: the end cells of its rays with a hit get
-    /// their occupied update (at their height), no cell gets a free update (rays without a
-    /// return are dropped). `self.world` holds the reduced scan.
-    pub fn trace_returns_only(
-        &mut self,
-        grid: &OccupancyGrid,
-        ranges_m: &[f32],
-        world_from_body: &Pose2,
-        out: &mut ScanUpdates,
-    ) -> Result<InsertStats, MapError> {
-        self.trace_with(grid, ranges_m, world_from_body, out, true)
-    }
-
-    fn trace_with(
-        &mut self,
-        grid: &OccupancyGrid,
-        ranges_m: &[f32],
-        world_from_body: &Pose2,
-        out: &mut ScanUpdates,
-        returns_only: bool,
-    ) -> Result<InsertStats, MapError> {
         out.clear();
         self.projector.to_body(ranges_m, &mut self.body)?;
         to_world(&self.body, world_from_body, &mut self.world);
-        if returns_only {
-            self.world.points.retain(|p| p.hit);
-            for p in &mut self.world.points {
-                // A ray cleared up to 0 of the way: no free cell, only its end cell.
-                p.free_to = 0.0;
-            }
-        }
         grid.trace_updates(&self.world, &mut self.scratch, out)
     }
 }
@@ -415,11 +375,7 @@ pub fn map_with_poses(
     let mut grid = OccupancyGrid::new(opts)?;
     let projector = ScanProjector::new(&recording.lidar, &recording.body_from_lidar, &opts.scan)?;
     let mut stats = MappingStats::default();
-    let scans: Vec<(usize, bool)> = scans_to_map(recording, poses, opts)
-        .into_iter()
-        .enumerate()
-        .map(|(n, k)| (k, n % opts.free_scan_step == 0))
-        .collect();
+    let scans: Vec<usize> = scans_to_map(recording, poses, opts);
     // Scratches (a mask of megabytes each) are reused: at most one per running task.
     let pool: std::sync::Mutex<Vec<ScanInserter>> = std::sync::Mutex::new(Vec::new());
     let mut slots: Vec<(ScanUpdates, Traced)> = Vec::new();
@@ -436,19 +392,14 @@ pub fn map_with_poses(
                     .ok()
                     .and_then(|mut p| p.pop())
                     .unwrap_or_else(|| ScanInserter::new(projector.clone()));
-                for ((updates, traced), &(k, free)) in out.iter_mut().zip(ks) {
+                for ((updates, traced), &k) in out.iter_mut().zip(ks) {
                     updates.clear();
                     *traced = match poses.pose_at(recording.scans.stamps_ns[k]) {
                         None => Traced::NoPose,
                         Some(pose) => {
                             ins.projector.aim(recording, k);
                             let ranges = recording.scans.ranges(k);
-                            let traced = if free {
-                                ins.trace(grid_ref, ranges, &pose, updates)
-                            } else {
-                                ins.trace_returns_only(grid_ref, ranges, &pose, updates)
-                            };
-                            match traced {
+                            match ins.trace(grid_ref, ranges, &pose, updates) {
                                 Ok(_) => Traced::Inserted,
                                 Err(e) => Traced::Failed(e),
                             }
@@ -461,7 +412,7 @@ pub fn map_with_poses(
             });
         // In scan order: the first failure is the one sequential insertion would report.
         let mut done = Vec::with_capacity(batch.len());
-        for ((updates, traced), &(k, _)) in slots.iter_mut().zip(batch) {
+        for ((updates, traced), &k) in slots.iter_mut().zip(batch) {
             match std::mem::replace(traced, Traced::NoPose) {
                 Traced::NoPose => stats.scans_without_pose += 1,
                 Traced::Failed(e) => return Err(e),

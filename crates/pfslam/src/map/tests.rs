@@ -187,16 +187,6 @@ fn options_validate_and_roundtrip() {
     };
     assert!(bad.validate().is_err());
     assert!(OccupancyGrid::new(&bad).is_err());
-    let no_free = MapOptions {
-        free_scan_step: 0,
-        ..MapOptions::default()
-    };
-    assert!(
-        no_free
-            .validate()
-            .unwrap_err()
-            .contains("map.free_scan_step")
-    );
 }
 
 proptest! {
@@ -393,24 +383,14 @@ fn map_with_poses_sequential(
         ScanProjector::new(&recording.lidar, &recording.body_from_lidar, &opts.scan).unwrap();
     let mut ins = ScanInserter::new(projector);
     let mut stats = MappingStats::default();
-    for (n, k) in scans_to_map(recording, poses, opts).into_iter().enumerate() {
+    for k in scans_to_map(recording, poses, opts) {
         let Some(pose) = poses.pose_at(recording.scans.stamps_ns[k]) else {
             stats.scans_without_pose += 1;
             continue;
         };
         ins.projector.aim(recording, k);
         let ranges = recording.scans.ranges(k);
-        stats.rays += if n % opts.free_scan_step == 0 {
-            ins.insert(&mut grid, ranges, &pose).unwrap().rays
-        } else {
-            // Returns only: each hit's end cell, no free cell.
-            ins.projector.to_body(ranges, &mut ins.body).unwrap();
-            to_world(&ins.body, &pose, &mut ins.world);
-            let mut hits = ins.world.clone();
-            hits.points.retain(|p| p.hit);
-            hits.points.iter_mut().for_each(|p| p.free_to = 0.0);
-            grid.insert_scan(&hits, &mut ins.scratch).unwrap().rays
-        };
+        stats.rays += ins.insert(&mut grid, ranges, &pose).unwrap().rays;
         stats.scans_inserted += 1;
     }
     (grid, ins.world, stats)
@@ -487,17 +467,11 @@ fn batched_parallel_mapping_equals_sequential_insertion_for_any_thread_count() {
         min_scan_travel_m: 0.15,
         ..MapOptions::default()
     };
-    let returns = MapOptions {
-        free_scan_step: 3,
-        free_margin_m: 0.2,
-        ..MapOptions::default()
-    };
     let cases = [
         ("heights", &car, MapOptions::default()),
         ("flat", &car, flat),
         ("margin, step 3", &car, margin),
         ("motion filter", &car, thinned),
-        ("free space every 3rd scan", &car, returns),
         ("moving mount", &nodding, MapOptions::default()),
     ];
     for (name, rec, opts) in cases {
