@@ -97,17 +97,9 @@ pub struct GraphOptions {
     pub loop_min_path_m: f64,
     /// At most this many candidates are tried per keyframe (the nearest first).
     pub loop_max_candidates: usize,
-    /// Loop closures are searched from every k-th keyframe.
+    /// Loop closures are searched from every k-th keyframe (no gaps after closures:
+    /// `docs/decisions/0021-loop-closure-search.md`).
     pub loop_every_keyframes: usize,
-    /// ... but not from a keyframe less than this far along the path (m) after the last
-    /// keyframe with an accepted closure: on a route driven again and again one closure
-    /// every few metres pins the graph as well as one every `loop_every_keyframes`, at a
-    /// fraction of the matching and optimisation (0 = search every k-th keyframe).
-    pub loop_closure_gap_m: f64,
-    /// ... nor less than this far along the path after the last keyframe whose candidates
-    /// were all rejected as ambiguous (a straight street or corridor stays ambiguous for
-    /// metres; 0 = no such gap).
-    pub loop_ambiguous_gap_m: f64,
     /// Keyframes on each side of the candidate that form its submap.
     pub loop_submap_keyframes: usize,
     /// Half-width of the loop-closure search in x and y (m).
@@ -188,14 +180,10 @@ pub struct GraphOptions {
     /// After the optimisation, match every scan between keyframes against the corrected
     /// keyframes around it (a small window around the pose composed from its keyframe), so
     /// the scans between keyframes do not keep the front end's local errors: `auto` (on; off
-    /// when `pfslam run` feeds the back end the odometry, see `input`), `on`, `off` (`true` /
-    /// `false` are read as `on` / `off`). The car's calibrated odometry (FOG yaw, 4096-tick
-    /// wheels) is locally smoother than these matches of a tilted LiDAR's scans: off, the
-    /// full-size car's ATE RMSE was 0.025 m against 0.036 m and the default drive's (seeds
-    /// 1-5) 0.069 / 0.046 / 0.067 / 0.058 / 0.050 m against 0.074 / 0.053 / 0.072 / 0.064 /
-    /// 0.057 m, map precision as written up 0.1-0.3 points, recall as written down 0.4-1.2
-    /// points (through the ATE's alignment -0.2 to 0 points; walls drawn from smooth poses
-    /// are thinner), at ~9 s less CPU on the full-size car.
+    /// when the back end is fed the odometry, see `input`), `on`, `off` (`true` / `false`
+    /// read as `on` / `off`). Off for the odometry: the car's calibrated odometry is locally
+    /// smoother than these matches
+    /// (`docs/decisions/0022-car-back-end-on-calibrated-odometry.md`).
     pub refine_scans: Switch,
     /// Half-width of that refinement search in x and y (m).
     pub refine_window_m: f64,
@@ -363,11 +351,6 @@ impl Default for GraphOptions {
             loop_min_path_m: 10.0,
             loop_max_candidates: 2,
             loop_every_keyframes: 5,
-            // Off: 5 m gaps cut the full-size car's candidates 6,873 -> 2,147 but cost 9-13 %
-            // ATE on the long car drives and MIT-CSAIL's back end behind `scan_match`
-            // 0.033 -> 0.041 m (docs/decisions/0021-loop-closure-search.md).
-            loop_closure_gap_m: 0.0,
-            loop_ambiguous_gap_m: 0.0,
             loop_submap_keyframes: 20,
             // +-1.5 m / 10 deg: the default front end (`rbpf` on level LiDARs) drifts
             // centimetres, not metres; half the window halves Intel's matching at the same
@@ -488,8 +471,6 @@ impl GraphOptions {
             ("sequential_window_deg", self.sequential_window_deg),
             ("loop_search_radius_m", self.loop_search_radius_m),
             ("loop_min_path_m", self.loop_min_path_m),
-            ("loop_closure_gap_m", self.loop_closure_gap_m),
-            ("loop_ambiguous_gap_m", self.loop_ambiguous_gap_m),
             ("loop_window_m", self.loop_window_m),
             ("loop_window_deg", self.loop_window_deg),
             ("loop_ambiguity_radius_m", self.loop_ambiguity_radius_m),
@@ -560,8 +541,6 @@ pub struct GraphStats {
     pub odometry_yaw_edges: usize,
     /// Loop-closure candidates tried.
     pub loop_candidates: usize,
-    /// Keyframes due for a loop search that skipped it (`loop_closure_gap_m`).
-    pub loop_skipped_keyframes: usize,
     /// Closures accepted by the matcher.
     pub loop_accepted: usize,
     /// Candidates rejected: score too low or too few points.
@@ -668,10 +647,6 @@ pub fn optimize_trajectory_look_ahead(
     let local_on = opts.loop_local_search.is_on(false);
     let mut vouches = Vouches::default();
     let mut closures_pending = false;
-    // Path length (m) at the last keyframe that accepted a closure.
-    let mut last_closure_path_m = f64::NEG_INFINITY;
-    // ... and at the last keyframe whose candidates were all ambiguous.
-    let mut last_ambiguous_path_m = f64::NEG_INFINITY;
     let mut urgent = false;
     let mut last_opt = 0usize;
     let mut submap_pts: Vec<[f64; 2]> = Vec::new();
@@ -803,10 +778,7 @@ pub fn optimize_trajectory_look_ahead(
         }
         // Loop closures.
         let due = k % opts.loop_every_keyframes == 0 && kf.points_body.len() >= opts.min_points;
-        let gap_ok = kf.path_m - last_closure_path_m >= opts.loop_closure_gap_m
-            && kf.path_m - last_ambiguous_path_m >= opts.loop_ambiguous_gap_m;
-        stats.loop_skipped_keyframes += usize::from(due && !gap_ok);
-        if due && gap_ok {
+        if due {
             // A look-ahead job computed before any optimisation since, at the same pose:
             // the same candidates (the earlier keyframes' poses are the same bits).
             let cached = match &mut ahead {
@@ -880,16 +852,12 @@ pub fn optimize_trajectory_look_ahead(
                 }
             };
             stats.loop_candidates += tried.len();
-            if !tried.is_empty() && verdicts.iter().all(|v| v.verdict == Verdict::Ambiguous) {
-                last_ambiguous_path_m = kf.path_m;
-            }
             for (&j, checked) in tried.iter().zip(verdicts) {
                 stats.loop_local += usize::from(checked.search != Search::Full);
                 stats.loop_local_fallbacks += usize::from(checked.search == Search::LocalThenFull);
                 match checked.verdict {
                     Verdict::Accepted(found) => {
                         stats.loop_accepted += 1;
-                        last_closure_path_m = kf.path_m;
                         let z = graph.poses[j].between(&found);
                         let width =
                             (opts.loop_kernel_width > 0.0).then_some(opts.loop_kernel_width);
