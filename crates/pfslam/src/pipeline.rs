@@ -160,12 +160,11 @@ pub fn run_pipeline(
                     tracing::info!(
                         "odometry calibration: scale {:.5}, yaw-rate bias {:.3e} rad/s; the \
                          filter's increments differ from it by {:.4} m RMS ({:.4} m uncorrected; \
-                         {} of {} increments kept)",
+                         {} increments)",
                         fit.calibration.scale,
                         fit.calibration.yaw_rate_bias_rad_per_s,
                         fit.rms_m,
                         fit.rms_uncorrected_m,
-                        fit.increments - fit.trimmed,
                         fit.increments
                     );
                     // Starts at the odometry's first pose, as the filter does: the map frame

@@ -12,9 +12,8 @@
 //! truly `(s dx, s dy, dyaw - b dt)`: one scale `s` for distance (the mean of the two wheels'
 //! errors when the yaw comes from a gyro) and one constant yaw-rate bias `b` (a gyro's bias,
 //! or a leg odometry's heading drift). Fit: least squares over increments of the path (see
-//! [`fit_odometry_calibration`]); optionally (`trim_sigmas`, off by default) one robust pass
-//! drops the increments whose residual exceeds that many times the first fit's RMS and fits
-//! again.
+//! [`fit_odometry_calibration`]), every increment kept (no robust pass:
+//! `docs/decisions/0043-calibration-fit-keeps-every-increment.md`).
 
 use super::MotionError;
 use crate::geometry::{Pose2, StampedPose2, wrap_angle};
@@ -31,13 +30,6 @@ pub struct CalibrationOptions {
     /// A fitted scale farther than this from 1 is refused (the odometry or the reference is
     /// broken; relative, e.g. 0.1 = +-10 %).
     pub max_scale_error: f64,
-    /// Increments whose residual exceeds this many times the first fit's RMS are dropped
-    /// before the second fit (0 = no second fit, the default). A filter corrects its drift in
-    /// jumps (the best particle changes), and those carry the errors being fitted: trimming
-    /// at 3 RMS moved the default drive's fitted scale from 1.00330 to 1.00201 (true
-    /// 1.00300), and dropping one 0.6 deg heading jump (at 20 RMS) of a filter that jumped
-    /// back later moved the yaw-rate bias from 2.5e-5 to -3.8e-5 rad/s (true 1.3e-5).
-    pub trim_sigmas: f64,
 }
 
 impl Default for CalibrationOptions {
@@ -46,7 +38,6 @@ impl Default for CalibrationOptions {
             fit_yaw_rate_bias: true,
             increment_m: 0.5,
             max_scale_error: 0.1,
-            trim_sigmas: 0.0,
         }
     }
 }
@@ -64,12 +55,6 @@ impl CalibrationOptions {
             return Err(format!(
                 "max_scale_error must be finite and > 0, got {}",
                 self.max_scale_error
-            ));
-        }
-        if !(self.trim_sigmas.is_finite() && self.trim_sigmas >= 0.0) {
-            return Err(format!(
-                "trim_sigmas must be finite and >= 0, got {}",
-                self.trim_sigmas
             ));
         }
         Ok(())
@@ -125,8 +110,7 @@ impl OdometryCalibration {
 pub struct CalibrationFit {
     /// The fitted errors.
     pub calibration: OdometryCalibration,
-    /// RMS translation residual of the reference's increments after the correction (m),
-    /// over the increments kept.
+    /// RMS translation residual of the reference's increments after the correction (m).
     pub rms_m: f64,
     /// The same without correction (scale 1, no bias): what the correction gained.
     pub rms_uncorrected_m: f64,
@@ -134,8 +118,6 @@ pub struct CalibrationFit {
     pub pairs: usize,
     /// Increments compared (`increment_m` of odometry travel or more each).
     pub increments: usize,
-    /// Increments dropped by the robust pass.
-    pub trimmed: usize,
 }
 
 /// One increment: the odometry's and the reference's relative motion (each in its own body
@@ -153,18 +135,13 @@ impl Increment {
         (self.reference.x_m - c.scale * self.odometry.x_m)
             .hypot(self.reference.y_m - c.scale * self.odometry.y_m)
     }
-
-    /// Yaw residual (rad).
-    fn residual_yaw(&self, c: &OdometryCalibration) -> f64 {
-        self.reference.yaw_rad - (self.odometry.yaw_rad - c.yaw_rate_bias_rad_per_s * self.dt_s)
-    }
 }
 
-/// Least squares over the kept increments: `scale = sum(r . o) / sum(|o|^2)`, `bias = sum(o_yaw
+/// Least squares over the increments: `scale = sum(r . o) / sum(|o|^2)`, `bias = sum(o_yaw
 /// - r_yaw) / sum(dt)` (0 without `fit_bias`).
-fn solve(increments: &[Increment], keep: &[bool], fit_bias: bool) -> OdometryCalibration {
+fn solve(increments: &[Increment], fit_bias: bool) -> OdometryCalibration {
     let (mut ro, mut oo, mut dyaw, mut dt) = (0.0, 0.0, 0.0, 0.0);
-    for (inc, _) in increments.iter().zip(keep).filter(|(_, k)| **k) {
+    for inc in increments {
         let (o, r) = (&inc.odometry, &inc.reference);
         ro += r.x_m * o.x_m + r.y_m * o.y_m;
         oo += o.x_m * o.x_m + o.y_m * o.y_m;
@@ -247,25 +224,7 @@ pub fn fit_odometry_calibration(
             opts.increment_m
         )));
     }
-    let mut keep = vec![true; increments.len()];
-    let mut calibration = solve(&increments, &keep, opts.fit_yaw_rate_bias);
-    let mut trimmed = 0;
-    if opts.trim_sigmas > 0.0 {
-        // Floors: a reference that agrees to rounding must not lose increments to rounding.
-        let rms_m = rms(increments.iter().map(|i| i.residual_m(&calibration))).max(1e-6);
-        let rms_yaw = rms(increments.iter().map(|i| i.residual_yaw(&calibration))).max(1e-7);
-        for (k, inc) in keep.iter_mut().zip(&increments) {
-            if inc.residual_m(&calibration) > opts.trim_sigmas * rms_m
-                || inc.residual_yaw(&calibration).abs() > opts.trim_sigmas * rms_yaw
-            {
-                *k = false;
-                trimmed += 1;
-            }
-        }
-        if trimmed > 0 && increments.len() - trimmed >= MIN_INCREMENTS {
-            calibration = solve(&increments, &keep, opts.fit_yaw_rate_bias);
-        }
-    }
+    let calibration = solve(&increments, opts.fit_yaw_rate_bias);
     let s = calibration.scale;
     if !(s.is_finite() && (s - 1.0).abs() <= opts.max_scale_error) {
         return Err(MotionError::Calibration(format!(
@@ -273,14 +232,14 @@ pub fn fit_odometry_calibration(
             opts.max_scale_error
         )));
     }
-    let kept = || increments.iter().zip(&keep).filter(|(_, k)| **k);
     Ok(CalibrationFit {
         calibration,
-        rms_m: rms(kept().map(|(i, _)| i.residual_m(&calibration))),
-        rms_uncorrected_m: rms(kept().map(|(i, _)| i.residual_m(&OdometryCalibration::IDENTITY))),
+        rms_m: rms(increments.iter().map(|i| i.residual_m(&calibration))),
+        rms_uncorrected_m: rms(increments
+            .iter()
+            .map(|i| i.residual_m(&OdometryCalibration::IDENTITY))),
         pairs: pairs.len(),
         increments: increments.len(),
-        trimmed,
     })
 }
 
@@ -360,7 +319,7 @@ mod tests {
         );
         assert!(fit.rms_m < 1e-6, "{fit:?}");
         assert!(fit.rms_uncorrected_m > 1e-3, "{fit:?}");
-        assert_eq!((fit.pairs, fit.trimmed), (t.len(), 0));
+        assert_eq!(fit.pairs, t.len());
         assert!(fit.increments > 10_000, "{fit:?}");
         // Corrected, the odometry moves as the truth does.
         let corrected = fit.calibration.apply(&odo);
@@ -381,37 +340,6 @@ mod tests {
         assert!(
             (scale_only.calibration.scale - ERRORS.scale).abs() < 1e-6,
             "{scale_only:?}"
-        );
-    }
-
-    /// A reference that jumped 4 m away and back (5 % of its poses off) and is noisy
-    /// elsewhere: the robust pass drops the two jumps and the fit stays close.
-    #[test]
-    fn fit_survives_a_reference_with_outliers() {
-        let t = truth();
-        let odo = odometry_of(&t, &ERRORS);
-        let mut reference = t.clone();
-        for (i, p) in reference.iter_mut().enumerate() {
-            let wobble = 0.05 * ((i as f64) * 0.7).sin();
-            p.pose.x_m += wobble;
-            p.pose.y_m -= wobble;
-            if (5000..5600).contains(&i) {
-                p.pose.x_m += 4.0;
-            }
-        }
-        let opts = CalibrationOptions {
-            trim_sigmas: 3.0,
-            ..CalibrationOptions::default()
-        };
-        let fit = fit_odometry_calibration(&odo, &reference, &opts).unwrap();
-        assert!((2..50).contains(&fit.trimmed), "{fit:?}");
-        assert!(
-            (fit.calibration.scale - ERRORS.scale).abs() < 1e-4,
-            "{fit:?}"
-        );
-        assert!(
-            (fit.calibration.yaw_rate_bias_rad_per_s - ERRORS.yaw_rate_bias_rad_per_s).abs() < 1e-6,
-            "{fit:?}"
         );
     }
 
@@ -439,7 +367,7 @@ mod tests {
         let e = fit_odometry_calibration(&odo, &t, &CalibrationOptions::default());
         assert!(matches!(e, Err(MotionError::Calibration(_))), "{e:?}");
         let bad = CalibrationOptions {
-            trim_sigmas: f64::NAN,
+            increment_m: f64::NAN,
             ..CalibrationOptions::default()
         };
         let e = fit_odometry_calibration(&t, &t, &bad);
