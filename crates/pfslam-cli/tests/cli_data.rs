@@ -417,6 +417,55 @@ fn perturb_writes_a_degraded_log_and_its_reference() {
     assert_eq!(bad.status.code(), Some(2));
 }
 
+/// `map` scores how well the scans agree with the map along the poses it is given: a log's
+/// corrected poses far better than its degraded odometry.
+#[test]
+fn map_reports_how_consistent_the_poses_are() {
+    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+        eprintln!("SKIP map_reports_how_consistent_the_poses_are: no real data");
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("seattle-L2.log");
+    super::run_ok(
+        super::pfslam()
+            .arg("perturb")
+            .arg(data.join("carmen/seattle-corrected.log.gz"))
+            .args(["--level", "2", "--seed", "1", "--out"])
+            .arg(&log),
+    );
+    let odometry = dir.path().join("odometry");
+    super::run_ok(
+        super::pfslam()
+            .arg("dead-reckon")
+            .arg(&log)
+            .arg("--out")
+            .arg(&odometry),
+    );
+    let share = |poses: &Path, name: &str| {
+        let out_dir = dir.path().join(name);
+        let o = super::run_ok(
+            super::pfslam()
+                .arg("map")
+                .arg(&log)
+                .arg("--poses")
+                .arg(poses)
+                .arg("--out")
+                .arg(&out_dir),
+        );
+        let stdout = String::from_utf8_lossy(&o.stdout);
+        assert!(stdout.contains("consistency:"), "{stdout}");
+        let stats: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out_dir.join("map_stats.json")).unwrap())
+                .unwrap();
+        stats["free_share"].as_f64().unwrap()
+    };
+    let corrected = share(&dir.path().join("seattle-L2.reference.tum"), "corrected");
+    let degraded = share(&odometry.join("trajectory.tum"), "degraded");
+    assert!((0.0..0.1).contains(&corrected), "{corrected}");
+    assert!(degraded > corrected + 0.05, "{degraded} against {corrected}");
+}
+
 /// `--keyframes-m`: the scans thinned to one per metre of travel (or 10 deg of turning),
 /// each kept scan unchanged, the reference thinned alike.
 #[test]

@@ -343,8 +343,8 @@ fn map_and_free_share(
 }
 
 /// The share of returns of (at most [`FREE_SHARE_SCANS`]) scans posed by `poses` that land
-/// in cells `grid` calls free.
-fn free_share(
+/// in cells `grid` calls free: the self-check's consistency signal.
+pub fn free_share(
     recording: &Recording,
     poses: &Trajectory,
     grid: &OccupancyGrid,

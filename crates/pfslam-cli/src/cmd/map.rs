@@ -136,6 +136,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         grid.memory_bytes() as f64 / 1e6
     );
 
+    // How well the scans agree with the map along these poses: the self-check's signal,
+    // so trajectories can be compared without ground truth.
+    let free_share = pfslam::pipeline::free_share(&rec, &poses, &grid, &config)?;
+    say!(
+        "consistency: {:.1} % of the scan returns land in cells the map calls free",
+        100.0 * free_share
+    );
+
     // Render first: a drawing failure must not leave the other files behind.
     let main_poses: Vec<Pose2> = poses.poses.iter().map(|p| p.pose).collect();
     let main_label = file_label(&args.poses);
@@ -176,6 +184,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "tiles": grid.tile_count(),
         "memory_bytes": grid.memory_bytes(),
         "extent_cells": [rect.width(), rect.height()],
+        "free_share": free_share,
     });
     if let Some(c) = &comparison {
         report["comparison"] = serde_json::json!({
