@@ -463,7 +463,10 @@ fn map_reports_how_consistent_the_poses_are() {
     let corrected = share(&dir.path().join("seattle-L2.reference.tum"), "corrected");
     let degraded = share(&odometry.join("trajectory.tum"), "degraded");
     assert!((0.0..0.1).contains(&corrected), "{corrected}");
-    assert!(degraded > corrected + 0.05, "{degraded} against {corrected}");
+    assert!(
+        degraded > corrected + 0.05,
+        "{degraded} against {corrected}"
+    );
 }
 
 /// `--keyframes-m`: the scans thinned to one per metre of travel (or 10 deg of turning),

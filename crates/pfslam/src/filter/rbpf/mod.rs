@@ -1,0 +1,39 @@
+//! The Rao-Blackwellised particle filter (`[filter] mode = "rbpf"`), after GMapping
+//! (Grisetti, Stachniss, Burgard 2007).
+//!
+//! - Every particle carries its own [`OccupancyGrid`]. Grids are tiled with `Arc` tiles and
+//!   copy-on-write, so a resampled copy shares all tiles with its ancestor and memory grows
+//!   with the tiles particles actually changed, not with the particle count.
+//! - Updates happen only once the odometry moved `linear_update_m` or turned
+//!   `angular_update_deg` since the last one. At an update each particle composes the
+//!   odometry increment onto its pose (no noise), scan-matches from there against its OWN
+//!   map (coarse yaw/x/y search, then a hill climb with step halving on a smooth observation
+//!   model, see [`scan_log_likelihood`]; the prior's sigmas are GMapping's four-parameter
+//!   motion noise for the increment), then samples its pose around the match
+//!   (`jitter_xy_m`, `jitter_yaw_deg`); its log-weight grows by the match log-likelihood /
+//!   `weight_temperature`. (`match_from_prediction = false`: GMapping's order, the motion
+//!   noise sampled first and the match started from the sample.) Maps are updated
+//!   with the particle's pose; resampling is selective (Neff below a fraction of N).
+//! - Each particle's trajectory is a chain of [`PathNode`]s with `Arc` parent links, one per
+//!   update, so resampled copies share their history. The output is the FINAL best
+//!   particle's whole ancestral path: loop closures found late correct the whole past. Scans
+//!   between updates get the previous node's pose composed with the odometry increment, so
+//!   every scan has a pose.
+//! - Randomness: one `jump()`ed stream per fixed chunk of particles (`filter::rng`), the
+//!   master stream for resampling: results do not depend on the thread count.
+
+mod likelihood;
+mod matcher;
+mod options;
+mod particles;
+mod path;
+mod run;
+#[cfg(test)]
+mod tests;
+
+pub use likelihood::*;
+pub use matcher::*;
+pub use options::*;
+pub use particles::*;
+pub use path::*;
+pub use run::*;

@@ -1,0 +1,212 @@
+//! The options of the Rao-Blackwellised filter (`[filter.rbpf]`).
+
+use super::*;
+use serde::{Deserialize, Serialize};
+
+/// Options of the Rao-Blackwellised mode (`[filter.rbpf]`). The particle count is
+/// `[filter] particles`, the resampling scheme `[filter] resample_method`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RbpfOptions {
+    /// Cell side of the particles' maps (m); 0 = `[map] resolution_m`.
+    pub resolution_m: f64,
+    /// Update (match, reweight, map) once the odometry moved this far since the last
+    /// update (m; GMapping: 0.5-1).
+    pub linear_update_m: f64,
+    /// ... or turned this much (deg; GMapping: 0.5 rad).
+    pub angular_update_deg: f64,
+    /// Odometry noise: translation sigma per metre travelled (GMapping `srr`).
+    pub srr: f64,
+    /// Translation sigma per radian turned (m/rad; GMapping `str`).
+    pub str_m_per_rad: f64,
+    /// Rotation sigma per metre travelled (rad/m; GMapping `srt`).
+    pub srt_rad_per_m: f64,
+    /// Rotation sigma per radian turned (GMapping `stt`).
+    pub stt: f64,
+    /// Use every k-th return for matching and weighting (1 = all; mapping uses all).
+    pub beam_decimation: usize,
+    /// Returns farther than this are neither matched nor mapped (m; GMapping `maxUrange`).
+    pub range_max_m: f64,
+    /// Returns nearer than this are dropped; replaces `[map.scan] range_min_m` in this mode
+    /// (whose 2 m default is the car seed's; indoor robots see walls closer than that).
+    pub range_min_m: f64,
+    /// Keep `[map.scan]`'s densification of walls (joining returns); off matches and maps
+    /// the real beams only.
+    pub densify: bool,
+    /// Standard deviation of the observation model: a point at distance d from the nearest
+    /// occupied cell centre scores `-d^2 / (2 sigma^2)` (m).
+    pub sigma_m: f64,
+    /// Occupied cells are looked for within this many cells of a point (Chebyshev).
+    pub kernel_cells: u32,
+    /// Log-likelihood of a point with no occupied cell within the kernel (a floor; negative).
+    pub no_hit_log_likelihood: f64,
+    /// A cell counts as occupied for matching above this log-odds (0 = p > 0.5, one hit).
+    pub occupied_logodds: f64,
+    /// Half-width of the coarse yaw search around each particle's sampled pose (deg).
+    pub coarse_yaw_deg: f64,
+    /// Step of the coarse yaw search (deg).
+    pub coarse_yaw_step_deg: f64,
+    /// Half-width of the coarse x/y search (cells of the particles' maps).
+    pub coarse_xy_cells: u32,
+    /// Initial x/y step of the hill climb (m; GMapping `lstep`).
+    pub step_xy_m: f64,
+    /// Initial yaw step of the hill climb (deg; GMapping `astep` = 0.05 rad).
+    pub step_yaw_deg: f64,
+    /// Step halvings of the hill climb (GMapping `iterations`).
+    pub refine_levels: u32,
+    /// Divisor of the match log-likelihood in the log-weight update (GMapping: `ogain` times
+    /// the particle count).
+    pub weight_temperature: f64,
+    /// Resample when Neff < this fraction of the particle count.
+    pub resample_threshold: f64,
+    /// The matcher's prior on the deviation from each particle's predicted pose (the sample,
+    /// with `match_from_prediction = false`): a Gaussian with the motion model's sigmas for
+    /// this update times this factor (0 = no prior, the match may go anywhere the search
+    /// reaches). Keeps matches from sliding along corridors.
+    pub prior_scale: f64,
+    /// Smallest x/y sigma of that prior (m).
+    pub prior_min_xy_m: f64,
+    /// Smallest yaw sigma of that prior (deg).
+    pub prior_min_yaw_deg: f64,
+    /// After the run, re-match every output pose against the final best particle's map
+    /// (hill climb from the path's pose): corrects the odometry composed between updates.
+    pub final_refine: bool,
+    /// x/y sigma of that re-match's prior around the path's pose (m).
+    pub refine_sigma_xy_m: f64,
+    /// Yaw sigma of that re-match's prior (deg).
+    pub refine_sigma_yaw_deg: f64,
+    /// The proposal. `true`: each particle is matched from its noise-free prediction (the
+    /// prior centred there) and then sampled around its match (`jitter_*`). `false`
+    /// (GMapping's order): the motion noise is sampled first and the match starts from the
+    /// sample, the prior centred on it; with noise sized for poor odometry the samples land
+    /// in other basins of the likelihood and good odometry is made worse. See
+    /// `docs/decisions/0005-proposal-from-prediction.md`.
+    pub match_from_prediction: bool,
+    /// x/y sigma of the sample around the match (m).
+    pub jitter_xy_m: f64,
+    /// Yaw sigma of the sample around the match (deg).
+    pub jitter_yaw_deg: f64,
+}
+
+impl Default for RbpfOptions {
+    fn default() -> Self {
+        RbpfOptions {
+            resolution_m: 0.05,
+            linear_update_m: 0.3,
+            angular_update_deg: 15.0,
+            srr: 0.1,
+            str_m_per_rad: 0.1,
+            srt_rad_per_m: 0.2,
+            stt: 0.2,
+            beam_decimation: 2,
+            range_max_m: 30.0,
+            range_min_m: 0.1,
+            densify: false,
+            sigma_m: 0.05,
+            kernel_cells: 1,
+            no_hit_log_likelihood: -2.0,
+            occupied_logodds: 0.0,
+            coarse_yaw_deg: 3.0,
+            coarse_yaw_step_deg: 1.0,
+            coarse_xy_cells: 0,
+            step_xy_m: 0.05,
+            step_yaw_deg: 2.865,
+            refine_levels: 4,
+            weight_temperature: 30.0,
+            resample_threshold: 0.5,
+            prior_scale: 1.0,
+            prior_min_xy_m: 0.02,
+            prior_min_yaw_deg: 1.0,
+            final_refine: true,
+            refine_sigma_xy_m: 0.03,
+            refine_sigma_yaw_deg: 3.0,
+            match_from_prediction: true,
+            jitter_xy_m: 0.01,
+            jitter_yaw_deg: 0.25,
+        }
+    }
+}
+
+impl RbpfOptions {
+    /// Checks ranges; the message names the bad key.
+    pub fn validate(&self) -> Result<(), String> {
+        let pos = |v: f64| v.is_finite() && v > 0.0;
+        let nonneg = |v: f64| v.is_finite() && v >= 0.0;
+        if !(nonneg(self.resolution_m) && self.resolution_m <= 10.0) {
+            return Err("filter.rbpf.resolution_m must lie in [0, 10]".into());
+        }
+        for (k, v) in [
+            ("range_min_m", self.range_min_m),
+            ("linear_update_m", self.linear_update_m),
+            ("angular_update_deg", self.angular_update_deg),
+            ("srr", self.srr),
+            ("str_m_per_rad", self.str_m_per_rad),
+            ("srt_rad_per_m", self.srt_rad_per_m),
+            ("stt", self.stt),
+            ("coarse_yaw_deg", self.coarse_yaw_deg),
+            ("step_xy_m", self.step_xy_m),
+            ("step_yaw_deg", self.step_yaw_deg),
+            ("prior_scale", self.prior_scale),
+            ("jitter_xy_m", self.jitter_xy_m),
+            ("jitter_yaw_deg", self.jitter_yaw_deg),
+        ] {
+            if !nonneg(v) {
+                return Err(format!("filter.rbpf.{k} must be finite and >= 0"));
+            }
+        }
+        for (k, v) in [
+            ("range_max_m", self.range_max_m),
+            ("sigma_m", self.sigma_m),
+            ("coarse_yaw_step_deg", self.coarse_yaw_step_deg),
+            ("weight_temperature", self.weight_temperature),
+            ("prior_min_xy_m", self.prior_min_xy_m),
+            ("prior_min_yaw_deg", self.prior_min_yaw_deg),
+            ("refine_sigma_xy_m", self.refine_sigma_xy_m),
+            ("refine_sigma_yaw_deg", self.refine_sigma_yaw_deg),
+        ] {
+            if !pos(v) {
+                return Err(format!("filter.rbpf.{k} must be positive and finite"));
+            }
+        }
+        if self.beam_decimation == 0 {
+            return Err("filter.rbpf.beam_decimation must be at least 1".into());
+        }
+        if self.kernel_cells > 8 {
+            return Err("filter.rbpf.kernel_cells must be at most 8".into());
+        }
+        if self.coarse_xy_cells > 16 {
+            return Err("filter.rbpf.coarse_xy_cells must be at most 16".into());
+        }
+        if self.coarse_yaw_deg > 45.0 || self.coarse_yaw_deg / self.coarse_yaw_step_deg > 200.0 {
+            return Err("filter.rbpf.coarse_yaw_deg must be at most 45 and 200 steps".into());
+        }
+        if self.refine_levels > 12 {
+            return Err("filter.rbpf.refine_levels must be at most 12".into());
+        }
+        if !(self.no_hit_log_likelihood.is_finite() && self.no_hit_log_likelihood <= 0.0) {
+            return Err("filter.rbpf.no_hit_log_likelihood must be finite and <= 0".into());
+        }
+        if !(self.occupied_logodds.is_finite() && self.occupied_logodds.abs() <= 100.0) {
+            return Err("filter.rbpf.occupied_logodds must lie in [-100, 100]".into());
+        }
+        if !(0.0..=1.0).contains(&self.resample_threshold) {
+            return Err("filter.rbpf.resample_threshold must lie in [0, 1]".into());
+        }
+        Ok(())
+    }
+
+    /// The observation model these options describe, for maps of `resolution_m`.
+    pub fn observation(&self, resolution_m: f64) -> ObservationModel {
+        ObservationModel {
+            kernel: self.kernel_cells as i32,
+            occupied_fixed: (self.occupied_logodds * 256.0).round() as i16,
+            res2_over_2s2: resolution_m * resolution_m / (2.0 * self.sigma_m * self.sigma_m),
+            no_hit: self.no_hit_log_likelihood,
+        }
+    }
+
+    /// Odometry noise sigmas `[srr, str, srt, stt]`.
+    pub(super) fn noise(&self) -> [f64; 4] {
+        [self.srr, self.str_m_per_rad, self.srt_rad_per_m, self.stt]
+    }
+}
