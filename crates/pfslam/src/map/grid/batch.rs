@@ -164,9 +164,9 @@ type MaskPart<'a> = (&'a mut [u16], &'a mut [u8]);
 /// A tile of the grid being updated from the batch masks: the tile (taken out of the
 /// directory), its part of every scratch's mask and block flags, and the changes it logged.
 struct TileJob<'a> {
-    slot: usize,
+    pub(super) slot: usize,
     origin: Cell,
-    tile: Option<Arc<Tile>>,
+    pub(super) tile: Option<Arc<Tile>>,
     parts: Vec<MaskPart<'a>>,
     changes: Vec<CellChange>,
 }
