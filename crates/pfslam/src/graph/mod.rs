@@ -150,85 +150,162 @@ pub fn optimize_trajectory_look_ahead(
 ) -> Result<GraphResult, GraphError> {
     opts.validate().map_err(GraphError::Options)?;
     let t_start = Instant::now();
-    let mut stats = GraphStats::default();
     let keyframes = select_keyframes(recording, scan_opts, trajectory, opts)?;
-    let mut graph = PoseGraph::default();
-    let mut loop_edges: Vec<usize> = Vec::new();
-    let opt_opts = OptimizeOptions {
-        max_iterations: opts.max_iterations,
-        ..OptimizeOptions::default()
-    };
-    let periodic_opts = OptimizeOptions {
-        relative_tolerance: opts.periodic_relative_tolerance,
-        ..opt_opts
-    };
-    let seq_win = SearchWindow {
-        xy_m: opts.sequential_window_m,
-        yaw_rad: opts.sequential_window_deg.to_radians(),
-        yaw_step_rad: opts.yaw_step_deg.to_radians(),
-    };
-    let loop_win = SearchWindow {
-        xy_m: opts.loop_window_m,
-        yaw_rad: opts.loop_window_deg.to_radians(),
-        yaw_step_rad: seq_win.yaw_step_rad,
-    };
-    let local_win = SearchWindow {
-        xy_m: opts.loop_local_window_m,
-        yaw_rad: opts.loop_local_window_deg.to_radians(),
-        yaw_step_rad: seq_win.yaw_step_rad,
-    };
-    // What the last optimisation vouches for (nothing before the first).
-    let local_on = opts.loop_local_search.is_on(false);
-    let mut vouches = Vouches::default();
-    let mut closures_pending = false;
-    let mut urgent = false;
-    let mut last_opt = 0usize;
-    let mut submap_pts: Vec<[f64; 2]> = Vec::new();
-    // Loop searches verified ahead, valid while the graph is not optimised.
-    let mut ahead: Option<LookAhead> = None;
-    let mut generation = 0usize;
-    // `auto`: sequential matching for a level LiDAR fixed on the body (the recordings `auto`
-    // runs `rbpf` on); odometry-yaw edges for a LiDAR fixed on the body.
-    let level_and_fixed =
-        crate::filter::FilterMode::Auto.resolve(recording) == crate::filter::FilterMode::Rbpf;
-    let seq_matching = opts.sequential_matching.is_on(level_and_fixed);
-    let yaw_edges = !seq_matching
-        && opts.odometry_yaw_sigma_deg_per_sqrt_m > 0.0
-        && opts
-            .odometry_yaw_edges
-            .is_on(recording.body_from_lidar_per_scan.is_none());
+    let mut back_end = BackEnd::new(recording, trajectory, opts, &keyframes, look_ahead);
     for k in 0..keyframes.len() {
-        let kf = &keyframes[k];
+        back_end.add_keyframe(k);
+    }
+    back_end.finish(scan_opts, t_start)
+}
+
+/// The back end while keyframes are added: the graph so far, and what decides the next loop
+/// searches and optimisations.
+struct BackEnd<'a> {
+    recording: &'a Recording,
+    trajectory: &'a [StampedPose2],
+    opts: &'a GraphOptions,
+    keyframes: &'a [Keyframe],
+    look_ahead: usize,
+    opt_opts: OptimizeOptions,
+    periodic_opts: OptimizeOptions,
+    seq_win: SearchWindow,
+    loop_win: SearchWindow,
+    local_win: SearchWindow,
+    local_on: bool,
+    seq_matching: bool,
+    yaw_edges: bool,
+    stats: GraphStats,
+    graph: PoseGraph,
+    loop_edges: Vec<usize>,
+    vouches: Vouches,
+    closures_pending: bool,
+    urgent: bool,
+    last_opt: usize,
+    submap_pts: Vec<[f64; 2]>,
+    /// Loop searches verified ahead, valid while the graph is not optimised.
+    ahead: Option<LookAhead>,
+    generation: usize,
+}
+
+impl<'a> BackEnd<'a> {
+    fn new(
+        recording: &'a Recording,
+        trajectory: &'a [StampedPose2],
+        opts: &'a GraphOptions,
+        keyframes: &'a [Keyframe],
+        look_ahead: usize,
+    ) -> Self {
+        let opt_opts = OptimizeOptions {
+            max_iterations: opts.max_iterations,
+            ..OptimizeOptions::default()
+        };
+        let periodic_opts = OptimizeOptions {
+            relative_tolerance: opts.periodic_relative_tolerance,
+            ..opt_opts
+        };
+        let seq_win = SearchWindow {
+            xy_m: opts.sequential_window_m,
+            yaw_rad: opts.sequential_window_deg.to_radians(),
+            yaw_step_rad: opts.yaw_step_deg.to_radians(),
+        };
+        let loop_win = SearchWindow {
+            xy_m: opts.loop_window_m,
+            yaw_rad: opts.loop_window_deg.to_radians(),
+            yaw_step_rad: seq_win.yaw_step_rad,
+        };
+        let local_win = SearchWindow {
+            xy_m: opts.loop_local_window_m,
+            yaw_rad: opts.loop_local_window_deg.to_radians(),
+            yaw_step_rad: seq_win.yaw_step_rad,
+        };
+        // What the last optimisation vouches for (nothing before the first).
+        let local_on = opts.loop_local_search.is_on(false);
+        // `auto`: sequential matching for a level LiDAR fixed on the body (the recordings `auto`
+        // runs `rbpf` on); odometry-yaw edges for a LiDAR fixed on the body.
+        let level_and_fixed =
+            crate::filter::FilterMode::Auto.resolve(recording) == crate::filter::FilterMode::Rbpf;
+        let seq_matching = opts.sequential_matching.is_on(level_and_fixed);
+        let yaw_edges = !seq_matching
+            && opts.odometry_yaw_sigma_deg_per_sqrt_m > 0.0
+            && opts
+                .odometry_yaw_edges
+                .is_on(recording.body_from_lidar_per_scan.is_none());
+        BackEnd {
+            recording,
+            trajectory,
+            opts,
+            keyframes,
+            look_ahead,
+            opt_opts,
+            periodic_opts,
+            seq_win,
+            loop_win,
+            local_win,
+            local_on,
+            seq_matching,
+            yaw_edges,
+            stats: GraphStats::default(),
+            graph: PoseGraph::default(),
+            loop_edges: Vec::new(),
+            vouches: Vouches::default(),
+            closures_pending: false,
+            urgent: false,
+            last_opt: 0,
+            submap_pts: Vec::new(),
+            ahead: None,
+            generation: 0,
+        }
+    }
+
+    /// Adds keyframe `k` (after keyframes `0..k`): its sequential and odometry-yaw edges,
+    /// its loop searches when due, and an optimisation when due.
+    fn add_keyframe(&mut self, k: usize) {
+        let opts = self.opts;
+        let kf = &self.keyframes[k];
         if k == 0 {
-            graph.poses.push(kf.front_pose);
-            continue;
+            self.graph.poses.push(kf.front_pose);
+            return;
         }
         let t = Instant::now();
+        let pose = self.add_sequential_edges(k);
+        // Loop closures.
+        let due = k % opts.loop_every_keyframes == 0 && kf.points_body.len() >= opts.min_points;
+        if due {
+            self.search_loops(k, pose);
+        }
+        self.stats.matching_s += t.elapsed().as_secs_f64();
+        self.maybe_optimize(k);
+    }
+
+    /// Keyframe `k`'s pose and the edges to keyframe `k - 1`: a sequential match (with the
+    /// front end's relative motion beside it) or the front end's relative motion alone,
+    /// and the odometry-yaw edge. Returns the pose.
+    fn add_sequential_edges(&mut self, k: usize) -> Pose2 {
+        let opts = self.opts;
+        let (keyframes, graph, stats) = (self.keyframes, &mut self.graph, &mut self.stats);
+        let seq_matching = self.seq_matching;
+        let seq_win = &self.seq_win;
+        let kf = &keyframes[k];
         let prev = &keyframes[k - 1];
         let rel_front = prev.front_pose.between(&kf.front_pose);
         let predicted = graph.poses[k - 1].compose(&rel_front);
         // Sequential edge: match against the previous keyframes' submap.
         let first = k.saturating_sub(opts.submap_keyframes);
-        gather_points(&keyframes, &graph.poses, first..k, &mut submap_pts);
+        gather_points(keyframes, &graph.poses, first..k, &mut self.submap_pts);
+        let submap_pts = &self.submap_pts;
         let margin = opts.sequential_window_m + 3.0 * opts.field_sigma_m + opts.resolution_m;
         let bounds = bounds_around(&kf.points_body, &predicted, margin)
-            .and_then(|b| clip_to_points(b, &submap_pts, 3.0 * opts.field_sigma_m));
+            .and_then(|b| clip_to_points(b, submap_pts, 3.0 * opts.field_sigma_m));
         let enough = seq_matching && kf.points_body.len() >= opts.min_points;
         let matched = bounds.filter(|_| enough).and_then(|(lo, hi)| {
-            let field = PointField::build(
-                &submap_pts,
-                lo,
-                hi,
-                opts.resolution_m,
-                opts.field_sigma_m,
-                0,
-            );
+            let field =
+                PointField::build(submap_pts, lo, hi, opts.resolution_m, opts.field_sigma_m, 0);
             let prior = Prior {
                 pose: predicted,
                 sigma_xy_m: opts.sequential_prior_sigma_m,
                 sigma_yaw_rad: opts.sequential_prior_sigma_deg.to_radians(),
             };
-            let coarse = field.search_with_prior(&kf.points_body, &prior, &seq_win);
+            let coarse = field.search_with_prior(&kf.points_body, &prior, seq_win);
             let (pose, score) = field.refine(
                 &kf.points_body,
                 &coarse,
@@ -291,8 +368,9 @@ pub fn optimize_trajectory_look_ahead(
         };
         graph.poses.push(pose);
         graph.edges.push(edge);
-        if yaw_edges {
-            let odo = &recording.odometry;
+        if self.yaw_edges {
+            let odo = &self.recording.odometry;
+            let trajectory = self.trajectory;
             let stamp = |kf: &Keyframe| trajectory[kf.traj_index].stamp_ns;
             if let (Some(a), Some(b)) = (odo.pose_at(stamp(prev)), odo.pose_at(stamp(kf))) {
                 // Yaw only: the x/y standard deviation is far beyond any error.
@@ -310,205 +388,251 @@ pub fn optimize_trajectory_look_ahead(
                 stats.odometry_yaw_edges += 1;
             }
         }
-        // Loop closures.
-        let due = k % opts.loop_every_keyframes == 0 && kf.points_body.len() >= opts.min_points;
-        if due {
-            // A look-ahead job computed before any optimisation since, at the same pose:
-            // the same candidates (the earlier keyframes' poses are the same bits).
-            let cached = match &mut ahead {
-                Some(a) if a.generation == generation => a
-                    .jobs
-                    .iter()
-                    .position(|j| j.k == k && j.pose == pose)
-                    .map(|at| a.jobs.swap_remove(at)),
-                _ => None,
-            };
-            let (tried, verdicts) = match cached {
-                Some(job) => (job.tried, job.verdicts),
-                None => {
-                    let tried = loop_candidates(&keyframes, &graph.poses, k, &pose, opts);
-                    if tried.is_empty() {
-                        (tried, Vec::new())
-                    } else {
-                        // The look-ahead's predicted poses go onto the graph's (removed
-                        // after the batch): no copy of the whole path per batch.
-                        let mut jobs = if !seq_matching && look_ahead > 1 {
-                            // No periodic optimisation before `last_opt + every`: up to
-                            // there the look-ahead cannot be overtaken by one.
-                            let bound = last_opt + opts.optimize_every_keyframes;
-                            let (searches, last) = if k < bound {
-                                (look_ahead, bound)
-                            } else {
-                                (look_ahead.min(LOOK_AHEAD_UNBOUNDED), usize::MAX)
-                            };
-                            look_ahead_jobs(&keyframes, &mut graph.poses, k, searches, last, opts)
-                        } else {
-                            Vec::new()
-                        };
-                        jobs.insert(
-                            0,
-                            AheadJob {
-                                k,
-                                pose,
-                                tried: tried.clone(),
-                                verdicts: Vec::new(),
-                            },
-                        );
-                        let poses: &[Pose2] = &graph.poses;
-                        // All independent: verified in parallel, collected in order.
-                        let pairs: Vec<(usize, usize)> = jobs
-                            .iter()
-                            .enumerate()
-                            .flat_map(|(a, job)| job.tried.iter().map(move |&j| (a, j)))
-                            .collect();
-                        // Whether a candidate is searched locally depends only on the last
-                        // optimisation, which the look-ahead's verdicts are valid for.
-                        let vouches = &vouches;
-                        let found: Vec<Checked> = pairs
-                            .par_iter()
-                            .map(|&(a, j)| {
-                                let job = &jobs[a];
-                                let local = (local_on && vouches.vouch(&keyframes, job.k, j, opts))
-                                    .then_some(&local_win);
-                                verify_candidate(
-                                    &keyframes, poses, job.k, j, &job.pose, &loop_win, local, opts,
-                                )
-                            })
-                            .collect();
-                        for (&(a, _), v) in pairs.iter().zip(found) {
-                            jobs[a].verdicts.push(v);
-                        }
-                        graph.poses.truncate(k + 1);
-                        let own = jobs.swap_remove(0).verdicts;
-                        ahead = Some(LookAhead { generation, jobs });
-                        (tried, own)
+        pose
+    }
+
+    /// The loop searches of keyframe `k` at `pose`: its candidates verified (or taken from
+    /// the look-ahead), the accepted closures added as loop edges.
+    fn search_loops(&mut self, k: usize, pose: Pose2) {
+        let (tried, verdicts) = self.loop_verdicts(k, pose);
+        let opts = self.opts;
+        let (graph, stats) = (&mut self.graph, &mut self.stats);
+        stats.loop_candidates += tried.len();
+        for (&j, checked) in tried.iter().zip(verdicts) {
+            stats.loop_local += usize::from(checked.search != Search::Full);
+            stats.loop_local_fallbacks += usize::from(checked.search == Search::LocalThenFull);
+            match checked.verdict {
+                Verdict::Accepted(found) => {
+                    stats.loop_accepted += 1;
+                    let z = graph.poses[j].between(&found);
+                    let width = (opts.loop_kernel_width > 0.0).then_some(opts.loop_kernel_width);
+                    graph.edges.push(Edge::with_sigmas(
+                        j,
+                        k,
+                        z,
+                        opts.loop_sigma_m,
+                        opts.loop_sigma_deg.to_radians(),
+                        width,
+                    ));
+                    self.loop_edges.push(graph.edges.len() - 1);
+                    self.closures_pending = true;
+                    if graph.edge_chi2(graph.edges.len() - 1) > opts.optimize_chi2 {
+                        self.urgent = true;
                     }
                 }
-            };
-            stats.loop_candidates += tried.len();
-            for (&j, checked) in tried.iter().zip(verdicts) {
-                stats.loop_local += usize::from(checked.search != Search::Full);
-                stats.loop_local_fallbacks += usize::from(checked.search == Search::LocalThenFull);
-                match checked.verdict {
-                    Verdict::Accepted(found) => {
-                        stats.loop_accepted += 1;
-                        let z = graph.poses[j].between(&found);
-                        let width =
-                            (opts.loop_kernel_width > 0.0).then_some(opts.loop_kernel_width);
-                        graph.edges.push(Edge::with_sigmas(
-                            j,
+                Verdict::LowScore => stats.loop_rejected_score += 1,
+                Verdict::Ambiguous => stats.loop_rejected_ambiguous += 1,
+            }
+        }
+    }
+
+    /// Keyframe `k`'s loop candidates and their verdicts: from the look-ahead when it holds
+    /// them, else verified now in one parallel batch with the look-ahead's next jobs.
+    fn loop_verdicts(&mut self, k: usize, pose: Pose2) -> (Vec<usize>, Vec<Checked>) {
+        let opts = self.opts;
+        let keyframes = self.keyframes;
+        let generation = self.generation;
+        let graph = &mut self.graph;
+        // A look-ahead job computed before any optimisation since, at the same pose:
+        // the same candidates (the earlier keyframes' poses are the same bits).
+        let cached = match &mut self.ahead {
+            Some(a) if a.generation == generation => a
+                .jobs
+                .iter()
+                .position(|j| j.k == k && j.pose == pose)
+                .map(|at| a.jobs.swap_remove(at)),
+            _ => None,
+        };
+        match cached {
+            Some(job) => (job.tried, job.verdicts),
+            None => {
+                let tried = loop_candidates(keyframes, &graph.poses, k, &pose, opts);
+                if tried.is_empty() {
+                    (tried, Vec::new())
+                } else {
+                    // The look-ahead's predicted poses go onto the graph's (removed
+                    // after the batch): no copy of the whole path per batch.
+                    let look_ahead = self.look_ahead;
+                    let mut jobs = if !self.seq_matching && look_ahead > 1 {
+                        // No periodic optimisation before `last_opt + every`: up to
+                        // there the look-ahead cannot be overtaken by one.
+                        let bound = self.last_opt + opts.optimize_every_keyframes;
+                        let (searches, last) = if k < bound {
+                            (look_ahead, bound)
+                        } else {
+                            (look_ahead.min(LOOK_AHEAD_UNBOUNDED), usize::MAX)
+                        };
+                        look_ahead_jobs(keyframes, &mut graph.poses, k, searches, last, opts)
+                    } else {
+                        Vec::new()
+                    };
+                    jobs.insert(
+                        0,
+                        AheadJob {
                             k,
-                            z,
-                            opts.loop_sigma_m,
-                            opts.loop_sigma_deg.to_radians(),
-                            width,
-                        ));
-                        loop_edges.push(graph.edges.len() - 1);
-                        closures_pending = true;
-                        if graph.edge_chi2(graph.edges.len() - 1) > opts.optimize_chi2 {
-                            urgent = true;
-                        }
+                            pose,
+                            tried: tried.clone(),
+                            verdicts: Vec::new(),
+                        },
+                    );
+                    let poses: &[Pose2] = &graph.poses;
+                    // All independent: verified in parallel, collected in order.
+                    let pairs: Vec<(usize, usize)> = jobs
+                        .iter()
+                        .enumerate()
+                        .flat_map(|(a, job)| job.tried.iter().map(move |&j| (a, j)))
+                        .collect();
+                    // Whether a candidate is searched locally depends only on the last
+                    // optimisation, which the look-ahead's verdicts are valid for.
+                    let vouches = &self.vouches;
+                    let (local_on, loop_win, local_win) =
+                        (self.local_on, &self.loop_win, &self.local_win);
+                    let found: Vec<Checked> = pairs
+                        .par_iter()
+                        .map(|&(a, j)| {
+                            let job = &jobs[a];
+                            let local = (local_on && vouches.vouch(keyframes, job.k, j, opts))
+                                .then_some(local_win);
+                            verify_candidate(
+                                keyframes, poses, job.k, j, &job.pose, loop_win, local, opts,
+                            )
+                        })
+                        .collect();
+                    for (&(a, _), v) in pairs.iter().zip(found) {
+                        jobs[a].verdicts.push(v);
                     }
-                    Verdict::LowScore => stats.loop_rejected_score += 1,
-                    Verdict::Ambiguous => stats.loop_rejected_ambiguous += 1,
+                    graph.poses.truncate(k + 1);
+                    let own = jobs.swap_remove(0).verdicts;
+                    self.ahead = Some(LookAhead { generation, jobs });
+                    (tried, own)
                 }
             }
         }
-        stats.matching_s += t.elapsed().as_secs_f64();
-        if urgent || (closures_pending && k - last_opt >= opts.optimize_every_keyframes) {
+    }
+
+    /// Optimises after keyframe `k` when a closure disagreed with the estimates, or when
+    /// closures were accepted and `optimize_every_keyframes` passed since the last time.
+    fn maybe_optimize(&mut self, k: usize) {
+        let opts = self.opts;
+        if self.urgent
+            || (self.closures_pending && k - self.last_opt >= opts.optimize_every_keyframes)
+        {
             let t = Instant::now();
-            let r = match urgent {
-                true => graph.optimize(&opt_opts),
+            let last_opt = self.last_opt;
+            let graph = &mut self.graph;
+            let r = match self.urgent {
+                true => graph.optimize(&self.opt_opts),
                 // Keyframe 0 is always held: from keyframe 1 on is the whole graph.
                 false
                     if opts.periodic_free_keyframes > 0
                         && last_opt > opts.periodic_free_keyframes + 1 =>
                 {
                     let first = last_opt - opts.periodic_free_keyframes;
-                    optimize_tail(&mut graph, first, &periodic_opts)
+                    optimize_tail(graph, first, &self.periodic_opts)
                 }
-                false => graph.optimize(&periodic_opts),
+                false => graph.optimize(&self.periodic_opts),
             };
-            generation += 1;
-            if local_on {
-                vouches = Vouches::after_optimisation(&graph, &loop_edges, &keyframes, opts);
+            self.generation += 1;
+            if self.local_on {
+                self.vouches = Vouches::after_optimisation(
+                    &self.graph,
+                    &self.loop_edges,
+                    self.keyframes,
+                    opts,
+                );
             }
-            stats.optimizations += 1;
-            stats.iterations += r.iterations;
-            stats.optimize_s += t.elapsed().as_secs_f64();
-            closures_pending = false;
-            urgent = false;
-            last_opt = k;
+            self.stats.optimizations += 1;
+            self.stats.iterations += r.iterations;
+            self.stats.optimize_s += t.elapsed().as_secs_f64();
+            self.closures_pending = false;
+            self.urgent = false;
+            self.last_opt = k;
         }
     }
-    // Final optimisation, outlier removal, again.
-    let t = Instant::now();
-    let r = graph.optimize(&opt_opts);
-    stats.optimizations += 1;
-    stats.iterations += r.iterations;
-    let outliers: Vec<usize> = loop_edges
-        .iter()
-        .copied()
-        .filter(|&e| graph.edge_chi2(e) > opts.loop_outlier_chi2)
-        .collect();
-    if !outliers.is_empty() {
-        stats.loop_removed_outliers = outliers.len();
-        let mut keep = vec![true; graph.edges.len()];
-        for &e in &outliers {
-            keep[e] = false;
-        }
-        let mut idx = 0;
-        graph.edges.retain(|_| {
-            idx += 1;
-            keep[idx - 1]
-        });
+
+    /// The final optimisation, outlier removal and again; every scan's corrected pose
+    /// (refined when `refine_scans` is on).
+    fn finish(self, scan_opts: &ScanOptions, t_start: Instant) -> Result<GraphResult, GraphError> {
+        let BackEnd {
+            recording,
+            trajectory,
+            opts,
+            keyframes,
+            opt_opts,
+            mut stats,
+            mut graph,
+            loop_edges,
+            ..
+        } = self;
+        // Final optimisation, outlier removal, again.
+        let t = Instant::now();
         let r = graph.optimize(&opt_opts);
         stats.optimizations += 1;
         stats.iterations += r.iterations;
-    }
-    stats.final_cost = graph.cost();
-    stats.optimize_s += t.elapsed().as_secs_f64();
-    stats.nodes = graph.poses.len();
-    stats.edges = graph.edges.len();
-    let loop_pairs = graph
-        .edges
-        .iter()
-        .filter(|e| e.to != e.from + 1)
-        .map(|e| (e.from, e.to))
-        .collect();
-    let t = Instant::now();
-    let closed = stats.loop_accepted > stats.loop_removed_outliers;
-    if !closed && opts.keep_front_end_without_closures {
-        graph.poses = keyframes.iter().map(|kf| kf.front_pose).collect();
-    }
-    let mut out = correct_trajectory(trajectory, &keyframes, &graph.poses);
-    if opts.refine_scans.is_on(true) && (closed || !opts.keep_front_end_without_closures) {
-        refine_scans(
-            recording,
-            scan_opts,
-            trajectory,
-            &keyframes,
-            &graph.poses,
-            opts,
-            &mut out,
-        )?;
-    }
-    stats.refine_s = t.elapsed().as_secs_f64();
-    let kf_out = keyframes
-        .iter()
-        .zip(&graph.poses)
-        .map(|(kf, p)| StampedPose2 {
-            stamp_ns: trajectory[kf.traj_index].stamp_ns,
-            pose: *p,
+        let outliers: Vec<usize> = loop_edges
+            .iter()
+            .copied()
+            .filter(|&e| graph.edge_chi2(e) > opts.loop_outlier_chi2)
+            .collect();
+        if !outliers.is_empty() {
+            stats.loop_removed_outliers = outliers.len();
+            let mut keep = vec![true; graph.edges.len()];
+            for &e in &outliers {
+                keep[e] = false;
+            }
+            let mut idx = 0;
+            graph.edges.retain(|_| {
+                idx += 1;
+                keep[idx - 1]
+            });
+            let r = graph.optimize(&opt_opts);
+            stats.optimizations += 1;
+            stats.iterations += r.iterations;
+        }
+        stats.final_cost = graph.cost();
+        stats.optimize_s += t.elapsed().as_secs_f64();
+        stats.nodes = graph.poses.len();
+        stats.edges = graph.edges.len();
+        let loop_pairs = graph
+            .edges
+            .iter()
+            .filter(|e| e.to != e.from + 1)
+            .map(|e| (e.from, e.to))
+            .collect();
+        let t = Instant::now();
+        let closed = stats.loop_accepted > stats.loop_removed_outliers;
+        if !closed && opts.keep_front_end_without_closures {
+            graph.poses = keyframes.iter().map(|kf| kf.front_pose).collect();
+        }
+        let mut out = correct_trajectory(trajectory, keyframes, &graph.poses);
+        if opts.refine_scans.is_on(true) && (closed || !opts.keep_front_end_without_closures) {
+            refine_scans(
+                recording,
+                scan_opts,
+                trajectory,
+                keyframes,
+                &graph.poses,
+                opts,
+                &mut out,
+            )?;
+        }
+        stats.refine_s = t.elapsed().as_secs_f64();
+        let kf_out = keyframes
+            .iter()
+            .zip(&graph.poses)
+            .map(|(kf, p)| StampedPose2 {
+                stamp_ns: trajectory[kf.traj_index].stamp_ns,
+                pose: *p,
+            })
+            .collect();
+        stats.total_s = t_start.elapsed().as_secs_f64();
+        Ok(GraphResult {
+            trajectory: out,
+            keyframes: kf_out,
+            loop_edges: loop_pairs,
+            stats,
         })
-        .collect();
-    stats.total_s = t_start.elapsed().as_secs_f64();
-    Ok(GraphResult {
-        trajectory: out,
-        keyframes: kf_out,
-        loop_edges: loop_pairs,
-        stats,
-    })
+    }
 }
 
 /// Optimises keyframes `first..` of `graph` (`first >= 1`) with the earlier ones held
