@@ -269,7 +269,8 @@ impl<'a> BackEnd<'a> {
         let t = Instant::now();
         let pose = self.add_sequential_edges(k);
         // Loop closures.
-        let due = k % opts.loop_every_keyframes == 0 && kf.points_body.len() >= opts.min_points;
+        let due =
+            k.is_multiple_of(opts.loop_every_keyframes) && kf.points_body.len() >= opts.min_points;
         if due {
             self.search_loops(k, pose);
         }
