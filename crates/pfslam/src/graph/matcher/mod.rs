@@ -1,0 +1,51 @@
+//! Scan-to-submap matching for the pose graph's edges.
+//!
+//! A [`PointField`] is a dense window of a likelihood field built from submap points: each
+//! cell holds `exp(-d^2 / 2 sigma^2)` of the distance `d` to the nearest point (0..1), plus
+//! max-pooled copies (cell `c` of level `k` = the maximum over the `2^k x 2^k` cells from
+//! `c`), the upper bounds of Olson's / Cartographer's branch-and-bound correlative search.
+//! - [`PointField::search_bnb`]: the best pose over a large x/y/yaw window (loop closures),
+//!   exact on the cell grid, optionally excluding a neighbourhood (to measure ambiguity).
+//! - [`PointField::search_with_prior`]: a small exhaustive window with a Gaussian prior on the
+//!   deviation from a prediction (sequential edges: along a corridor the prediction decides).
+//! - [`PointField::refine`]: sub-cell pattern search on the bilinearly interpolated field.
+//!
+//! The field and its storage live in `point_field` and `storage`; the interpolated scores
+//! (the refinement's objective and the edges' curvature) in `score`; the cell sums of the
+//! grid searches in `cells`; the searches in `branch_and_bound` and `local_search`.
+
+mod branch_and_bound;
+mod cells;
+mod local_search;
+mod point_field;
+mod score;
+mod storage;
+#[cfg(test)]
+mod tests;
+
+pub use branch_and_bound::BnbStart;
+pub use local_search::Prior;
+pub use point_field::PointField;
+
+/// A search window around a centre pose.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SearchWindow {
+    /// Half-width in x and y (m).
+    pub xy_m: f64,
+    /// Half-width in yaw (rad).
+    pub yaw_rad: f64,
+    /// Yaw step (rad).
+    pub yaw_step_rad: f64,
+}
+
+/// `floor(v)` as `i64` without the libm call (`f64::floor` on baseline x86-64); the same
+/// value as `v.floor() as i64` for every finite `v` within +-2^53 (cells always are).
+#[inline(always)]
+fn floor_to_i64(v: f64) -> i64 {
+    let t = v as i64;
+    if (t as f64) > v {
+        t.saturating_sub(1)
+    } else {
+        t
+    }
+}
