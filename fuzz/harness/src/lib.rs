@@ -191,9 +191,11 @@ pub fn mcap(data: &[u8]) {
 /// The UCSD car's options: both timestamp policies are reachable from the CLI.
 fn ucsd_options() -> [pfslam::io::ucsd::ReadOptions; 2] {
     use pfslam::io::ucsd::{ReadOptions, TimestampPolicy};
-    [TimestampPolicy::Reject, TimestampPolicy::SortWithWarning].map(|timestamp_policy| ReadOptions {
-        timestamp_policy,
-        ..ReadOptions::default()
+    [TimestampPolicy::Reject, TimestampPolicy::SortWithWarning].map(|timestamp_policy| {
+        ReadOptions {
+            timestamp_policy,
+            ..ReadOptions::default()
+        }
     })
 }
 
@@ -250,7 +252,13 @@ pub fn humanoid(data: &[u8]) {
     use pfslam::io::humanoid::{
         CALIBRATION_FILE, IMU_CSV, JOINTS_CSV, LIDAR_CSV, ODOMETRY_CSV, read_humanoid_dataset,
     };
-    let names = [CALIBRATION_FILE, ODOMETRY_CSV, IMU_CSV, JOINTS_CSV, LIDAR_CSV];
+    let names = [
+        CALIBRATION_FILE,
+        ODOMETRY_CSV,
+        IMU_CSV,
+        JOINTS_CSV,
+        LIDAR_CSV,
+    ];
     let dir = scratch_layout("humanoid", &names, data);
     let _ = read_humanoid_dataset(&dir);
 }

@@ -51,6 +51,9 @@ fn replay_corpus_and_regressions() {
         total += count;
     }
     remove_scratch_dir();
-    assert!(slow.is_empty(), "inputs slower than {MAX_INPUT_TIME:?}: {slow:?}");
+    assert!(
+        slow.is_empty(),
+        "inputs slower than {MAX_INPUT_TIME:?}: {slow:?}"
+    );
     eprintln!("replayed {total} fuzz inputs");
 }
