@@ -85,6 +85,83 @@ fn check_header(path: &Path) -> Result<(u64, u64), RosError> {
     Ok((start, index_pos))
 }
 
+/// Largest accepted ratio of a chunk's declared decompressed size to its stored size.
+const MAX_COMPRESSION_RATIO: u64 = 256;
+
+/// Walks the records of the chunk section and rejects chunks whose declared decompressed size
+/// is implausible for their stored size: the `rosbag` crate allocates that size (a u32 taken
+/// from the file) before decompressing, so a corrupt header would otherwise allocate up to
+/// 4 GiB for a few bytes of input. Records running past the index are errors too.
+fn check_chunk_sizes(path: &Path, start: u64, index_pos: u64) -> Result<(), RosError> {
+    let file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
+    // SAFETY: the file is opened read-only; as with any memory map, another process
+    // truncating it while we read is outside what we can guard against.
+    let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|e| IoError::io(path, e))?;
+    let end = usize::try_from(index_pos)
+        .unwrap_or(usize::MAX)
+        .min(map.len());
+    let bytes = &map[..end];
+    let u32_at = |at: usize| -> Option<usize> {
+        bytes
+            .get(at..at.checked_add(4)?)
+            .and_then(|b| <[u8; 4]>::try_from(b).ok())
+            .map(|b| u32::from_le_bytes(b) as usize)
+    };
+    let mut at = usize::try_from(start).unwrap_or(usize::MAX);
+    while at < bytes.len() {
+        let bad = |what: &str| RosError::format(path, format!("byte {at}"), what);
+        let header_len = u32_at(at).ok_or_else(|| bad("record header cut by the index"))?;
+        let header_at = at + 4;
+        let header = bytes
+            .get(header_at..header_at.saturating_add(header_len))
+            .ok_or_else(|| bad("record header runs past the index"))?;
+        let data_len_at = header_at + header_len;
+        let data_len = u32_at(data_len_at).ok_or_else(|| bad("record data length cut"))?;
+        let data_end = (data_len_at + 4)
+            .checked_add(data_len)
+            .filter(|&e| e <= bytes.len())
+            .ok_or_else(|| bad("record data runs past the index"))?;
+        let (mut op, mut size, mut compression) = (None, None, None);
+        let mut p = 0usize;
+        while let Some(l) = header
+            .get(p..p + 4)
+            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize)
+        {
+            let Some(field) = header.get(p + 4..(p + 4).saturating_add(l)) else {
+                break;
+            };
+            if let Some(v) = field.strip_prefix(b"op=") {
+                op = v.first().copied();
+            } else if let Some(v) = field.strip_prefix(b"size=")
+                && let Ok(b) = <[u8; 4]>::try_from(v)
+            {
+                size = Some(u64::from(u32::from_le_bytes(b)));
+            } else if let Some(v) = field.strip_prefix(b"compression=") {
+                compression = Some(v);
+            }
+            p += 4 + l;
+        }
+        if op == Some(0x05)
+            && let Some(size) = size
+        {
+            let stored = data_len as u64;
+            let limit = match compression {
+                Some(b"none") => stored,
+                _ => stored
+                    .saturating_mul(MAX_COMPRESSION_RATIO)
+                    .saturating_add(4096),
+            };
+            if size > limit {
+                return Err(bad(&format!(
+                    "chunk declares {size} decompressed bytes for {stored} stored bytes: corrupt"
+                )));
+            }
+        }
+        at = data_end;
+    }
+    Ok(())
+}
+
 /// Reads a ROS 1 bag into a [`Recording`].
 pub fn read_ros1_bag(path: &Path, options: &ReaderOptions) -> Result<Recording, RosError> {
     read_ros1_bag_with_account(path, options).map(|(r, _)| r)
@@ -93,7 +170,8 @@ pub fn read_ros1_bag(path: &Path, options: &ReaderOptions) -> Result<Recording, 
 /// The bag's topics with their types and message counts, from its index, and its time span
 /// (ns) when it has messages.
 pub fn ros1_topics(path: &Path) -> Result<TopicTable, RosError> {
-    check_header(path)?;
+    let (start, index_pos) = check_header(path)?;
+    check_chunk_sizes(path, start, index_pos)?;
     let bag = RosBag::new(path).map_err(|e| RosError::format(path, "byte 0", e.to_string()))?;
     let mut conns: Vec<(u32, TopicInfo)> = Vec::new();
     let mut span: Option<(i64, i64)> = None;
