@@ -55,6 +55,13 @@ fn check_chunk_sizes(bytes: &[u8], path: &Path) -> Result<(), RosError> {
         if op == OP_FOOTER {
             break;
         }
+        check_record_fields(op, &bytes[body..end]).map_err(|()| {
+            RosError::format(
+                path,
+                format!("byte {at}"),
+                format!("a length inside the record (opcode 0x{op:02x}) runs past its end"),
+            )
+        })?;
         if op == OP_CHUNK {
             // message_start_time u64, message_end_time u64, uncompressed_size u64,
             // uncompressed_crc u32, compression string, records (u64 length + bytes)
@@ -90,7 +97,8 @@ fn check_chunk_sizes(bytes: &[u8], path: &Path) -> Result<(), RosError> {
                 .map_err(|e| bad(format!("chunk does not decompress: {e}")))?;
             check_inner_records(&content).map_err(|off| {
                 bad(format!(
-                    "record at offset {off} inside the chunk runs past the chunk's end"
+                    "record at offset {off} inside the chunk is corrupt: its length, or a \
+                     length inside it, runs past its end"
                 ))
             })?;
         }
@@ -142,6 +150,93 @@ fn check_inner_records(content: &[u8]) -> Result<(), usize> {
             .and_then(|l| (at + 9).checked_add(l))
             .filter(|&e| e <= content.len())
             .ok_or(at)?;
+        check_record_fields(content[at], &content[at + 9..end]).map_err(|_| at)?;
+        at = end;
+    }
+    Ok(())
+}
+
+/// One field of a record, as the MCAP specification lays them out.
+#[derive(Clone, Copy)]
+enum Field {
+    /// A fixed-size field of this many bytes.
+    Fixed(usize),
+    /// A `u32` byte length, then that many bytes (strings, byte arrays, fixed-size maps).
+    Len32,
+    /// A `u64` byte length, then that many bytes.
+    Len64,
+    /// A `u32` byte length, then `(string, string)` entries filling exactly that length.
+    StringMap,
+}
+
+/// The length-prefixed layout of the records the reader may meet (Message and Chunk have
+/// none to check here); `None` for opcodes without one.
+fn record_layout(op: u8) -> Option<&'static [Field]> {
+    use Field::{Fixed, Len32, Len64, StringMap};
+    Some(match op {
+        0x01 => &[Len32, Len32],                      // Header
+        0x03 => &[Fixed(2), Len32, Len32, Len32],     // Schema
+        0x04 => &[Fixed(4), Len32, Len32, StringMap], // Channel
+        0x07 => &[Fixed(2), Len32],                   // Message Index
+        0x08 => &[Fixed(32), Len32, Fixed(8), Len32], // Chunk Index (up to compression)
+        0x09 => &[Fixed(16), Len32, Len32, Len64],    // Attachment
+        0x0A => &[Fixed(40), Len32, Len32],           // Attachment Index
+        0x0B => &[Fixed(42), Len32],                  // Statistics
+        0x0C => &[Len32, StringMap],                  // Metadata
+        0x0D => &[Fixed(16), Len32],                  // Metadata Index
+        _ => return None,
+    })
+}
+
+/// Checks that every length-prefixed field of a record ends inside the record: the `mcap`
+/// crate reserves a declared string or array length before reading it, so one corrupt
+/// length would otherwise abort the process on a failed allocation. A record too short for
+/// its fixed fields is left to the crate, which reports it.
+fn check_record_fields(op: u8, record: &[u8]) -> Result<(), ()> {
+    let Some(layout) = record_layout(op) else {
+        return Ok(());
+    };
+    let mut at = 0usize;
+    for field in layout {
+        let (prefix, len) = match field {
+            Field::Fixed(n) => (0, *n as u64),
+            Field::Len32 | Field::StringMap => match record.get(at..at + 4) {
+                Some(b) => (4, u64::from(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))),
+                None => return Ok(()),
+            },
+            Field::Len64 => match record
+                .get(at..at + 8)
+                .and_then(|b| <[u8; 8]>::try_from(b).ok())
+            {
+                Some(b) => (8, u64::from_le_bytes(b)),
+                None => return Ok(()),
+            },
+        };
+        let start = at + prefix;
+        let end = usize::try_from(len)
+            .ok()
+            .and_then(|l| start.checked_add(l))
+            .filter(|&e| e <= record.len());
+        let Some(end) = end else {
+            // A fixed field cut short is the crate's to report; a length is ours.
+            return if prefix == 0 { Ok(()) } else { Err(()) };
+        };
+        if matches!(field, Field::StringMap) {
+            let map = &record[start..end];
+            let mut k = 0usize;
+            while k < map.len() {
+                for _ in 0..2 {
+                    let n = map
+                        .get(k..k + 4)
+                        .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize)
+                        .ok_or(())?;
+                    k = (k + 4)
+                        .checked_add(n)
+                        .filter(|&e| e <= map.len())
+                        .ok_or(())?;
+                }
+            }
+        }
         at = end;
     }
     Ok(())
@@ -377,4 +472,39 @@ pub fn write_mcap_with(
     w.finish().map_err(mcap_err)?;
     super::write_bytes_atomic(path, w.into_inner().get_ref())?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A string field as MCAP writes it: `u32` length, then the bytes.
+    fn string(s: &[u8]) -> Vec<u8> {
+        let mut out = (s.len() as u32).to_le_bytes().to_vec();
+        out.extend_from_slice(s);
+        out
+    }
+
+    #[test]
+    fn record_fields_must_end_inside_their_record() {
+        let header = [string(b"ros2"), string(b"pfslam")].concat();
+        assert!(check_record_fields(0x01, &header).is_ok());
+        // The second string claims 4 GiB in a 20-byte record.
+        let mut huge = string(b"ros2");
+        huge.extend_from_slice(&u32::MAX.to_le_bytes());
+        huge.extend_from_slice(b"pfslam");
+        assert!(check_record_fields(0x01, &huge).is_err());
+        // A channel whose metadata map holds a string running past the map.
+        let mut channel = vec![1, 0, 1, 0];
+        channel.extend([string(b"/scan"), string(b"cdr")].concat());
+        let entry = [string(b"k"), 100u32.to_le_bytes().to_vec()].concat();
+        channel.extend(string(&entry));
+        assert!(check_record_fields(0x04, &channel).is_err());
+        let entry = [string(b"k"), string(b"v")].concat();
+        let mut good = vec![1, 0, 1, 0];
+        good.extend([string(b"/scan"), string(b"cdr"), string(&entry)].concat());
+        assert!(check_record_fields(0x04, &good).is_ok());
+        // Messages carry no length to check.
+        assert!(check_record_fields(0x05, &[0; 3]).is_ok());
+    }
 }
