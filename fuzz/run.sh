@@ -17,7 +17,8 @@ build() {
 
 fuzz_one() {
   local t="$1" secs="$2"
-  [[ -d "$here/corpus/$t" ]] || { echo "unknown target $t (one of: ${targets[*]})" >&2; exit 2; }
+  [[ " ${targets[*]} " == *" $t "* ]] || { echo "unknown target $t (one of: ${targets[*]})" >&2; exit 2; }
+  [[ -d "$here/corpus/$t" ]] || { echo "no seeds for $t: run fuzz/scripts/seeds.sh first (it cuts them from \$PFSLAM_DATA)" >&2; exit 2; }
   local out="$here/out/$t" scratch
   scratch="$(mktemp -d "${TMPDIR:-/tmp}/pfslam-fuzz.XXXXXX")"
   mkdir -p "$out"
