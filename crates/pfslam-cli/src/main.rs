@@ -41,6 +41,9 @@ pub enum Command {
     Experiment(cmd::experiment::Args),
     /// Particle-filter SLAM on a dataset: trajectory, maps, summary.
     Run(cmd::run::Args),
+    /// Monte Carlo localisation in a saved map (map_server pgm + yaml from any tool):
+    /// trajectory, map with the path, summary.
+    Localize(cmd::localize::Args),
     /// SLAM on every Freiburg recording with relations: one accuracy table.
     Benchmark(cmd::benchmark::Args),
     /// End-to-end speed: simulate the full-size car recording once, then time read -> SLAM
@@ -65,6 +68,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Perturb(a)) => cmd::perturb::run(a),
         Some(Command::PrintConfig(a)) => cmd::print_config::run(a),
         Some(Command::Run(a)) => cmd::run::run(a),
+        Some(Command::Localize(a)) => cmd::localize::run(a),
         Some(Command::Experiment(a)) => cmd::experiment::run(a),
         Some(Command::Eval(a)) => cmd::eval::run(a),
         Some(Command::Simulate(a)) => cmd::simulate::run(a),

@@ -21,6 +21,8 @@ pub struct Config {
     pub stereo: crate::stereo::StereoOptions,
     /// Pose-graph back end: loop closure after the filter (`[graph]`).
     pub graph: crate::graph::GraphOptions,
+    /// Monte Carlo localisation in a fixed map (`[localize]`, `pfslam localize`).
+    pub localize: crate::localize::LocalizeOptions,
 }
 
 /// Errors of loading a configuration.
@@ -69,6 +71,7 @@ impl Config {
             .map_err(|e| err("filter")(e.to_string()))?;
         self.graph.validate().map_err(err("graph"))?;
         self.sim.validate().map_err(|e| err("sim")(e.to_string()))?;
+        self.localize.validate().map_err(err("localize"))?;
         Ok(())
     }
 

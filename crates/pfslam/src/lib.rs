@@ -38,6 +38,7 @@ pub mod filter;
 pub mod geometry;
 pub mod graph;
 pub mod io;
+pub mod localize;
 pub mod map;
 pub mod motion;
 pub mod pipeline;

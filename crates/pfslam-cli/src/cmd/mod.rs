@@ -22,6 +22,7 @@ pub mod experiment;
 pub mod info;
 pub mod input;
 pub mod interrupt;
+pub mod localize;
 pub mod map;
 pub mod output;
 pub mod perturb;

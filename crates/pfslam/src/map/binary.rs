@@ -69,6 +69,24 @@ impl BinaryMap {
         }
         n
     }
+
+    /// The raster as an occupancy grid with default log-odds parameters (occupied cells at
+    /// the upper clamp, free ones at the lower, unknown untouched), e.g. to draw a map read
+    /// from a file with the same renderer as a built one.
+    pub fn to_grid(&self) -> Result<OccupancyGrid, super::MapError> {
+        let mut grid = OccupancyGrid::with_params(self.limits, super::LogOddsParams::default());
+        let f = *grid.fixed();
+        for (k, s) in self.cells.iter().enumerate() {
+            let value = match s {
+                CellState::Occupied => f.max,
+                CellState::Free => f.min,
+                CellState::Unknown => continue,
+            };
+            let cell = Cell::new((k % self.width) as i32, (k / self.width) as i32);
+            grid.set_fixed(cell, value)?;
+        }
+        Ok(grid)
+    }
 }
 
 impl OccupancyGrid {

@@ -1,0 +1,71 @@
+//! The localisation's self-check: signals a run measures on itself, and a verdict (`ok` /
+//! `suspect`) with reasons, as `pfslam run` gives for SLAM.
+
+use super::LocalizeResult;
+use crate::quality::{QualityStatus, SUSPECT_FREE_SHARE};
+use serde::Serialize;
+
+/// What a localisation run measured on itself.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LocalizeSignals {
+    /// Share of the returns at the update poses landing in cells the map calls free.
+    pub free_share: f64,
+    /// The filter was converged at the end.
+    pub converged: bool,
+    /// Times a converged filter lost its convergence.
+    pub convergence_losses: usize,
+    /// Median over the updates of the geometric mean likelihood of a return.
+    pub median_fit: f64,
+}
+
+/// The verdict with its reasons and signals (`summary.json`'s `"quality"`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LocalizeQuality {
+    /// The verdict.
+    pub status: QualityStatus,
+    /// Why it is suspect, one sentence each (empty when ok).
+    pub reasons: Vec<String>,
+    /// The measured signals.
+    pub signals: LocalizeSignals,
+}
+
+impl LocalizeQuality {
+    /// The verdict on a run.
+    pub fn assess(result: &LocalizeResult) -> Self {
+        let mut fits: Vec<f64> = result.updates.iter().map(|u| u.fit).collect();
+        fits.sort_by(f64::total_cmp);
+        let signals = LocalizeSignals {
+            free_share: result.free_share,
+            converged: result.converged_from_ns().is_some(),
+            convergence_losses: result.convergence_losses(),
+            median_fit: fits.get(fits.len() / 2).copied().unwrap_or(0.0),
+        };
+        let mut reasons = Vec::new();
+        if !signals.converged {
+            reasons.push("the particles had not gathered in one place at the end".to_string());
+        }
+        if signals.convergence_losses > 0 {
+            reasons.push(format!(
+                "the filter lost its fix {} time(s) and had to search again",
+                signals.convergence_losses
+            ));
+        }
+        if signals.free_share > SUSPECT_FREE_SHARE {
+            reasons.push(format!(
+                "{:.1} % of the scan returns land in cells the map calls free (above {:.0} %): \
+                 the scans do not fit the map where the filter put them",
+                100.0 * signals.free_share,
+                100.0 * SUSPECT_FREE_SHARE
+            ));
+        }
+        LocalizeQuality {
+            status: if reasons.is_empty() {
+                QualityStatus::Ok
+            } else {
+                QualityStatus::Suspect
+            },
+            reasons,
+            signals,
+        }
+    }
+}

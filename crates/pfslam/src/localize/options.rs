@@ -1,0 +1,148 @@
+//! Options of Monte Carlo localisation (`[localize]`).
+
+use serde::{Deserialize, Serialize};
+
+/// Monte Carlo localisation in a fixed map (`pfslam localize`). AMCL's structure: the
+/// odometry motion model, a likelihood field, KLD-adaptive resampling and augmented MCL's
+/// random particles when the fit collapses.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LocalizeOptions {
+    /// Fewest particles KLD sampling may keep.
+    pub min_particles: usize,
+    /// Most particles; also the count spread over the free space for global localisation.
+    pub max_particles: usize,
+    /// KLD sampling: the bound on the error between the sample and the true posterior.
+    pub kld_error: f64,
+    /// KLD sampling: the upper standard normal quantile of the bound's confidence (2.33: 99 %).
+    pub kld_z: f64,
+    /// KLD sampling: the histogram's cell side (m) and yaw bin (deg).
+    pub kld_bin: [f64; 2],
+    /// Likelihood field: standard deviation of a return about the nearest wall while tracking
+    /// (m).
+    pub sigma_hit_m: f64,
+    /// The same while the filter has not converged (m): broad, so that particles near but
+    /// not at the true pose still stand out during global localisation and recovery.
+    pub global_sigma_hit_m: f64,
+    /// While the filter has not converged, the likelihood is tempered so that this share of
+    /// the particles stays effective after weighing: the evidence of several updates decides
+    /// between candidate places, not the first scan's noise.
+    pub global_neff_share: f64,
+    /// The same while tracking (0: never tempered).
+    pub tracking_neff_share: f64,
+    /// Likelihood field: weight of the hit model; the rest is a uniform floor over the range,
+    /// which keeps returns off the map (people, furniture moved) from vetoing a pose.
+    pub z_hit: f64,
+    /// Distances to the nearest wall are clamped here (m): the field's reach.
+    pub max_distance_m: f64,
+    /// Shorter returns are dropped (m). Not `[map.scan] range_min_m`, whose default suits a
+    /// car that sees its own body: indoors, most returns of a corridor lie within 2 m. A
+    /// robot's own body, seen at the same place by every particle, weighs them all alike.
+    pub range_min_m: f64,
+    /// Returns used per update, evenly spaced over the scan.
+    pub max_beams: usize,
+    /// The filter updates once the odometry moved this far (m) or turned this much (deg)
+    /// since its last update; a robot at rest is not updated (AMCL's rule, which keeps
+    /// repeated scans of one view from collapsing the particles).
+    pub update_min: [f64; 2],
+    /// Thrun's odometry motion model noise: rotation from rotation (rad²/rad²), rotation from
+    /// translation (rad²/m²), translation from translation (m²/m²), translation from rotation
+    /// (m²/rad²).
+    pub motion_alphas: [f64; 4],
+    /// Augmented MCL: rates of the slow and the fast average of the fit (the geometric mean
+    /// likelihood of a return).
+    pub recovery_alphas: [f64; 2],
+    /// Random particles are injected with probability `1 - fast / (ratio * slow)` once the
+    /// fast average falls below this share of the slow one (a kidnapped robot). Thrun's
+    /// ratio of 1 injects at every dip of the fit (a crowd, a fast turn), and a random
+    /// particle that happens to fit a sharp likelihood better than a briefly disturbed
+    /// cluster wins the estimate.
+    pub recovery_fit_ratio: f64,
+    /// The filter has converged when the heaviest cluster holds this share of the weight.
+    pub converged_mass: f64,
+    /// A cluster's extent about its centre: distance (m) and yaw (deg).
+    pub cluster_radius: [f64; 2],
+    /// With `--initial-pose`: the standard deviations of the initial particles about it
+    /// (m, deg).
+    pub initial_sigma: [f64; 2],
+}
+
+impl Default for LocalizeOptions {
+    fn default() -> Self {
+        LocalizeOptions {
+            min_particles: 300,
+            max_particles: 20_000,
+            kld_error: 0.02,
+            kld_z: 2.33,
+            kld_bin: [0.25, 10.0],
+            sigma_hit_m: 0.1,
+            global_sigma_hit_m: 0.3,
+            global_neff_share: 0.1,
+            tracking_neff_share: 0.0,
+            z_hit: 0.9,
+            max_distance_m: 2.0,
+            range_min_m: 0.1,
+            max_beams: 60,
+            update_min: [0.1, 5.0],
+            motion_alphas: [0.1, 0.05, 0.05, 0.05],
+            recovery_alphas: [0.001, 0.1],
+            recovery_fit_ratio: 0.5,
+            converged_mass: 0.9,
+            cluster_radius: [1.0, 30.0],
+            initial_sigma: [0.1, 3.0],
+        }
+    }
+}
+
+impl LocalizeOptions {
+    /// Checks every option; the message names the key.
+    pub fn validate(&self) -> Result<(), String> {
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        let unit = |v: f64| v.is_finite() && v > 0.0 && v < 1.0;
+        let checks: [(bool, &str); 17] = [
+            (
+                self.recovery_fit_ratio > 0.0 && self.recovery_fit_ratio <= 1.0,
+                "recovery_fit_ratio must lie in (0, 1]",
+            ),
+            (unit(self.global_neff_share), "global_neff_share must lie in (0, 1)"),
+            (self.min_particles >= 1, "min_particles must be at least 1"),
+            (
+                self.max_particles >= self.min_particles,
+                "max_particles must be at least min_particles",
+            ),
+            (unit(self.kld_error), "kld_error must lie in (0, 1)"),
+            (positive(self.kld_z), "kld_z must be positive"),
+            (self.kld_bin.iter().all(|&v| positive(v)), "kld_bin must be positive"),
+            (positive(self.sigma_hit_m), "sigma_hit_m must be positive"),
+            (positive(self.global_sigma_hit_m), "global_sigma_hit_m must be positive"),
+            (unit(self.z_hit), "z_hit must lie in (0, 1)"),
+            (positive(self.max_distance_m), "max_distance_m must be positive"),
+            (self.max_beams >= 1, "max_beams must be at least 1"),
+            (
+                self.range_min_m.is_finite() && self.range_min_m >= 0.0,
+                "range_min_m must be finite and non-negative",
+            ),
+            (
+                self.update_min.iter().all(|&v| v.is_finite() && v >= 0.0)
+                    && self.motion_alphas.iter().all(|&v| v.is_finite() && v >= 0.0),
+                "update_min and motion_alphas must be finite and non-negative",
+            ),
+            (
+                self.recovery_alphas[0] >= 0.0
+                    && self.recovery_alphas[0] < self.recovery_alphas[1]
+                    && self.recovery_alphas[1] <= 1.0,
+                "recovery_alphas must satisfy 0 <= slow < fast <= 1",
+            ),
+            (unit(self.converged_mass), "converged_mass must lie in (0, 1)"),
+            (
+                self.cluster_radius.iter().all(|&v| positive(v))
+                    && self.initial_sigma.iter().all(|&v| v.is_finite() && v >= 0.0),
+                "cluster_radius must be positive and initial_sigma non-negative",
+            ),
+        ];
+        match checks.iter().find(|(ok, _)| !ok) {
+            Some((_, message)) => Err((*message).to_string()),
+            None => Ok(()),
+        }
+    }
+}

@@ -1,0 +1,351 @@
+//! The localisation loop over a recording: move the particles by the odometry between
+//! updates, update once the robot moved enough, and output a pose at every scan (the last
+//! estimate moved on by the odometry).
+
+use super::estimate::{ClusterShape, Estimate, estimate};
+use super::field::{FieldModel, LikelihoodField, Sharpness};
+use super::kld::KldBins;
+use super::mcl::{FreeSpace, ParticleSet, ResamplePlan, Streams};
+use super::{LocalizeError, LocalizeOptions};
+use crate::geometry::{Pose2, StampedPose2, wrap_angle};
+use crate::map::{BinaryMap, CellState, PlanarScan, ScanOptions, ScanProjector};
+use crate::motion::odometry_model::{OdometryModel, OdometryModelOptions};
+use crate::sensors::Recording;
+use serde::Serialize;
+
+/// One filter update.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct UpdateRecord {
+    /// The scan's stamp (ns).
+    pub stamp_ns: i64,
+    /// Particles weighed.
+    pub particles: usize,
+    /// Particles drawn at random over the free space by the resampling that followed.
+    pub injected: usize,
+    /// The heaviest cluster's share of the weight.
+    pub mass: f64,
+    /// Geometric mean likelihood of a return over the particles (the fit augmented MCL
+    /// tracks).
+    pub fit: f64,
+    /// The heaviest cluster held `converged_mass` of the weight: the filter tracks one place
+    /// (else it searches, with the broad likelihood).
+    pub converged: bool,
+}
+
+/// What a localisation run produced.
+#[derive(Debug, Clone)]
+pub struct LocalizeResult {
+    /// A pose at every scan from the first inside the odometry's span.
+    pub trajectory: Vec<StampedPose2>,
+    /// Every update.
+    pub updates: Vec<UpdateRecord>,
+    /// Scans outside the odometry's time span (no pose).
+    pub scans_outside_odometry: usize,
+    /// Scans without a return after preprocessing (pose carried by the odometry).
+    pub scans_without_returns: usize,
+    /// Share of the returns at the update poses that land in cells the map calls free.
+    pub free_share: f64,
+}
+
+impl LocalizeResult {
+    /// The stamp of the update from which the filter stayed converged to the end (`None`
+    /// when it was not converged at the end).
+    pub fn converged_from_ns(&self) -> Option<i64> {
+        let last_unconverged = self.updates.iter().rposition(|u| !u.converged);
+        match last_unconverged {
+            Some(k) => self.updates.get(k + 1).map(|u| u.stamp_ns),
+            None => self.updates.first().map(|u| u.stamp_ns),
+        }
+    }
+
+    /// The number of times a converged filter lost its convergence.
+    pub fn convergence_losses(&self) -> usize {
+        self.updates
+            .windows(2)
+            .filter(|w| w[0].converged && !w[1].converged)
+            .count()
+    }
+}
+
+/// Localises `recording` in `map`: from `initial_pose` (world frame of the map) when given,
+/// else globally over the map's free space.
+pub fn localize(
+    recording: &Recording,
+    map: &BinaryMap,
+    options: &LocalizeOptions,
+    scan_options: &ScanOptions,
+    initial_pose: Option<Pose2>,
+    seed: u64,
+) -> Result<LocalizeResult, LocalizeError> {
+    options.validate().map_err(LocalizeError::Options)?;
+    let free = FreeSpace::new(map).ok_or(LocalizeError::NoFreeSpace)?;
+    let scans = &recording.scans;
+    let first = (0..scans.len())
+        .find(|&i| recording.odometry.pose_at(scans.stamps_ns[i]).is_some())
+        .ok_or_else(|| LocalizeError::Input {
+            name: recording.name.clone(),
+            message: "no scan lies within the odometry's time span".into(),
+        })?;
+    let field = LikelihoodField::new(
+        map,
+        &FieldModel {
+            sigma_hit_m: [options.sigma_hit_m, options.global_sigma_hit_m],
+            z_hit: options.z_hit,
+            max_distance_m: options.max_distance_m,
+            range_max_m: recording.lidar.range_max_m as f64,
+        },
+    );
+    let projector = ScanProjector::new(
+        &recording.lidar,
+        &recording.body_from_lidar,
+        &ScanOptions {
+            densify_max_gap_m: None,
+            range_min_m: options.range_min_m as f32,
+            ..*scan_options
+        },
+    )?;
+    let mut state = State::new(options, &free, initial_pose, seed);
+    let mut out = Outputs::default();
+    let mut io = ScanIo {
+        projector,
+        body: PlanarScan::default(),
+        points: Vec::new(),
+    };
+    for i in first..scans.len() {
+        let stamp_ns = scans.stamps_ns[i];
+        let Some(odom) = recording.odometry.pose_at(stamp_ns) else {
+            out.scans_outside_odometry += 1;
+            continue;
+        };
+        if state.wants_update(&odom) {
+            io.projector.aim(recording, i);
+            io.projector.to_body(scans.ranges(i), &mut io.body)?;
+            io.select(options.max_beams);
+            if io.points.is_empty() {
+                out.scans_without_returns += 1;
+            } else {
+                let record = state.update(&field, &free, &io.points, stamp_ns, &odom);
+                out.updates.push(record);
+                out.count_free(map, &state.estimate.pose, &io.body);
+            }
+        }
+        out.trajectory.push(StampedPose2 {
+            stamp_ns,
+            pose: state.pose_at(&odom),
+        });
+    }
+    out.scans_outside_odometry += first;
+    Ok(out.finish())
+}
+
+/// Reused scan buffers.
+struct ScanIo {
+    projector: ScanProjector,
+    body: PlanarScan,
+    points: Vec<[f64; 2]>,
+}
+
+impl ScanIo {
+    /// Up to `max_beams` returns of the body scan, evenly spaced.
+    fn select(&mut self, max_beams: usize) {
+        self.points.clear();
+        let hits: Vec<[f64; 2]> = self
+            .body
+            .points
+            .iter()
+            .filter(|p| p.hit)
+            .map(|p| [p.x_m, p.y_m])
+            .collect();
+        let step = hits.len().div_ceil(max_beams).max(1);
+        self.points.extend(hits.iter().step_by(step));
+    }
+}
+
+/// Outputs gathered along the run.
+#[derive(Default)]
+struct Outputs {
+    trajectory: Vec<StampedPose2>,
+    updates: Vec<UpdateRecord>,
+    scans_outside_odometry: usize,
+    scans_without_returns: usize,
+    returns: usize,
+    returns_in_free: usize,
+}
+
+impl Outputs {
+    fn count_free(&mut self, map: &BinaryMap, pose: &Pose2, body: &PlanarScan) {
+        for p in body.points.iter().filter(|p| p.hit) {
+            let (x, y) = pose.transform_point(p.x_m, p.y_m);
+            self.returns += 1;
+            if map.state_at(x, y) == CellState::Free {
+                self.returns_in_free += 1;
+            }
+        }
+    }
+
+    fn finish(self) -> LocalizeResult {
+        LocalizeResult {
+            trajectory: self.trajectory,
+            updates: self.updates,
+            scans_outside_odometry: self.scans_outside_odometry,
+            scans_without_returns: self.scans_without_returns,
+            free_share: self.returns_in_free as f64 / self.returns.max(1) as f64,
+        }
+    }
+}
+
+/// The filter between scans.
+struct State<'a> {
+    options: &'a LocalizeOptions,
+    motion: OdometryModelOptions,
+    particles: ParticleSet,
+    streams: Streams,
+    bins: KldBins,
+    /// The odometry at the last update (`None` before the first).
+    odom_at_update: Option<Pose2>,
+    estimate: Estimate,
+    /// Tracking one place (see [`UpdateRecord::converged`]).
+    converged: bool,
+    /// Augmented MCL's slow and fast averages of the fit (`None` before the first update).
+    averages: Option<(f64, f64)>,
+}
+
+impl<'a> State<'a> {
+    fn new(
+        options: &'a LocalizeOptions,
+        free: &FreeSpace,
+        initial_pose: Option<Pose2>,
+        seed: u64,
+    ) -> Self {
+        let mut streams = Streams::new(seed);
+        let particles = match initial_pose {
+            Some(p) => ParticleSet::around(
+                &p,
+                (options.initial_sigma[0], options.initial_sigma[1].to_radians()),
+                options.max_particles.min(options.min_particles.max(1000)),
+                &mut streams.sequential,
+            ),
+            None => ParticleSet::over(free, options.max_particles, &mut streams.sequential),
+        };
+        let [alpha1, alpha2, alpha3, alpha4] = options.motion_alphas;
+        State {
+            options,
+            motion: OdometryModelOptions {
+                model: OdometryModel::Thrun,
+                alpha1,
+                alpha2,
+                alpha3,
+                alpha4,
+                ..OdometryModelOptions::default()
+            },
+            particles,
+            streams,
+            bins: KldBins::new(options.kld_bin[0], options.kld_bin[1].to_radians()),
+            odom_at_update: None,
+            estimate: Estimate {
+                pose: initial_pose.unwrap_or(Pose2::IDENTITY),
+                mass: 0.0,
+                spread_m: f64::INFINITY,
+            },
+            converged: false,
+            averages: None,
+        }
+    }
+
+    /// True at the first scan, and once the odometry moved or turned enough since the last
+    /// update.
+    fn wants_update(&self, odom: &Pose2) -> bool {
+        let Some(last) = self.odom_at_update else {
+            return true;
+        };
+        let d = last.between(odom);
+        d.translation_norm_m() >= self.options.update_min[0]
+            || wrap_angle(d.yaw_rad).abs() >= self.options.update_min[1].to_radians()
+    }
+
+    /// The pose at a scan with odometry `odom`: the last estimate moved by the odometry since.
+    fn pose_at(&self, odom: &Pose2) -> Pose2 {
+        match self.odom_at_update {
+            Some(last) => self.estimate.pose.compose(&last.between(odom)),
+            None => self.estimate.pose,
+        }
+    }
+
+    /// Predict, weigh, estimate, resample.
+    fn update(
+        &mut self,
+        field: &LikelihoodField,
+        free: &FreeSpace,
+        points: &[[f64; 2]],
+        stamp_ns: i64,
+        odom: &Pose2,
+    ) -> UpdateRecord {
+        if let Some(last) = self.odom_at_update {
+            self.particles
+                .predict(&self.motion, (&last, odom), &mut self.streams);
+        }
+        self.odom_at_update = Some(*odom);
+        let sharpness = if self.converged {
+            Sharpness::Tracking
+        } else {
+            Sharpness::Global
+        };
+        let weighed = self.particles.poses.len();
+        let neff_floor = Some(if self.converged {
+            self.options.tracking_neff_share
+        } else {
+            self.options.global_neff_share
+        });
+        let log_mean = self.particles.weigh(field, sharpness, points, neff_floor);
+        let fit = (log_mean / points.len() as f64).exp();
+        let inject_probability = self.track_fit(fit);
+        let o = self.options;
+        self.estimate = estimate(
+            &self.particles.poses,
+            &self.particles.weights,
+            &ClusterShape {
+                radius_m: o.cluster_radius[0],
+                yaw_rad: o.cluster_radius[1].to_radians(),
+            },
+        );
+        self.converged = self.estimate.mass >= o.converged_mass;
+        let resampled = self.particles.resample(
+            &ResamplePlan {
+                inject_probability,
+                min_particles: o.min_particles,
+                max_particles: o.max_particles,
+                kld_error: o.kld_error,
+                kld_z: o.kld_z,
+            },
+            &mut self.bins,
+            free,
+            &mut self.streams.sequential,
+        );
+        UpdateRecord {
+            stamp_ns,
+            particles: weighed,
+            injected: resampled.injected,
+            mass: self.estimate.mass,
+            fit,
+            converged: self.converged,
+        }
+    }
+
+    /// Updates augmented MCL's averages with `fit`; returns the probability of a random
+    /// particle, `1 - fast / (ratio * slow)` when the recent fit fell below that share of the
+    /// long-run one.
+    fn track_fit(&mut self, fit: f64) -> f64 {
+        let [a_slow, a_fast] = self.options.recovery_alphas;
+        let (slow, fast) = match self.averages {
+            None => (fit, fit),
+            Some((s, f)) => (s + a_slow * (fit - s), f + a_fast * (fit - f)),
+        };
+        self.averages = Some((slow, fast));
+        let ratio = self.options.recovery_fit_ratio;
+        if slow > 0.0 {
+            (1.0 - fast / (ratio * slow)).max(0.0)
+        } else {
+            0.0
+        }
+    }
+}
