@@ -531,20 +531,33 @@ impl Marks for TouchMarks<'_> {
     }
 }
 
+/// What every ray of one planar scan is traced with: the grid's limits and free margin, the
+/// scan, the sensor's cell and the mask the marks go to.
+pub(super) struct PlanarRays<'a, 'm> {
+    pub(super) limits: &'a MapLimits,
+    pub(super) world_scan: &'a PlanarScan,
+    pub(super) free_margin_cells: i32,
+    /// The sensor's cell.
+    pub(super) origin: Cell,
+    pub(super) layout: &'a MaskLayout<'m>,
+}
+
 /// Traces one ray of a planar scan (its free cells as [`ray_cells`] and the free margin
 /// say, then its end cell).
-#[allow(clippy::too_many_arguments)]
 #[inline(always)]
 pub(super) fn trace_planar_ray<M: Marks>(
-    limits: &MapLimits,
-    world_scan: &PlanarScan,
+    rays: &PlanarRays<'_, '_>,
     p: &ScanPoint,
-    free_margin_cells: i32,
-    origin: Cell,
-    layout: &MaskLayout<'_>,
     walk: &mut RayCells,
     marks: &mut M,
 ) {
+    let PlanarRays {
+        limits,
+        world_scan,
+        free_margin_cells,
+        origin,
+        layout,
+    } = *rays;
     let (end, clear_end, partial) = ray_cells(limits, world_scan, p);
     let margin = if p.hit { free_margin_cells } else { 0 };
     let n = (clear_end.i - origin.i)
