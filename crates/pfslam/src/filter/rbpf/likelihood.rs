@@ -94,8 +94,7 @@ fn likelihood_avx2(
     let limits = grid.limits();
     let (s, c) = pose.yaw_rad.sin_cos();
     // The closure inherits this function's AVX2.
-    let nearest =
-        |cells: &[i16], li, lj, u, v, i, j, occ| nearest_3x3_avx2(cells, li, lj, u, v, i, j, occ);
+    let nearest = |cells: &[i16], at, occ| nearest_3x3_avx2(cells, at, occ);
     let mut cache = TileCache::new();
     let mut total = 0.0;
     let (quads, rest) = points.as_chunks::<4>();
@@ -385,9 +384,7 @@ fn nearest4_avx2<'a>(
     // SAFETY: a store into a local array of four f64.
     unsafe { _mm256_storeu_pd(out.as_mut_ptr(), best) };
     if at.scalar != 0 {
-        let nearest = |cells: &[i16], li, lj, u, v, i, j, occ| {
-            nearest_3x3_avx2(cells, li, lj, u, v, i, j, occ)
-        };
+        let nearest = |cells: &[i16], at, occ| nearest_3x3_avx2(cells, at, occ);
         let mut us = [0.0f64; 4];
         let mut vs = [0.0f64; 4];
         // SAFETY: stores into local arrays of four f64.
@@ -450,7 +447,7 @@ fn point_best<'a>(
     model: &ObservationModel,
     (u, v, i, j): (f64, f64, i32, i32),
     cache: &mut TileCache<'a>,
-    nearest: &impl Fn(&[i16], i32, i32, f64, f64, i32, i32, i16) -> f64,
+    nearest: &impl Fn(&[i16], TilePoint, i16) -> f64,
 ) -> f64 {
     let (k, occ) = (model.kernel, model.occupied_fixed);
     let mut best = f64::INFINITY;
@@ -459,7 +456,15 @@ fn point_best<'a>(
         // The whole kernel lies in one tile: one directory lookup.
         if let Some(cells) = cache.get(grid, (i >> TILE_SHIFT, j >> TILE_SHIFT)) {
             if k == 1 {
-                best = nearest(cells, li, lj, u, v, i, j, occ);
+                let at = TilePoint {
+                    u_cells: u,
+                    v_cells: v,
+                    i,
+                    j,
+                    local_i: li,
+                    local_j: lj,
+                };
+                best = nearest(cells, at, occ);
             } else {
                 for dj in -k..=k {
                     let row = ((lj + dj) as usize) << TILE_SHIFT;
@@ -526,11 +531,33 @@ pub(super) fn likelihood_scalar(
     total
 }
 
-/// The smallest squared distance (cells) from `(u, v)` to the centre of an occupied cell of
-/// the 3x3 block around local cell `(li, lj)` (global `(i, j)`) of one tile; infinity if none.
-#[allow(clippy::too_many_arguments)]
+/// A point inside one tile's interior: where it lies, its cell, and the cell's place in the
+/// tile.
+#[derive(Clone, Copy)]
+struct TilePoint {
+    /// The point in cells (cell `(i, j)` covers `[i, i + 1) x [j, j + 1)`).
+    u_cells: f64,
+    v_cells: f64,
+    /// Its cell.
+    i: i32,
+    j: i32,
+    /// The cell's column and row in its tile.
+    local_i: i32,
+    local_j: i32,
+}
+
+/// The smallest squared distance (cells) from `at` to the centre of an occupied cell (above
+/// `occ`) of the 3x3 block around `at`'s cell in the tile `cells`; infinity if none.
 #[inline(always)]
-fn nearest_3x3(cells: &[i16], li: i32, lj: i32, u: f64, v: f64, i: i32, j: i32, occ: i16) -> f64 {
+fn nearest_3x3(cells: &[i16], at: TilePoint, occ: i16) -> f64 {
+    let TilePoint {
+        u_cells: u,
+        v_cells: v,
+        i,
+        j,
+        local_i: li,
+        local_j: lj,
+    } = at;
     let du2 = [-1, 0, 1].map(|d| {
         let du = u - (f64::from(i + d) + 0.5);
         du * du
@@ -562,20 +589,18 @@ fn nearest_3x3(cells: &[i16], li: i32, lj: i32, u: f64, v: f64, i: i32, j: i32, 
 /// values, taken in the same way (a candidate replaces the best only when smaller, so a NaN
 /// never does): the same bits.
 #[cfg(target_arch = "x86_64")]
-#[allow(clippy::too_many_arguments)]
 #[target_feature(enable = "avx2")]
 #[inline]
-fn nearest_3x3_avx2(
-    cells: &[i16],
-    li: i32,
-    lj: i32,
-    u: f64,
-    v: f64,
-    i: i32,
-    j: i32,
-    occ: i16,
-) -> f64 {
+fn nearest_3x3_avx2(cells: &[i16], at: TilePoint, occ: i16) -> f64 {
     use std::arch::x86_64::*;
+    let TilePoint {
+        u_cells: u,
+        v_cells: v,
+        i,
+        j,
+        local_i: li,
+        local_j: lj,
+    } = at;
     // Columns i - 1, i, i + 1 (and i + 2, masked off): `f64::from(i + d) + 0.5` exactly.
     let columns = _mm_add_epi32(_mm_set1_epi32(i), _mm_setr_epi32(-1, 0, 1, 2));
     let du = _mm256_sub_pd(
