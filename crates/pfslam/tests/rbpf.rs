@@ -44,7 +44,7 @@ fn ring(radius_m: f64, n: usize) -> pfslam::map::PlanarScan {
 /// particle, not a copy of the whole map.
 #[test]
 fn per_particle_maps_share_tiles() {
-    use pfslam::filter::rbpf::{Rbpf, RbpfOptions};
+    use pfslam::filter::rbpf::{Rbpf, RbpfOptions, UpdateScan};
     use pfslam::geometry::Pose2;
     use pfslam::map::{InsertScratch, MapOptions, OccupancyGrid};
     let mut grid = OccupancyGrid::new(&MapOptions {
@@ -64,8 +64,15 @@ fn per_particle_maps_share_tiles() {
     let small = ring(1.0, 90);
     let pts: Vec<[f64; 2]> = small.points.iter().map(|p| [p.x_m, p.y_m]).collect();
     let delta = Pose2::new(0.3, 0.0, 0.0);
-    pf.update(1, delta, &delta, &pts, &small, false, Default::default())
-        .unwrap();
+    let input = UpdateScan {
+        scan_index: 1,
+        odom_pose: delta,
+        odom_delta: &delta,
+        match_points_m: &pts,
+        body_scan: &small,
+        map_only: false,
+    };
+    pf.update(&input, Default::default()).unwrap();
     let m1 = pf.map_memory();
     eprintln!("tiles: base {base}, {m0:?} -> {m1:?}");
     assert!(m1.total_tiles >= 30 * base);

@@ -14,8 +14,8 @@ use pfslam::stereo::render::{
     WorldScene, ground_disparity, hash01, render_ground_pair, value_noise,
 };
 use pfslam::stereo::{
-    DisparityMap, MatcherOptions, PinholeIntrinsics, RgbdCamera, StereoOptions, StereoPipeline,
-    TextureMap, accumulate_rgbd, fit_plane_ransac,
+    DisparityMap, MatcherOptions, PinholeIntrinsics, RgbdCamera, RgbdFrame, StereoOptions,
+    StereoPipeline, TextureMap, accumulate_rgbd, fit_plane_ransac,
 };
 
 /// The synthetic ground: asphalt-like noise, three coloured areas and dashed lane markings,
@@ -531,16 +531,14 @@ fn rgbd_frame_colours_the_ground() {
     let options = StereoOptions::default();
     let mut map = TextureMap::new(MapLimits::new(0.1, 0.0, 0.0));
     let mut points = Vec::new();
-    let added = accumulate_rgbd(
-        &depth,
-        &colour,
-        &camera,
-        &body_from_depth,
-        &world_from_body,
-        &options,
-        &mut points,
-        &mut map,
-    );
+    let frame = RgbdFrame {
+        depth_m: &depth,
+        colour: &colour,
+        camera: &camera,
+        body_from_depth: &body_from_depth,
+        world_from_body: &world_from_body,
+    };
+    let added = accumulate_rgbd(&frame, &options, &mut points, &mut map);
     assert!(added > 5000, "{added}");
     // Every point lies on the ground and every cell has the colour of its side.
     assert!(points.iter().all(|p| p.p_m.z.abs() < 1e-6));
@@ -757,16 +755,14 @@ fn simulator_rgbd_frame_texture() {
     let limits = MapLimits::new(0.05, 0.0, 0.0);
     let mut map = TextureMap::new(limits);
     let mut points = Vec::new();
-    let added = accumulate_rgbd(
-        &depth,
-        &colour,
-        &camera,
-        &body_from_camera,
-        &world_from_body,
-        &StereoOptions::default(),
-        &mut points,
-        &mut map,
-    );
+    let frame = RgbdFrame {
+        depth_m: &depth,
+        colour: &colour,
+        camera: &camera,
+        body_from_depth: &body_from_camera,
+        world_from_body: &world_from_body,
+    };
+    let added = accumulate_rgbd(&frame, &StereoOptions::default(), &mut points, &mut map);
     // Every coloured cell against the true ground colour (mean over the cell).
     let mut err_sum = 0.0;
     let mut n = 0usize;

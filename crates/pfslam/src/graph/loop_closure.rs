@@ -207,20 +207,33 @@ impl Vouches {
     }
 }
 
+/// A loop closure to verify: a keyframe, at a pose, against the submap around a candidate.
+#[derive(Clone, Copy)]
+pub(super) struct ClosurePair<'a> {
+    /// The keyframe's index.
+    pub(super) keyframe: usize,
+    /// The candidate keyframe's index (before `keyframe`).
+    pub(super) candidate: usize,
+    /// The keyframe's pose in the world.
+    pub(super) pose: &'a Pose2,
+}
+
 /// Verifies keyframe `k` (at `pose`) against the submap around candidate `j` (keyframes at
 /// `poses`, only those before `k`): in `local` when given, and in `loop_win` when not or
 /// when the local search's best pose lies on its edge or scores too low.
-#[allow(clippy::too_many_arguments)]
 pub(super) fn verify_candidate(
     keyframes: &[Keyframe],
     poses: &[Pose2],
-    k: usize,
-    j: usize,
-    pose: &Pose2,
+    pair: &ClosurePair<'_>,
     loop_win: &SearchWindow,
     local: Option<&SearchWindow>,
     opts: &GraphOptions,
 ) -> Checked {
+    let ClosurePair {
+        keyframe: k,
+        candidate: j,
+        pose,
+    } = *pair;
     let kf = &keyframes[k];
     let lo = j.saturating_sub(opts.loop_submap_keyframes);
     let hi = (j + opts.loop_submap_keyframes + 1).min(k);

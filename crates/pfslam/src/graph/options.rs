@@ -376,10 +376,19 @@ impl GraphOptions {
         self.calibration
             .validate()
             .map_err(|m| format!("graph.calibration: {m}"))?;
-        let pos = |v: f64| v.is_finite() && v > 0.0;
         if !(self.max_free_share_ratio.is_finite() && self.max_free_share_ratio >= 0.0) {
             return Err("graph.max_free_share_ratio must be finite and >= 0".into());
         }
+        self.validate_positive()?;
+        self.validate_non_negative()?;
+        self.validate_unit_interval()?;
+        self.validate_windows()?;
+        self.validate_counts()
+    }
+
+    /// The lengths, angles, sigmas and thresholds that must be positive and finite.
+    fn validate_positive(&self) -> Result<(), String> {
+        let pos = |v: f64| v.is_finite() && v > 0.0;
         for (k, v) in [
             ("keyframe_distance_m", self.keyframe_distance_m),
             ("keyframe_angle_deg", self.keyframe_angle_deg),
@@ -424,6 +433,11 @@ impl GraphOptions {
                 return Err(format!("graph.{k} must be positive and finite"));
             }
         }
+        Ok(())
+    }
+
+    /// The ranges, windows, radii and widths that may be 0 (off or unbounded).
+    fn validate_non_negative(&self) -> Result<(), String> {
         for (k, v) in [
             ("range_min_m", self.range_min_m),
             ("sequential_window_m", self.sequential_window_m),
@@ -445,6 +459,11 @@ impl GraphOptions {
                 return Err(format!("graph.{k} must be finite and >= 0"));
             }
         }
+        Ok(())
+    }
+
+    /// The scores and ratios, in [0, 1].
+    fn validate_unit_interval(&self) -> Result<(), String> {
         for (k, v) in [
             ("sequential_min_score", self.sequential_min_score),
             ("loop_min_score", self.loop_min_score),
@@ -454,6 +473,11 @@ impl GraphOptions {
                 return Err(format!("graph.{k} must lie in [0, 1]"));
             }
         }
+        Ok(())
+    }
+
+    /// The search windows' upper bounds, and the local window within the loop window.
+    fn validate_windows(&self) -> Result<(), String> {
         if self.sequential_window_m > 2.0 || self.loop_window_m > 10.0 {
             return Err("graph: sequential_window_m <= 2 and loop_window_m <= 10".into());
         }
@@ -469,6 +493,11 @@ impl GraphOptions {
                     .into(),
             );
         }
+        Ok(())
+    }
+
+    /// The counts that must be at least 1.
+    fn validate_counts(&self) -> Result<(), String> {
         for (k, v) in [
             ("max_points", self.max_points),
             ("submap_keyframes", self.submap_keyframes),

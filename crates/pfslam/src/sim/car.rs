@@ -12,7 +12,7 @@
 //! pose of that scan.
 
 use super::path::{DriveProfile, Motion};
-use super::raycast::{BeamErrors, RayCaster, beam_directions, cast_scan};
+use super::raycast::{BeamErrors, RayCaster, ScanBeams, beam_directions, cast_scan};
 use super::scan_truth::ScanSurfaceTruth;
 use super::truth::TrueMap;
 use super::world::World;
@@ -188,9 +188,12 @@ pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, Si
                 let t = lidar_times[bi * SCAN_BLOCK + k].0;
                 let (pose, _) = motion.pose_at(t);
                 let wl = Rigid3::from_pose2(&pose).compose(&calib.body_from_lidar);
-                cast_scan(
-                    &caster, &wl, &beams, max_range, &errors, &mut rng, scan, None,
-                );
+                let sensor = ScanBeams {
+                    world_from_sensor: &wl,
+                    beams: &beams,
+                    max_range_m: max_range,
+                };
+                cast_scan(&caster, &sensor, &errors, &mut rng, scan, None);
             }
         });
     let mut ground_truth = Vec::with_capacity(lidar_times.len());

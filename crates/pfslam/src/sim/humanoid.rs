@@ -8,7 +8,7 @@
 //! `0` no return, `1` obstacle, `2` floor) — the floor hits are what a z filter must remove.
 
 use super::path::{DriveProfile, Motion};
-use super::raycast::{BeamErrors, RayCaster, beam_directions, cast_scan};
+use super::raycast::{BeamErrors, RayCaster, ScanBeams, beam_directions, cast_scan};
 use super::truth::TrueMap;
 use super::world::World;
 use super::{
@@ -217,16 +217,12 @@ pub fn simulate_humanoid(world: &World, opts: &SimOptions) -> Result<HumanoidSim
                 let world_from_body =
                     Rigid3::from_rpy(roll, pitch, pose.yaw_rad, [pose.x_m, pose.y_m, 0.0]);
                 let wl = world_from_body.compose(&cal.body_from_lidar(ny, np));
-                cast_scan(
-                    &caster,
-                    &wl,
-                    &beams,
-                    max_range,
-                    &errors,
-                    &mut rng,
-                    scan,
-                    Some(lab),
-                );
+                let sensor = ScanBeams {
+                    world_from_sensor: &wl,
+                    beams: &beams,
+                    max_range_m: max_range,
+                };
+                cast_scan(&caster, &sensor, &errors, &mut rng, scan, Some(lab));
             }
         });
     let mut lidar = ScanSet::new(nb);

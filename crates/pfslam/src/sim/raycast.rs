@@ -348,22 +348,35 @@ pub(crate) struct BeamErrors {
     pub(crate) max_range_prob: f64,
 }
 
+/// A sensor's beams at one pose.
+#[derive(Clone, Copy)]
+pub(crate) struct ScanBeams<'a> {
+    /// The sensor's pose in the world.
+    pub(crate) world_from_sensor: &'a crate::geometry::Rigid3,
+    /// Unit beam directions in the sensor frame.
+    pub(crate) beams: &'a [nalgebra::Vector3<f64>],
+    /// Beams that hit nothing closer read no return.
+    pub(crate) max_range_m: f64,
+}
+
 /// Casts one scan: unit beam directions `beams` in the sensor frame, from
 /// `world_from_sensor`. Writes ranges (f32 m, 0.0 = no return, with the errors) and, when
 /// given, what each beam truly hit ([`BEAM_NONE`], [`BEAM_OBSTACLE`], [`BEAM_FLOOR`]; the label
 /// is the truth even when the return was dropped).
-#[allow(clippy::too_many_arguments)]
 pub(crate) fn cast_scan(
     caster: &RayCaster,
-    world_from_sensor: &crate::geometry::Rigid3,
-    beams: &[nalgebra::Vector3<f64>],
-    max_range_m: f64,
+    sensor: &ScanBeams<'_>,
     err: &BeamErrors,
     rng: &mut rand_xoshiro::Xoshiro256PlusPlus,
     ranges: &mut [f32],
     mut labels: Option<&mut [u8]>,
 ) {
     use rand::RngExt;
+    let ScanBeams {
+        world_from_sensor,
+        beams,
+        max_range_m,
+    } = *sensor;
     let t = &world_from_sensor.translation;
     let o = [t[0], t[1], t[2]];
     for (k, (b, out)) in beams.iter().zip(ranges.iter_mut()).enumerate() {

@@ -271,7 +271,12 @@ pub fn compute_disparity(
         g.sum.clear();
         g.sum.resize(w * nd, 0);
     }
-    let (cl, cr) = (&ws.census_left, &ws.census_right);
+    let census = CensusPair {
+        left: &ws.census_left,
+        right: &ws.census_right,
+        width_px: w,
+        height_px: h,
+    };
     out.data
         .par_chunks_mut(rows_per_chunk * w)
         .zip(ws.chunks.par_iter_mut())
@@ -279,7 +284,7 @@ pub fn compute_disparity(
         .for_each(|(k, (rows, scratch))| {
             let y0 = k * rows_per_chunk;
             let y1 = (y0 + rows_per_chunk).min(h);
-            match_rows(cl, cr, w, h, y0, y1, opts, scratch, rows);
+            match_rows(&census, y0, y1, opts, scratch, rows);
         });
     Ok(())
 }
@@ -302,18 +307,30 @@ fn replace_row(colsum: &mut [u16], slot: &mut [u8], cl: &[u64], cr: &[u64], nd: 
     }
 }
 
-#[allow(clippy::too_many_arguments)]
+/// The census transforms of a rectified pair, row-major.
+#[derive(Clone, Copy)]
+struct CensusPair<'a> {
+    left: &'a [u64],
+    right: &'a [u64],
+    width_px: usize,
+    height_px: usize,
+}
+
+/// Matches rows `y0..y1` of `census` into `out_rows` (the disparities of those rows).
 fn match_rows(
-    cl: &[u64],
-    cr: &[u64],
-    w: usize,
-    h: usize,
+    census: &CensusPair<'_>,
     y0: usize,
     y1: usize,
     opts: &MatcherOptions,
     s: &mut ChunkScratch,
     out_rows: &mut [f32],
 ) {
+    let CensusPair {
+        left: cl,
+        right: cr,
+        width_px: w,
+        height_px: h,
+    } = *census;
     let nd = opts.num_disparities;
     let r = opts.window_radius;
     let row_at = |y: isize| -> usize { y.clamp(0, h as isize - 1) as usize };

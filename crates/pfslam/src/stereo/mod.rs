@@ -259,20 +259,35 @@ impl StereoPipeline {
     }
 }
 
-/// Adds an RGB-D frame's ground points to `map`: depth (m, row-major, registered to
-/// `camera.depth`), colour, the camera's mount `body_from_depth` and the pose
-/// `world_from_body`. Returns how many points were added.
-#[allow(clippy::too_many_arguments)]
+/// One RGB-D frame with its camera, mount and pose.
+#[derive(Debug, Clone, Copy)]
+pub struct RgbdFrame<'a> {
+    /// Depth (m, row-major, registered to `camera.depth`).
+    pub depth_m: &'a [f32],
+    /// The colour image.
+    pub colour: &'a RgbImage,
+    /// The camera's intrinsics and the colour camera's place.
+    pub camera: &'a RgbdCamera,
+    /// The depth camera's mount on the body.
+    pub body_from_depth: &'a Rigid3,
+    /// The body's pose in the world.
+    pub world_from_body: &'a Pose2,
+}
+
+/// Adds an RGB-D frame's ground points to `map`. Returns how many points were added.
 pub fn accumulate_rgbd(
-    depth_m: &[f32],
-    colour: &RgbImage,
-    camera: &RgbdCamera,
-    body_from_depth: &Rigid3,
-    world_from_body: &Pose2,
+    frame: &RgbdFrame<'_>,
     options: &StereoOptions,
     points: &mut Vec<ColouredPoint>,
     map: &mut TextureMap,
 ) -> usize {
+    let RgbdFrame {
+        depth_m,
+        colour,
+        camera,
+        body_from_depth,
+        world_from_body,
+    } = *frame;
     points.clear();
     let world_from_depth = Rigid3::from_pose2(world_from_body).compose(body_from_depth);
     ground::depth_to_points(

@@ -7,6 +7,10 @@ use crate::map::grid::TILE_SHIFT;
 use crate::map::limits::{MapLimits, floor_to_i32};
 use crate::map::{Cell, OccupancyGrid};
 
+#[cfg(target_arch = "x86_64")]
+use super::nearest::nearest_3x3_avx2;
+use super::nearest::{TilePoint, nearest_3x3};
+
 /// The smooth observation model on a log-odds grid, per point: `-d^2 / (2 sigma^2)` with `d`
 /// the distance from the point to the centre of the nearest occupied cell within `kernel`
 /// cells, floored at `no_hit` (also the value when none is found).
@@ -94,8 +98,7 @@ fn likelihood_avx2(
     let limits = grid.limits();
     let (s, c) = pose.yaw_rad.sin_cos();
     // The closure inherits this function's AVX2.
-    let nearest =
-        |cells: &[i16], li, lj, u, v, i, j, occ| nearest_3x3_avx2(cells, li, lj, u, v, i, j, occ);
+    let nearest = |cells: &[i16], at, occ| nearest_3x3_avx2(cells, at, occ);
     let mut cache = TileCache::new();
     let mut total = 0.0;
     let (quads, rest) = points.as_chunks::<4>();
@@ -385,9 +388,7 @@ fn nearest4_avx2<'a>(
     // SAFETY: a store into a local array of four f64.
     unsafe { _mm256_storeu_pd(out.as_mut_ptr(), best) };
     if at.scalar != 0 {
-        let nearest = |cells: &[i16], li, lj, u, v, i, j, occ| {
-            nearest_3x3_avx2(cells, li, lj, u, v, i, j, occ)
-        };
+        let nearest = |cells: &[i16], at, occ| nearest_3x3_avx2(cells, at, occ);
         let mut us = [0.0f64; 4];
         let mut vs = [0.0f64; 4];
         // SAFETY: stores into local arrays of four f64.
@@ -450,7 +451,7 @@ fn point_best<'a>(
     model: &ObservationModel,
     (u, v, i, j): (f64, f64, i32, i32),
     cache: &mut TileCache<'a>,
-    nearest: &impl Fn(&[i16], i32, i32, f64, f64, i32, i32, i16) -> f64,
+    nearest: &impl Fn(&[i16], TilePoint, i16) -> f64,
 ) -> f64 {
     let (k, occ) = (model.kernel, model.occupied_fixed);
     let mut best = f64::INFINITY;
@@ -459,7 +460,15 @@ fn point_best<'a>(
         // The whole kernel lies in one tile: one directory lookup.
         if let Some(cells) = cache.get(grid, (i >> TILE_SHIFT, j >> TILE_SHIFT)) {
             if k == 1 {
-                best = nearest(cells, li, lj, u, v, i, j, occ);
+                let at = TilePoint {
+                    u_cells: u,
+                    v_cells: v,
+                    i,
+                    j,
+                    local_i: li,
+                    local_j: lj,
+                };
+                best = nearest(cells, at, occ);
             } else {
                 for dj in -k..=k {
                     let row = ((lj + dj) as usize) << TILE_SHIFT;
@@ -524,90 +533,4 @@ pub(super) fn likelihood_scalar(
         }
     }
     total
-}
-
-/// The smallest squared distance (cells) from `(u, v)` to the centre of an occupied cell of
-/// the 3x3 block around local cell `(li, lj)` (global `(i, j)`) of one tile; infinity if none.
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-fn nearest_3x3(cells: &[i16], li: i32, lj: i32, u: f64, v: f64, i: i32, j: i32, occ: i16) -> f64 {
-    let du2 = [-1, 0, 1].map(|d| {
-        let du = u - (f64::from(i + d) + 0.5);
-        du * du
-    });
-    let mut best = f64::INFINITY;
-    for dj in -1..=1 {
-        let dv = v - (f64::from(j + dj) + 0.5);
-        let dv2 = dv * dv;
-        let start = (((lj + dj) as usize) << TILE_SHIFT) + (li - 1) as usize;
-        let Some(row) = cells.get(start..start + 3) else {
-            continue;
-        };
-        for (cell, du2) in row.iter().zip(du2) {
-            let d = if *cell > occ {
-                du2 + dv2
-            } else {
-                f64::INFINITY
-            };
-            // `d` is never NaN where `best` could be replaced (finite inputs; a NaN point
-            // compares false and keeps infinity, as `f64::min` would): a plain compare-select.
-            best = if d < best { d } else { best };
-        }
-    }
-    best
-}
-
-/// [`nearest_3x3`] in AVX2: a row's three cells and squared distances in one vector each
-/// (a fourth lane never occupied), a compare-select per row. The minimum of the same
-/// values, taken in the same way (a candidate replaces the best only when smaller, so a NaN
-/// never does): the same bits.
-#[cfg(target_arch = "x86_64")]
-#[allow(clippy::too_many_arguments)]
-#[target_feature(enable = "avx2")]
-#[inline]
-fn nearest_3x3_avx2(
-    cells: &[i16],
-    li: i32,
-    lj: i32,
-    u: f64,
-    v: f64,
-    i: i32,
-    j: i32,
-    occ: i16,
-) -> f64 {
-    use std::arch::x86_64::*;
-    // Columns i - 1, i, i + 1 (and i + 2, masked off): `f64::from(i + d) + 0.5` exactly.
-    let columns = _mm_add_epi32(_mm_set1_epi32(i), _mm_setr_epi32(-1, 0, 1, 2));
-    let du = _mm256_sub_pd(
-        _mm256_set1_pd(u),
-        _mm256_add_pd(_mm256_cvtepi32_pd(columns), _mm256_set1_pd(0.5)),
-    );
-    let du2 = _mm256_mul_pd(du, du);
-    let occ_v = _mm_set1_epi16(occ);
-    let inf = _mm256_set1_pd(f64::INFINITY);
-    let mut best = inf;
-    for dj in -1..=1 {
-        let dv = v - (f64::from(j + dj) + 0.5);
-        let dv2 = dv * dv;
-        let start = (((lj + dj) as usize) << TILE_SHIFT) + (li - 1) as usize;
-        let Some(row) = cells.get(start..start + 3) else {
-            continue;
-        };
-        // The fourth lane is i16::MIN, which no threshold is below.
-        let four = [row[0], row[1], row[2], i16::MIN];
-        // SAFETY: an unaligned 8-byte load from a local array of four i16.
-        let row_v = unsafe { _mm_loadl_epi64(four.as_ptr().cast()) };
-        let occupied = _mm256_castsi256_pd(_mm256_cvtepi16_epi64(_mm_cmpgt_epi16(row_v, occ_v)));
-        let d = _mm256_blendv_pd(inf, _mm256_add_pd(du2, _mm256_set1_pd(dv2)), occupied);
-        // `minpd(a, b)` is `a < b ? a : b`: the scalar rule `if d < best { d } else { best }`.
-        best = _mm256_min_pd(d, best);
-    }
-    let mut lanes = [0.0f64; 4];
-    // SAFETY: a store into a local array of four f64.
-    unsafe { _mm256_storeu_pd(lanes.as_mut_ptr(), best) };
-    let mut m = f64::INFINITY;
-    for l in lanes {
-        m = if l < m { l } else { m };
-    }
-    m
 }

@@ -24,6 +24,7 @@
 
 mod likelihood;
 mod matcher;
+mod nearest;
 mod options;
 mod particles;
 mod path;

@@ -104,6 +104,23 @@ pub struct Rbpf {
     lls: Vec<f64>,
 }
 
+/// One scan's input to [`Rbpf::update`].
+#[derive(Debug, Clone, Copy)]
+pub struct UpdateScan<'a> {
+    /// The index of the processed scan (recorded in the path nodes).
+    pub scan_index: usize,
+    /// The odometry pose at the scan.
+    pub odom_pose: Pose2,
+    /// The odometry increment since the last update, in the old body frame.
+    pub odom_delta: &'a Pose2,
+    /// The points matched against each particle's map (body frame, m).
+    pub match_points_m: &'a [[f64; 2]],
+    /// The scan mapped into every particle's map (body frame).
+    pub body_scan: &'a PlanarScan,
+    /// The first scan: only mapped (nothing to match against yet).
+    pub map_only: bool,
+}
+
 /// What one update did.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RbpfUpdate {
@@ -173,21 +190,21 @@ impl Rbpf {
         best
     }
 
-    /// One update at processed scan `scan` with odometry pose `odom`: motion `delta` (odometry
-    /// increment since the last update, old body frame), matching `points` (body frame),
-    /// reweighting, mapping `body` into every particle's map, new path nodes, selective
-    /// resampling. With `first`, the scan is only mapped (nothing to match against yet).
-    #[allow(clippy::too_many_arguments)]
+    /// One update with `input` (see [`UpdateScan`]): motion, matching, reweighting, mapping
+    /// the scan into every particle's map, new path nodes, selective resampling by `method`.
     pub fn update(
         &mut self,
-        scan: usize,
-        odom: Pose2,
-        delta: &Pose2,
-        points: &[[f64; 2]],
-        body: &PlanarScan,
-        first: bool,
+        input: &UpdateScan<'_>,
         method: resample::ResampleMethod,
     ) -> Result<RbpfUpdate, MapError> {
+        let UpdateScan {
+            scan_index: scan,
+            odom_pose: odom,
+            odom_delta: delta,
+            match_points_m: points,
+            body_scan: body,
+            map_only: first,
+        } = *input;
         let noise = self.options.noise();
         let o = &self.options;
         self.search.prior = (o.prior_scale > 0.0).then(|| {

@@ -76,15 +76,15 @@ pub fn run_rbpf(
             match_points(&body, ro.range_max_m, ro.beam_decimation, &mut pts);
             stats.timings.preprocess_s += t.elapsed().as_secs_f64();
             let t = Instant::now();
-            let report = pf.update(
-                k,
-                odom.pose,
-                &delta,
-                &pts,
-                &body,
-                !have_first,
-                opts.resample_method,
-            )?;
+            let input = UpdateScan {
+                scan_index: k,
+                odom_pose: odom.pose,
+                odom_delta: &delta,
+                match_points_m: &pts,
+                body_scan: &body,
+                map_only: !have_first,
+            };
+            let report = pf.update(&input, opts.resample_method)?;
             stats.timings.correlate_s += report.match_s;
             stats.timings.map_update_s += report.map_s;
             stats.timings.resample_s += t.elapsed().as_secs_f64() - report.match_s - report.map_s;

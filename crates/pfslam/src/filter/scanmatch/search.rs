@@ -262,7 +262,12 @@ pub fn match_scan(
             }
         }
     }
-    let start = [f64::from(best.1) * res, f64::from(best.2) * res, best.3];
+    let refine = RefineSteps {
+        start_offset: [f64::from(best.1) * res, f64::from(best.2) * res, best.3],
+        first_step_xy_m: 0.5 * res,
+        first_step_yaw_rad: 0.5 * params.yaw_step_rad,
+        halvings: params.refine_levels,
+    };
     refine_from(
         field,
         &limits,
@@ -270,15 +275,24 @@ pub fn match_scan(
         predicted,
         params,
         scratch,
-        start,
-        [0.5 * res, 0.5 * params.yaw_step_rad],
-        params.refine_levels,
+        &refine,
     )
 }
 
-/// The refinement of [`match_scan`]: pattern search from the offset `start` (x m, y m, yaw
-/// rad) from `predicted`, first steps `steps` (x/y m, yaw rad), `levels` halvings.
-#[allow(clippy::too_many_arguments)]
+/// Where the refinement's pattern search starts and how it shrinks.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct RefineSteps {
+    /// The first offset from the predicted pose: x m, y m, yaw rad.
+    pub(super) start_offset: [f64; 3],
+    /// The first step in x and y.
+    pub(super) first_step_xy_m: f64,
+    /// The first step in yaw.
+    pub(super) first_step_yaw_rad: f64,
+    /// How many times the steps are halved.
+    pub(super) halvings: u32,
+}
+
+/// The refinement of [`match_scan`]: pattern search from `predicted` as `refine` says.
 pub(super) fn refine_from(
     field: &LikelihoodField,
     limits: &MapLimits,
@@ -286,10 +300,11 @@ pub(super) fn refine_from(
     predicted: &Pose2,
     params: &MatchParams,
     scratch: &mut MatchScratch,
-    start: [f64; 3],
-    steps: [f64; 2],
-    levels: u32,
+    refine: &RefineSteps,
 ) -> MatchResult {
+    let start = refine.start_offset;
+    let steps = [refine.first_step_xy_m, refine.first_step_yaw_rad];
+    let levels = refine.halvings;
     let n = points_body.len().max(1) as f64;
     let [dx, dy, dyaw] = start;
     let mut rot = RotatedPoints::take(&mut scratch.rotated, params.kernel_precision);

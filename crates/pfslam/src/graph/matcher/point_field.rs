@@ -47,40 +47,39 @@ fn pool_rows(out: &mut [f32], a: (&[f32], &[f32]), b: (&[f32], &[f32])) {
     }
 }
 
-impl PointField {
-    /// Builds the field over `[min, max]` (world, m) from `points` (world, m), with cells of
-    /// `resolution_m`, Gaussian `sigma_m` (truncated at 3 sigma) and `levels` pooled levels
-    /// above the field.
-    pub fn build(
-        points: &[[f64; 2]],
-        min: [f64; 2],
-        max: [f64; 2],
-        resolution_m: f64,
-        sigma_m: f64,
-        levels: usize,
-    ) -> PointField {
-        let w = (((max[0] - min[0]) / resolution_m).ceil().max(1.0) as usize).min(1 << 14);
-        let h = (((max[1] - min[1]) / resolution_m).ceil().max(1.0) as usize).min(1 << 14);
-        let sigma_cells = (sigma_m / resolution_m).max(0.25);
-        let r = (3.0 * sigma_cells).ceil() as i64;
-        // Per kernel row `dj = -r..=r`: the values above 0.01, a run `-a..=a` centred on the
-        // point's column (the Gaussian falls with |di|).
-        let kernel_rows: Vec<Vec<f32>> = (-r..=r)
-            .map(|dj| {
-                (-r..=r)
-                    .map(|di| {
-                        let d2 = (di * di + dj * dj) as f64;
-                        (-0.5 * d2 / (sigma_cells * sigma_cells)).exp() as f32
-                    })
-                    .filter(|&v| v > 0.01)
-                    .collect()
-            })
-            .collect();
-        let (wi, hi) = (w as i64, h as i64);
-        // The points' cells, each once, by row: a cell's value is the maximum over the
-        // kernels stamped on it, which neither order nor repetition changes (a submap's
-        // overlapping scans put many points in one cell), and each band of rows below
-        // takes a contiguous run of them.
+/// Per kernel row `dj = -r..=r`: the values above 0.01, a run `-a..=a` centred on the
+/// point's column (the Gaussian falls with |di|).
+fn kernel_rows(r: i64, sigma_cells: f64) -> Vec<Vec<f32>> {
+    (-r..=r)
+        .map(|dj| {
+            (-r..=r)
+                .map(|di| {
+                    let d2 = (di * di + dj * dj) as f64;
+                    (-0.5 * d2 / (sigma_cells * sigma_cells)).exp() as f32
+                })
+                .filter(|&v| v > 0.01)
+                .collect()
+        })
+        .collect()
+}
+
+/// The window a field is built over: its corner, cells and size, and the kernel's radius.
+struct FieldGrid {
+    min: [f64; 2],
+    resolution_m: f64,
+    w: usize,
+    h: usize,
+    kernel_radius_cells: i64,
+}
+
+impl FieldGrid {
+    /// The points' cells within the kernel's reach of the window, each once, by row: a
+    /// cell's value is the maximum over the kernels stamped on it, which neither order nor
+    /// repetition changes (a submap's overlapping scans put many points in one cell), and
+    /// each band of rows of [`Self::splat`] takes a contiguous run of them.
+    fn point_cells(&self, points: &[[f64; 2]]) -> Vec<(i64, i64)> {
+        let (min, resolution_m, r) = (self.min, self.resolution_m, self.kernel_radius_cells);
+        let (wi, hi) = (self.w as i64, self.h as i64);
         let span = wi + 2 * r;
         let mut keys: Vec<u64> = points
             .iter()
@@ -93,19 +92,25 @@ impl PointField {
             .collect();
         keys.sort_unstable();
         keys.dedup();
-        let cells: Vec<(i64, i64)> = keys
-            .iter()
+        keys.iter()
             .map(|&key| {
                 let key = key as i64;
                 (key % span - r, key / span - r)
             })
-            .collect();
-        // The tiles a point's kernel touches hold level 0's non-zero cells; a pooled level
-        // reaches `2^levels - 1` cells further left and down, so the tiles within that
-        // many tiles left and down of them are stored too.
+            .collect()
+    }
+
+    /// Per tile row: the cell columns `x0..x1` of the tiles written, neighbours joined into
+    /// one run (long runs vectorise; a tile is 32 cells). The tiles a point's kernel touches
+    /// hold level 0's non-zero cells; a pooled level reaches `2^levels - 1` cells further
+    /// left and down, so the tiles within that many tiles left and down of them are stored
+    /// too.
+    fn written_tiles(&self, cells: &[(i64, i64)], levels: usize) -> Vec<Vec<(usize, usize)>> {
+        let (w, h, r) = (self.w, self.h, self.kernel_radius_cells);
+        let (wi, hi) = (w as i64, h as i64);
         let (tw, th) = (w.div_ceil(TILE), h.div_ceil(TILE));
         let mut occupied = vec![false; tw * th];
-        for &(ci, cj) in &cells {
+        for &(ci, cj) in cells {
             let (x0, x1) = ((ci - r).max(0), (ci + r).min(wi - 1));
             let (y0, y1) = ((cj - r).max(0), (cj + r).min(hi - 1));
             if x0 > x1 || y0 > y1 {
@@ -121,8 +126,6 @@ impl PointField {
             .checked_shl(levels.min(31) as u32)
             .map_or(usize::MAX, |v| v - 1)
             .div_ceil(TILE);
-        // Per tile row: the cell columns `x0..x1` of the tiles written, neighbours joined
-        // into one run (long runs vectorise; a tile is 32 cells).
         let mut present: Vec<Vec<(usize, usize)>> = vec![Vec::new(); th];
         for (ty, row) in present.iter_mut().enumerate() {
             for tx in 0..tw {
@@ -139,7 +142,12 @@ impl PointField {
                 }
             }
         }
-        // The row runs of the written tiles, the same for every level.
+        present
+    }
+
+    /// The row runs `(first cell, length)` of the written tiles, the same for every level.
+    fn written_runs(&self, present: &[Vec<(usize, usize)>]) -> Vec<(usize, usize)> {
+        let (w, h) = (self.w, self.h);
         let mut written = Vec::new();
         for (ty, row) in present.iter().enumerate() {
             for y in ty * TILE..((ty + 1) * TILE).min(h) {
@@ -148,9 +156,16 @@ impl PointField {
                 }
             }
         }
+        written
+    }
+
+    /// Level 0: the kernels stamped on `cells`. Bands of tile rows in parallel, each taking
+    /// the kernel cells of every point that fall in it: a cell's value is the maximum over
+    /// the same values in any order.
+    fn splat(&self, cells: &[(i64, i64)], kernel_rows: &[Vec<f32>]) -> Buffer {
+        let (w, h, r) = (self.w, self.h, self.kernel_radius_cells);
+        let wi = w as i64;
         let mut field = Buffer::zeroed(w * h);
-        // Bands of tile rows in parallel, each taking the kernel cells of every point that
-        // fall in it: a cell's value is the maximum over the same values in any order.
         field.cells[..w * h]
             .par_chunks_mut(w * TILE)
             .enumerate()
@@ -160,7 +175,7 @@ impl PointField {
                 let first = cells.partition_point(|&(_, cj)| cj + r < y0);
                 let end = cells.partition_point(|&(_, cj)| cj - r < y1);
                 for &(ci, cj) in &cells[first..end.max(first)] {
-                    for (dj, values) in (-r..=r).zip(&kernel_rows) {
+                    for (dj, values) in (-r..=r).zip(kernel_rows) {
                         let y = cj + dj;
                         if y < y0 || y >= y1 || values.is_empty() {
                             continue;
@@ -184,46 +199,83 @@ impl PointField {
                     }
                 }
             });
-        field.written.clone_from(&written);
-        let mut all = vec![field];
-        for k in 1..=levels {
-            let prev = &all[k - 1].cells[..];
-            let s = 1usize << (k - 1);
-            let mut next = Buffer::zeroed(w * h);
-            next.cells[..w * h]
-                .par_chunks_mut(w * TILE)
-                .enumerate()
-                .for_each(|(ty, band)| {
-                    for (yy, out) in band.chunks_exact_mut(w).enumerate() {
-                        let y = ty * TILE + yy;
-                        let a = &prev[y * w..(y + 1) * w];
-                        // Row `y + s` (none above the window: the maximum over the rest).
-                        let b = prev.get((y + s) * w..(y + s + 1) * w).filter(|_| y + s < h);
-                        for &(x0, x1) in &present[ty] {
-                            // Cells whose right neighbour `x + s` lies in the window
-                            // (none when the run lies in the last `s` columns).
-                            let xm = x1.min(w.saturating_sub(s)).max(x0);
-                            match b {
-                                Some(b) => {
-                                    if xm > x0 {
-                                        pool_rows(
-                                            &mut out[x0..xm],
-                                            (&a[x0..xm], &a[x0 + s..xm + s]),
-                                            (&b[x0..xm], &b[x0 + s..xm + s]),
-                                        );
-                                    }
-                                    pool_run(&mut out[xm..x1], &a[xm..x1], &b[xm..x1]);
+        field
+    }
+
+    /// The level above `prev`: the maximum over `prev`'s cells `(x, y)`, `(x + s, y)`,
+    /// `(x, y + s)` and `(x + s, y + s)` within the window, on the written tiles `present`.
+    fn pool(&self, prev: &[f32], s: usize, present: &[Vec<(usize, usize)>]) -> Buffer {
+        let (w, h) = (self.w, self.h);
+        let mut next = Buffer::zeroed(w * h);
+        next.cells[..w * h]
+            .par_chunks_mut(w * TILE)
+            .enumerate()
+            .for_each(|(ty, band)| {
+                for (yy, out) in band.chunks_exact_mut(w).enumerate() {
+                    let y = ty * TILE + yy;
+                    let a = &prev[y * w..(y + 1) * w];
+                    // Row `y + s` (none above the window: the maximum over the rest).
+                    let b = prev.get((y + s) * w..(y + s + 1) * w).filter(|_| y + s < h);
+                    for &(x0, x1) in &present[ty] {
+                        // Cells whose right neighbour `x + s` lies in the window
+                        // (none when the run lies in the last `s` columns).
+                        let xm = x1.min(w.saturating_sub(s)).max(x0);
+                        match b {
+                            Some(b) => {
+                                if xm > x0 {
+                                    pool_rows(
+                                        &mut out[x0..xm],
+                                        (&a[x0..xm], &a[x0 + s..xm + s]),
+                                        (&b[x0..xm], &b[x0 + s..xm + s]),
+                                    );
                                 }
-                                None => {
-                                    if xm > x0 {
-                                        pool_run(&mut out[x0..xm], &a[x0..xm], &a[x0 + s..xm + s]);
-                                    }
-                                    out[xm..x1].copy_from_slice(&a[xm..x1]);
+                                pool_run(&mut out[xm..x1], &a[xm..x1], &b[xm..x1]);
+                            }
+                            None => {
+                                if xm > x0 {
+                                    pool_run(&mut out[x0..xm], &a[x0..xm], &a[x0 + s..xm + s]);
                                 }
+                                out[xm..x1].copy_from_slice(&a[xm..x1]);
                             }
                         }
                     }
-                });
+                }
+            });
+        next
+    }
+}
+
+impl PointField {
+    /// Builds the field over `[min, max]` (world, m) from `points` (world, m), with cells of
+    /// `resolution_m`, Gaussian `sigma_m` (truncated at 3 sigma) and `levels` pooled levels
+    /// above the field.
+    pub fn build(
+        points: &[[f64; 2]],
+        min: [f64; 2],
+        max: [f64; 2],
+        resolution_m: f64,
+        sigma_m: f64,
+        levels: usize,
+    ) -> PointField {
+        let w = (((max[0] - min[0]) / resolution_m).ceil().max(1.0) as usize).min(1 << 14);
+        let h = (((max[1] - min[1]) / resolution_m).ceil().max(1.0) as usize).min(1 << 14);
+        let sigma_cells = (sigma_m / resolution_m).max(0.25);
+        let grid = FieldGrid {
+            min,
+            resolution_m,
+            w,
+            h,
+            kernel_radius_cells: (3.0 * sigma_cells).ceil() as i64,
+        };
+        let kernel_rows = kernel_rows(grid.kernel_radius_cells, sigma_cells);
+        let cells = grid.point_cells(points);
+        let present = grid.written_tiles(&cells, levels);
+        let written = grid.written_runs(&present);
+        let mut field = grid.splat(&cells, &kernel_rows);
+        field.written.clone_from(&written);
+        let mut all = vec![field];
+        for k in 1..=levels {
+            let mut next = grid.pool(&all[k - 1].cells[..], 1usize << (k - 1), &present);
             next.written.clone_from(&written);
             all.push(next);
         }

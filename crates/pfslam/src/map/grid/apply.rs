@@ -283,3 +283,180 @@ pub(super) fn apply_mark(cell: &mut i16, occupied: bool, f: &FixedLogOdds) {
     let delta = if occupied { f.hit } else { f.miss };
     *cell = f.apply(*cell, delta);
 }
+
+impl OccupancyGrid {
+    /// Applies traced scans ([`Self::trace_updates`]) in their order: the grid ends exactly as
+    /// after [`Self::insert_scan`] of each scan in turn (same cells, bins, tiles and directory),
+    /// whatever the thread count. Tiles are created (or copied when shared) serially in the
+    /// sequential order, then updated in parallel, one task per tile applying its updates scan
+    /// by scan: an update reads and writes only its own cell (and bins), so the tiles are
+    /// independent and each cell sees its updates in scan order. Consecutive pieces of one
+    /// scan ([`Self::trace_updates_part`]) are merged per tile first (marks ORed per cell, as
+    /// one mask would), so each cell still gets one update per scan. The updates must come
+    /// from this grid (or a clone with the same options) and be applied once, in scan order.
+    pub fn apply_updates(&mut self, scans: &[&ScanUpdates]) {
+        // Create the tiles in the order sequential insertion would (the directory grows alike).
+        for su in scans {
+            for &(ti, tj, _) in &su.tiles {
+                self.dir.get_mut(ti, tj, Tile::unknown);
+                if su.heights
+                    && let Some(layer) = self.height.as_mut()
+                {
+                    layer.dir.get_mut(ti, tj, HeightTile::unknown);
+                }
+            }
+        }
+        // (directory slot, scan, tile group), sorted: each tile's groups in scan order.
+        let mut entries: Vec<(u32, u32, u32)> = Vec::new();
+        for (s, su) in scans.iter().enumerate() {
+            for (g, &(ti, tj, _)) in su.tiles.iter().enumerate() {
+                if let Some(slot) = self.dir.slot(ti, tj) {
+                    entries.push((slot as u32, s as u32, g as u32));
+                }
+            }
+        }
+        entries.sort_unstable();
+        let mut jobs: Vec<TileJob> = Vec::new();
+        let mut start = 0;
+        while start < entries.len() {
+            let slot = entries[start].0;
+            let mut end = start + 1;
+            while end < entries.len() && entries[end].0 == slot {
+                end += 1;
+            }
+            let (ti, tj) = self.dir.coords(slot as usize);
+            let needs_bins = entries[start..end]
+                .iter()
+                .any(|e| scans[e.1 as usize].heights);
+            let hslot = self
+                .height
+                .as_ref()
+                .filter(|_| needs_bins)
+                .and_then(|l| l.dir.slot(ti, tj));
+            jobs.push(TileJob {
+                slot: slot as usize,
+                hslot,
+                tile: self.dir.tiles[slot as usize].take(),
+                htile: match (hslot, self.height.as_mut()) {
+                    (Some(h), Some(l)) => l.dir.tiles[h].take(),
+                    _ => None,
+                },
+                entries: start..end,
+            });
+            start = end;
+        }
+        let f = self.fixed;
+        let model = self.height.as_ref().map(|l| l.model);
+        // Pieces of one scan ([`Self::trace_updates_part`]) share the number of its first.
+        let mut scan_of: Vec<u32> = Vec::with_capacity(scans.len());
+        for (p, su) in scans.iter().enumerate() {
+            let first = match scan_of.last() {
+                Some(&prev) if su.continues => prev,
+                _ => p as u32,
+            };
+            scan_of.push(first);
+        }
+        let (entries, scan_of) = (&entries, &scan_of);
+        let apply = |job: &mut TileJob| {
+            let Some(tile) = job.tile.as_mut().map(Arc::make_mut) else {
+                return;
+            };
+            let mut htile = job.htile.as_mut().map(Arc::make_mut);
+            // Cells whose bins changed since their 2-D value was last projected: a cell's
+            // value is only read by a later 2-D update or at the end, so it is projected then
+            // (once per batch instead of once per scan; the same value).
+            // One byte per cell: flagging neighbours makes no chain of stores to one word.
+            let mut stale = [false; TILE_CELLS];
+            let job_entries = &entries[job.entries.clone()];
+            let group = |&(_, p, g): &(u32, u32, u32)| {
+                let su = scans[p as usize];
+                let g = g as usize;
+                let from = if g == 0 {
+                    0
+                } else {
+                    su.tiles[g - 1].2 as usize
+                };
+                (su, from..su.tiles[g].2 as usize)
+            };
+            let mut e = 0;
+            while e < job_entries.len() {
+                // This tile's entries of one scan: one piece, or several to merge.
+                let scan = scan_of[job_entries[e].1 as usize];
+                let mut end = e + 1;
+                while end < job_entries.len() && scan_of[job_entries[end].1 as usize] == scan {
+                    end += 1;
+                }
+                let heights = scans[job_entries[e].1 as usize].heights;
+                let mut run = TileRun {
+                    tile: &mut *tile,
+                    htile: htile.as_deref_mut(),
+                    stale: &mut stale,
+                    model,
+                    heights,
+                    f: &f,
+                };
+                if end == e + 1 {
+                    let (su, range) = group(&job_entries[e]);
+                    let updates = &su.updates[range.clone()];
+                    if run.heights() {
+                        run.apply_bins(updates, &su.bin_marks[range]);
+                    } else {
+                        run.apply(updates.iter().map(|&u| {
+                            (
+                                usize::from(u) & (TILE_CELLS - 1),
+                                u32::from(u & UPDATE_OCCUPIED != 0),
+                            )
+                        }));
+                    }
+                } else {
+                    // Marks ORed per cell as one mask would (occupied wins, bins united),
+                    // then applied once per cell.
+                    MERGE.with_borrow_mut(|m| {
+                        let MergeScratch { acc, order } = m;
+                        let mut n = 0;
+                        let mut add = |local: usize, mark: u32| {
+                            if acc[local] == 0 {
+                                order[n] = local as u16;
+                                n += 1;
+                            }
+                            acc[local] |= mark;
+                        };
+                        for entry in &job_entries[e..end] {
+                            let (su, range) = group(entry);
+                            let updates = &su.updates[range.clone()];
+                            if su.heights {
+                                for (&u, &m) in updates.iter().zip(&su.bin_marks[range]) {
+                                    add(usize::from(u) & (TILE_CELLS - 1), m);
+                                }
+                            } else {
+                                for &u in updates {
+                                    let occupied = u32::from(u & UPDATE_OCCUPIED != 0);
+                                    add(usize::from(u) & (TILE_CELLS - 1), 1 | occupied << 1);
+                                }
+                            }
+                        }
+                        let shift = if heights { 0 } else { 1 };
+                        run.apply(order[..n].iter().map(|&l| {
+                            let l = usize::from(l);
+                            (l, std::mem::take(&mut acc[l]) >> shift)
+                        }));
+                    });
+                }
+                e = end;
+            }
+            if let (Some(ht), Some(model)) = (&htile, model) {
+                for (local, _) in stale.iter().enumerate().filter(|s| *s.1) {
+                    tile.cells[local] = project_column(&ht.bins[local], &model, f.occupied);
+                }
+            }
+        };
+        use rayon::prelude::*;
+        jobs.par_iter_mut().for_each(apply);
+        for job in jobs {
+            self.dir.tiles[job.slot] = job.tile;
+            if let (Some(h), Some(l)) = (job.hslot, self.height.as_mut()) {
+                l.dir.tiles[h] = job.htile;
+            }
+        }
+    }
+}

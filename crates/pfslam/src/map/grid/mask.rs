@@ -531,47 +531,6 @@ impl Marks for TouchMarks<'_> {
     }
 }
 
-/// Traces one ray of a planar scan (its free cells as [`ray_cells`] and the free margin
-/// say, then its end cell).
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-pub(super) fn trace_planar_ray<M: Marks>(
-    limits: &MapLimits,
-    world_scan: &PlanarScan,
-    p: &ScanPoint,
-    free_margin_cells: i32,
-    origin: Cell,
-    layout: &MaskLayout<'_>,
-    walk: &mut RayCells,
-    marks: &mut M,
-) {
-    let (end, clear_end, partial) = ray_cells(limits, world_scan, p);
-    let margin = if p.hit { free_margin_cells } else { 0 };
-    let n = (clear_end.i - origin.i)
-        .abs()
-        .max((clear_end.j - origin.j).abs());
-    // Room for every cell of this ray and its end cell.
-    marks.reserve(n as usize + 2);
-    if partial && margin > 0 {
-        // Rare (a free margin and a climbing beam): the per-cell rule as written.
-        bresenham(origin, clear_end, |c| {
-            if (c.i - end.i).abs().max((c.j - end.j).abs()) <= margin || c == clear_end {
-                return;
-            }
-            marks.mark(layout.index(c), false);
-        });
-        walk.forget();
-    } else {
-        // Along a digital line the Chebyshev distance to its last cell drops by one per
-        // cell, so the cells the rule skips are the last ones: within `margin` of `end`
-        // (full ray), or the last one (partial ray: `clear_end`; `end` lies beyond it,
-        // hence not on the line).
-        let count = if partial { n } else { (n - margin).max(0) } as usize;
-        marks.mark_free(walk.walk_fresh(origin, clear_end, layout, count));
-    }
-    marks.mark(layout.index(end), p.hit);
-}
-
 /// Splits the touched mask indices (in touch order: ray order, so consecutive cells share
 /// tiles) into runs within one tile, and calls `apply(tile column, tile row, run)` with the
 /// tile's position in the mask (`blocks` tiles per row): one directory lookup per run.
