@@ -147,7 +147,11 @@ fn summary(
     };
     let mut counts: Vec<usize> = result.updates.iter().map(|u| u.particles).collect();
     counts.sort_unstable();
-    let pick = |q: f64| counts.get(((counts.len() as f64 - 1.0) * q) as usize).copied();
+    let pick = |q: f64| {
+        counts
+            .get(((counts.len() as f64 - 1.0) * q) as usize)
+            .copied()
+    };
     serde_json::json!({
         "recording": args.recording.display().to_string(),
         "map": args.map.display().to_string(),

@@ -255,7 +255,8 @@ impl ParticleSet {
             };
             out.push(pose);
             let k = bins.add(&pose);
-            if out.len() >= plan.min_particles && out.len() >= kld_bound(k, plan.kld_error, plan.kld_z)
+            if out.len() >= plan.min_particles
+                && out.len() >= kld_bound(k, plan.kld_error, plan.kld_z)
             {
                 break;
             }

@@ -104,7 +104,10 @@ impl LocalizeOptions {
                 self.recovery_fit_ratio > 0.0 && self.recovery_fit_ratio <= 1.0,
                 "recovery_fit_ratio must lie in (0, 1]",
             ),
-            (unit(self.global_neff_share), "global_neff_share must lie in (0, 1)"),
+            (
+                unit(self.global_neff_share),
+                "global_neff_share must lie in (0, 1)",
+            ),
             (self.min_particles >= 1, "min_particles must be at least 1"),
             (
                 self.max_particles >= self.min_particles,
@@ -112,11 +115,20 @@ impl LocalizeOptions {
             ),
             (unit(self.kld_error), "kld_error must lie in (0, 1)"),
             (positive(self.kld_z), "kld_z must be positive"),
-            (self.kld_bin.iter().all(|&v| positive(v)), "kld_bin must be positive"),
+            (
+                self.kld_bin.iter().all(|&v| positive(v)),
+                "kld_bin must be positive",
+            ),
             (positive(self.sigma_hit_m), "sigma_hit_m must be positive"),
-            (positive(self.global_sigma_hit_m), "global_sigma_hit_m must be positive"),
+            (
+                positive(self.global_sigma_hit_m),
+                "global_sigma_hit_m must be positive",
+            ),
             (unit(self.z_hit), "z_hit must lie in (0, 1)"),
-            (positive(self.max_distance_m), "max_distance_m must be positive"),
+            (
+                positive(self.max_distance_m),
+                "max_distance_m must be positive",
+            ),
             (self.max_beams >= 1, "max_beams must be at least 1"),
             (
                 self.range_min_m.is_finite() && self.range_min_m >= 0.0,
@@ -124,7 +136,10 @@ impl LocalizeOptions {
             ),
             (
                 self.update_min.iter().all(|&v| v.is_finite() && v >= 0.0)
-                    && self.motion_alphas.iter().all(|&v| v.is_finite() && v >= 0.0),
+                    && self
+                        .motion_alphas
+                        .iter()
+                        .all(|&v| v.is_finite() && v >= 0.0),
                 "update_min and motion_alphas must be finite and non-negative",
             ),
             (
@@ -133,10 +148,16 @@ impl LocalizeOptions {
                     && self.recovery_alphas[1] <= 1.0,
                 "recovery_alphas must satisfy 0 <= slow < fast <= 1",
             ),
-            (unit(self.converged_mass), "converged_mass must lie in (0, 1)"),
+            (
+                unit(self.converged_mass),
+                "converged_mass must lie in (0, 1)",
+            ),
             (
                 self.cluster_radius.iter().all(|&v| positive(v))
-                    && self.initial_sigma.iter().all(|&v| v.is_finite() && v >= 0.0),
+                    && self
+                        .initial_sigma
+                        .iter()
+                        .all(|&v| v.is_finite() && v >= 0.0),
                 "cluster_radius must be positive and initial_sigma non-negative",
             ),
         ];

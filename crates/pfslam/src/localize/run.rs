@@ -221,7 +221,10 @@ impl<'a> State<'a> {
         let particles = match initial_pose {
             Some(p) => ParticleSet::around(
                 &p,
-                (options.initial_sigma[0], options.initial_sigma[1].to_radians()),
+                (
+                    options.initial_sigma[0],
+                    options.initial_sigma[1].to_radians(),
+                ),
                 options.max_particles.min(options.min_particles.max(1000)),
                 &mut streams.sequential,
             ),

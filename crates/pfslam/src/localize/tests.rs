@@ -17,9 +17,7 @@ fn building() -> BinaryMap {
         let n = ((x1 - x0).hypot(y1 - y0) / (RES_M / 2.0)).ceil() as usize;
         for k in 0..=n {
             let t = k as f64 / n.max(1) as f64;
-            let c = m
-                .limits
-                .cell_of(x0 + t * (x1 - x0), y0 + t * (y1 - y0));
+            let c = m.limits.cell_of(x0 + t * (x1 - x0), y0 + t * (y1 - y0));
             m.set(c.i as i64, c.j as i64, CellState::Occupied);
         }
     };
@@ -142,7 +140,10 @@ fn errors_m(result: &LocalizeResult, truth: &[StampedPose2]) -> Vec<(i64, f64)> 
         .zip(truth)
         .map(|(e, t)| {
             assert_eq!(e.stamp_ns, t.stamp_ns);
-            (e.stamp_ns, (e.pose.x_m - t.pose.x_m).hypot(e.pose.y_m - t.pose.y_m))
+            (
+                e.stamp_ns,
+                (e.pose.x_m - t.pose.x_m).hypot(e.pose.y_m - t.pose.y_m),
+            )
         })
         .collect()
 }
@@ -179,10 +180,21 @@ fn tracks_from_the_given_start_despite_drifting_odometry() {
 fn finds_itself_without_a_start_pose() {
     let map = building();
     let (rec, truth) = recording(&map);
-    let r = localize(&rec, &map, &LocalizeOptions::default(), &ScanOptions::default(), None, 2)
-        .unwrap();
+    let r = localize(
+        &rec,
+        &map,
+        &LocalizeOptions::default(),
+        &ScanOptions::default(),
+        None,
+        2,
+    )
+    .unwrap();
     let from = r.converged_from_ns().expect("never converged");
-    assert!(from <= 20_000_000_000, "converged only at {} s", from as f64 * 1e-9);
+    assert!(
+        from <= 20_000_000_000,
+        "converged only at {} s",
+        from as f64 * 1e-9
+    );
     let after: Vec<f64> = errors_m(&r, &truth)
         .into_iter()
         .filter(|(t, _)| *t >= from)
@@ -190,7 +202,11 @@ fn finds_itself_without_a_start_pose() {
         .collect();
     let rmse = rms(after.iter().copied());
     let worst = after.iter().copied().fold(0.0, f64::max);
-    assert!(rmse < 0.05, "from {} s: rmse {rmse} worst {worst}", from as f64 * 1e-9);
+    assert!(
+        rmse < 0.05,
+        "from {} s: rmse {rmse} worst {worst}",
+        from as f64 * 1e-9
+    );
     // the global phase used many more particles than tracking
     assert!(r.updates[0].particles > 10 * r.updates.last().unwrap().particles);
 }
@@ -223,11 +239,18 @@ fn recovers_when_carried_elsewhere() {
     let before = rms(e[..half].iter().map(|x| x.1));
     assert!(before < 0.05, "{before}");
     let kicked_at = truth[half].stamp_ns;
-    assert!(r.updates.iter().any(|u| u.stamp_ns >= kicked_at && u.injected > 0));
+    assert!(
+        r.updates
+            .iter()
+            .any(|u| u.stamp_ns >= kicked_at && u.injected > 0)
+    );
     let last_third = rms(e[e.len() * 5 / 6..].iter().map(|x| x.1));
     assert!(last_third < 0.05, "after recovery {last_third}");
     let wrong = e[half + 5].1;
-    assert!(wrong > 1.0, "the jump did not mislead the filter ({wrong} m)");
+    assert!(
+        wrong > 1.0,
+        "the jump did not mislead the filter ({wrong} m)"
+    );
 }
 
 #[test]
@@ -240,8 +263,15 @@ fn same_seed_same_trajectory_on_any_thread_count() {
             .build()
             .unwrap();
         pool.install(|| {
-            localize(&rec, &map, &LocalizeOptions::default(), &ScanOptions::default(), None, 4)
-                .unwrap()
+            localize(
+                &rec,
+                &map,
+                &LocalizeOptions::default(),
+                &ScanOptions::default(),
+                None,
+                4,
+            )
+            .unwrap()
         })
     };
     let (a, b) = (run(1), run(3));
@@ -260,8 +290,15 @@ fn rejects_bad_options_and_a_map_without_free_space() {
     let e = localize(&rec, &map, &bad, &ScanOptions::default(), None, 1).unwrap_err();
     assert!(e.to_string().contains("max_particles"), "{e}");
     let solid = BinaryMap::filled(map.limits, 10, 10, CellState::Occupied);
-    let e = localize(&rec, &solid, &LocalizeOptions::default(), &ScanOptions::default(), None, 1)
-        .unwrap_err();
+    let e = localize(
+        &rec,
+        &solid,
+        &LocalizeOptions::default(),
+        &ScanOptions::default(),
+        None,
+        1,
+    )
+    .unwrap_err();
     assert!(matches!(e, LocalizeError::NoFreeSpace), "{e}");
     let _ = wrap_angle(truth[0].pose.yaw_rad);
 }
