@@ -692,22 +692,16 @@ fn benchmark_corpus_scores_logs_against_their_reference() {
 
 /// `localize` in a map another tool could have written: the map_server pair rasterised from
 /// a Radish log's corrected poses, the log's odometry degraded (level 2), the filter started
-/// at the corrected first pose.
-#[test]
-fn localize_follows_the_corrected_poses_in_a_map_made_from_them() {
-    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
-        eprintln!(
-            "SKIP localize_follows_the_corrected_poses_in_a_map_made_from_them: no real data"
-        );
-        return;
-    };
+/// at the corrected first pose. Returns the unaligned ATE RMSE against the corrected poses
+/// and the summary.
+fn localize_in_corrected_map(data: &Path, name: &str) -> (f64, serde_json::Value) {
     let dir = tempfile::tempdir().unwrap();
-    let log = dir.path().join("seattle-L2.log");
-    let reference = dir.path().join("seattle-L2.reference.tum");
+    let log = dir.path().join(format!("{name}-L2.log"));
+    let reference = dir.path().join(format!("{name}-L2.reference.tum"));
     super::run_ok(
         super::pfslam()
             .arg("perturb")
-            .arg(data.join("carmen/seattle-corrected.log.gz"))
+            .arg(data.join(format!("carmen/{name}-corrected.log.gz")))
             .args(["--level", "2", "--seed", "1", "--out"])
             .arg(&log),
     );
@@ -747,14 +741,29 @@ fn localize_follows_the_corrected_poses_in_a_map_made_from_them() {
     let estimate = pfslam::io::tum::read_tum(&out_dir.join("trajectory.tum")).unwrap();
     let ate =
         pfslam::eval::ate::ate(&estimate, &truth, pfslam::eval::Association::default()).unwrap();
-    // seeds 1-3 measured 0.081 / 0.077 / 0.100 m
-    assert!(ate.unaligned_m.rmse < 0.15, "{:?}", ate.unaligned_m);
     assert_eq!(ate.pairs, truth.len());
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out_dir.join("summary.json")).unwrap())
             .unwrap();
-    assert_eq!(summary["quality"]["status"], "ok", "{summary}");
     assert!(summary["realtime_factor"].as_f64().unwrap() > 1.0);
+    (ate.unaligned_m.rmse, summary)
+}
+
+#[test]
+fn localize_follows_the_corrected_poses_in_a_map_made_from_them() {
+    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+        eprintln!(
+            "SKIP localize_follows_the_corrected_poses_in_a_map_made_from_them: no real data"
+        );
+        return;
+    };
+    // seeds 1-3 measured 0.056 / 0.060 / 0.060 m
+    let (rmse, summary) = localize_in_corrected_map(&data, "seattle");
+    assert!(rmse < 0.09, "seattle {rmse}");
+    assert_eq!(summary["quality"]["status"], "ok", "{summary}");
+    // seeds 1-3 measured 0.080 / 0.076 / 0.084 m
+    let (rmse, _) = localize_in_corrected_map(&data, "intel");
+    assert!(rmse < 0.12, "intel {rmse}");
 }
 
 #[test]

@@ -243,6 +243,7 @@ pub(crate) mod synthetic {
             angle_min_rad: -std::f64::consts::PI,
             angle_increment_rad: std::f64::consts::PI / 180.0,
             beam_count: 360,
+            range_min_m: 0.0,
             range_max_m: 30.0,
         };
         let mut scans = ScanSet::new(lidar.beam_count);

@@ -69,6 +69,7 @@ fn scanner() -> (LidarGeometry, Rigid3) {
         angle_min_rad: -std::f64::consts::PI,
         angle_increment_rad: 1f64.to_radians(),
         beam_count: 360,
+        range_min_m: 0.0,
         range_max_m: 30.0,
     };
     (geometry, Rigid3::from_rpy(0.0, 0.0, 0.0, [0.5, 0.0, 0.3]))

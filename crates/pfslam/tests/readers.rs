@@ -611,6 +611,7 @@ fn synthetic_recording() -> pfslam::sensors::Recording {
             angle_min_rad: -1.0,
             angle_increment_rad: 0.5,
             beam_count: 5,
+            range_min_m: 0.0,
             range_max_m: 30.0,
         },
         ..Default::default()

@@ -192,9 +192,9 @@ fn report(name: &str, result: &LocalizeResult, summary: &serde_json::Value, loca
     );
     say!(
         "time: localisation {localize_s:.2} s for {:.1} s of recording ({:.0}x real time); \
-         returns in free cells {:.1} %",
+         returns far from the map's walls {:.1} %",
         summary["duration_s"].as_f64().unwrap_or(0.0),
         summary["realtime_factor"].as_f64().unwrap_or(0.0),
-        100.0 * result.free_share
+        100.0 * result.off_wall_share
     );
 }

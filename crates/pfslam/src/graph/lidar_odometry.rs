@@ -181,6 +181,7 @@ mod tests {
             angle_min_rad: -std::f64::consts::PI,
             angle_increment_rad: 1f64.to_radians(),
             beam_count: 360,
+            range_min_m: 0.0,
             range_max_m: 30.0,
         };
         let mut scans = ScanSet::new(360);

@@ -73,6 +73,7 @@ impl Default for HumanoidCalibration {
                 angle_min_rad: (-135.0f64).to_radians(),
                 angle_increment_rad: 0.25f64.to_radians(),
                 beam_count: 1081,
+                range_min_m: 2.0,
                 range_max_m: 30.0,
             },
         }
@@ -276,6 +277,7 @@ fn read_calibration(path: &Path) -> Result<HumanoidCalibration, IoError> {
             angle_min_rad: s(0)?,
             angle_increment_rad: s(1)?,
             beam_count: beam_count as usize,
+            range_min_m: 2.0,
             range_max_m: range_max as f32,
         },
     })

@@ -222,6 +222,7 @@ struct Layout {
     angle_min: f32,
     angle_max: f32,
     angle_increment: f32,
+    range_min: f32,
     range_max: f32,
 }
 
@@ -289,6 +290,7 @@ impl RecordingBuilder {
             angle_min: msg.angle_min,
             angle_max: msg.angle_max,
             angle_increment: msg.angle_increment,
+            range_min: msg.range_min,
             range_max: msg.range_max,
         });
     }
@@ -496,6 +498,10 @@ impl RecordingBuilder {
                         angle_min_rad: f64::from(l.angle_min),
                         angle_increment_rad: f64::from(l.angle_increment),
                         beam_count: n,
+                        range_min_m: scan_range_min(
+                            l.range_min,
+                            options.range_max_m.unwrap_or(max),
+                        ),
                         range_max_m: options.range_max_m.unwrap_or(max),
                     }
                 }
@@ -510,6 +516,16 @@ fn looks_carmen(l: &Layout, n: usize) -> bool {
     matches!(n, 180 | 181 | 360 | 361)
         && (f64::from(l.angle_min).to_degrees() + 90.0).abs() < 0.5
         && (span_deg - 180.0).abs() < 0.5
+}
+
+/// A LaserScan's `range_min` as the geometry's minimum: 0 when it is not a finite number
+/// below the maximum (a driver that leaves it unset or garbage must not drop every return).
+fn scan_range_min(range_min: f32, range_max_m: f32) -> f32 {
+    if range_min.is_finite() && range_min > 0.0 && range_min < range_max_m {
+        range_min
+    } else {
+        0.0
+    }
 }
 
 #[cfg(test)]
@@ -660,5 +676,13 @@ mod tests {
         ];
         let e = choose_topics(&two, &ReaderOptions::default()).unwrap_err();
         assert!(e.contains("several scan topics"), "{e}");
+    }
+
+    #[test]
+    fn a_scan_states_its_own_minimum_unless_it_is_garbage() {
+        assert_eq!(scan_range_min(0.45, 30.0), 0.45);
+        for bad in [f32::NAN, -1.0, 0.0, 40.0] {
+            assert_eq!(scan_range_min(bad, 30.0), 0.0, "{bad}");
+        }
     }
 }

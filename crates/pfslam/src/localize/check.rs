@@ -2,14 +2,18 @@
 //! `suspect`) with reasons, as `pfslam run` gives for SLAM.
 
 use super::LocalizeResult;
-use crate::quality::{QualityStatus, SUSPECT_FREE_SHARE};
+use crate::quality::QualityStatus;
+
+/// Above this share of returns far from every wall, a localisation is suspect.
+pub const SUSPECT_OFF_WALL_SHARE: f64 = 0.05;
 use serde::Serialize;
 
 /// What a localisation run measured on itself.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct LocalizeSignals {
-    /// Share of the returns at the update poses landing in cells the map calls free.
-    pub free_share: f64,
+    /// Share of the returns at the update poses the map does not explain
+    /// ([`LocalizeResult::off_wall_share`]).
+    pub off_wall_share: f64,
     /// The filter was converged at the end.
     pub converged: bool,
     /// Times a converged filter lost its convergence.
@@ -35,7 +39,7 @@ impl LocalizeQuality {
         let mut fits: Vec<f64> = result.updates.iter().map(|u| u.fit).collect();
         fits.sort_by(f64::total_cmp);
         let signals = LocalizeSignals {
-            free_share: result.free_share,
+            off_wall_share: result.off_wall_share,
             converged: result.converged_from_ns().is_some(),
             convergence_losses: result.convergence_losses(),
             median_fit: fits.get(fits.len() / 2).copied().unwrap_or(0.0),
@@ -50,12 +54,12 @@ impl LocalizeQuality {
                 signals.convergence_losses
             ));
         }
-        if signals.free_share > SUSPECT_FREE_SHARE {
+        if signals.off_wall_share > SUSPECT_OFF_WALL_SHARE {
             reasons.push(format!(
-                "{:.1} % of the scan returns land in cells the map calls free (above {:.0} %): \
+                "{:.1} % of the scan returns lie far from every wall of the map (above {:.0} %): \
                  the scans do not fit the map where the filter put them",
-                100.0 * signals.free_share,
-                100.0 * SUSPECT_FREE_SHARE
+                100.0 * signals.off_wall_share,
+                100.0 * SUSPECT_OFF_WALL_SHARE
             ));
         }
         LocalizeQuality {

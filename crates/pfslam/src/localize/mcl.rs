@@ -24,6 +24,8 @@ pub const CHUNK: usize = 256;
 pub struct FreeSpace {
     limits: MapLimits,
     cells: Vec<(u32, u32)>,
+    width: usize,
+    is_free: Vec<bool>,
 }
 
 impl FreeSpace {
@@ -37,7 +39,27 @@ impl FreeSpace {
         (!cells.is_empty()).then_some(FreeSpace {
             limits: map.limits,
             cells,
+            width: map.width,
+            is_free: map.cells.iter().map(|&c| c == CellState::Free).collect(),
         })
+    }
+
+    /// A pose in a free cell drawn about `centre` (normal, `sigma_m` per axis) with any
+    /// heading; a pose over the whole free space when eight draws all miss it.
+    pub fn sample_near(&self, centre: &Pose2, sigma_m: f64, rng: &mut Xoshiro256PlusPlus) -> Pose2 {
+        for _ in 0..8 {
+            let x = centre.x_m + sigma_m * rng.sample::<f64, _>(StandardNormal);
+            let y = centre.y_m + sigma_m * rng.sample::<f64, _>(StandardNormal);
+            let (ci, cj) = self.limits.cell_coords(x, y);
+            let (i, j) = (ci.floor(), cj.floor());
+            let inside = i >= 0.0 && j >= 0.0 && (i as usize) < self.width;
+            let k = j as usize * self.width + i as usize;
+            if inside && self.is_free.get(k).copied().unwrap_or(false) {
+                let yaw = rng.random_range(-std::f64::consts::PI..std::f64::consts::PI);
+                return Pose2::new(x, y, yaw);
+            }
+        }
+        self.sample(rng)
     }
 
     /// A pose drawn uniformly over the free cells and all headings.
@@ -120,6 +142,10 @@ pub struct ResamplePlan {
     pub kld_error: f64,
     /// The normal quantile.
     pub kld_z: f64,
+    /// Half of the random particles are drawn about this pose with this spread (m): a robot
+    /// lost by an odometry glitch is usually near where it was lost; the other half cover
+    /// the whole free space (a robot carried elsewhere).
+    pub near: (Pose2, f64),
 }
 
 impl ParticleSet {
@@ -247,7 +273,11 @@ impl ParticleSet {
             flags.push(random);
             let pose = if random {
                 injected += 1;
-                free.sample(rng)
+                if rng.random::<bool>() {
+                    free.sample_near(&plan.near.0, plan.near.1, rng)
+                } else {
+                    free.sample(rng)
+                }
             } else {
                 let u = rng.random::<f64>() * acc;
                 let k = cumulative.partition_point(|&c| c < u);

@@ -35,10 +35,6 @@ pub struct LocalizeOptions {
     pub z_hit: f64,
     /// Distances to the nearest wall are clamped here (m): the field's reach.
     pub max_distance_m: f64,
-    /// Shorter returns are dropped (m). Not `[map.scan] range_min_m`, whose default suits a
-    /// car that sees its own body: indoors, most returns of a corridor lie within 2 m. A
-    /// robot's own body, seen at the same place by every particle, weighs them all alike.
-    pub range_min_m: f64,
     /// Returns used per update, evenly spaced over the scan.
     pub max_beams: usize,
     /// The filter updates once the odometry moved this far (m) or turned this much (deg)
@@ -58,6 +54,10 @@ pub struct LocalizeOptions {
     /// particle that happens to fit a sharp likelihood better than a briefly disturbed
     /// cluster wins the estimate.
     pub recovery_fit_ratio: f64,
+    /// Half of the random particles are drawn about the last converged estimate that fitted
+    /// well, with this standard deviation (m) plus the odometry's travel since, and any
+    /// heading; the other half over the whole free space.
+    pub local_recovery_sigma_m: f64,
     /// The filter has converged when the heaviest cluster holds this share of the weight.
     pub converged_mass: f64,
     /// A cluster's extent about its centre: distance (m) and yaw (deg).
@@ -81,12 +81,12 @@ impl Default for LocalizeOptions {
             tracking_neff_share: 0.0,
             z_hit: 0.9,
             max_distance_m: 2.0,
-            range_min_m: 0.1,
             max_beams: 60,
             update_min: [0.1, 5.0],
             motion_alphas: [0.1, 0.05, 0.05, 0.05],
             recovery_alphas: [0.001, 0.1],
             recovery_fit_ratio: 0.5,
+            local_recovery_sigma_m: 2.0,
             converged_mass: 0.9,
             cluster_radius: [1.0, 30.0],
             initial_sigma: [0.1, 3.0],
@@ -99,7 +99,7 @@ impl LocalizeOptions {
     pub fn validate(&self) -> Result<(), String> {
         let positive = |v: f64| v.is_finite() && v > 0.0;
         let unit = |v: f64| v.is_finite() && v > 0.0 && v < 1.0;
-        let checks: [(bool, &str); 17] = [
+        let checks = [
             (
                 self.recovery_fit_ratio > 0.0 && self.recovery_fit_ratio <= 1.0,
                 "recovery_fit_ratio must lie in (0, 1]",
@@ -130,10 +130,6 @@ impl LocalizeOptions {
                 "max_distance_m must be positive",
             ),
             (self.max_beams >= 1, "max_beams must be at least 1"),
-            (
-                self.range_min_m.is_finite() && self.range_min_m >= 0.0,
-                "range_min_m must be finite and non-negative",
-            ),
             (
                 self.update_min.iter().all(|&v| v.is_finite() && v >= 0.0)
                     && self

@@ -8,7 +8,7 @@ use super::kld::KldBins;
 use super::mcl::{FreeSpace, ParticleSet, ResamplePlan, Streams};
 use super::{LocalizeError, LocalizeOptions};
 use crate::geometry::{Pose2, StampedPose2, wrap_angle};
-use crate::map::{BinaryMap, CellState, PlanarScan, ScanOptions, ScanProjector};
+use crate::map::{BinaryMap, PlanarScan, ScanOptions, ScanProjector};
 use crate::motion::odometry_model::{OdometryModel, OdometryModelOptions};
 use crate::sensors::Recording;
 use serde::Serialize;
@@ -43,8 +43,11 @@ pub struct LocalizeResult {
     pub scans_outside_odometry: usize,
     /// Scans without a return after preprocessing (pose carried by the odometry).
     pub scans_without_returns: usize,
-    /// Share of the returns at the update poses that land in cells the map calls free.
-    pub free_share: f64,
+    /// Share of the returns at the update poses farther than three `sigma_hit_m` from the
+    /// nearest occupied cell: returns the map does not explain (a wrong pose, or things not
+    /// in the map). Unlike the share in free cells, it does not count the returns a
+    /// centimetre beside a one-cell wall.
+    pub off_wall_share: f64,
 }
 
 impl LocalizeResult {
@@ -100,7 +103,6 @@ pub fn localize(
         &recording.body_from_lidar,
         &ScanOptions {
             densify_max_gap_m: None,
-            range_min_m: options.range_min_m as f32,
             ..*scan_options
         },
     )?;
@@ -126,7 +128,8 @@ pub fn localize(
             } else {
                 let record = state.update(&field, &free, &io.points, stamp_ns, &odom);
                 out.updates.push(record);
-                out.count_free(map, &state.estimate.pose, &io.body);
+                let reach_m = 3.0 * options.sigma_hit_m;
+                out.count_off_wall(&field, reach_m, &state.estimate.pose, &io.body);
             }
         }
         out.trajectory.push(StampedPose2 {
@@ -169,16 +172,22 @@ struct Outputs {
     scans_outside_odometry: usize,
     scans_without_returns: usize,
     returns: usize,
-    returns_in_free: usize,
+    returns_off_wall: usize,
 }
 
 impl Outputs {
-    fn count_free(&mut self, map: &BinaryMap, pose: &Pose2, body: &PlanarScan) {
+    fn count_off_wall(
+        &mut self,
+        field: &LikelihoodField,
+        reach_m: f64,
+        pose: &Pose2,
+        body: &PlanarScan,
+    ) {
         for p in body.points.iter().filter(|p| p.hit) {
             let (x, y) = pose.transform_point(p.x_m, p.y_m);
             self.returns += 1;
-            if map.state_at(x, y) == CellState::Free {
-                self.returns_in_free += 1;
+            if f64::from(field.distance_m(x, y)) > reach_m {
+                self.returns_off_wall += 1;
             }
         }
     }
@@ -189,7 +198,7 @@ impl Outputs {
             updates: self.updates,
             scans_outside_odometry: self.scans_outside_odometry,
             scans_without_returns: self.scans_without_returns,
-            free_share: self.returns_in_free as f64 / self.returns.max(1) as f64,
+            off_wall_share: self.returns_off_wall as f64 / self.returns.max(1) as f64,
         }
     }
 }
@@ -208,6 +217,9 @@ struct State<'a> {
     converged: bool,
     /// Augmented MCL's slow and fast averages of the fit (`None` before the first update).
     averages: Option<(f64, f64)>,
+    /// The last estimate whose fit was at least `recovery_fit_ratio` of the slow average, and
+    /// the odometry there: where local recovery searches.
+    last_good: Option<(Pose2, Pose2)>,
 }
 
 impl<'a> State<'a> {
@@ -252,6 +264,7 @@ impl<'a> State<'a> {
             },
             converged: false,
             averages: None,
+            last_good: None,
         }
     }
 
@@ -294,10 +307,13 @@ impl<'a> State<'a> {
             Sharpness::Global
         };
         let weighed = self.particles.poses.len();
-        let neff_floor = Some(if self.converged {
-            self.options.tracking_neff_share
-        } else {
+        // Random particles just injected are tempered too: one that happens to fit this scan
+        // better than a cluster the scan disturbed must not take the estimate at once.
+        let searching = !self.converged || self.particles.injected.iter().any(|&i| i);
+        let neff_floor = Some(if searching {
             self.options.global_neff_share
+        } else {
+            self.options.tracking_neff_share
         });
         let log_mean = self.particles.weigh(field, sharpness, points, neff_floor);
         let fit = (log_mean / points.len() as f64).exp();
@@ -312,6 +328,17 @@ impl<'a> State<'a> {
             },
         );
         self.converged = self.estimate.mass >= o.converged_mass;
+        if inject_probability == 0.0 && self.converged {
+            self.last_good = Some((self.estimate.pose, *odom));
+        }
+        let near = match self.last_good {
+            // The odometry since may be the glitch that lost the robot: widen by its travel.
+            Some((pose, odom_then)) => {
+                let travel_m = odom_then.between(odom).translation_norm_m();
+                (pose, o.local_recovery_sigma_m + travel_m)
+            }
+            None => (self.estimate.pose, o.local_recovery_sigma_m),
+        };
         let resampled = self.particles.resample(
             &ResamplePlan {
                 inject_probability,
@@ -319,6 +346,7 @@ impl<'a> State<'a> {
                 max_particles: o.max_particles,
                 kld_error: o.kld_error,
                 kld_z: o.kld_z,
+                near,
             },
             &mut self.bins,
             free,

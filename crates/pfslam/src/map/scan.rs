@@ -48,7 +48,8 @@ pub enum DensifyRays {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ScanOptions {
-    /// Shorter readings are dropped (m; seed 2).
+    /// Shorter readings are dropped (m), on top of the sensor's own minimum
+    /// ([`crate::sensors::LidarGeometry::range_min_m`]: 2 m for the seeds' car and humanoid).
     pub range_min_m: f32,
     /// Longer readings are treated as "no return" (m; seed 75).
     pub range_max_m: f32,
@@ -92,7 +93,7 @@ pub struct ScanOptions {
 impl Default for ScanOptions {
     fn default() -> Self {
         ScanOptions {
-            range_min_m: 2.0,
+            range_min_m: 0.0,
             range_max_m: 75.0,
             no_return: NoReturnPolicy::Skip,
             no_return_clear_m: 20.0,
@@ -212,6 +213,7 @@ impl PlanarScan {
 pub struct ScanProjector {
     opts: ScanOptions,
     sensor_range_max_m: f32,
+    sensor_range_min_m: f32,
     /// LiDAR origin in the body frame.
     origin_body: Vector3<f64>,
     /// Unit beam directions in the body frame.
@@ -252,6 +254,7 @@ impl ScanProjector {
             tilted: is_tilted(body_from_lidar),
             opts: *opts,
             sensor_range_max_m: geometry.range_max_m,
+            sensor_range_min_m: geometry.range_min_m,
             origin_body: body_from_lidar.translation,
             dirs_body,
         })
@@ -264,6 +267,7 @@ impl ScanProjector {
         self.ground_z_m = ground_z(body_from_lidar, self.opts.ground_clearance_m);
         self.tilted = is_tilted(body_from_lidar);
         self.sensor_range_max_m = geometry.range_max_m;
+        self.sensor_range_min_m = geometry.range_min_m;
         self.dirs_body.clear();
         self.dirs_body.extend((0..geometry.beam_count).map(|k| {
             let (s, c) = geometry.beam_angle_rad(k).sin_cos();
@@ -313,7 +317,7 @@ impl ScanProjector {
                     NoReturnPolicy::Skip => continue,
                     NoReturnPolicy::ClearFree => (o.no_return_clear_m as f64, false),
                 }
-            } else if r < o.range_min_m {
+            } else if r < o.range_min_m || r < self.sensor_range_min_m {
                 continue;
             } else {
                 (r as f64, true)
@@ -397,12 +401,18 @@ mod tests {
             angle_min_rad: 0.0,
             angle_increment_rad: std::f64::consts::FRAC_PI_2,
             beam_count: 4,
+            range_min_m: 0.0,
             range_max_m: 80.0,
         }
     }
 
     #[test]
     fn window_and_no_return() {
+        // a sensor that states a 2 m minimum
+        let geom4 = || LidarGeometry {
+            range_min_m: 2.0,
+            ..geom4()
+        };
         let p = ScanProjector::new(&geom4(), &Rigid3::IDENTITY, &ScanOptions::default()).unwrap();
         let mut out = PlanarScan::default();
         p.to_body(&[10.0, 0.0, 1.0, 80.0], &mut out).unwrap();
@@ -416,7 +426,8 @@ mod tests {
         };
         let p = ScanProjector::new(&geom4(), &Rigid3::IDENTITY, &opts).unwrap();
         p.to_body(&[10.0, 0.0, 1.0, 79.0], &mut out).unwrap();
-        // beam 1 (+y, no return) cleared to 5 m; beam 2 too close; beam 3 beyond 75 m
+        // beam 1 (+y, no return) cleared to 5 m; beam 2 below the sensor's minimum; beam 3
+        // beyond 75 m
         assert_eq!(out.points.len(), 3);
         assert!((out.points[1].y_m - 5.0).abs() < 1e-9 && !out.points[1].hit);
         assert!((out.points[2].y_m + 5.0).abs() < 1e-9 && !out.points[2].hit);
@@ -482,6 +493,7 @@ mod tests {
             angle_min_rad: 0.0,
             angle_increment_rad: (0.5f64 / 10.0).atan(),
             beam_count: 2,
+            range_min_m: 0.0,
             range_max_m: 80.0,
         };
         let p = ScanProjector::new(&g, &Rigid3::IDENTITY, &opts).unwrap();
@@ -507,6 +519,7 @@ mod tests {
             angle_min_rad: 0.0,
             angle_increment_rad: (0.5f64 / 10.0).atan(),
             beam_count: 2,
+            range_min_m: 0.0,
             range_max_m: 80.0,
         };
         let mount = Rigid3::from_rpy(0.0, -pitch_deg.to_radians(), 0.0, [0.0, 0.0, 2.0]);

@@ -47,17 +47,24 @@ pub struct LidarGeometry {
     pub angle_increment_rad: f64,
     /// Number of beams per scan.
     pub beam_count: usize,
+    /// Shortest valid range (m); shorter readings are no returns. The sensor's own statement
+    /// where the format has one (a ROS LaserScan's `range_min`), 0 for CARMEN logs; 2 m for
+    /// the seeds' car and humanoid, whose reports drop the returns "too close to the
+    /// vehicle".
+    #[serde(default)]
+    pub range_min_m: f32,
     /// Largest valid range (m); readings at or above it mean "no return".
     pub range_max_m: f32,
 }
 
 impl LidarGeometry {
-    /// The seed car's SICK LMS511: 286 beams from -5 deg in 0.666 deg steps, 80 m.
+    /// The seed car's SICK LMS511: 286 beams from -5 deg in 0.666 deg steps, 2-80 m.
     pub fn ucsd_lms511() -> Self {
         LidarGeometry {
             angle_min_rad: (-5.0f64).to_radians(),
             angle_increment_rad: 0.666f64.to_radians(),
             beam_count: 286,
+            range_min_m: 2.0,
             range_max_m: 80.0,
         }
     }

@@ -607,6 +607,7 @@ mod tests {
             angle_min_rad: -std::f64::consts::PI,
             angle_increment_rad: 1f64.to_radians(),
             beam_count: 360,
+            range_min_m: 0.0,
             range_max_m: 30.0,
         };
         let mount = Rigid3::from_rpy(0.0, 0.0, 0.0, [0.0, 0.0, 1.0]);
@@ -677,6 +678,7 @@ mod tests {
             angle_min_rad: -0.3,
             angle_increment_rad: 0.01,
             beam_count: 61,
+            range_min_m: 0.0,
             range_max_m: 30.0,
         };
         let pitch = -30f64.to_radians();

@@ -117,6 +117,7 @@ pub fn carmen_geometry(beam_count: usize, range_max_m: f32) -> LidarGeometry {
         angle_min_rad: (-90.0f64).to_radians(),
         angle_increment_rad: res_deg.to_radians(),
         beam_count,
+        range_min_m: 0.0,
         range_max_m,
     }
 }
@@ -192,6 +193,7 @@ impl LogContent {
                         angle_min_rad: start,
                         angle_increment_rad: res,
                         beam_count: ranges.len(),
+                        range_min_m: 0.0,
                         range_max_m: if max > 0.0 {
                             max.min(options.range_max_m)
                         } else {

@@ -217,6 +217,7 @@ pub fn read_lidar_params(path: &Path) -> Result<LidarGeometry, IoError> {
         angle_min_rad: start_deg.to_radians(),
         angle_increment_rad: res_deg.to_radians(),
         beam_count,
+        range_min_m: 2.0,
         range_max_m: max_m as f32,
     })
 }
