@@ -227,7 +227,7 @@ impl ParticleSet {
         let prior: Vec<f64> = self.weights.iter().map(|w| w.ln()).collect();
         let fit = drawn_fit(&prior, &log_likelihood, &self.injected);
         normalise(&prior, &log_likelihood, 1.0, &mut self.weights);
-        if let Some(floor) = neff_floor.filter(|f| *f > 0.0) {
+        if let Some(floor) = neff_floor {
             let want = floor * self.poses.len() as f64;
             let mut temperature = 1.0;
             while self.neff() < want && temperature < MAX_TEMPERATURE {

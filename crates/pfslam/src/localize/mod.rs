@@ -21,7 +21,7 @@ pub mod run;
 mod tests;
 
 pub use check::LocalizeQuality;
-pub use options::LocalizeOptions;
+pub use options::{LikelihoodOptions, LocalizeOptions, RecoveryOptions};
 pub use run::{LocalizeResult, UpdateRecord, localize};
 
 /// Errors of localisation.

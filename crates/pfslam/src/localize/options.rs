@@ -1,10 +1,12 @@
-//! Options of Monte Carlo localisation (`[localize]`).
+//! Options of Monte Carlo localisation (`[localize]`, `[localize.likelihood]`,
+//! `[localize.recovery]`).
 
 use serde::{Deserialize, Serialize};
 
 /// Monte Carlo localisation in a fixed map (`pfslam localize`). AMCL's structure: the
 /// odometry motion model, a likelihood field, KLD-adaptive resampling and augmented MCL's
-/// random particles when the fit collapses.
+/// random particles when the fit collapses. The measurements behind the defaults are in
+/// `docs/decisions/0044-localisation-in-a-saved-map.md`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct LocalizeOptions {
@@ -18,25 +20,6 @@ pub struct LocalizeOptions {
     pub kld_z: f64,
     /// KLD sampling: the histogram's cell side (m) and yaw bin (deg).
     pub kld_bin: [f64; 2],
-    /// Likelihood field: standard deviation of a return about the nearest wall while tracking
-    /// (m).
-    pub sigma_hit_m: f64,
-    /// The same while the filter has not converged (m): broad, so that particles near but
-    /// not at the true pose still stand out during global localisation and recovery.
-    pub global_sigma_hit_m: f64,
-    /// While the filter has not converged, the likelihood is tempered so that this share of
-    /// the particles stays effective after weighing: the evidence of several updates decides
-    /// between candidate places, not the first scan's noise.
-    pub global_neff_share: f64,
-    /// The same while tracking (0: never tempered).
-    pub tracking_neff_share: f64,
-    /// Likelihood field: weight of the hit model; the rest is a uniform floor over the range,
-    /// which keeps returns off the map (people, furniture moved) from vetoing a pose.
-    pub z_hit: f64,
-    /// Distances to the nearest wall are clamped here (m): the field's reach.
-    pub max_distance_m: f64,
-    /// Returns used per update, evenly spaced over the scan.
-    pub max_beams: usize,
     /// The filter updates once the odometry moved this far (m) or turned this much (deg)
     /// since its last update; a robot at rest is not updated (AMCL's rule, which keeps
     /// repeated scans of one view from collapsing the particles).
@@ -45,19 +28,6 @@ pub struct LocalizeOptions {
     /// translation (rad²/m²), translation from translation (m²/m²), translation from rotation
     /// (m²/rad²).
     pub motion_alphas: [f64; 4],
-    /// Augmented MCL: rates of the slow and the fast average of the fit (the geometric mean
-    /// likelihood of a return).
-    pub recovery_alphas: [f64; 2],
-    /// Random particles are injected with probability `1 - fast / (ratio * slow)` once the
-    /// fast average falls below this share of the slow one (a kidnapped robot). Thrun's
-    /// ratio of 1 injects at every dip of the fit (a crowd, a fast turn), and a random
-    /// particle that happens to fit a sharp likelihood better than a briefly disturbed
-    /// cluster wins the estimate.
-    pub recovery_fit_ratio: f64,
-    /// Half of the random particles are drawn about the last converged estimate that fitted
-    /// well, with this standard deviation (m) plus the odometry's travel since, and any
-    /// heading; the other half over the whole free space.
-    pub local_recovery_sigma_m: f64,
     /// The filter has converged when the heaviest cluster holds this share of the weight.
     pub converged_mass: f64,
     /// A cluster's extent about its centre: distance (m) and yaw (deg).
@@ -65,6 +35,52 @@ pub struct LocalizeOptions {
     /// With `--initial-pose`: the standard deviations of the initial particles about it
     /// (m, deg).
     pub initial_sigma: [f64; 2],
+    /// The observation model.
+    pub likelihood: LikelihoodOptions,
+    /// Recovery when the robot is lost.
+    pub recovery: RecoveryOptions,
+}
+
+/// The likelihood field (`[localize.likelihood]`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LikelihoodOptions {
+    /// Standard deviation of a return about the nearest wall while tracking (m).
+    pub sigma_hit_m: f64,
+    /// The same while the filter has not converged (m): broad, so that particles near but
+    /// not at the true pose still stand out during global localisation and recovery.
+    pub global_sigma_hit_m: f64,
+    /// While the filter has not converged (or holds random particles just injected), the
+    /// likelihood is tempered so that this share of the particles stays effective after
+    /// weighing: the evidence of several updates decides between candidate places, not one
+    /// scan's noise.
+    pub global_neff_share: f64,
+    /// Weight of the hit model; the rest is a uniform floor over the range, which keeps
+    /// returns off the map (people, furniture moved) from vetoing a pose.
+    pub z_hit: f64,
+    /// Distances to the nearest wall are clamped here (m): the field's reach.
+    pub max_distance_m: f64,
+    /// Returns used per update, evenly spaced over the scan.
+    pub max_beams: usize,
+}
+
+/// Augmented MCL's recovery (`[localize.recovery]`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RecoveryOptions {
+    /// Rates of the slow and the fast average of the fit (the geometric mean likelihood of a
+    /// return).
+    pub alphas: [f64; 2],
+    /// Random particles are injected with probability `1 - fast / (ratio * slow)` once the
+    /// fast average falls below this share of the slow one (a kidnapped robot). Thrun's
+    /// ratio of 1 injects at every dip of the fit (a crowd, a fast turn), and a random
+    /// particle that happens to fit a sharp likelihood better than a briefly disturbed
+    /// cluster wins the estimate.
+    pub fit_ratio: f64,
+    /// Half of the random particles are drawn about the last converged estimate that fitted
+    /// well, with this standard deviation (m) plus the odometry's travel since, and any
+    /// heading; the other half over the whole free space.
+    pub local_sigma_m: f64,
 }
 
 impl Default for LocalizeOptions {
@@ -75,39 +91,60 @@ impl Default for LocalizeOptions {
             kld_error: 0.02,
             kld_z: 2.33,
             kld_bin: [0.25, 10.0],
-            sigma_hit_m: 0.1,
-            global_sigma_hit_m: 0.3,
-            global_neff_share: 0.1,
-            tracking_neff_share: 0.0,
-            z_hit: 0.9,
-            max_distance_m: 2.0,
-            max_beams: 60,
             update_min: [0.1, 5.0],
             motion_alphas: [0.1, 0.05, 0.05, 0.05],
-            recovery_alphas: [0.001, 0.1],
-            recovery_fit_ratio: 0.5,
-            local_recovery_sigma_m: 2.0,
             converged_mass: 0.9,
             cluster_radius: [1.0, 30.0],
             initial_sigma: [0.1, 3.0],
+            likelihood: LikelihoodOptions::default(),
+            recovery: RecoveryOptions::default(),
         }
+    }
+}
+
+impl Default for LikelihoodOptions {
+    fn default() -> Self {
+        LikelihoodOptions {
+            sigma_hit_m: 0.1,
+            global_sigma_hit_m: 0.3,
+            global_neff_share: 0.1,
+            z_hit: 0.9,
+            max_distance_m: 2.0,
+            max_beams: 60,
+        }
+    }
+}
+
+impl Default for RecoveryOptions {
+    fn default() -> Self {
+        RecoveryOptions {
+            alphas: [0.001, 0.1],
+            fit_ratio: 0.5,
+            local_sigma_m: 2.0,
+        }
+    }
+}
+
+fn positive(v: f64) -> bool {
+    v.is_finite() && v > 0.0
+}
+
+fn unit(v: f64) -> bool {
+    v.is_finite() && v > 0.0 && v < 1.0
+}
+
+/// The first failed check's message.
+fn first_failure(checks: &[(bool, &str)]) -> Result<(), String> {
+    match checks.iter().find(|(ok, _)| !ok) {
+        Some((_, message)) => Err((*message).to_string()),
+        None => Ok(()),
     }
 }
 
 impl LocalizeOptions {
     /// Checks every option; the message names the key.
     pub fn validate(&self) -> Result<(), String> {
-        let positive = |v: f64| v.is_finite() && v > 0.0;
-        let unit = |v: f64| v.is_finite() && v > 0.0 && v < 1.0;
-        let checks = [
-            (
-                self.recovery_fit_ratio > 0.0 && self.recovery_fit_ratio <= 1.0,
-                "recovery_fit_ratio must lie in (0, 1]",
-            ),
-            (
-                unit(self.global_neff_share),
-                "global_neff_share must lie in (0, 1)",
-            ),
+        first_failure(&[
             (self.min_particles >= 1, "min_particles must be at least 1"),
             (
                 self.max_particles >= self.min_particles,
@@ -119,17 +156,6 @@ impl LocalizeOptions {
                 self.kld_bin.iter().all(|&v| positive(v)),
                 "kld_bin must be positive",
             ),
-            (positive(self.sigma_hit_m), "sigma_hit_m must be positive"),
-            (
-                positive(self.global_sigma_hit_m),
-                "global_sigma_hit_m must be positive",
-            ),
-            (unit(self.z_hit), "z_hit must lie in (0, 1)"),
-            (
-                positive(self.max_distance_m),
-                "max_distance_m must be positive",
-            ),
-            (self.max_beams >= 1, "max_beams must be at least 1"),
             (
                 self.update_min.iter().all(|&v| v.is_finite() && v >= 0.0)
                     && self
@@ -137,12 +163,6 @@ impl LocalizeOptions {
                         .iter()
                         .all(|&v| v.is_finite() && v >= 0.0),
                 "update_min and motion_alphas must be finite and non-negative",
-            ),
-            (
-                self.recovery_alphas[0] >= 0.0
-                    && self.recovery_alphas[0] < self.recovery_alphas[1]
-                    && self.recovery_alphas[1] <= 1.0,
-                "recovery_alphas must satisfy 0 <= slow < fast <= 1",
             ),
             (
                 unit(self.converged_mass),
@@ -156,10 +176,55 @@ impl LocalizeOptions {
                         .all(|&v| v.is_finite() && v >= 0.0),
                 "cluster_radius must be positive and initial_sigma non-negative",
             ),
-        ];
-        match checks.iter().find(|(ok, _)| !ok) {
-            Some((_, message)) => Err((*message).to_string()),
-            None => Ok(()),
-        }
+        ])?;
+        self.likelihood.validate()?;
+        self.recovery.validate()
+    }
+}
+
+impl LikelihoodOptions {
+    fn validate(&self) -> Result<(), String> {
+        first_failure(&[
+            (
+                positive(self.sigma_hit_m),
+                "likelihood.sigma_hit_m must be positive",
+            ),
+            (
+                positive(self.global_sigma_hit_m),
+                "likelihood.global_sigma_hit_m must be positive",
+            ),
+            (
+                unit(self.global_neff_share),
+                "likelihood.global_neff_share must lie in (0, 1)",
+            ),
+            (unit(self.z_hit), "likelihood.z_hit must lie in (0, 1)"),
+            (
+                positive(self.max_distance_m),
+                "likelihood.max_distance_m must be positive",
+            ),
+            (
+                self.max_beams >= 1,
+                "likelihood.max_beams must be at least 1",
+            ),
+        ])
+    }
+}
+
+impl RecoveryOptions {
+    fn validate(&self) -> Result<(), String> {
+        first_failure(&[
+            (
+                self.alphas[0] >= 0.0 && self.alphas[0] < self.alphas[1] && self.alphas[1] <= 1.0,
+                "recovery.alphas must satisfy 0 <= slow < fast <= 1",
+            ),
+            (
+                self.fit_ratio > 0.0 && self.fit_ratio <= 1.0,
+                "recovery.fit_ratio must lie in (0, 1]",
+            ),
+            (
+                positive(self.local_sigma_m),
+                "recovery.local_sigma_m must be positive",
+            ),
+        ])
     }
 }

@@ -92,9 +92,12 @@ pub fn localize(
     let field = LikelihoodField::new(
         map,
         &FieldModel {
-            sigma_hit_m: [options.sigma_hit_m, options.global_sigma_hit_m],
-            z_hit: options.z_hit,
-            max_distance_m: options.max_distance_m,
+            sigma_hit_m: [
+                options.likelihood.sigma_hit_m,
+                options.likelihood.global_sigma_hit_m,
+            ],
+            z_hit: options.likelihood.z_hit,
+            max_distance_m: options.likelihood.max_distance_m,
             range_max_m: recording.lidar.range_max_m as f64,
         },
     );
@@ -122,13 +125,13 @@ pub fn localize(
         if state.wants_update(&odom) {
             io.projector.aim(recording, i);
             io.projector.to_body(scans.ranges(i), &mut io.body)?;
-            io.select(options.max_beams);
+            io.select(options.likelihood.max_beams);
             if io.points.is_empty() {
                 out.scans_without_returns += 1;
             } else {
                 let record = state.update(&field, &free, &io.points, stamp_ns, &odom);
                 out.updates.push(record);
-                let reach_m = 3.0 * options.sigma_hit_m;
+                let reach_m = 3.0 * options.likelihood.sigma_hit_m;
                 out.count_off_wall(&field, reach_m, &state.estimate.pose, &io.body);
             }
         }
@@ -310,11 +313,7 @@ impl<'a> State<'a> {
         // Random particles just injected are tempered too: one that happens to fit this scan
         // better than a cluster the scan disturbed must not take the estimate at once.
         let searching = !self.converged || self.particles.injected.iter().any(|&i| i);
-        let neff_floor = Some(if searching {
-            self.options.global_neff_share
-        } else {
-            self.options.tracking_neff_share
-        });
+        let neff_floor = searching.then_some(self.options.likelihood.global_neff_share);
         let log_mean = self.particles.weigh(field, sharpness, points, neff_floor);
         let fit = (log_mean / points.len() as f64).exp();
         let inject_probability = self.track_fit(fit);
@@ -335,9 +334,9 @@ impl<'a> State<'a> {
             // The odometry since may be the glitch that lost the robot: widen by its travel.
             Some((pose, odom_then)) => {
                 let travel_m = odom_then.between(odom).translation_norm_m();
-                (pose, o.local_recovery_sigma_m + travel_m)
+                (pose, o.recovery.local_sigma_m + travel_m)
             }
-            None => (self.estimate.pose, o.local_recovery_sigma_m),
+            None => (self.estimate.pose, o.recovery.local_sigma_m),
         };
         let resampled = self.particles.resample(
             &ResamplePlan {
@@ -366,13 +365,13 @@ impl<'a> State<'a> {
     /// particle, `1 - fast / (ratio * slow)` when the recent fit fell below that share of the
     /// long-run one.
     fn track_fit(&mut self, fit: f64) -> f64 {
-        let [a_slow, a_fast] = self.options.recovery_alphas;
+        let [a_slow, a_fast] = self.options.recovery.alphas;
         let (slow, fast) = match self.averages {
             None => (fit, fit),
             Some((s, f)) => (s + a_slow * (fit - s), f + a_fast * (fit - f)),
         };
         self.averages = Some((slow, fast));
-        let ratio = self.options.recovery_fit_ratio;
+        let ratio = self.options.recovery.fit_ratio;
         if slow > 0.0 {
             (1.0 - fast / (ratio * slow)).max(0.0)
         } else {
