@@ -6,6 +6,7 @@ mod common;
 mod eval;
 mod filter;
 mod graph;
+mod localize;
 mod map;
 mod motion;
 mod pipeline;

@@ -110,16 +110,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
 /// One line per filter update: what the particles did.
 fn write_updates(path: &std::path::Path, result: &LocalizeResult) -> anyhow::Result<()> {
-    let mut text = String::from("stamp_s,particles,injected,mass,fit,converged\n");
+    let mut text = String::from("stamp_s,particles,injected,mass,fit,converged,off_wall_share\n");
     for u in &result.updates {
         text.push_str(&format!(
-            "{:.6},{},{},{:.4},{:.4},{}\n",
+            "{:.6},{},{},{:.4},{:.4},{},{:.4}\n",
             u.stamp_ns as f64 * 1e-9,
             u.particles,
             u.injected,
             u.mass,
             u.fit,
-            u64::from(u.converged)
+            u64::from(u.converged),
+            u.off_wall_share
         ));
     }
     pfslam::io::write_bytes_atomic(path, text.as_bytes())?;
@@ -162,6 +163,11 @@ fn summary(
         "scans_outside_odometry": result.scans_outside_odometry,
         "scans_without_returns": result.scans_without_returns,
         "updates": result.updates.len(),
+        "first_converged_at_s": result
+            .updates
+            .iter()
+            .find(|u| u.converged)
+            .map(|u| since_start_s(traj, u.stamp_ns)),
         "converged_at_s": result.converged_from_ns().map(|t| since_start_s(traj, t)),
         "convergence_losses": result.convergence_losses(),
         "particles": {

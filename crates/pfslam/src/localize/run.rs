@@ -30,6 +30,9 @@ pub struct UpdateRecord {
     /// The heaviest cluster held `converged_mass` of the weight: the filter tracks one place
     /// (else it searches, with the broad likelihood).
     pub converged: bool,
+    /// Share of this scan's returns far from every wall at the estimate
+    /// ([`LocalizeResult::off_wall_share`]).
+    pub off_wall_share: f64,
 }
 
 /// What a localisation run produced.
@@ -129,10 +132,11 @@ pub fn localize(
             if io.points.is_empty() {
                 out.scans_without_returns += 1;
             } else {
-                let record = state.update(&field, &free, &io.points, stamp_ns, &odom);
-                out.updates.push(record);
+                let mut record = state.update(&field, &free, &io.points, stamp_ns, &odom);
                 let reach_m = 3.0 * options.likelihood.sigma_hit_m;
-                out.count_off_wall(&field, reach_m, &state.estimate.pose, &io.body);
+                record.off_wall_share =
+                    out.count_off_wall(&field, reach_m, &state.estimate.pose, &io.body);
+                out.updates.push(record);
             }
         }
         out.trajectory.push(StampedPose2 {
@@ -185,14 +189,18 @@ impl Outputs {
         reach_m: f64,
         pose: &Pose2,
         body: &PlanarScan,
-    ) {
+    ) -> f64 {
+        let (mut returns, mut off_wall) = (0usize, 0usize);
         for p in body.points.iter().filter(|p| p.hit) {
             let (x, y) = pose.transform_point(p.x_m, p.y_m);
-            self.returns += 1;
+            returns += 1;
             if f64::from(field.distance_m(x, y)) > reach_m {
-                self.returns_off_wall += 1;
+                off_wall += 1;
             }
         }
+        self.returns += returns;
+        self.returns_off_wall += off_wall;
+        off_wall as f64 / returns.max(1) as f64
     }
 
     fn finish(self) -> LocalizeResult {
@@ -358,6 +366,7 @@ impl<'a> State<'a> {
             mass: self.estimate.mass,
             fit,
             converged: self.converged,
+            off_wall_share: 0.0,
         }
     }
 

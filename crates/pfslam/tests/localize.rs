@@ -1,0 +1,202 @@
+//! Localisation on real recordings in maps made from their corrected poses (the map another
+//! tool would have written): global localisation, and recovery after a kidnapping.
+
+use pfslam::config::Config;
+use pfslam::geometry::{Pose2, StampedPose2, Trajectory};
+use pfslam::localize::{LocalizeOptions, LocalizeResult, localize};
+use pfslam::map::{BinaryMap, map_with_poses};
+use pfslam::motion::perturb::{OdometryErrors, perturb_odometry};
+use pfslam::sensors::Recording;
+
+/// A Radish log with its odometry perturbed at level 2 (seed 1), its corrected laser poses,
+/// and the binary map rasterised along them.
+fn log_and_map(test: &str, name: &str) -> Option<(Recording, Trajectory, BinaryMap)> {
+    let data = crate::common::data_dir(test)?;
+    let config = Config::default();
+    let path = data.join(format!("carmen/{name}-corrected.log.gz"));
+    let log = pfslam::io::carmen::read_carmen(&path, &config.input.carmen()).unwrap();
+    let mut recording = log.recording;
+    let errors = OdometryErrors::level(2).unwrap();
+    recording.odometry = perturb_odometry(&recording.odometry, &errors, 1);
+    let (grid, _, _) = map_with_poses(&recording, &log.laser_poses, &config.map).unwrap();
+    let map = grid.to_binary_map(None);
+    Some((recording, log.laser_poses, map))
+}
+
+/// Position errors (m) against the reference, by stamp, from `from_ns` on.
+fn errors_m(result: &LocalizeResult, reference: &Trajectory, from_ns: i64) -> Vec<f64> {
+    result
+        .trajectory
+        .iter()
+        .filter(|p| p.stamp_ns >= from_ns)
+        .filter_map(|p| {
+            let r = reference.pose_exact(p.stamp_ns)?;
+            Some((p.pose.x_m - r.x_m).hypot(p.pose.y_m - r.y_m))
+        })
+        .collect()
+}
+
+fn rms(e: &[f64]) -> f64 {
+    (e.iter().map(|x| x * x).sum::<f64>() / e.len().max(1) as f64).sqrt()
+}
+
+/// The first update at which the filter counted itself converged.
+fn first_converged_ns(result: &LocalizeResult) -> Option<i64> {
+    result
+        .updates
+        .iter()
+        .find(|u| u.converged)
+        .map(|u| u.stamp_ns)
+}
+
+#[test]
+fn global_localisation_finds_the_robot_within_a_minute() {
+    let test = "global_localisation_finds_the_robot_within_a_minute";
+    // seeds 1-3 measured: seattle converged at 2-3 s, then 0.057-0.061 m RMSE; intel at
+    // 33-36 s, then 0.078-0.080 m
+    for name in ["seattle", "intel"] {
+        let Some((rec, reference, map)) = log_and_map(test, name) else {
+            return;
+        };
+        for seed in 1..=3 {
+            let r = localize(
+                &rec,
+                &map,
+                &LocalizeOptions::default(),
+                &Config::default().map.scan,
+                None,
+                seed,
+            )
+            .unwrap();
+            let t0 = r.trajectory[0].stamp_ns;
+            let from = first_converged_ns(&r).expect("never converged");
+            let after_s = (from - t0) as f64 * 1e-9;
+            assert!(
+                after_s <= 60.0,
+                "{name} seed {seed}: converged after {after_s} s"
+            );
+            let e = errors_m(&r, &reference, from);
+            assert!(
+                rms(&e) < 0.10,
+                "{name} seed {seed}: {} m after {after_s} s",
+                rms(&e)
+            );
+        }
+    }
+}
+
+#[test]
+fn recovers_when_carried_elsewhere_without_the_odometry_knowing() {
+    let Some((mut rec, reference, map)) = log_and_map(
+        "recovers_when_carried_elsewhere_without_the_odometry_knowing",
+        "intel",
+    ) else {
+        return;
+    };
+    // The robot is carried from where it is at 40 % of the scans to where it is at 60 %:
+    // the scans between are cut, and the odometry continues from the first place as if
+    // nothing had happened (its motion after the gap, re-expressed from there).
+    let n = rec.scans.len();
+    let (t1, t2) = (
+        rec.scans.stamps_ns[n * 2 / 5],
+        rec.scans.stamps_ns[n * 3 / 5],
+    );
+    let keep: Vec<usize> = (0..n)
+        .filter(|&i| rec.scans.stamps_ns[i] <= t1 || rec.scans.stamps_ns[i] >= t2)
+        .collect();
+    rec.keep_scans(&keep);
+    let (o1, o2) = (
+        rec.odometry.pose_at(t1).unwrap(),
+        rec.odometry.pose_at(t2).unwrap(),
+    );
+    let spliced: Vec<StampedPose2> = rec
+        .odometry
+        .poses
+        .iter()
+        .filter(|p| p.stamp_ns <= t1 || p.stamp_ns >= t2)
+        .map(|p| StampedPose2 {
+            stamp_ns: p.stamp_ns,
+            pose: if p.stamp_ns >= t2 {
+                o1.compose(&o2.between(&p.pose))
+            } else {
+                p.pose
+            },
+        })
+        .collect();
+    rec.odometry = Trajectory::new(spliced);
+    let carried_m = {
+        let (a, b) = (
+            reference.pose_exact(t1).unwrap(),
+            reference.pose_exact(t2).unwrap(),
+        );
+        (a.x_m - b.x_m).hypot(a.y_m - b.y_m)
+    };
+    assert!(carried_m > 2.0, "carried only {carried_m} m");
+    for seed in 1..=3 {
+        let r = localize(
+            &rec,
+            &map,
+            &LocalizeOptions::default(),
+            &Config::default().map.scan,
+            Some(reference.poses[0].pose),
+            seed,
+        )
+        .unwrap();
+        let before = errors_m(&r, &reference, 0);
+        let before: Vec<f64> = before[..keep.iter().filter(|&&i| i <= n * 2 / 5).count()].to_vec();
+        assert!(rms(&before) < 0.10, "seed {seed} before: {}", rms(&before));
+        assert!(
+            r.updates.iter().any(|u| u.stamp_ns >= t2 && u.injected > 0),
+            "seed {seed}: no random particles after being carried {carried_m} m"
+        );
+        let t_end = r.trajectory.last().unwrap().stamp_ns;
+        let last_half = errors_m(&r, &reference, t_end - (t_end - t2) / 2);
+        assert!(
+            rms(&last_half) < 0.10,
+            "seed {seed} after: {}",
+            rms(&last_half)
+        );
+    }
+}
+
+#[test]
+fn recovers_when_the_odometry_jumps_by_metres() {
+    let Some((mut rec, reference, map)) =
+        log_and_map("recovers_when_the_odometry_jumps_by_metres", "intel")
+    else {
+        return;
+    };
+    // Halfway, the odometry jumps 3.6 m and 90 deg in one step. The motion model's noise
+    // grows with the motion the odometry reports, so the particles spread over the jump and
+    // the scans pull them back.
+    let half = rec.odometry.len() / 2;
+    let pivot = rec.odometry.poses[half].pose;
+    let kick = Pose2::new(3.0, -2.0, std::f64::consts::FRAC_PI_2);
+    for p in &mut rec.odometry.poses[half..] {
+        p.pose = pivot.compose(&kick).compose(&pivot.between(&p.pose));
+    }
+    let kicked_ns = rec.odometry.poses[half].stamp_ns;
+    for seed in 1..=3 {
+        let r = localize(
+            &rec,
+            &map,
+            &LocalizeOptions::default(),
+            &Config::default().map.scan,
+            Some(reference.poses[0].pose),
+            seed,
+        )
+        .unwrap();
+        let at_jump = errors_m(&r, &reference, kicked_ns);
+        assert!(
+            at_jump[0] > 1.0,
+            "seed {seed}: the jump did not move the estimate"
+        );
+        let t_end = r.trajectory.last().unwrap().stamp_ns;
+        let last_quarter = errors_m(&r, &reference, t_end - (t_end - kicked_ns) / 4);
+        assert!(
+            rms(&last_quarter) < 0.10,
+            "seed {seed} after: {}",
+            rms(&last_quarter)
+        );
+    }
+}
