@@ -52,8 +52,8 @@ fn first_converged_ns(result: &LocalizeResult) -> Option<i64> {
 #[test]
 fn global_localisation_finds_the_robot_within_a_minute() {
     let test = "global_localisation_finds_the_robot_within_a_minute";
-    // seeds 1-3 measured: seattle converged at 2-3 s, then 0.057-0.061 m RMSE; intel at
-    // 33-36 s, then 0.078-0.080 m
+    // seeds 1-3 measured: seattle converged at 6-11 s, then 0.046-0.048 m RMSE; intel at
+    // 33-36 s, then 0.059-0.064 m
     for name in ["seattle", "intel"] {
         let Some((rec, reference, map)) = log_and_map(test, name) else {
             return;

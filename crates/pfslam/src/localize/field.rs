@@ -78,12 +78,39 @@ impl LikelihoodField {
     /// inside a cell, and the map's cells are often as large as the accuracy wanted.
     #[inline]
     pub fn log_likelihood(&self, sharpness: Sharpness, x_m: f64, y_m: f64) -> f32 {
-        let table = &self.tables[sharpness as usize];
         let (cx, cy) = self.limits.cell_coords(x_m, y_m);
-        let (u, v) = (cx - 0.5, cy - 0.5);
+        self.log_likelihood_at_centres(sharpness, cx - 0.5, cy - 0.5)
+    }
+
+    /// The map from world to the coordinates [`Self::log_likelihood_at_centres`] takes:
+    /// `(u, v) = (x_m, y_m) * scale - offset`, cell centres at whole numbers.
+    pub fn centre_coordinates(&self) -> (f64, [f64; 2]) {
+        let inv = self.limits.inv_resolution();
+        (
+            inv,
+            [
+                self.limits.origin_x_m() * inv + 0.5,
+                self.limits.origin_y_m() * inv + 0.5,
+            ],
+        )
+    }
+
+    /// [`Self::log_likelihood`] at coordinates in which cell centres lie at whole numbers.
+    #[inline]
+    pub fn log_likelihood_at_centres(&self, sharpness: Sharpness, u: f64, v: f64) -> f32 {
+        let table = &self.tables[sharpness as usize];
         let (i0, j0) = (u.floor(), v.floor());
         let (fx, fy) = ((u - i0) as f32, (v - j0) as f32);
         let (w, h) = (self.width as f64, self.height as f64);
+        if i0 >= 0.0 && j0 >= 0.0 && i0 + 1.0 < w && j0 + 1.0 < h {
+            // Inside: the four cells without a bounds test each (the same values and
+            // arithmetic as below, so the same bits).
+            let k = j0 as usize * self.width + i0 as usize;
+            let (row0, row1) = (&table[k..k + 2], &table[k + self.width..k + self.width + 2]);
+            let low = row0[0] + fx * (row0[1] - row0[0]);
+            let high = row1[0] + fx * (row1[1] - row1[0]);
+            return low + fy * (high - low);
+        }
         let at = |i: f64, j: f64| -> f32 {
             if i < 0.0 || j < 0.0 || i >= w || j >= h {
                 self.floor

@@ -86,7 +86,7 @@ pub struct RecoveryOptions {
 impl Default for LocalizeOptions {
     fn default() -> Self {
         LocalizeOptions {
-            min_particles: 300,
+            min_particles: 600,
             max_particles: 20_000,
             kld_error: 0.02,
             kld_z: 2.33,
