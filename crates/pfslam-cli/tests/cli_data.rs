@@ -746,6 +746,12 @@ fn localize_in_corrected_map(data: &Path, name: &str) -> (f64, serde_json::Value
         serde_json::from_str(&std::fs::read_to_string(out_dir.join("summary.json")).unwrap())
             .unwrap();
     assert!(summary["realtime_factor"].as_f64().unwrap() > 1.0);
+    // the reader's account travels with the result, as for `run`
+    assert_eq!(
+        summary["input"]["scans_kept"].as_u64(),
+        Some(truth.len() as u64),
+        "{summary}"
+    );
     (ate.unaligned_m.rmse, summary)
 }
 

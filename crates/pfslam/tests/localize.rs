@@ -3,7 +3,7 @@
 
 use pfslam::config::Config;
 use pfslam::geometry::{Pose2, StampedPose2, Trajectory};
-use pfslam::localize::{LocalizeOptions, LocalizeResult, localize};
+use pfslam::localize::{LocalizeResult, localize};
 use pfslam::map::{BinaryMap, map_with_poses};
 use pfslam::motion::perturb::{OdometryErrors, perturb_odometry};
 use pfslam::sensors::Recording;
@@ -40,13 +40,10 @@ fn rms(e: &[f64]) -> f64 {
     (e.iter().map(|x| x * x).sum::<f64>() / e.len().max(1) as f64).sqrt()
 }
 
-/// The first update at which the filter counted itself converged.
-fn first_converged_ns(result: &LocalizeResult) -> Option<i64> {
-    result
-        .updates
-        .iter()
-        .find(|u| u.converged)
-        .map(|u| u.stamp_ns)
+/// Localisation with the defaults, from `start` when given.
+fn run(rec: &Recording, map: &BinaryMap, start: Option<Pose2>, seed: u64) -> LocalizeResult {
+    let config = Config::default();
+    localize(rec, map, &config.localize, &config.map.scan, start, seed).unwrap()
 }
 
 #[test]
@@ -59,17 +56,9 @@ fn global_localisation_finds_the_robot_within_a_minute() {
             return;
         };
         for seed in 1..=3 {
-            let r = localize(
-                &rec,
-                &map,
-                &LocalizeOptions::default(),
-                &Config::default().map.scan,
-                None,
-                seed,
-            )
-            .unwrap();
+            let r = run(&rec, &map, None, seed);
             let t0 = r.trajectory[0].stamp_ns;
-            let from = first_converged_ns(&r).expect("never converged");
+            let from = r.first_converged_ns().expect("never converged");
             let after_s = (from - t0) as f64 * 1e-9;
             assert!(
                 after_s <= 60.0,
@@ -133,15 +122,7 @@ fn recovers_when_carried_elsewhere_without_the_odometry_knowing() {
     };
     assert!(carried_m > 2.0, "carried only {carried_m} m");
     for seed in 1..=3 {
-        let r = localize(
-            &rec,
-            &map,
-            &LocalizeOptions::default(),
-            &Config::default().map.scan,
-            Some(reference.poses[0].pose),
-            seed,
-        )
-        .unwrap();
+        let r = run(&rec, &map, Some(reference.poses[0].pose), seed);
         let before = errors_m(&r, &reference, 0);
         let before: Vec<f64> = before[..keep.iter().filter(|&&i| i <= n * 2 / 5).count()].to_vec();
         assert!(rms(&before) < 0.10, "seed {seed} before: {}", rms(&before));
@@ -177,15 +158,7 @@ fn recovers_when_the_odometry_jumps_by_metres() {
     }
     let kicked_ns = rec.odometry.poses[half].stamp_ns;
     for seed in 1..=3 {
-        let r = localize(
-            &rec,
-            &map,
-            &LocalizeOptions::default(),
-            &Config::default().map.scan,
-            Some(reference.poses[0].pose),
-            seed,
-        )
-        .unwrap();
+        let r = run(&rec, &map, Some(reference.poses[0].pose), seed);
         let at_jump = errors_m(&r, &reference, kicked_ns);
         assert!(
             at_jump[0] > 1.0,

@@ -7,7 +7,7 @@
 use anyhow::Context;
 use pfslam::geometry::{Pose2, StampedPose2};
 use pfslam::io::map_files::read_map_server;
-use pfslam::io::tum::write_tum;
+use pfslam::io::tum::{format_stamp_s, write_tum};
 use pfslam::localize::{LocalizeQuality, LocalizeResult, localize};
 use pfslam::viz::map_image::{MapImageOptions, TrajectoryOverlay, write_map_png};
 use std::path::PathBuf;
@@ -69,12 +69,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let map = read_map_server(&args.map)?;
     let dataset = super::dataset::load_dataset(&args.recording, &config, false)
         .with_context(|| format!("loading {}", args.recording.display()))?;
-    let recording = dataset.recording;
     super::input::report(&dataset.account);
+    let recording = &dataset.recording;
     let load_s = t_load.elapsed().as_secs_f64();
     let t = Instant::now();
     let result = localize(
-        &recording,
+        recording,
         &map,
         &config.localize,
         &config.map.scan,
@@ -97,7 +97,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         None,
         &MapImageOptions::default(),
     )?;
-    let summary = summary(&args, &config, &result, &quality, [load_s, localize_s]);
+    let mut summary = summary(&args, &config, &result, &quality, [load_s, localize_s]);
+    summary["input"] = serde_json::to_value(&dataset.account)?;
     let text = serde_json::to_string_pretty(&summary)?;
     pfslam::io::write_bytes_atomic(&out.join("summary.json"), text.as_bytes())?;
     staging.commit()?;
@@ -113,8 +114,8 @@ fn write_updates(path: &std::path::Path, result: &LocalizeResult) -> anyhow::Res
     let mut text = String::from("stamp_s,particles,injected,mass,fit,converged,off_wall_share\n");
     for u in &result.updates {
         text.push_str(&format!(
-            "{:.6},{},{},{:.4},{:.4},{},{:.4}\n",
-            u.stamp_ns as f64 * 1e-9,
+            "{},{},{},{:.4},{:.4},{},{:.4}\n",
+            format_stamp_s(u.stamp_ns),
             u.particles,
             u.injected,
             u.mass,
@@ -163,11 +164,7 @@ fn summary(
         "scans_outside_odometry": result.scans_outside_odometry,
         "scans_without_returns": result.scans_without_returns,
         "updates": result.updates.len(),
-        "first_converged_at_s": result
-            .updates
-            .iter()
-            .find(|u| u.converged)
-            .map(|u| since_start_s(traj, u.stamp_ns)),
+        "first_converged_at_s": result.first_converged_ns().map(|t| since_start_s(traj, t)),
         "converged_at_s": result.converged_from_ns().map(|t| since_start_s(traj, t)),
         "convergence_losses": result.convergence_losses(),
         "particles": {

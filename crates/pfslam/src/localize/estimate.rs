@@ -12,8 +12,6 @@ pub struct Estimate {
     pub pose: Pose2,
     /// Its share of the total weight.
     pub mass: f64,
-    /// Weighted standard deviation of its positions (m).
-    pub spread_m: f64,
 }
 
 /// The extent of a cluster about its centre.
@@ -58,10 +56,10 @@ pub fn estimate(poses: &[Pose2], weights: &[f64], shape: &ClusterShape) -> Estim
     mean(poses.iter().zip(weights).filter(|(p, _)| member(p)))
 }
 
-/// Weighted mean (circular for yaw), total weight and position spread of some particles.
-fn mean<'a>(members: impl Iterator<Item = (&'a Pose2, &'a f64)> + Clone) -> Estimate {
+/// Weighted mean (circular for yaw) and total weight of some particles.
+fn mean<'a>(members: impl Iterator<Item = (&'a Pose2, &'a f64)>) -> Estimate {
     let (mut w_sum, mut x, mut y, mut s, mut c) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for (p, &w) in members.clone() {
+    for (p, &w) in members {
         w_sum += w;
         x += w * p.x_m;
         y += w * p.y_m;
@@ -72,18 +70,11 @@ fn mean<'a>(members: impl Iterator<Item = (&'a Pose2, &'a f64)> + Clone) -> Esti
         return Estimate {
             pose: Pose2::IDENTITY,
             mass: 0.0,
-            spread_m: f64::INFINITY,
         };
     }
-    let (mx, my) = (x / w_sum, y / w_sum);
-    let var: f64 = members
-        .map(|(p, &w)| w * ((p.x_m - mx).powi(2) + (p.y_m - my).powi(2)))
-        .sum::<f64>()
-        / w_sum;
     Estimate {
-        pose: Pose2::new(mx, my, s.atan2(c)),
+        pose: Pose2::new(x / w_sum, y / w_sum, s.atan2(c)),
         mass: w_sum,
-        spread_m: var.sqrt(),
     }
 }
 
@@ -110,7 +101,6 @@ mod tests {
         assert!((e.mass - 0.7).abs() < 1e-9, "{e:?}");
         assert!((e.pose.x_m - 5.045).abs() < 1e-9 && (e.pose.y_m - 1.0).abs() < 1e-12);
         assert!((e.pose.yaw_rad - 3.1).abs() < 1e-9);
-        assert!(e.spread_m < 0.03);
     }
 
     #[test]

@@ -9,7 +9,7 @@
 use super::field::{LikelihoodField, Sharpness};
 use super::kld::{KldBins, kld_bound};
 use crate::geometry::{Pose2, wrap_angle};
-use crate::map::{BinaryMap, CellState, MapLimits};
+use crate::map::{BinaryMap, CellState};
 use crate::motion::odometry_model::{OdometryModelOptions, sample_odometry_motion};
 use rand::{RngExt, SeedableRng};
 use rand_distr::StandardNormal;
@@ -21,27 +21,20 @@ pub const CHUNK: usize = 256;
 
 /// The free cells of a map, to draw poses uniformly over the space a robot can stand in.
 #[derive(Debug, Clone)]
-pub struct FreeSpace {
-    limits: MapLimits,
+pub struct FreeSpace<'a> {
+    map: &'a BinaryMap,
     cells: Vec<(u32, u32)>,
-    width: usize,
-    is_free: Vec<bool>,
 }
 
-impl FreeSpace {
+impl<'a> FreeSpace<'a> {
     /// The free cells of `map` (none: `None`).
-    pub fn new(map: &BinaryMap) -> Option<Self> {
+    pub fn new(map: &'a BinaryMap) -> Option<Self> {
         let cells: Vec<(u32, u32)> = (0..map.height)
             .flat_map(|j| (0..map.width).map(move |i| (i, j)))
             .filter(|&(i, j)| map.cells[j * map.width + i] == CellState::Free)
             .map(|(i, j)| (i as u32, j as u32))
             .collect();
-        (!cells.is_empty()).then_some(FreeSpace {
-            limits: map.limits,
-            cells,
-            width: map.width,
-            is_free: map.cells.iter().map(|&c| c == CellState::Free).collect(),
-        })
+        (!cells.is_empty()).then_some(FreeSpace { map, cells })
     }
 
     /// A pose in a free cell drawn about `centre` (normal, `sigma_m` per axis) with any
@@ -50,11 +43,7 @@ impl FreeSpace {
         for _ in 0..8 {
             let x = centre.x_m + sigma_m * rng.sample::<f64, _>(StandardNormal);
             let y = centre.y_m + sigma_m * rng.sample::<f64, _>(StandardNormal);
-            let (ci, cj) = self.limits.cell_coords(x, y);
-            let (i, j) = (ci.floor(), cj.floor());
-            let inside = i >= 0.0 && j >= 0.0 && (i as usize) < self.width;
-            let k = j as usize * self.width + i as usize;
-            if inside && self.is_free.get(k).copied().unwrap_or(false) {
+            if self.map.state_at(x, y) == CellState::Free {
                 let yaw = rng.random_range(-std::f64::consts::PI..std::f64::consts::PI);
                 return Pose2::new(x, y, yaw);
             }
@@ -65,9 +54,10 @@ impl FreeSpace {
     /// A pose drawn uniformly over the free cells and all headings.
     pub fn sample(&self, rng: &mut Xoshiro256PlusPlus) -> Pose2 {
         let (i, j) = self.cells[rng.random_range(0..self.cells.len())];
-        let res = self.limits.resolution_m();
-        let x = self.limits.origin_x_m() + (i as f64 + rng.random::<f64>()) * res;
-        let y = self.limits.origin_y_m() + (j as f64 + rng.random::<f64>()) * res;
+        let limits = &self.map.limits;
+        let res = limits.resolution_m();
+        let x = limits.origin_x_m() + (i as f64 + rng.random::<f64>()) * res;
+        let y = limits.origin_y_m() + (j as f64 + rng.random::<f64>()) * res;
         let yaw = rng.random_range(-std::f64::consts::PI..std::f64::consts::PI);
         Pose2::new(x, y, yaw)
     }
@@ -120,27 +110,18 @@ pub struct ParticleSet {
     pub injected: Vec<bool>,
 }
 
-/// What one resampling did.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Resampled {
-    /// Particles after it.
-    pub count: usize,
-    /// The share of them drawn at random over the free space.
-    pub injected: usize,
-}
-
 /// The settings of one resampling.
 #[derive(Debug, Clone, Copy)]
 pub struct ResamplePlan {
     /// Probability of drawing a particle at random over the free space.
     pub inject_probability: f64,
-    /// Bounds of the count.
+    /// Lower bound of the count.
     pub min_particles: usize,
     /// Upper bound of the count.
     pub max_particles: usize,
-    /// KLD error bound and normal quantile.
+    /// KLD sampling's error bound.
     pub kld_error: f64,
-    /// The normal quantile.
+    /// KLD sampling's normal quantile.
     pub kld_z: f64,
     /// Half of the random particles are drawn about this pose with this spread (m): a robot
     /// lost by an odometry glitch is usually near where it was lost; the other half cover
@@ -245,14 +226,14 @@ impl ParticleSet {
 
     /// Draws a new set: each particle at random over `free` with the plan's probability, else
     /// from the weights; it stops once the count reaches the KLD bound of the bins occupied
-    /// (within the plan's bounds).
+    /// (within the plan's bounds). Returns how many were drawn at random.
     pub fn resample(
         &mut self,
         plan: &ResamplePlan,
         bins: &mut KldBins,
         free: &FreeSpace,
         rng: &mut Xoshiro256PlusPlus,
-    ) -> Resampled {
+    ) -> usize {
         let mut cumulative = Vec::with_capacity(self.weights.len());
         let mut acc = 0.0;
         for w in &self.weights {
@@ -293,10 +274,7 @@ impl ParticleSet {
         }
         *self = Self::uniform(out);
         self.injected = flags;
-        Resampled {
-            count: self.poses.len(),
-            injected,
-        }
+        injected
     }
 }
 
@@ -306,38 +284,23 @@ const MAX_TEMPERATURE: f64 = 4096.0;
 /// The log of the weighted mean likelihood over the particles not injected (all of them
 /// when every one was).
 fn drawn_fit(prior: &[f64], log_likelihood: &[f64], injected: &[bool]) -> f64 {
-    let terms = || {
-        prior
-            .iter()
-            .zip(log_likelihood)
-            .zip(injected)
-            .filter(|(_, i)| !**i)
-            .map(|((p, l), _)| p + l)
-    };
-    let (mut top, mut prior_top) = (f64::NEG_INFINITY, f64::NEG_INFINITY);
-    for t in terms() {
-        top = top.max(t);
-    }
-    if top == f64::NEG_INFINITY {
-        let mut scratch = vec![0.0; prior.len()];
-        return normalise(prior, log_likelihood, 1.0, &mut scratch);
-    }
-    for (p, _) in prior.iter().zip(injected).filter(|(_, i)| !**i) {
-        prior_top = prior_top.max(*p);
-    }
-    let sum: f64 = terms().map(|t| (t - top).exp()).sum();
-    let prior_sum: f64 = prior
-        .iter()
-        .zip(injected)
-        .filter(|(_, i)| !**i)
-        .map(|(p, _)| (p - prior_top).exp())
-        .sum();
-    (top + sum.ln()) - (prior_top + prior_sum.ln())
+    let any_drawn = injected.iter().any(|i| !i);
+    let kept = || (0..prior.len()).filter(move |&k| !any_drawn || !injected[k]);
+    log_sum_exp(kept().map(|k| prior[k] + log_likelihood[k]))
+        - log_sum_exp(kept().map(|k| prior[k]))
 }
 
-/// `weights <- normalised exp(prior + log_likelihood / temperature)`; returns the log of the
-/// total (the log of the weighted mean likelihood when `prior` is normalised).
-fn normalise(prior: &[f64], log_likelihood: &[f64], temperature: f64, weights: &mut [f64]) -> f64 {
+/// `ln(sum(exp(v)))` without overflow (negative infinity for nothing).
+fn log_sum_exp(values: impl Iterator<Item = f64> + Clone) -> f64 {
+    let top = values.clone().fold(f64::NEG_INFINITY, f64::max);
+    if top == f64::NEG_INFINITY {
+        return top;
+    }
+    top + values.map(|v| (v - top).exp()).sum::<f64>().ln()
+}
+
+/// `weights <- normalised exp(prior + log_likelihood / temperature)`.
+fn normalise(prior: &[f64], log_likelihood: &[f64], temperature: f64, weights: &mut [f64]) {
     let top = prior
         .iter()
         .zip(log_likelihood)
@@ -351,7 +314,6 @@ fn normalise(prior: &[f64], log_likelihood: &[f64], temperature: f64, weights: &
     for w in weights.iter_mut() {
         *w /= sum;
     }
-    top + sum.ln()
 }
 
 /// The log-likelihood of a scan's returns at `pose`. The pose is folded into the field's

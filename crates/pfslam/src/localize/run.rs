@@ -64,6 +64,14 @@ impl LocalizeResult {
         }
     }
 
+    /// The stamp of the first update at which the filter counted itself converged.
+    pub fn first_converged_ns(&self) -> Option<i64> {
+        self.updates
+            .iter()
+            .find(|u| u.converged)
+            .map(|u| u.stamp_ns)
+    }
+
     /// The number of times a converged filter lost its convergence.
     pub fn convergence_losses(&self) -> usize {
         self.updates
@@ -158,16 +166,11 @@ struct ScanIo {
 impl ScanIo {
     /// Up to `max_beams` returns of the body scan, evenly spaced.
     fn select(&mut self, max_beams: usize) {
+        let hits = || self.body.points.iter().filter(|p| p.hit);
+        let step = hits().count().div_ceil(max_beams).max(1);
         self.points.clear();
-        let hits: Vec<[f64; 2]> = self
-            .body
-            .points
-            .iter()
-            .filter(|p| p.hit)
-            .map(|p| [p.x_m, p.y_m])
-            .collect();
-        let step = hits.len().div_ceil(max_beams).max(1);
-        self.points.extend(hits.iter().step_by(step));
+        self.points
+            .extend(hits().step_by(step).map(|p| [p.x_m, p.y_m]));
     }
 }
 
@@ -214,6 +217,10 @@ impl Outputs {
     }
 }
 
+/// Particles drawn about a given start pose (at least; `min_particles` when larger): the
+/// start may be off by the initial sigmas, wider than the cloud KLD sampling keeps later.
+const INITIAL_TRACKING_PARTICLES: usize = 1000;
+
 /// The filter between scans.
 struct State<'a> {
     options: &'a LocalizeOptions,
@@ -228,15 +235,15 @@ struct State<'a> {
     converged: bool,
     /// Augmented MCL's slow and fast averages of the fit (`None` before the first update).
     averages: Option<(f64, f64)>,
-    /// The last estimate whose fit was at least `recovery_fit_ratio` of the slow average, and
-    /// the odometry there: where local recovery searches.
+    /// The last converged estimate that called for no random particles, and the odometry
+    /// there: where local recovery searches.
     last_good: Option<(Pose2, Pose2)>,
 }
 
 impl<'a> State<'a> {
     fn new(
         options: &'a LocalizeOptions,
-        free: &FreeSpace,
+        free: &FreeSpace<'_>,
         initial_pose: Option<Pose2>,
         seed: u64,
     ) -> Self {
@@ -248,7 +255,9 @@ impl<'a> State<'a> {
                     options.initial_sigma[0],
                     options.initial_sigma[1].to_radians(),
                 ),
-                options.max_particles.min(options.min_particles.max(1000)),
+                options
+                    .max_particles
+                    .min(options.min_particles.max(INITIAL_TRACKING_PARTICLES)),
                 &mut streams.sequential,
             ),
             None => ParticleSet::over(free, options.max_particles, &mut streams.sequential),
@@ -271,7 +280,6 @@ impl<'a> State<'a> {
             estimate: Estimate {
                 pose: initial_pose.unwrap_or(Pose2::IDENTITY),
                 mass: 0.0,
-                spread_m: f64::INFINITY,
             },
             converged: false,
             averages: None,
@@ -302,7 +310,7 @@ impl<'a> State<'a> {
     fn update(
         &mut self,
         field: &LikelihoodField,
-        free: &FreeSpace,
+        free: &FreeSpace<'_>,
         points: &[[f64; 2]],
         stamp_ns: i64,
         odom: &Pose2,
@@ -346,7 +354,7 @@ impl<'a> State<'a> {
             }
             None => (self.estimate.pose, o.recovery.local_sigma_m),
         };
-        let resampled = self.particles.resample(
+        let injected = self.particles.resample(
             &ResamplePlan {
                 inject_probability,
                 min_particles: o.min_particles,
@@ -362,7 +370,7 @@ impl<'a> State<'a> {
         UpdateRecord {
             stamp_ns,
             particles: weighed,
-            injected: resampled.injected,
+            injected,
             mass: self.estimate.mass,
             fit,
             converged: self.converged,
