@@ -133,4 +133,21 @@ mod tests {
         assert_eq!(b.counts(), (1, 1, 30));
         assert_eq!(b.get(-1, 0), CellState::Unknown);
     }
+
+    #[test]
+    fn a_raster_read_from_a_file_becomes_a_grid_with_the_same_cells() {
+        let mut b = BinaryMap::filled(MapLimits::new(0.05, -3.0, 2.0), 70, 90, CellState::Unknown);
+        b.set(0, 0, CellState::Occupied);
+        b.set(69, 89, CellState::Free);
+        b.set(12, 71, CellState::Occupied);
+        b.set(13, 71, CellState::Free);
+        let g = b.to_grid().unwrap();
+        let rect = CellRect {
+            min_i: 0,
+            min_j: 0,
+            max_i: 69,
+            max_j: 89,
+        };
+        assert_eq!(g.to_binary_map(Some(rect)), b);
+    }
 }
