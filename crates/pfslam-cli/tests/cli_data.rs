@@ -806,3 +806,87 @@ fn localize_rejects_a_bad_pose_and_a_missing_map() {
     assert!(err.contains("missing.yaml"), "{err}");
     assert!(!dir.path().join("o").exists());
 }
+
+/// `run --save-state`, then `run --resume` on the rest of the recording: both sessions'
+/// outputs in one frame, the merged state saved; a file that is not a state exits 2.
+#[test]
+fn a_second_session_continues_a_saved_map() {
+    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+        eprintln!("SKIP a_second_session_continues_a_saved_map: no real data");
+        return;
+    };
+    let log = data.join("carmen/seattle-corrected.log.gz");
+    let dir = tempfile::tempdir().unwrap();
+    let (first, second) = (dir.path().join("first"), dir.path().join("second"));
+    let (state1, state2) = (dir.path().join("1.pfslam"), dir.path().join("2.pfslam"));
+    let o = super::run_ok(
+        super::pfslam()
+            .arg("run")
+            .arg(&log)
+            .args(["--end-s", "500", "--out"])
+            .arg(&first)
+            .arg("--save-state")
+            .arg(&state1),
+    );
+    assert!(String::from_utf8_lossy(&o.stdout).contains("keyframes of 1 session"));
+    let o = super::run_ok(
+        super::pfslam()
+            .arg("run")
+            .arg(&log)
+            .args(["--start-s", "500", "--out"])
+            .arg(&second)
+            .arg("--resume")
+            .arg(&state1)
+            .arg("--save-state")
+            .arg(&state2),
+    );
+    assert!(String::from_utf8_lossy(&o.stdout).contains("keyframes of 2 session"));
+    for f in [
+        "trajectory.tum",
+        "previous_sessions.tum",
+        "map.yaml",
+        "map.png",
+    ] {
+        assert!(second.join(f).is_file(), "{f} missing");
+    }
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(second.join("summary.json")).unwrap())
+            .unwrap();
+    assert_eq!(summary["sessions"].as_array().map(Vec::len), Some(2));
+    // both sessions together against the corrected poses (measured 0.09 m; one run: 0.04 m)
+    let mut poses = pfslam::io::tum::read_tum(&first.join("trajectory.tum"))
+        .unwrap()
+        .poses;
+    poses.extend(
+        pfslam::io::tum::read_tum(&second.join("trajectory.tum"))
+            .unwrap()
+            .poses,
+    );
+    poses.sort_by_key(|p| p.stamp_ns);
+    let options = pfslam::io::recording::ReaderOptions::default().carmen();
+    let truth = pfslam::io::carmen::read_carmen(&log, &options)
+        .unwrap()
+        .laser_poses;
+    let est = pfslam::geometry::Trajectory::new(poses);
+    let ate = pfslam::eval::ate::ate(&est, &truth, pfslam::eval::Association::default()).unwrap();
+    assert_eq!(ate.pairs, truth.len());
+    assert!(ate.aligned_m.rmse < 0.15, "{}", ate.aligned_m.rmse);
+    let bad = dir.path().join("bad.pfslam");
+    std::fs::write(&bad, "P5\n").unwrap();
+    let out = super::pfslam()
+        .arg("run")
+        .arg(&log)
+        .arg("--resume")
+        .arg(&bad)
+        .arg("--out")
+        .arg(dir.path().join("third"))
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("bad.pfslam") && err.contains("PFSLAMST"),
+        "{err}"
+    );
+    assert!(!dir.path().join("third").exists());
+}

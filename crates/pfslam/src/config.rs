@@ -23,6 +23,8 @@ pub struct Config {
     pub graph: crate::graph::GraphOptions,
     /// Monte Carlo localisation in a fixed map (`[localize]`, `pfslam localize`).
     pub localize: crate::localize::LocalizeOptions,
+    /// Saved sessions: which scans are kept as keyframes (`[session]`, `--save-state`).
+    pub session: crate::session::SessionOptions,
 }
 
 /// Errors of loading a configuration.
@@ -72,6 +74,7 @@ impl Config {
         self.graph.validate().map_err(err("graph"))?;
         self.sim.validate().map_err(|e| err("sim")(e.to_string()))?;
         self.localize.validate().map_err(err("localize"))?;
+        self.session.validate().map_err(err("session"))?;
         Ok(())
     }
 

@@ -44,6 +44,7 @@ pub mod motion;
 pub mod pipeline;
 pub mod quality;
 pub mod sensors;
+pub mod session;
 pub mod sim;
 pub mod stereo;
 pub mod viz;

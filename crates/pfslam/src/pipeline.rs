@@ -228,15 +228,45 @@ pub fn run_pipeline(
 }
 
 /// What [`choose_trajectory`] kept.
-struct Chosen {
+pub(crate) struct Chosen {
     /// The back end's trajectory, or `None` for the front end's.
-    trajectory: Option<Vec<StampedPose2>>,
+    pub(crate) trajectory: Option<Vec<StampedPose2>>,
     /// The map along the kept trajectory.
-    grid: OccupancyGrid,
+    pub(crate) grid: OccupancyGrid,
     /// The self-check's signals.
-    signals: QualitySignals,
-    /// The statistics of the back end that ran last.
-    stats: GraphStats,
+    pub(crate) signals: QualitySignals,
+    /// The statistics of the back end that ran last (default without a back end).
+    pub(crate) stats: GraphStats,
+}
+
+/// The back end over `recording` fed `front_end` (a pose per scan), guarded as in
+/// [`run_pipeline`]; without `[graph] enabled`, the map along `front_end`.
+pub(crate) fn back_end_over(
+    recording: &Recording,
+    config: &Config,
+    front_end: &[StampedPose2],
+    saved: usize,
+) -> Result<Chosen, PipelineError> {
+    if !config.graph.enabled {
+        let (grid, share) = map_and_free_share(recording, front_end, config)?;
+        return Ok(Chosen {
+            trajectory: None,
+            grid,
+            signals: QualitySignals {
+                free_share: share,
+                ..QualitySignals::default()
+            },
+            stats: GraphStats::default(),
+        });
+    }
+    let g = crate::graph::optimize_after_saved(
+        recording,
+        &config.map.scan,
+        front_end,
+        &config.graph,
+        saved,
+    )?;
+    choose_trajectory(recording, config, front_end, front_end, &config.graph, g)
 }
 
 /// The back end's trajectory unless its map is much less consistent than the front end's

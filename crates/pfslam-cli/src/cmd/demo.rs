@@ -128,6 +128,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         sort_timestamps: false,
         graph_on_odometry: false,
         input: Default::default(),
+        ..Default::default()
     })
     .context("run")?;
 

@@ -43,7 +43,7 @@ pub struct Args {
 }
 
 /// `X,Y,YAW_DEG` as a pose.
-fn parse_pose(text: &str) -> anyhow::Result<Pose2> {
+pub(super) fn parse_pose(text: &str) -> anyhow::Result<Pose2> {
     let v: Vec<f64> = text
         .split(',')
         .map(|s| s.trim().parse::<f64>())

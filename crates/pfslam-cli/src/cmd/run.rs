@@ -46,6 +46,21 @@ pub struct Args {
     /// measure the back end alone). With the back end, `front_end.tum` is its input.
     #[arg(long)]
     pub graph_on_odometry: bool,
+    /// Also write what a later session needs to continue this map (keyframes with their
+    /// scans and poses, the sensor mount, the configuration) to this file.
+    #[arg(long)]
+    pub save_state: Option<PathBuf>,
+    /// Continue the map of this saved state: localise the recording in it, map on, close
+    /// loops between old and new keyframes. Writes the merged map, `trajectory.tum` (this
+    /// recording) and `previous_sessions.tum` (the saved keyframes, moved by this run's
+    /// back end) in the saved map's frame.
+    #[arg(long)]
+    pub resume: Option<PathBuf>,
+    /// With `--resume`: the pose of the first scan in the saved map, `X,Y,YAW_DEG`, or
+    /// `last` for where the last saved session ended (else found by global localisation,
+    /// which a symmetric building can fool).
+    #[arg(long, requires = "resume")]
+    pub initial_pose: Option<String>,
     /// Input selection and strictness.
     #[command(flatten)]
     pub input: super::input::InputArgs,
@@ -61,6 +76,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     // every check before reading the recording
     config.validate()?;
+    if args.resume.is_some() {
+        return super::resume::run(&args, &config);
+    }
     let staging = super::output::Staging::new(&args.out)?;
     let out_dir = staging.path().to_path_buf();
     let t_load = Instant::now();
@@ -183,8 +201,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // The ground's colours along the SLAM path, when the dataset has stereo images.
     let (traj, map) = (&result.trajectory, &result.map);
     super::texture::texture_after_run(&args.dataset, traj, &config, map, &out_dir);
+    let state = args.save_state.as_ref().map(|path| {
+        let s = pfslam::session::SessionState::after_session(
+            None,
+            &recording,
+            &result.trajectory,
+            &config,
+        );
+        (path, s)
+    });
     staging.commit()?;
     say!("wrote {}", args.out.display());
+    if let Some((path, state)) = state {
+        super::resume::save_state(path, &state)?;
+    }
     for reason in &pipeline.quality.reasons {
         eprintln!("warning: suspect result: {reason}");
     }

@@ -70,6 +70,7 @@ impl<'a> BackEnd<'a> {
             submap_pts: Vec::new(),
             ahead: None,
             generation: 0,
+            saved_prefix: 0,
         }
     }
 

@@ -142,6 +142,40 @@ pub fn optimize_trajectory(
     optimize_trajectory_look_ahead(recording, scan_opts, trajectory, opts, LOOK_AHEAD_SEARCHES)
 }
 
+/// [`optimize_trajectory`] where the first `saved` poses of `trajectory` are a saved
+/// session's keyframes: their relative poses are kept as stiff edges instead of being
+/// matched in sequence; loops are searched among all keyframes, old and new.
+pub fn optimize_after_saved(
+    recording: &Recording,
+    scan_opts: &ScanOptions,
+    trajectory: &[StampedPose2],
+    opts: &GraphOptions,
+    saved: usize,
+) -> Result<GraphResult, GraphError> {
+    let look_ahead = LOOK_AHEAD_SEARCHES;
+    run_back_end(recording, scan_opts, trajectory, opts, look_ahead, saved)
+}
+
+/// The back end over `trajectory`, its first `saved` poses a saved session's keyframes.
+fn run_back_end(
+    recording: &Recording,
+    scan_opts: &ScanOptions,
+    trajectory: &[StampedPose2],
+    opts: &GraphOptions,
+    look_ahead: usize,
+    saved: usize,
+) -> Result<GraphResult, GraphError> {
+    opts.validate().map_err(GraphError::Options)?;
+    let t_start = Instant::now();
+    let keyframes = select_keyframes(recording, scan_opts, trajectory, opts)?;
+    let mut back_end = BackEnd::new(recording, trajectory, opts, &keyframes, look_ahead);
+    back_end.saved_prefix = saved;
+    for k in 0..keyframes.len() {
+        back_end.add_keyframe(k);
+    }
+    back_end.finish(scan_opts, t_start)
+}
+
 /// [`optimize_trajectory`] verifying the loop searches of up to `look_ahead` keyframes in
 /// one parallel batch (the default [`LOOK_AHEAD_SEARCHES`]; 1 = one keyframe at a time):
 /// the same result for any value (tested).
@@ -153,14 +187,7 @@ pub fn optimize_trajectory_look_ahead(
     opts: &GraphOptions,
     look_ahead: usize,
 ) -> Result<GraphResult, GraphError> {
-    opts.validate().map_err(GraphError::Options)?;
-    let t_start = Instant::now();
-    let keyframes = select_keyframes(recording, scan_opts, trajectory, opts)?;
-    let mut back_end = BackEnd::new(recording, trajectory, opts, &keyframes, look_ahead);
-    for k in 0..keyframes.len() {
-        back_end.add_keyframe(k);
-    }
-    back_end.finish(scan_opts, t_start)
+    run_back_end(recording, scan_opts, trajectory, opts, look_ahead, 0)
 }
 
 /// The back end while keyframes are added: the graph so far, and what decides the next loop
@@ -190,6 +217,8 @@ struct BackEnd<'a> {
     /// Loop searches verified ahead, valid while the graph is not optimised.
     ahead: Option<LookAhead>,
     generation: usize,
+    /// Input poses before this index are a saved session's keyframes.
+    saved_prefix: usize,
 }
 
 #[cfg(test)]

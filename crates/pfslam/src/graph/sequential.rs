@@ -13,6 +13,15 @@ impl BackEnd<'_> {
             .front_pose
             .between(&self.keyframes[k].front_pose);
         let predicted = self.graph.poses[k - 1].compose(&rel_front);
+        if self.keyframes[k].traj_index < self.saved_prefix {
+            // A saved session's keyframes keep their relative poses (the result of that
+            // session's back end): consecutive ones may be far apart, where the revisits
+            // between them were not saved, so matching them in sequence means nothing.
+            let edge = self.chained_edge(k, rel_front);
+            self.graph.poses.push(predicted);
+            self.graph.edges.push(edge);
+            return predicted;
+        }
         let matched = self.match_sequential(k, &predicted);
         let front_edge = self.front_end_edge(k, rel_front);
         let (graph, stats) = (&mut self.graph, &mut self.stats);
@@ -105,17 +114,21 @@ impl BackEnd<'_> {
     /// random-walk uncertainty.
     fn front_end_edge(&self, k: usize, rel_front: Pose2) -> Edge {
         let opts = self.opts;
-        let (sigma_m, sigma_deg) = match self.seq_matching {
-            true => (opts.fallback_sigma_m, opts.fallback_sigma_deg),
-            false => {
-                let root = rel_front.translation_norm_m().max(0.01).sqrt();
-                (
-                    opts.front_end_sigma_m_per_sqrt_m * root,
-                    opts.front_end_sigma_deg_per_sqrt_m * root,
-                )
-            }
-        };
+        if !self.seq_matching {
+            return self.chained_edge(k, rel_front);
+        }
+        let (sigma_m, sigma_deg) = (opts.fallback_sigma_m, opts.fallback_sigma_deg);
         Edge::with_sigmas(k - 1, k, rel_front, sigma_m, sigma_deg.to_radians(), None)
+    }
+
+    /// The front end's motion from keyframe `k - 1` to `k` as an edge whose sigmas grow with
+    /// the square root of the distance (`front_end_sigma_*_per_sqrt_m`).
+    fn chained_edge(&self, k: usize, rel_front: Pose2) -> Edge {
+        let opts = self.opts;
+        let root = rel_front.translation_norm_m().max(0.01).sqrt();
+        let sigma_m = opts.front_end_sigma_m_per_sqrt_m * root;
+        let sigma_rad = (opts.front_end_sigma_deg_per_sqrt_m * root).to_radians();
+        Edge::with_sigmas(k - 1, k, rel_front, sigma_m, sigma_rad, None)
     }
 
     /// The odometry's yaw change from keyframe `k - 1` to `k` as an edge, when the odometry

@@ -4,7 +4,7 @@ use super::*;
 use crate::config::Config;
 use crate::filter::scanmatch::match_points;
 use crate::filter::slam::{SlamError, SlamEvent, SlamResult, SlamStats};
-use crate::geometry::StampedPose2;
+use crate::geometry::{Pose2, StampedPose2};
 use crate::map::{MapError, OccupancyGrid, PlanarScan, ScanProjector};
 use crate::sensors::Recording;
 use rayon::prelude::*;
@@ -17,24 +17,53 @@ pub fn run_rbpf(
     seed: u64,
     observer: &mut dyn FnMut(SlamEvent<'_>),
 ) -> Result<SlamResult, SlamError> {
+    run_rbpf_in(recording, config, seed, observer, None)
+}
+
+/// A map to continue: earlier scans at their poses in the map frame, and where the new
+/// recording's odometry frame lies in it.
+#[derive(Debug, Clone, Copy)]
+pub struct PriorMap<'a> {
+    /// The earlier scans (their own geometry and mount).
+    pub recording: &'a Recording,
+    /// The pose of each of those scans in the map frame.
+    pub world_from_body: &'a [Pose2],
+    /// The new recording's odometry frame in the map frame.
+    pub world_from_odom: Pose2,
+}
+
+/// [`run_rbpf`], the particles starting in `prior`'s map (every particle holds it) at the
+/// pose `prior.world_from_odom` gives the first scan; without a prior, in an empty map at
+/// the first odometry pose.
+pub fn run_rbpf_in(
+    recording: &Recording,
+    config: &Config,
+    seed: u64,
+    observer: &mut dyn FnMut(SlamEvent<'_>),
+    prior: Option<&PriorMap<'_>>,
+) -> Result<SlamResult, SlamError> {
     let opts = &config.filter;
     let ro = &opts.rbpf;
     let t_start = Instant::now();
     let (first, mut cursor) = crate::filter::slam::check_and_start(recording, config)?;
     let scans = &recording.scans;
     let total = scans.len();
-    let start = cursor.current().pose;
+    let odom_start = cursor.current().pose;
+    let start = prior.map_or(odom_start, |p| p.world_from_odom.compose(&odom_start));
     let mut map_opts = config.map.clone();
     if ro.resolution_m > 0.0 {
         map_opts.resolution_m = ro.resolution_m;
     }
-    let grid = OccupancyGrid::new(&map_opts)?;
+    let mut grid = OccupancyGrid::new(&map_opts)?;
     let mut scan_opts = config.map.scan.for_filter();
     scan_opts.range_min_m = ro.range_min_m as f32;
     if !ro.densify {
         scan_opts.densify_max_gap_m = None;
     }
     scan_opts.validate().map_err(MapError::Options)?;
+    if let Some(p) = prior {
+        insert_prior(&mut grid, p, &scan_opts, ro.range_max_m)?;
+    }
     let mut projector =
         ScanProjector::new(&recording.lidar, &recording.body_from_lidar, &scan_opts)?;
     let mut stats = SlamStats {
@@ -46,12 +75,12 @@ pub fn run_rbpf(
         neff_min: f64::INFINITY,
         ..SlamStats::default()
     };
-    let mut pf = Rbpf::new(opts.particles, start, start, grid, ro, seed);
+    let mut pf = Rbpf::new(opts.particles, start, odom_start, grid, ro, seed);
     let mut dead_reckoning: Vec<StampedPose2> = Vec::with_capacity(total - first);
     let mut scan_index: Vec<usize> = Vec::with_capacity(total - first);
     let mut body = PlanarScan::default();
     let mut pts: Vec<[f64; 2]> = Vec::new();
-    let mut last_update_odom = start;
+    let mut last_update_odom = odom_start;
     let (mut neff_sum, mut ll_sum) = (0.0, 0.0);
     let angular = ro.angular_update_deg.to_radians();
     let mut have_first = false;
@@ -141,6 +170,32 @@ pub fn run_rbpf(
         map: best.map.clone(),
         stats,
     })
+}
+
+/// Maps `prior`'s scans at their poses into `grid`, as the particles map theirs.
+fn insert_prior(
+    grid: &mut OccupancyGrid,
+    prior: &PriorMap<'_>,
+    scan_opts: &crate::map::ScanOptions,
+    range_max_m: f64,
+) -> Result<(), MapError> {
+    let rec = prior.recording;
+    let mut projector = ScanProjector::new(&rec.lidar, &rec.body_from_lidar, scan_opts)?;
+    let (mut body, mut world) = (PlanarScan::default(), PlanarScan::default());
+    let mut scratch = crate::map::InsertScratch::default();
+    for (i, pose) in prior
+        .world_from_body
+        .iter()
+        .enumerate()
+        .take(rec.scans.len())
+    {
+        projector.aim(rec, i);
+        projector.to_body(rec.scans.ranges(i), &mut body)?;
+        clip_scan(&mut body, range_max_m);
+        crate::map::to_world(&body, pose, &mut world);
+        grid.insert_scan(&world, &mut scratch)?;
+    }
+    Ok(())
 }
 
 /// Re-matches every output pose against the final best map (hill climb only, with a tight
