@@ -16,6 +16,7 @@ pub mod field;
 pub mod kld;
 pub mod mcl;
 pub mod options;
+pub mod refine;
 pub mod run;
 #[cfg(test)]
 mod tests;

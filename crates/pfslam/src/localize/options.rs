@@ -35,6 +35,10 @@ pub struct LocalizeOptions {
     /// With `--initial-pose`: the standard deviations of the initial particles about it
     /// (m, deg).
     pub initial_sigma: [f64; 2],
+    /// Once converged, match every return of the update's scan in the field from the
+    /// estimate (a local hill climb) and move the estimate and every particle by the
+    /// correction (not taken beyond 0.25 m or 5 deg).
+    pub refine_estimate: bool,
     /// The observation model.
     pub likelihood: LikelihoodOptions,
     /// Recovery when the robot is lost.
@@ -96,6 +100,7 @@ impl Default for LocalizeOptions {
             converged_mass: 0.9,
             cluster_radius: [1.0, 30.0],
             initial_sigma: [0.1, 3.0],
+            refine_estimate: true,
             likelihood: LikelihoodOptions::default(),
             recovery: RecoveryOptions::default(),
         }

@@ -141,6 +141,10 @@ pub fn localize(
                 out.scans_without_returns += 1;
             } else {
                 let mut record = state.update(&field, &free, &io.points, stamp_ns, &odom);
+                if state.converged && options.refine_estimate {
+                    io.all_hits();
+                    state.refine(&field, &io.points);
+                }
                 let reach_m = 3.0 * options.likelihood.sigma_hit_m;
                 record.off_wall_share =
                     out.count_off_wall(&field, reach_m, &state.estimate.pose, &io.body);
@@ -164,6 +168,13 @@ struct ScanIo {
 }
 
 impl ScanIo {
+    /// Every return of the body scan.
+    fn all_hits(&mut self) {
+        self.points.clear();
+        let hits = self.body.points.iter().filter(|p| p.hit);
+        self.points.extend(hits.map(|p| [p.x_m, p.y_m]));
+    }
+
     /// Up to `max_beams` returns of the body scan, evenly spaced.
     fn select(&mut self, max_beams: usize) {
         let hits = || self.body.points.iter().filter(|p| p.hit);
@@ -376,6 +387,18 @@ impl<'a> State<'a> {
             converged: self.converged,
             off_wall_share: 0.0,
         }
+    }
+
+    /// Moves the estimate to the best match of `points` (every return) in the field, and
+    /// every particle with it: the cloud's mean lags behind poor odometry by the cloud's
+    /// spread, a match of the whole scan does not.
+    fn refine(&mut self, field: &LikelihoodField, points: &[[f64; 2]]) {
+        let refined = super::refine::refine_pose(field, points, &self.estimate.pose);
+        let moved = refined.compose(&self.estimate.pose.inverse());
+        for p in &mut self.particles.poses {
+            *p = moved.compose(p);
+        }
+        self.estimate.pose = refined;
     }
 
     /// Updates augmented MCL's averages with `fit`; returns the probability of a random
