@@ -75,6 +75,20 @@ fn run_on_a_short_simulated_drive() {
     assert!(quality["reasons"].is_array(), "{quality}");
     let share = quality["signals"]["free_share"].as_f64().unwrap();
     assert!((0.0..=1.0).contains(&share), "{quality}");
+    // One self-contained page: the pictures inline, the verdict, the accuracy against the
+    // simulator's truth, the keys that differ from the defaults and no others.
+    let report = std::fs::read_to_string(res.join("report.html")).unwrap();
+    assert_eq!(
+        report
+            .matches("src=\"data:image/png;base64,iVBORw0KGgo")
+            .count(),
+        2
+    );
+    assert!(!report.contains("src=\"http") && !report.contains("href="));
+    assert!(report.contains(&format!("class=\"{status}\">{status}</span>")));
+    assert!(report.contains("Accuracy against the ground truth"));
+    assert!(report.contains("filter.snapshot_every_scans") && report.contains("filter.particles"));
+    assert!(!report.contains("filter.rbpf.sigma_m"));
 }
 
 #[test]

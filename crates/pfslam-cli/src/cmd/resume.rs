@@ -83,6 +83,15 @@ pub fn run(args: &Args, config: &Config) -> anyhow::Result<()> {
     });
     let text = serde_json::to_string_pretty(&summary)?;
     pfslam::io::write_bytes_atomic(&out.join("summary.json"), text.as_bytes())?;
+    super::report::write_report(
+        out,
+        &summary,
+        config,
+        &[
+            ("the merged map, both sessions' paths", "map.png"),
+            ("binary map", "binary_map.png"),
+        ],
+    )?;
     staging.commit()?;
     say!(
         "{}: started at {:.1} s in the saved map ({} scans before posed by odometry), {} \

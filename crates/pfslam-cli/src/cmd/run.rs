@@ -356,6 +356,15 @@ fn write_outputs(
     }
     let text = serde_json::to_string_pretty(&summary)?;
     pfslam::io::write_bytes_atomic(&out.join("summary.json"), text.as_bytes())?;
+    super::report::write_report(
+        out,
+        &summary,
+        config,
+        &[
+            ("map with the paths", "map.png"),
+            ("binary map", "binary_map.png"),
+        ],
+    )?;
 
     let s = &result.stats;
     say!(
