@@ -9,7 +9,7 @@ set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 target_dir="${CARGO_TARGET_DIR:-$here/../target}/afl"
 targets=(carmen ros1_bag mcap ucsd_encoder ucsd_fog ucsd_lidar ucsd_calib opencv_yaml humanoid
-  tum map_server npy relations config_toml)
+  tum map_server npy relations config_toml session_state)
 
 build() {
   (cd "$here/afl" && CARGO_TARGET_DIR="$target_dir" cargo afl build --release -q)

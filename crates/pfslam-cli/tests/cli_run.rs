@@ -1,6 +1,7 @@
 //! `pfslam run` and `pfslam print-config` end to end.
 
 use super::{pfslam, run_ok};
+use std::process::Command;
 
 #[test]
 fn run_on_a_short_simulated_drive() {
@@ -125,4 +126,63 @@ fn print_config_comments_every_key() {
     assert!(text.contains("# Number of particles"), "{text}");
     let parsed: pfslam::config::Config = toml::from_str(&text).unwrap();
     assert_eq!(parsed, pfslam::config::Config::default());
+}
+
+/// The effective user id, from `/proc/self/status` (`None` off Linux).
+fn effective_uid() -> Option<u32> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("Uid:"))?;
+    line.split_whitespace().nth(2)?.parse().ok()
+}
+
+/// `--out` inside a directory the user may not write to fails before the recording is read,
+/// naming the directory. As root (whom permissions do not stop) the run is made as `nobody`
+/// through `setpriv`; where that is impossible the test says so and stops.
+#[test]
+fn a_read_only_out_fails_before_any_work() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("sim");
+    run_ok(
+        pfslam()
+            .args(["simulate", "--duration-s", "4", "--out"])
+            .arg(&data),
+    );
+    let locked = dir.path().join("locked");
+    std::fs::create_dir(&locked).unwrap();
+    for (path, mode) in [(dir.path(), 0o755), (locked.as_path(), 0o555)] {
+        std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode)).unwrap();
+    }
+    let bin = env!("CARGO_BIN_EXE_pfslam");
+    let mut cmd = match effective_uid() {
+        Some(0) => {
+            let mut c = Command::new("setpriv");
+            c.args(["--reuid=65534", "--regid=65534", "--clear-groups", bin]);
+            c
+        }
+        _ => Command::new(bin),
+    };
+    let out = match cmd
+        .arg("run")
+        .arg(&data)
+        .arg("--out")
+        .arg(locked.join("out"))
+        .output()
+    {
+        Ok(out) => out,
+        Err(e) => {
+            eprintln!("SKIP a_read_only_out_fails_before_any_work: cannot drop root ({e})");
+            return;
+        }
+    };
+    let err = String::from_utf8_lossy(&out.stderr);
+    if err.contains("setpriv:") {
+        eprintln!("SKIP a_read_only_out_fails_before_any_work: {err}");
+        return;
+    }
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("locked"), "{err}");
+    // nothing was read or run: no account of the recording, no progress, no output
+    assert!(!err.contains("scans") && out.stdout.is_empty(), "{err}");
+    assert_eq!(std::fs::read_dir(&locked).unwrap().count(), 0);
 }

@@ -30,6 +30,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("npy", npy),
     ("relations", relations),
     ("config_toml", config_toml),
+    ("session_state", session_state),
 ];
 
 /// The target called `name`.
@@ -285,6 +286,11 @@ pub fn npy(data: &[u8]) {
 pub fn relations(data: &[u8]) {
     let path = scratch_file("in.relations", data);
     let _ = pfslam::eval::relations::read_relations(&path);
+}
+
+/// A saved session's state (`run --save-state`), decoded from the bytes directly.
+pub fn session_state(data: &[u8]) {
+    let _ = pfslam::session::SessionState::from_bytes(data, "state.pfslam");
 }
 
 /// TOML configuration, loaded and validated as the CLI does.
