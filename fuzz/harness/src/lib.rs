@@ -3,7 +3,8 @@
 //! allocate far more than its input; the fuzzing engine (`fuzz/afl`) and the replay test
 //! (`tests/replay.rs`, run by `cargo test`) both call these functions.
 //!
-//! Readers that only take a path get the bytes through a scratch file; inputs of multi-file
+//! Readers with a reader-taking twin (TUM, relations, the saved state) get the bytes directly;
+//! readers that only take a path get them through a scratch file; inputs of multi-file
 //! layouts (map_server, humanoid) are split on NUL bytes, which none of their text files holds.
 
 use pfslam::io::options::ReaderOptions;
@@ -266,8 +267,7 @@ pub fn humanoid(data: &[u8]) {
 
 /// TUM trajectory.
 pub fn tum(data: &[u8]) {
-    let path = scratch_file("poses.tum", data);
-    let _ = pfslam::io::tum::read_tum(&path);
+    let _ = pfslam::io::tum::read_tum_from(data, Path::new("poses.tum"));
 }
 
 /// map_server pair: the yaml, a NUL, then the pgm (written as `map.pgm`, the seeds' image).
@@ -284,8 +284,7 @@ pub fn npy(data: &[u8]) {
 
 /// Freiburg `.relations` file.
 pub fn relations(data: &[u8]) {
-    let path = scratch_file("in.relations", data);
-    let _ = pfslam::eval::relations::read_relations(&path);
+    let _ = pfslam::eval::relations::read_relations_from(data, Path::new("in.relations"));
 }
 
 /// A saved session's state (`run --save-state`), decoded from the bytes directly.

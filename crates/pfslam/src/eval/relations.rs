@@ -107,7 +107,11 @@ fn decimals_tolerance_ns(text: &str) -> i64 {
 /// Reads a `.relations` file: `t1 t2 x y z roll pitch yaw` per line (`#` comments allowed).
 pub fn read_relations(path: &Path) -> Result<Vec<Relation>, IoError> {
     let file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
-    let reader = std::io::BufReader::new(file);
+    read_relations_from(std::io::BufReader::new(file), path)
+}
+
+/// [`read_relations`] from any reader; `path` names the source in errors.
+pub fn read_relations_from(reader: impl BufRead, path: &Path) -> Result<Vec<Relation>, IoError> {
     let mut out = Vec::new();
     for (idx, line) in reader.lines().enumerate() {
         let line_no = idx + 1;

@@ -60,7 +60,11 @@ pub fn parse_stamp_ns(text: &str) -> Option<i64> {
 /// the quaternion (roll and pitch are ignored).
 pub fn read_tum(path: &Path) -> Result<Trajectory, IoError> {
     let file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
-    let reader = std::io::BufReader::new(file);
+    read_tum_from(std::io::BufReader::new(file), path)
+}
+
+/// [`read_tum`] from any reader; `path` names the source in errors.
+pub fn read_tum_from(reader: impl BufRead, path: &Path) -> Result<Trajectory, IoError> {
     let mut poses: Vec<StampedPose2> = Vec::new();
     for (idx, line) in reader.lines().enumerate() {
         let line_no = idx + 1;
