@@ -853,7 +853,7 @@ fn a_second_session_continues_a_saved_map() {
         serde_json::from_str(&std::fs::read_to_string(second.join("summary.json")).unwrap())
             .unwrap();
     assert_eq!(summary["sessions"].as_array().map(Vec::len), Some(2));
-    // both sessions together against the corrected poses (measured 0.09 m; one run: 0.04 m)
+    // both sessions together against the corrected poses (measured 0.100 m; one run: 0.04 m)
     let mut poses = pfslam::io::tum::read_tum(&first.join("trajectory.tum"))
         .unwrap()
         .poses;

@@ -6,9 +6,23 @@ use pfslam::config::Config;
 use std::fmt::Write as _;
 use std::path::Path;
 
+/// Writes `summary.json` and the `report.html` made from it into `out`, with the map
+/// pictures `out` holds (`map_caption` for `map.png`).
+pub fn write_summary_and_report(
+    out: &Path,
+    summary: &serde_json::Value,
+    config: &Config,
+    map_caption: &str,
+) -> anyhow::Result<()> {
+    let text = serde_json::to_string_pretty(summary)?;
+    pfslam::io::write_bytes_atomic(&out.join("summary.json"), text.as_bytes())?;
+    let images = [(map_caption, "map.png"), ("binary map", "binary_map.png")];
+    write_report(out, summary, config, &images)
+}
+
 /// Writes `report.html` into `out` from the run's `summary` and the PNGs named in `images`
 /// (file names in `out`; missing ones are left out).
-pub fn write_report(
+fn write_report(
     out: &Path,
     summary: &serde_json::Value,
     config: &Config,

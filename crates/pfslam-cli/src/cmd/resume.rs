@@ -81,16 +81,11 @@ pub fn run(args: &Args, config: &Config) -> anyhow::Result<()> {
         "quality": r.quality,
         "timings_s": { "load": load_s, "resume": run_s },
     });
-    let text = serde_json::to_string_pretty(&summary)?;
-    pfslam::io::write_bytes_atomic(&out.join("summary.json"), text.as_bytes())?;
-    super::report::write_report(
+    super::report::write_summary_and_report(
         out,
         &summary,
         config,
-        &[
-            ("the merged map, both sessions' paths", "map.png"),
-            ("binary map", "binary_map.png"),
-        ],
+        "the merged map, both sessions' paths",
     )?;
     staging.commit()?;
     say!(

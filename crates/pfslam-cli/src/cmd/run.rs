@@ -354,17 +354,7 @@ fn write_outputs(
             summary["map_vs_true_map_aligned"] = v;
         }
     }
-    let text = serde_json::to_string_pretty(&summary)?;
-    pfslam::io::write_bytes_atomic(&out.join("summary.json"), text.as_bytes())?;
-    super::report::write_report(
-        out,
-        &summary,
-        config,
-        &[
-            ("map with the paths", "map.png"),
-            ("binary map", "binary_map.png"),
-        ],
-    )?;
+    super::report::write_summary_and_report(out, &summary, config, "map with the paths")?;
 
     let s = &result.stats;
     say!(

@@ -3,10 +3,10 @@
 
 use super::LocalizeResult;
 use crate::quality::QualityStatus;
+use serde::Serialize;
 
 /// Above this share of returns far from every wall, a localisation is suspect.
 pub const SUSPECT_OFF_WALL_SHARE: f64 = 0.05;
-use serde::Serialize;
 
 /// What a localisation run measured on itself.
 #[derive(Debug, Clone, PartialEq, Serialize)]
