@@ -3,6 +3,7 @@
 #   fuzz/run.sh TARGET SECONDS     fuzz TARGET (see fuzz/harness/src/lib.rs) from its corpus
 #   fuzz/run.sh all SECONDS        every target in turn, SECONDS each
 #   fuzz/run.sh build              build only
+# FUZZ_EXECS=N stops a target after about N executions (AFL's -E) if that comes first.
 # Needs `cargo install cargo-afl` and `cargo afl config --build` once. Findings land in
 # fuzz/out/<target>/default/{crashes,hangs}; the campaign figures in .../fuzzer_stats.
 set -euo pipefail
@@ -20,7 +21,10 @@ fuzz_one() {
   [[ " ${targets[*]} " == *" $t "* ]] || { echo "unknown target $t (one of: ${targets[*]})" >&2; exit 2; }
   [[ -d "$here/corpus/$t" ]] || { echo "no seeds for $t: run fuzz/scripts/seeds.sh first (it cuts them from \$PFSLAM_DATA)" >&2; exit 2; }
   local out="$here/out/$t" scratch
-  scratch="$(mktemp -d "${TMPDIR:-/tmp}/pfslam-fuzz.XXXXXX")"
+  # the bag target's scratch file is rewritten per input: keep it in memory where possible
+  local tmp_root="${TMPDIR:-/tmp}"
+  [[ -d /dev/shm ]] && tmp_root=/dev/shm
+  scratch="$(mktemp -d "$tmp_root/pfslam-fuzz.XXXXXX")"
   mkdir -p "$out"
   # resume an earlier run of this target when there is one
   local input="$here/corpus/$t"
@@ -28,7 +32,7 @@ fuzz_one() {
   # -t: an input taking over 1 s is a hang; -m none: CappedAlloc bounds allocations
   AFL_SKIP_CPUFREQ=1 AFL_I_DONT_CARE_ABOUT_MISSING_CRASHES=1 AFL_NO_UI=1 \
     AFL_SKIP_CRASHES=1 PFSLAM_FUZZ_TMP="$scratch" \
-    cargo afl fuzz -i "$input" -o "$out" -t 1000 -m none -V "$secs" \
+    cargo afl fuzz -i "$input" -o "$out" -t 1000 -m none -V "$secs" ${FUZZ_EXECS:+-E "$FUZZ_EXECS"} \
     -- "$target_dir/release/$t" > "$out/log.txt" 2>&1 \
     || { rm -rf "$scratch"; tail -20 "$out/log.txt" >&2; return 1; }
   rm -rf "$scratch"

@@ -47,6 +47,7 @@ mod cli_eval;
 mod cli_map;
 mod cli_run;
 mod cli_sim_texture;
+mod cli_stream;
 mod cli_texture;
 
 #[test]

@@ -84,7 +84,12 @@ impl Config {
             path: path.to_path_buf(),
             source,
         })?;
-        toml::from_str(&text).map_err(|e| ConfigError::Toml {
+        Self::from_toml_str(&text, path)
+    }
+
+    /// Parses TOML text over the defaults; `path` names it in errors.
+    pub fn from_toml_str(text: &str, path: &std::path::Path) -> Result<Config, ConfigError> {
+        toml::from_str(text).map_err(|e| ConfigError::Toml {
             path: path.to_path_buf(),
             message: e.to_string(),
         })

@@ -12,6 +12,7 @@ mod motion;
 mod pipeline;
 mod rbpf;
 mod readers;
+mod readers_streamed;
 mod session;
 mod sim;
 mod sim_stereo;

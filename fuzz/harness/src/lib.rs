@@ -3,10 +3,12 @@
 //! allocate far more than its input; the fuzzing engine (`fuzz/afl`) and the replay test
 //! (`tests/replay.rs`, run by `cargo test`) both call these functions.
 //!
-//! Readers with a reader-taking twin (TUM, relations, the saved state) get the bytes directly;
-//! readers that only take a path get them through a scratch file; inputs of multi-file
-//! layouts (map_server, humanoid) are split on NUL bytes, which none of their text files holds.
+//! Every reader has a twin that takes bytes, text or a byte source, and the targets call those;
+//! only the ROS 1 bag (the `rosbag` crate maps a file) gets its bytes through a scratch file.
+//! Inputs of multi-file layouts (map_server, humanoid) are split on NUL bytes, which none of
+//! their text files holds.
 
+use pfslam::io::IoError;
 use pfslam::io::options::ReaderOptions;
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::path::{Path, PathBuf};
@@ -147,34 +149,15 @@ fn scratch_file(name: &str, bytes: &[u8]) -> PathBuf {
     path
 }
 
-/// Writes the NUL-separated parts of `data` to `names` in a fresh subfolder of the scratch
-/// directory; names beyond the parts are left absent (the readers' missing-file paths).
-fn scratch_layout(sub: &str, names: &[&str], data: &[u8]) -> PathBuf {
-    let dir = scratch_dir().join(sub);
-    let _ = std::fs::remove_dir_all(&dir);
-    let _ = std::fs::create_dir_all(&dir);
-    let mut parts = data.splitn(names.len(), |&b| b == 0);
-    for name in names {
-        match parts.next() {
-            Some(p) => {
-                let _ = std::fs::write(dir.join(name), p);
-            }
-            None => break,
-        }
-    }
-    dir
-}
-
 /// CARMEN log (plain or gzip), lenient and strict.
 pub fn carmen(data: &[u8]) {
-    use pfslam::io::carmen::{CarmenOptions, read_carmen};
-    let path = scratch_file("log.clf", data);
+    use pfslam::io::carmen::{CarmenOptions, read_carmen_from};
     for strict in [false, true] {
         let options = CarmenOptions {
             strict,
             ..CarmenOptions::default()
         };
-        let _ = read_carmen(&path, &options);
+        let _ = read_carmen_from(data, Path::new("log.clf"), &options);
     }
 }
 
@@ -186,8 +169,8 @@ pub fn ros1_bag(data: &[u8]) {
 
 /// MCAP (ROS 2, CDR).
 pub fn mcap(data: &[u8]) {
-    let path = scratch_file("in.mcap", data);
-    let _ = pfslam::io::mcap::read_mcap(&path, &ReaderOptions::default());
+    let path = Path::new("in.mcap");
+    let _ = pfslam::io::mcap::read_mcap_from_bytes(data, path, &ReaderOptions::default());
 }
 
 /// The UCSD car's options: both timestamp policies are reachable from the CLI.
@@ -203,19 +186,17 @@ fn ucsd_options() -> [pfslam::io::ucsd::ReadOptions; 2] {
 
 /// The UCSD car's `encoder.csv`, with its real wheel calibration.
 pub fn ucsd_encoder(data: &[u8]) {
-    use pfslam::{io::ucsd::read_encoder_csv, sensors::EncoderParams};
-    let path = scratch_file("encoder.csv", data);
+    use pfslam::{io::ucsd::read_encoder_csv_from, sensors::EncoderParams};
     let params = EncoderParams::default();
     for opts in ucsd_options() {
-        let _ = read_encoder_csv(&path, &params, &opts);
+        let _ = read_encoder_csv_from(data, Path::new("encoder.csv"), &params, &opts);
     }
 }
 
 /// The UCSD car's `fog.csv`.
 pub fn ucsd_fog(data: &[u8]) {
-    let path = scratch_file("fog.csv", data);
     for opts in ucsd_options() {
-        let _ = pfslam::io::ucsd::read_fog_csv(&path, &opts);
+        let _ = pfslam::io::ucsd::read_fog_csv_from(data, Path::new("fog.csv"), &opts);
     }
 }
 
@@ -225,34 +206,40 @@ pub fn ucsd_lidar(data: &[u8]) {
         return;
     };
     let beam_count = [286, 1, 4, usize::from(first)][usize::from(first % 4)];
-    let path = scratch_file("lidar.csv", rest);
     for opts in ucsd_options() {
-        let _ = pfslam::io::ucsd::read_lidar_csv(&path, beam_count, &opts);
+        let path = Path::new("lidar.csv");
+        let _ = pfslam::io::ucsd::read_lidar_csv_from(rest, path, beam_count, &opts);
     }
 }
 
 /// The UCSD car's calibration text files: every parser on the same bytes.
 pub fn ucsd_calib(data: &[u8]) {
     use pfslam::io::ucsd::calib::{
-        read_encoder_params, read_extrinsic, read_lidar_params, read_stereo_baseline_m,
+        parse_encoder_params, parse_extrinsic, parse_lidar_params, parse_stereo_baseline_m,
     };
-    let path = scratch_file("param.txt", data);
-    let _ = read_encoder_params(&path);
-    let _ = read_extrinsic(&path);
-    let _ = read_lidar_params(&path);
-    let _ = read_stereo_baseline_m(&path);
+    // The files are read as UTF-8 text; other bytes are refused before any parser.
+    let Ok(text) = std::str::from_utf8(data) else {
+        return;
+    };
+    let path = Path::new("param.txt");
+    let _ = parse_encoder_params(text, path);
+    let _ = parse_extrinsic(text, path);
+    let _ = parse_lidar_params(text, path);
+    let _ = parse_stereo_baseline_m(text, path);
 }
 
 /// OpenCV YAML camera file (`%YAML:1.0`, `!!opencv-matrix`).
 pub fn opencv_yaml(data: &[u8]) {
-    let path = scratch_file("camera.yaml", data);
-    let _ = pfslam::io::opencv_yaml::read_camera_yaml(&path);
+    let Ok(text) = std::str::from_utf8(data) else {
+        return;
+    };
+    let _ = pfslam::io::opencv_yaml::parse_camera_yaml(Path::new("camera.yaml"), text);
 }
 
 /// The humanoid layout: calibration, odometry, IMU, joints and LiDAR files, NUL-separated.
 pub fn humanoid(data: &[u8]) {
     use pfslam::io::humanoid::{
-        CALIBRATION_FILE, IMU_CSV, JOINTS_CSV, LIDAR_CSV, ODOMETRY_CSV, read_humanoid_dataset,
+        CALIBRATION_FILE, IMU_CSV, JOINTS_CSV, LIDAR_CSV, ODOMETRY_CSV, read_humanoid_dataset_with,
     };
     let names = [
         CALIBRATION_FILE,
@@ -261,8 +248,22 @@ pub fn humanoid(data: &[u8]) {
         JOINTS_CSV,
         LIDAR_CSV,
     ];
-    let dir = scratch_layout("humanoid", &names, data);
-    let _ = read_humanoid_dataset(&dir);
+    let dir = Path::new("humanoid");
+    let _ = read_humanoid_dataset_with(dir, |path| {
+        let k = names.iter().position(|n| dir.join(n) == path);
+        match k.and_then(|k| data.splitn(names.len(), |&b| b == 0).nth(k)) {
+            Some(part) => String::from_utf8(part.to_vec()).map_err(|e| {
+                IoError::io(
+                    path,
+                    std::io::Error::new(std::io::ErrorKind::InvalidData, e),
+                )
+            }),
+            None => Err(IoError::Missing {
+                path: path.to_path_buf(),
+                what: "humanoid dataset file".to_string(),
+            }),
+        }
+    });
 }
 
 /// TUM trajectory.
@@ -272,14 +273,21 @@ pub fn tum(data: &[u8]) {
 
 /// map_server pair: the yaml, a NUL, then the pgm (written as `map.pgm`, the seeds' image).
 pub fn map_server(data: &[u8]) {
-    let dir = scratch_layout("map_server", &["map.yaml", "map.pgm"], data);
-    let _ = pfslam::io::map_files::read_map_server(&dir.join("map.yaml"));
+    let mut parts = data.splitn(2, |&b| b == 0);
+    let Ok(yaml) = std::str::from_utf8(parts.next().unwrap_or_default()) else {
+        return;
+    };
+    let pgm = parts.next();
+    let yaml_path = Path::new("map.yaml");
+    let _ = pfslam::io::map_files::parse_map_server(yaml, yaml_path, |image| match pgm {
+        Some(p) if image == Path::new("map.pgm") => Ok(p.to_vec()),
+        _ => Err(std::io::ErrorKind::NotFound.into()),
+    });
 }
 
 /// NPY `<f4` array (the log-odds maps).
 pub fn npy(data: &[u8]) {
-    let path = scratch_file("map.npy", data);
-    let _ = pfslam::io::map_files::read_npy_f32(&path);
+    let _ = pfslam::io::map_files::parse_npy_f32(data, Path::new("map.npy"));
 }
 
 /// Freiburg `.relations` file.
@@ -294,8 +302,10 @@ pub fn session_state(data: &[u8]) {
 
 /// TOML configuration, loaded and validated as the CLI does.
 pub fn config_toml(data: &[u8]) {
-    let path = scratch_file("config.toml", data);
-    if let Ok(c) = pfslam::config::Config::from_toml_file(&path) {
+    let Ok(text) = std::str::from_utf8(data) else {
+        return;
+    };
+    if let Ok(c) = pfslam::config::Config::from_toml_str(text, Path::new("config.toml")) {
         let _ = c.validate();
     }
 }

@@ -205,8 +205,7 @@ fn read_text(path: &Path) -> Result<String, IoError> {
     std::fs::read_to_string(path).map_err(|e| IoError::io(path, e))
 }
 
-fn read_calibration(path: &Path) -> Result<HumanoidCalibration, IoError> {
-    let text = read_text(path)?;
+fn read_calibration(path: &Path, text: &str) -> Result<HumanoidCalibration, IoError> {
     let mut vec3: [Option<[f64; 3]>; 3] = [None; 3];
     let mut scalars: [Option<f64>; 4] = [None; 4];
     const VEC_KEYS: [&str; 3] = ["body_to_neck_m", "neck_to_head_m", "head_to_lidar_m"];
@@ -285,11 +284,10 @@ fn read_calibration(path: &Path) -> Result<HumanoidCalibration, IoError> {
 
 /// Reads a CSV with the given header: calls `row(line_no, fields)` for every data row and
 /// checks that stamps do not go backwards.
-fn read_rows<F>(path: &Path, header: &str, mut row: F) -> Result<(), IoError>
+fn read_rows<F>(path: &Path, text: &str, header: &str, mut row: F) -> Result<(), IoError>
 where
     F: FnMut(usize, i64, &[&str]) -> Result<(), IoError>,
 {
-    let text = read_text(path)?;
     let mut lines = text.lines().enumerate();
     match lines.next() {
         Some((_, h)) if h.trim() == header => {}
@@ -345,10 +343,19 @@ fn parse_fields<const N: usize>(
 
 /// Reads a dataset written by [`write_humanoid_dataset`] (or by hand in that layout).
 pub fn read_humanoid_dataset(dir: &Path) -> Result<HumanoidDataset, IoError> {
-    let calibration = read_calibration(&dir.join(CALIBRATION_FILE))?;
+    read_humanoid_dataset_with(dir, read_text)
+}
+
+/// [`read_humanoid_dataset`] with each file's text from `read_file` (given the file's path).
+pub fn read_humanoid_dataset_with(
+    dir: &Path,
+    read_file: impl Fn(&Path) -> Result<String, IoError>,
+) -> Result<HumanoidDataset, IoError> {
+    let p = dir.join(CALIBRATION_FILE);
+    let calibration = read_calibration(&p, &read_file(&p)?)?;
     let mut odometry = Vec::new();
     let p = dir.join(ODOMETRY_CSV);
-    read_rows(&p, ODOMETRY_HEADER, |ln, stamp_ns, f| {
+    read_rows(&p, &read_file(&p)?, ODOMETRY_HEADER, |ln, stamp_ns, f| {
         let [x, y, yaw] = parse_fields(&p, ln, ["x_m", "y_m", "yaw_rad"], f)?;
         odometry.push(StampedPose2 {
             stamp_ns,
@@ -362,7 +369,7 @@ pub fn read_humanoid_dataset(dir: &Path) -> Result<HumanoidDataset, IoError> {
     })?;
     let mut imu = Vec::new();
     let p = dir.join(IMU_CSV);
-    read_rows(&p, IMU_HEADER, |ln, stamp_ns, f| {
+    read_rows(&p, &read_file(&p)?, IMU_HEADER, |ln, stamp_ns, f| {
         let [roll_rad, pitch_rad, yaw_rad] =
             parse_fields(&p, ln, ["roll_rad", "pitch_rad", "yaw_rad"], f)?;
         imu.push(ImuSample {
@@ -375,7 +382,7 @@ pub fn read_humanoid_dataset(dir: &Path) -> Result<HumanoidDataset, IoError> {
     })?;
     let mut joints = Vec::new();
     let p = dir.join(JOINTS_CSV);
-    read_rows(&p, JOINTS_HEADER, |ln, stamp_ns, f| {
+    read_rows(&p, &read_file(&p)?, JOINTS_HEADER, |ln, stamp_ns, f| {
         let [neck_yaw_rad, head_pitch_rad] =
             parse_fields(&p, ln, ["neck_yaw_rad", "head_pitch_rad"], f)?;
         joints.push(JointSample {
@@ -389,7 +396,7 @@ pub fn read_humanoid_dataset(dir: &Path) -> Result<HumanoidDataset, IoError> {
     let mut lidar = ScanSet::new(nb);
     let p = dir.join(LIDAR_CSV);
     let mut buf: Vec<f32> = Vec::with_capacity(nb);
-    read_rows(&p, LIDAR_HEADER, |ln, stamp_ns, f| {
+    read_rows(&p, &read_file(&p)?, LIDAR_HEADER, |ln, stamp_ns, f| {
         if f.len() != nb {
             return Err(IoError::parse(
                 &p,

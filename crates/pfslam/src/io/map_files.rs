@@ -198,7 +198,17 @@ fn pgm_header(path: &Path, bytes: &[u8]) -> Result<(Vec<u8>, usize, usize, usize
 /// `mode` trinary or scale (both thresholded as map_server does), origin yaw 0.
 pub fn read_map_server(yaml_path: &Path) -> Result<BinaryMap, IoError> {
     let text = std::fs::read_to_string(yaml_path).map_err(|e| IoError::io(yaml_path, e))?;
-    let y = parse_yaml(yaml_path, &text)?;
+    parse_map_server(&text, yaml_path, |pgm| std::fs::read(pgm))
+}
+
+/// [`read_map_server`] on the yaml's text, with the image's bytes from `read_image` (given
+/// the image's path as the yaml resolves it).
+pub fn parse_map_server(
+    text: &str,
+    yaml_path: &Path,
+    read_image: impl FnOnce(&Path) -> std::io::Result<Vec<u8>>,
+) -> Result<BinaryMap, IoError> {
+    let y = parse_yaml(yaml_path, text)?;
     if y.origin[2].abs() > 1e-12 {
         return Err(IoError::parse(
             yaml_path,
@@ -214,7 +224,7 @@ pub fn read_map_server(yaml_path: &Path) -> Result<BinaryMap, IoError> {
         ));
     }
     let pgm = &y.image;
-    let bytes = std::fs::read(pgm).map_err(|e| IoError::io(pgm, e))?;
+    let bytes = read_image(pgm).map_err(|e| IoError::io(pgm, e))?;
     let (magic, w, h, maxval, start) = pgm_header(pgm, &bytes)?;
     if maxval == 0 || maxval > 255 {
         return Err(IoError::parse(
@@ -325,6 +335,11 @@ pub fn write_npy_f32(path: &Path, shape: &[usize], data: &[f32]) -> Result<(), I
 /// Reads an NPY 1.0/2.0 `<f4` C-order array: (shape, data).
 pub fn read_npy_f32(path: &Path) -> Result<(Vec<usize>, Vec<f32>), IoError> {
     let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
+    parse_npy_f32(&bytes, path)
+}
+
+/// [`read_npy_f32`] on the file's bytes; `path` names it in errors.
+pub fn parse_npy_f32(bytes: &[u8], path: &Path) -> Result<(Vec<usize>, Vec<f32>), IoError> {
     let bad = |m: &str| IoError::parse(path, 0, m.to_string());
     if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
         return Err(bad("not an npy file"));

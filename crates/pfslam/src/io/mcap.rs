@@ -312,13 +312,31 @@ pub fn read_mcap_with_account(
     path: &Path,
     options: &ReaderOptions,
 ) -> Result<(Recording, InputAccount), RosError> {
-    let map = map_checked(path)?;
-    let topics = topics_in(path, &map)?.topics;
+    mcap_with_account(&map_checked(path)?, path, options)
+}
+
+/// [`read_mcap_with_account`] on the file's bytes; `path` names it in errors.
+pub fn read_mcap_from_bytes(
+    bytes: &[u8],
+    path: &Path,
+    options: &ReaderOptions,
+) -> Result<(Recording, InputAccount), RosError> {
+    check_chunk_sizes(bytes, path)?;
+    mcap_with_account(bytes, path, options)
+}
+
+/// Reads checked MCAP bytes.
+fn mcap_with_account(
+    map: &[u8],
+    path: &Path,
+    options: &ReaderOptions,
+) -> Result<(Recording, InputAccount), RosError> {
+    let topics = topics_in(path, map)?.topics;
     let chosen =
         choose_topics(&topics, options).map_err(|e| RosError::format(path, "topics", e))?;
     let mut acc = InputAccount::new("mcap", path, "messages");
     let mut builder = RecordingBuilder::new();
-    for_each_message(path, &map, |k, msg, type_name| {
+    for_each_message(path, map, |k, msg, type_name| {
         acc.records_read += 1;
         let topic = msg.channel.topic.as_str();
         if !chosen.uses(topic) {

@@ -147,14 +147,14 @@ fn parse_entries(path: &Path, text: &str) -> Result<Vec<(String, Value)>, IoErro
                 format!("{key}: matrix needs rows, cols and data"),
             ));
         };
-        if rows * cols != data.len() {
+        // rows and cols come from the file: their product may overflow
+        if rows.checked_mul(cols) != Some(data.len()) {
             return Err(IoError::parse(
                 path,
                 line_no,
                 format!(
-                    "{key}: {rows}x{cols} matrix has {} values, expected {}",
-                    data.len(),
-                    rows * cols
+                    "{key}: a {rows}x{cols} matrix cannot have {} values",
+                    data.len()
                 ),
             ));
         }
@@ -383,5 +383,12 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("c.yaml:5") && e.contains("camera_matrix"), "{e}");
+        // found by fuzzing: rows x cols overflowed
+        let huge = text.replace("rows: 3", "rows: 1111111111111111111");
+        let huge = huge.replace("cols: 3", "cols: 55555");
+        let e = parse_camera_yaml(Path::new("c.yaml"), &huge)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("c.yaml:5") && e.contains("cannot have 2 values"), "{e}");
     }
 }

@@ -47,8 +47,10 @@
 //!   warning.
 
 mod parse;
+mod stream;
 mod write;
 
+pub use stream::{ScanPose, stream_scan_poses};
 pub use write::write_carmen;
 
 use super::account::InputAccount;
@@ -122,19 +124,27 @@ pub fn carmen_geometry(beam_count: usize, range_max_m: f32) -> LidarGeometry {
     }
 }
 
-/// Opens a possibly gzipped text file for buffered reading (gzip detected by its magic bytes).
-pub(crate) fn open_maybe_gz(path: &Path) -> Result<Box<dyn BufRead>, IoError> {
-    let mut file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
+/// Wraps a possibly gzipped byte source for buffered reading (gzip detected by its magic
+/// bytes, read here and put back in front of the rest).
+fn maybe_gz<'a>(mut source: impl Read + 'a, path: &Path) -> Result<Box<dyn BufRead + 'a>, IoError> {
     let mut magic = [0u8; 2];
-    let n = file.read(&mut magic).map_err(|e| IoError::io(path, e))?;
-    let file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
+    let mut n = 0;
+    while n < magic.len() {
+        match source.read(&mut magic[n..]) {
+            Ok(0) => break,
+            Ok(k) => n += k,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(IoError::io(path, e)),
+        }
+    }
+    let whole = std::io::Cursor::new(magic).take(n as u64).chain(source);
     if n == 2 && magic == [0x1f, 0x8b] {
         Ok(Box::new(std::io::BufReader::with_capacity(
             1 << 16,
-            flate2::read::MultiGzDecoder::new(file),
+            flate2::read::MultiGzDecoder::new(whole),
         )))
     } else {
-        Ok(Box::new(std::io::BufReader::with_capacity(1 << 16, file)))
+        Ok(Box::new(std::io::BufReader::with_capacity(1 << 16, whole)))
     }
 }
 
@@ -163,6 +173,24 @@ impl LaserStream {
     }
 }
 
+/// A laser line's beam layout: its own (ROBOTLASER1) or CARMEN's convention.
+fn line_geometry(l: &LaserLine, beam_count: usize, options: &CarmenOptions) -> LidarGeometry {
+    match l.geometry {
+        Some((start, res, max)) => LidarGeometry {
+            angle_min_rad: start,
+            angle_increment_rad: res,
+            beam_count,
+            range_min_m: 0.0,
+            range_max_m: if max > 0.0 {
+                max.min(options.range_max_m)
+            } else {
+                options.range_max_m
+            },
+        },
+        None => carmen_geometry(beam_count, options.range_max_m),
+    }
+}
+
 /// Everything read from the lines, before the clock is chosen.
 #[derive(Default)]
 struct LogContent {
@@ -188,20 +216,7 @@ impl LogContent {
         match msg {
             Message::Comment => {}
             Message::Laser(l) => {
-                let g = match l.geometry {
-                    Some((start, res, max)) => LidarGeometry {
-                        angle_min_rad: start,
-                        angle_increment_rad: res,
-                        beam_count: ranges.len(),
-                        range_min_m: 0.0,
-                        range_max_m: if max > 0.0 {
-                            max.min(options.range_max_m)
-                        } else {
-                            options.range_max_m
-                        },
-                    },
-                    None => carmen_geometry(ranges.len(), options.range_max_m),
-                };
+                let g = line_geometry(&l, ranges.len(), options);
                 acc.repair("readings", "not finite, taken as no return", l.non_finite);
                 let before = self.odom_stamps.len();
                 match l.kind {
@@ -238,19 +253,46 @@ impl LogContent {
 
 /// Reads a CARMEN log into a [`Recording`] (see the module docs for the conventions).
 pub fn read_carmen(path: &Path, options: &CarmenOptions) -> Result<CarmenLog, IoError> {
+    let file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
+    read_carmen_from(file, path, options)
+}
+
+/// [`read_carmen`] from any byte source (plain or gzipped); `path` names it in errors and in
+/// the account.
+pub fn read_carmen_from(
+    source: impl Read,
+    path: &Path,
+    options: &CarmenOptions,
+) -> Result<CarmenLog, IoError> {
     let mut acc = InputAccount::new("carmen", path, "lines");
-    let content = read_lines(path, options, &mut acc)?;
+    let content = read_lines(maybe_gz(source, path)?, path, options, &mut acc)?;
     assemble(path, options, content, acc)
 }
 
 /// Reads every line, dropping (or, strict, refusing) malformed ones.
 fn read_lines(
+    reader: Box<dyn BufRead + '_>,
     path: &Path,
     options: &CarmenOptions,
     acc: &mut InputAccount,
 ) -> Result<LogContent, IoError> {
-    let mut reader = open_maybe_gz(path)?;
     let mut content = LogContent::default();
+    for_each_message(reader, path, options, acc, |msg, ranges, acc| {
+        content.add(msg, ranges, options, acc);
+        Ok(())
+    })?;
+    Ok(content)
+}
+
+/// Calls `f` with every line's message and readings; malformed lines are dropped and counted
+/// in `acc` (or, strict, refused).
+fn for_each_message(
+    mut reader: Box<dyn BufRead + '_>,
+    path: &Path,
+    options: &CarmenOptions,
+    acc: &mut InputAccount,
+    mut f: impl FnMut(Message, &[f32], &mut InputAccount) -> Result<(), IoError>,
+) -> Result<(), IoError> {
     let mut buf: Vec<u8> = Vec::new();
     let mut ranges: Vec<f32> = Vec::new();
     let mut line_no = 0usize;
@@ -268,7 +310,7 @@ fn read_lines(
             .map_err(|_| "line is not valid UTF-8 text".to_string())
             .and_then(|t| parse_line(t, &mut ranges));
         match parsed {
-            Ok(msg) => content.add(msg, &ranges, options, acc),
+            Ok(msg) => f(msg, &ranges, acc)?,
             Err(why) if options.strict => return Err(IoError::parse(path, line_no, why)),
             Err(why) => {
                 let kind = first_word(&buf);
@@ -292,7 +334,7 @@ fn read_lines(
         }
     }
     acc.records_read = line_no;
-    Ok(content)
+    Ok(())
 }
 
 fn first_word(buf: &[u8]) -> String {
@@ -303,28 +345,59 @@ fn first_word(buf: &[u8]) -> String {
         .to_string()
 }
 
+/// The laser line types, in the order [`LaserKind`] indexes them.
+const KINDS: [&str; 5] = ["FLASER", "RLASER", "ROBOTLASER1", "RAWLASER1", "RAWLASER2"];
+
+fn kind_index(kind: LaserKind) -> usize {
+    match kind {
+        LaserKind::Front => 0,
+        LaserKind::Rear => 1,
+        LaserKind::Robot => 2,
+        LaserKind::Raw { rear } => 3 + usize::from(rear),
+    }
+}
+
+/// The line types the chosen laser's scans may come from, in order of preference (indices
+/// into [`KINDS`]).
+fn candidates(laser: CarmenLaser) -> &'static [usize] {
+    match laser {
+        CarmenLaser::Front => &[0, 2, 3],
+        CarmenLaser::Rear => &[1, 4],
+    }
+}
+
+/// The laser mount of line type `k`: PARAM offsets, or the first ROBOTLASER1 line's.
+fn laser_mount(offsets: &[[f64; 3]; 2], robot_mount: Option<Pose2>, k: usize) -> Pose2 {
+    let at = |i: usize, yaw: f64| Pose2::new(offsets[i][0], offsets[i][1], yaw + offsets[i][2]);
+    match k {
+        2 => robot_mount.unwrap_or(Pose2::IDENTITY),
+        1 | 4 => at(1, std::f64::consts::PI),
+        _ => at(0, 0.0),
+    }
+}
+
+impl LogContent {
+    fn stream_mut(&mut self, k: usize) -> &mut LaserStream {
+        match k {
+            0 => &mut self.front,
+            1 => &mut self.rear,
+            2 => &mut self.robot,
+            3 => &mut self.raw[0],
+            _ => &mut self.raw[1],
+        }
+    }
+}
+
 /// The laser stream a log's scans come from (the first non-empty of the chosen laser's
 /// line types), its name and the laser mount.
 fn choose_stream(
     options: &CarmenOptions,
     c: &mut LogContent,
 ) -> (LaserStream, &'static str, Pose2) {
-    let offsets =
-        |k: usize, yaw: f64| Pose2::new(c.offsets[k][0], c.offsets[k][1], yaw + c.offsets[k][2]);
-    let (front, rear) = (offsets(0, 0.0), offsets(1, std::f64::consts::PI));
-    let robot_mount = c.robot.first_robot_mount.unwrap_or(Pose2::IDENTITY);
-    let [raw_front, raw_rear] = &mut c.raw;
-    let candidates: Vec<(&mut LaserStream, &'static str, Pose2)> = match options.laser {
-        CarmenLaser::Front => vec![
-            (&mut c.front, "FLASER", front),
-            (&mut c.robot, "ROBOTLASER1", robot_mount),
-            (raw_front, "RAWLASER1", front),
-        ],
-        CarmenLaser::Rear => vec![(&mut c.rear, "RLASER", rear), (raw_rear, "RAWLASER2", rear)],
-    };
-    for (stream, name, mount) in candidates {
-        if !stream.scans.is_empty() {
-            return (std::mem::take(stream), name, mount);
+    for &k in candidates(options.laser) {
+        if !c.stream_mut(k).scans.is_empty() {
+            let mount = laser_mount(&c.offsets, c.robot.first_robot_mount, k);
+            return (std::mem::take(c.stream_mut(k)), KINDS[k], mount);
         }
     }
     (LaserStream::default(), "", Pose2::IDENTITY)
@@ -338,32 +411,9 @@ fn assemble(
     mut acc: InputAccount,
 ) -> Result<CarmenLog, IoError> {
     let (stream, kind_name, mount) = choose_stream(options, &mut content);
-    for (s, name) in [
-        (&content.front, "FLASER"),
-        (&content.rear, "RLASER"),
-        (&content.robot, "ROBOTLASER1"),
-        (&content.raw[0], "RAWLASER1"),
-        (&content.raw[1], "RAWLASER2"),
-    ] {
-        acc.ignore_many(name, "lines (another laser)", s.scans.len());
-    }
-    if stream.scans.is_empty() {
-        return Err(IoError::parse(
-            path,
-            0,
-            match options.laser {
-                CarmenLaser::Front => "no FLASER, ROBOTLASER1 or RAWLASER1 line in the log",
-                CarmenLaser::Rear => "no RLASER or RAWLASER2 line in the log",
-            },
-        ));
-    }
+    let others: [usize; 5] = std::array::from_fn(|k| content.stream_mut(k).scans.len());
     let n = stream.scans.len();
-    acc.scans_read += n;
-    acc.scans_kept = n;
-    acc.mount_source = match kind_name {
-        "ROBOTLASER1" => "the first ROBOTLASER1 line's laser and robot poses".into(),
-        _ => "PARAM laser offsets (zero when absent)".into(),
-    };
+    account_laser(path, options, &mut acc, others, kind_name, n)?;
     for g in &stream.geometry {
         acc.add_layout(g);
     }
@@ -375,11 +425,7 @@ fn assemble(
         acc.odometry_source = "the ODOM lines (the RAWLASER lines carry no pose)".into();
         Some(odom)
     } else {
-        let why = "lines (the laser lines carry the odometry)";
-        acc.ignore_many("ODOM", why, content.odom_poses.len());
-        acc.odometry_read = n;
-        acc.odometry_kept = n;
-        acc.odometry_source = format!("the {kind_name} lines' odometry poses");
+        account_pose_odometry(&mut acc, kind_name, n, content.odom_poses.len());
         None
     };
     Ok(build(
@@ -391,6 +437,61 @@ fn assemble(
         content.truepos,
         acc,
     ))
+}
+
+/// The account of the chosen laser's `n` scans (`others`: the lines of each other laser
+/// type, ignored); an error when the log has none.
+fn account_laser(
+    path: &Path,
+    options: &CarmenOptions,
+    acc: &mut InputAccount,
+    others: [usize; 5],
+    kind_name: &str,
+    n: usize,
+) -> Result<(), IoError> {
+    for (name, count) in KINDS.iter().zip(others) {
+        acc.ignore_many(name, "lines (another laser)", count);
+    }
+    if n == 0 {
+        return Err(IoError::parse(
+            path,
+            0,
+            match options.laser {
+                CarmenLaser::Front => "no FLASER, ROBOTLASER1 or RAWLASER1 line in the log",
+                CarmenLaser::Rear => "no RLASER or RAWLASER2 line in the log",
+            },
+        ));
+    }
+    acc.scans_read += n;
+    acc.scans_kept = n;
+    acc.mount_source = match kind_name {
+        "ROBOTLASER1" => "the first ROBOTLASER1 line's laser and robot poses".into(),
+        _ => "PARAM laser offsets (zero when absent)".into(),
+    };
+    Ok(())
+}
+
+/// The account of odometry taken from the `n` laser lines' poses (the ODOM lines ignored).
+fn account_pose_odometry(acc: &mut InputAccount, kind_name: &str, n: usize, odom_lines: usize) {
+    let why = "lines (the laser lines carry the odometry)";
+    acc.ignore_many("ODOM", why, odom_lines);
+    acc.odometry_read = n;
+    acc.odometry_kept = n;
+    acc.odometry_source = format!("the {kind_name} lines' odometry poses");
+}
+
+/// The account's clock when `repaired` of the laser lines' stamps were placed by file order.
+fn account_laser_clock(acc: &mut InputAccount, repaired: usize) {
+    acc.clock = if repaired == 0 {
+        "the laser lines' stamps".into()
+    } else {
+        format!("the laser lines' stamps, {repaired} placed by file order")
+    };
+    acc.repair(
+        "scans",
+        "stamp zero, repeated or out of order: placed by file order",
+        repaired,
+    );
 }
 
 /// The ODOM lines as odometry, on their clock (empty when they have none: LiDAR-only).
@@ -425,19 +526,7 @@ fn choose_clock(
 ) -> Vec<i64> {
     let laser: Vec<Option<i64>> = stream.scans.stamps_ns.iter().map(|&s| Some(s)).collect();
     if let Some(c) = repair_in_file_order(&laser) {
-        acc.clock = if c.repaired == 0 {
-            "the laser lines' stamps".into()
-        } else {
-            format!(
-                "the laser lines' stamps, {} placed by file order",
-                c.repaired
-            )
-        };
-        acc.repair(
-            "scans",
-            "stamp zero, repeated or out of order: placed by file order",
-            c.repaired,
-        );
+        account_laser_clock(acc, c.repaired);
         return c.stamps_ns;
     }
     let odom_clock: Option<RepairedClock> = repair_in_file_order(odom);

@@ -25,6 +25,10 @@ pub const LEFT_CAMERA_FILE: &str = "left_camera.yaml";
 /// `param/right_camera.yaml`.
 pub const RIGHT_CAMERA_FILE: &str = "right_camera.yaml";
 
+/// Most beams a LiDAR row may hold: far above any planar LiDAR's, low enough that a typo
+/// cannot make the readers allocate gigabytes per row.
+pub const MAX_BEAM_COUNT: usize = 1 << 16;
+
 /// The `key: value` lines of a calibration file (lines without a colon are free text).
 struct KeyValues {
     path: PathBuf,
@@ -33,8 +37,7 @@ struct KeyValues {
 }
 
 impl KeyValues {
-    fn read(path: &Path, what: &str) -> Result<KeyValues, IoError> {
-        let text = read_text(path, what)?;
+    fn parse(text: &str, path: &Path) -> Result<KeyValues, IoError> {
         let mut entries: Vec<(String, usize, String)> = Vec::new();
         for (idx, raw) in text.lines().enumerate() {
             let line = raw.trim_end_matches('\r').trim();
@@ -117,7 +120,12 @@ fn read_text(path: &Path, what: &str) -> Result<String, IoError> {
 
 /// Parses `EncoderParameter.txt`.
 pub fn read_encoder_params(path: &Path) -> Result<EncoderParams, IoError> {
-    let kv = KeyValues::read(path, "encoder calibration")?;
+    parse_encoder_params(&read_text(path, "encoder calibration")?, path)
+}
+
+/// [`read_encoder_params`] on a file's text; `path` names it in errors.
+pub fn parse_encoder_params(text: &str, path: &Path) -> Result<EncoderParams, IoError> {
+    let kv = KeyValues::parse(text, path)?;
     let (line, res_text) = kv.require("Encoder resolution")?;
     let resolution_ticks: u32 = res_text.trim().parse().map_err(|_| {
         IoError::parse(
@@ -148,7 +156,12 @@ pub fn read_encoder_params(path: &Path) -> Result<EncoderParams, IoError> {
 /// Parses a `Vehicle2*.txt` extrinsic file into `body_from_sensor`. The `R:` line
 /// (row-major) is authoritative; without it the `RPY:` line (degrees, XYZ extrinsic) is used.
 pub fn read_extrinsic(path: &Path) -> Result<Rigid3, IoError> {
-    let kv = KeyValues::read(path, "extrinsic calibration")?;
+    parse_extrinsic(&read_text(path, "extrinsic calibration")?, path)
+}
+
+/// [`read_extrinsic`] on a file's text; `path` names it in errors.
+pub fn parse_extrinsic(text: &str, path: &Path) -> Result<Rigid3, IoError> {
+    let kv = KeyValues::parse(text, path)?;
     let t = kv
         .numbers("T", 3)?
         .ok_or_else(|| IoError::parse(path, 0, "missing calibration key \"T\""))?;
@@ -177,7 +190,12 @@ pub fn read_extrinsic(path: &Path) -> Result<Rigid3, IoError> {
 /// Parses `lidar_param.txt`. The beam count is `Beam count:` when present (written by
 /// [`write_car_calibration`]), else `floor(FOV / resolution) + 1` (286 for the real file).
 pub fn read_lidar_params(path: &Path) -> Result<LidarGeometry, IoError> {
-    let kv = KeyValues::read(path, "LiDAR parameters")?;
+    parse_lidar_params(&read_text(path, "LiDAR parameters")?, path)
+}
+
+/// [`read_lidar_params`] on a file's text; `path` names it in errors.
+pub fn parse_lidar_params(text: &str, path: &Path) -> Result<LidarGeometry, IoError> {
+    let kv = KeyValues::parse(text, path)?;
     let (start_deg, _) = kv.number("Start angle")?;
     let (res_deg, _) = kv.number("Angular resolution")?;
     let (fov_deg, _) = kv.number("FOV")?;
@@ -196,21 +214,29 @@ pub fn read_lidar_params(path: &Path) -> Result<LidarGeometry, IoError> {
     }
     let beam_count = match kv.get("Beam count") {
         Some((line, text)) => match text.trim().parse::<usize>() {
-            Ok(n) if n > 0 => n,
+            Ok(n) if (1..=MAX_BEAM_COUNT).contains(&n) => n,
             _ => {
                 return Err(IoError::parse(
                     path,
                     line,
-                    format!("Beam count: not a positive integer: {text:?}"),
+                    format!("Beam count: not an integer in 1..={MAX_BEAM_COUNT}: {text:?}"),
                 ));
             }
         },
         None => {
+            let (l, _) = kv.require("FOV")?;
             if fov_deg <= 0.0 {
-                let (l, _) = kv.require("FOV")?;
                 return Err(IoError::parse(path, l, "FOV must be > 0"));
             }
-            (fov_deg / res_deg + 1e-9).floor() as usize + 1
+            let intervals = (fov_deg / res_deg + 1e-9).floor();
+            if intervals >= MAX_BEAM_COUNT as f64 {
+                return Err(IoError::parse(
+                    path,
+                    l,
+                    format!("FOV / Angular resolution gives over {MAX_BEAM_COUNT} beams"),
+                ));
+            }
+            intervals as usize + 1
         }
     };
     Ok(LidarGeometry {
@@ -225,7 +251,12 @@ pub fn read_lidar_params(path: &Path) -> Result<LidarGeometry, IoError> {
 /// Parses `stereo_param.txt`: the baseline in millimetres, returned in metres. The
 /// conversion shifts the decimal point in the text, so no rounding is added.
 pub fn read_stereo_baseline_m(path: &Path) -> Result<f64, IoError> {
-    let kv = KeyValues::read(path, "stereo baseline")?;
+    parse_stereo_baseline_m(&read_text(path, "stereo baseline")?, path)
+}
+
+/// [`read_stereo_baseline_m`] on a file's text; `path` names it in errors.
+pub fn parse_stereo_baseline_m(text: &str, path: &Path) -> Result<f64, IoError> {
+    let kv = KeyValues::parse(text, path)?;
     let key = "Baseline of stereo cameras";
     let (line, value) = kv.require(key)?;
     let first = value.split_whitespace().next().unwrap_or("");
@@ -473,6 +504,31 @@ mod tests {
         assert_eq!(shift_decimal("0.5", 3).unwrap(), "500");
         assert_eq!(shift_decimal("-12.5", -1).unwrap(), "-1.25");
         assert!(shift_decimal("1e3", 1).is_none());
+    }
+
+    #[test]
+    fn a_beam_count_beyond_any_lidar_is_refused() {
+        let path = Path::new("lidar_param.txt");
+        let text = |fov: &str, count: &str| {
+            format!(
+                "FOV: {fov} (degree)\nStart angle: -5 (degree)\nAngular resolution: 0.666 (degree)\nMax range: 80 (m)\n{count}"
+            )
+        };
+        let ok = parse_lidar_params(&text("190", ""), path).unwrap();
+        assert_eq!(ok.beam_count, 286);
+        // found by fuzzing: the count computed from a huge FOV overflowed
+        let huge_fov = parse_lidar_params(&text("1111111111111111111111111190", ""), path);
+        let msg = huge_fov.unwrap_err().to_string();
+        assert!(
+            msg.contains("lidar_param.txt:1") && msg.contains("beams"),
+            "{msg}"
+        );
+        let huge_count = parse_lidar_params(&text("190", "Beam count: 4000000000\n"), path);
+        let msg = huge_count.unwrap_err().to_string();
+        assert!(
+            msg.contains("lidar_param.txt:5") && msg.contains("Beam count"),
+            "{msg}"
+        );
     }
 
     #[test]

@@ -191,7 +191,27 @@ pub fn read_lidar_csv(
     beam_count: usize,
     opts: &ReadOptions,
 ) -> Result<ScanSet, IoError> {
-    let mut lines = Lines::open(path, "LiDAR rows (timestamp_ns,r_0,...)")?;
+    let lines = Lines::open(path, "LiDAR rows (timestamp_ns,r_0,...)")?;
+    lidar_rows(lines, path, beam_count, opts)
+}
+
+/// [`read_lidar_csv`] from any byte source; `path` names it in errors.
+pub fn read_lidar_csv_from<'a>(
+    source: impl Read + 'a,
+    path: &Path,
+    beam_count: usize,
+    opts: &ReadOptions,
+) -> Result<ScanSet, IoError> {
+    let lines = Lines::from_reader(Box::new(source), path, Lines::BLOCK);
+    lidar_rows(lines, path, beam_count, opts)
+}
+
+fn lidar_rows(
+    mut lines: Lines<'_>,
+    path: &Path,
+    beam_count: usize,
+    opts: &ReadOptions,
+) -> Result<ScanSet, IoError> {
     let mut scans = ScanSet::new(beam_count);
     let mut row: Vec<f32> = Vec::with_capacity(beam_count);
     let mut scratch = ranges::RangeScratch::default();

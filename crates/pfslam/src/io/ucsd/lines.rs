@@ -23,9 +23,9 @@ impl PaddedLine<'_> {
 /// returned in place, without `\n`/`\r\n` or trailing blanks (blank lines are skipped but
 /// counted). Every line has `ranges::HEAD_PAD` readable bytes before it and at least
 /// `1 + ranges::TAIL_PAD` after it, which the vector parser of LiDAR rows needs.
-pub(super) struct Lines {
+pub(super) struct Lines<'a> {
     path: PathBuf,
-    file: std::fs::File,
+    source: Box<dyn Read + 'a>,
     /// `HEAD_PAD` bytes, then the data space, then `TAIL` bytes that are never filled.
     buf: Vec<u8>,
     /// Start of the bytes not yet returned.
@@ -36,18 +36,22 @@ pub(super) struct Lines {
     line_no: usize,
 }
 
-impl Lines {
+impl<'a> Lines<'a> {
     /// Bytes read per call (the data space grows for longer lines).
-    const BLOCK: usize = 1 << 20;
+    pub(super) const BLOCK: usize = 1 << 20;
     /// The sentinel byte and the tail padding.
     const TAIL: usize = 1 + ranges::TAIL_PAD;
 
-    pub(super) fn open(path: &Path, what: &str) -> Result<Lines, IoError> {
+    pub(super) fn open(path: &Path, what: &str) -> Result<Lines<'a>, IoError> {
         Self::open_with_block(path, what, Self::BLOCK)
     }
 
     /// [`Lines::open`] with `block` bytes of data space (tests use tiny ones).
-    pub(super) fn open_with_block(path: &Path, what: &str, block: usize) -> Result<Lines, IoError> {
+    pub(super) fn open_with_block(
+        path: &Path,
+        what: &str,
+        block: usize,
+    ) -> Result<Lines<'a>, IoError> {
         let file = match std::fs::File::open(path) {
             Ok(f) => f,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
@@ -58,15 +62,20 @@ impl Lines {
             }
             Err(e) => return Err(IoError::io(path, e)),
         };
-        Ok(Lines {
+        Ok(Self::from_reader(Box::new(file), path, block))
+    }
+
+    /// Lines of any byte source; `path` names it in errors.
+    pub(super) fn from_reader(source: Box<dyn Read + 'a>, path: &Path, block: usize) -> Lines<'a> {
+        Lines {
             path: path.to_path_buf(),
-            file,
+            source,
             buf: vec![0; ranges::HEAD_PAD + block.max(1) + Self::TAIL],
             pos: ranges::HEAD_PAD,
             filled: ranges::HEAD_PAD,
             eof: false,
             line_no: 0,
-        })
+        }
     }
 
     /// The next non-blank line, or `None` at the end.
@@ -129,7 +138,7 @@ impl Lines {
         }
         let space_end = self.buf.len() - Self::TAIL;
         loop {
-            match self.file.read(&mut self.buf[self.filled..space_end]) {
+            match self.source.read(&mut self.buf[self.filled..space_end]) {
                 Ok(0) => self.eof = true,
                 Ok(n) => self.filled += n,
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,

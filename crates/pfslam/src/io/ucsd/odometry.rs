@@ -10,7 +10,27 @@ pub fn read_encoder_csv(
     params: &EncoderParams,
     opts: &ReadOptions,
 ) -> Result<Vec<EncoderSample>, IoError> {
-    let mut lines = Lines::open(path, "encoder rows (timestamp_ns,left_count,right_count)")?;
+    let lines = Lines::open(path, "encoder rows (timestamp_ns,left_count,right_count)")?;
+    encoder_rows(lines, path, params, opts)
+}
+
+/// [`read_encoder_csv`] from any byte source; `path` names it in errors.
+pub fn read_encoder_csv_from<'a>(
+    source: impl Read + 'a,
+    path: &Path,
+    params: &EncoderParams,
+    opts: &ReadOptions,
+) -> Result<Vec<EncoderSample>, IoError> {
+    let lines = Lines::from_reader(Box::new(source), path, Lines::BLOCK);
+    encoder_rows(lines, path, params, opts)
+}
+
+fn encoder_rows(
+    mut lines: Lines<'_>,
+    path: &Path,
+    params: &EncoderParams,
+    opts: &ReadOptions,
+) -> Result<Vec<EncoderSample>, IoError> {
     let mut rows: Vec<EncoderSample> = Vec::new();
     let mut line_nos: Vec<usize> = Vec::new();
     let mut order = OrderCheck::new(opts.timestamp_policy);
@@ -117,10 +137,28 @@ pub(super) fn check_encoder_counts(
 
 /// Reads `fog.csv`.
 pub fn read_fog_csv(path: &Path, opts: &ReadOptions) -> Result<Vec<FogSample>, IoError> {
-    let mut lines = Lines::open(
+    let lines = Lines::open(
         path,
         "FOG rows (timestamp_ns,delta_roll,delta_pitch,delta_yaw)",
     )?;
+    fog_rows(lines, path, opts)
+}
+
+/// [`read_fog_csv`] from any byte source; `path` names it in errors.
+pub fn read_fog_csv_from<'a>(
+    source: impl Read + 'a,
+    path: &Path,
+    opts: &ReadOptions,
+) -> Result<Vec<FogSample>, IoError> {
+    let lines = Lines::from_reader(Box::new(source), path, Lines::BLOCK);
+    fog_rows(lines, path, opts)
+}
+
+fn fog_rows(
+    mut lines: Lines<'_>,
+    path: &Path,
+    opts: &ReadOptions,
+) -> Result<Vec<FogSample>, IoError> {
     let mut rows: Vec<FogSample> = Vec::new();
     let mut order = OrderCheck::new(opts.timestamp_policy);
     while let Some((ln, line)) = lines.next_line()? {
