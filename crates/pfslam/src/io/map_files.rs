@@ -375,9 +375,10 @@ pub fn parse_npy_f32(bytes: &[u8], path: &Path) -> Result<(Vec<usize>, Vec<f32>)
         .map(|s| s.parse::<usize>())
         .collect();
     let shape = shape.map_err(|_| bad("bad npy shape"))?;
-    let n: usize = shape.iter().product();
+    // the shape comes from the file: its product may overflow
+    let bytes_expected = shape.iter().try_fold(4usize, |acc, &d| acc.checked_mul(d));
     let body = &bytes[hstart + hlen..];
-    if body.len() != 4 * n {
+    if bytes_expected != Some(body.len()) {
         return Err(bad("npy data size does not match its shape"));
     }
     let data = body
@@ -477,5 +478,23 @@ mod tests {
         assert!((data[0] - l4).abs() < 0.01);
         assert!((data[5] + l4).abs() < 0.01);
         assert_eq!(data[1], 0.0);
+    }
+
+    #[test]
+    fn an_npy_shape_whose_size_overflows_is_refused() {
+        // found by fuzzing: the product of the shape overflowed
+        let header =
+            "{'descr': '<f4', 'fortran_order': False, 'shape': (4294967296, 4294967296, 2), }";
+        let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+        bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+        bytes.extend_from_slice(header.as_bytes());
+        bytes.extend_from_slice(&[0; 8]);
+        let e = parse_npy_f32(&bytes, Path::new("m.npy"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("m.npy") && e.contains("does not match its shape"),
+            "{e}"
+        );
     }
 }

@@ -389,6 +389,9 @@ mod tests {
         let e = parse_camera_yaml(Path::new("c.yaml"), &huge)
             .unwrap_err()
             .to_string();
-        assert!(e.contains("c.yaml:5") && e.contains("cannot have 2 values"), "{e}");
+        assert!(
+            e.contains("c.yaml:5") && e.contains("cannot have 2 values"),
+            "{e}"
+        );
     }
 }
