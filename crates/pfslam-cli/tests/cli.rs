@@ -45,6 +45,7 @@ mod cli_data;
 mod cli_demo;
 mod cli_eval;
 mod cli_map;
+mod cli_record;
 mod cli_run;
 mod cli_sim_texture;
 mod cli_stream;

@@ -5,7 +5,7 @@
 
 use crate::config::Config;
 use crate::filter::slam::{SlamError, SlamEvent, SlamResult, run_slam};
-use crate::geometry::{StampedPose2, Trajectory};
+use crate::geometry::{Pose2, StampedPose2, Trajectory};
 pub use crate::graph::BackEndInput;
 use crate::graph::{GraphError, GraphStats, optimize_trajectory};
 use crate::map::consistency::consistency;
@@ -88,6 +88,8 @@ pub struct PipelineResult {
     pub rebuild_cpu_s: Option<f64>,
     /// The self-check.
     pub quality: Quality,
+    /// The two ends of each loop closure of the back end, when its trajectory was kept.
+    pub loop_closures: Vec<(Pose2, Pose2)>,
 }
 
 /// CPU seconds (user + system, all threads) of this process so far; `None` where
@@ -144,6 +146,7 @@ pub fn run_pipeline(
     let mut back_end_input = None;
     let mut rebuild = (0.0, Some(0.0));
     let mut signals = QualitySignals::default();
+    let mut loop_closures = Vec::new();
     let graph = if config.graph.enabled {
         let mut which = options
             .back_end_input
@@ -200,6 +203,7 @@ pub fn run_pipeline(
             result.trajectory = trajectory;
         }
         signals = chosen.signals;
+        loop_closures = chosen.loop_closures;
         if options.rebuild_map {
             result.map = chosen.grid;
         }
@@ -224,6 +228,7 @@ pub fn run_pipeline(
         rebuild_s: rebuild.0,
         rebuild_cpu_s: rebuild.1,
         quality: Quality::assess(signals),
+        loop_closures,
     })
 }
 
@@ -237,6 +242,18 @@ pub(crate) struct Chosen {
     pub(crate) signals: QualitySignals,
     /// The statistics of the back end that ran last (default without a back end).
     pub(crate) stats: GraphStats,
+    /// The two ends of each loop closure of the kept back end (none when the front end is
+    /// kept).
+    pub(crate) loop_closures: Vec<(Pose2, Pose2)>,
+}
+
+/// The two ends of each accepted loop closure of `g`, at their corrected poses.
+fn closure_ends(g: &crate::graph::GraphResult) -> Vec<(Pose2, Pose2)> {
+    let at = |k: usize| g.keyframes.get(k).map(|p| p.pose);
+    g.loop_edges
+        .iter()
+        .filter_map(|&(a, b)| Some((at(a)?, at(b)?)))
+        .collect()
 }
 
 /// The back end over `recording` fed `front_end` (a pose per scan), guarded as in
@@ -257,6 +274,7 @@ pub(crate) fn back_end_over(
                 ..QualitySignals::default()
             },
             stats: GraphStats::default(),
+            loop_closures: Vec::new(),
         });
     }
     let g = crate::graph::optimize_after_saved(
@@ -292,6 +310,7 @@ fn choose_trajectory(
     };
     if ratio <= 0.0 {
         return Ok(Chosen {
+            loop_closures: closure_ends(&g),
             trajectory: Some(g.trajectory),
             grid: back_grid,
             signals,
@@ -304,6 +323,7 @@ fn choose_trajectory(
         |share: f64| share <= (ratio * front_share).max(front_share + MIN_FREE_SHARE_RISE);
     if acceptable(back_share) {
         return Ok(Chosen {
+            loop_closures: closure_ends(&g),
             trajectory: Some(g.trajectory),
             grid: back_grid,
             signals,
@@ -325,6 +345,7 @@ fn choose_trajectory(
         let (grid, share) = map_and_free_share(recording, &g2.trajectory, config)?;
         signals.back_end_retried = true;
         signals.free_share_back_end = Some(share);
+        let ends = closure_ends(&g2);
         stats = g2.stats;
         if acceptable(share) {
             tracing::warn!(
@@ -334,6 +355,7 @@ fn choose_trajectory(
             );
             signals.free_share = share;
             return Ok(Chosen {
+                loop_closures: ends,
                 trajectory: Some(g2.trajectory),
                 grid,
                 signals,
@@ -349,6 +371,7 @@ fn choose_trajectory(
         grid: front_grid,
         signals,
         stats,
+        loop_closures: Vec::new(),
     })
 }
 

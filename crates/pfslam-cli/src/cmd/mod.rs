@@ -27,6 +27,7 @@ pub mod map;
 pub mod output;
 pub mod perturb;
 pub mod print_config;
+pub mod record;
 pub mod report;
 pub mod resume;
 pub mod run;

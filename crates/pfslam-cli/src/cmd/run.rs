@@ -61,6 +61,10 @@ pub struct Args {
     /// which a symmetric building can fool).
     #[arg(long, requires = "resume")]
     pub initial_pose: Option<String>,
+    /// Also write the run as an MCAP file that Foxglove opens: the map over time, each scan
+    /// in the world, the particle cloud, the trajectories and the loop closures.
+    #[arg(long, conflicts_with = "resume")]
+    pub record: Option<PathBuf>,
     /// Input selection and strictness.
     #[command(flatten)]
     pub input: super::input::InputArgs,
@@ -81,6 +85,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let staging = super::output::Staging::new(&args.out)?;
     let out_dir = staging.path().to_path_buf();
+    let mut recorder = match &args.record {
+        Some(path) => Some(super::record::Recorder::create(path)?),
+        None => None,
+    };
     let t_load = Instant::now();
     let Dataset {
         mut recording,
@@ -120,6 +128,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             ..PipelineOptions::default()
         },
         &mut |ev| match ev {
+            SlamEvent::Update { .. } => {
+                if let Some(r) = recorder.as_mut() {
+                    r.on_event(&ev);
+                }
+            }
             SlamEvent::Progress { done, total } => {
                 if let Some(b) = &bar {
                     b.set_position(done as u64);
@@ -139,6 +152,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 map,
                 trajectory,
             } => {
+                if let Some(r) = recorder.as_mut() {
+                    r.on_event(&SlamEvent::Snapshot {
+                        scans_done,
+                        map,
+                        trajectory,
+                    });
+                }
                 if snapshot_error.is_some() {
                     return;
                 }
@@ -183,6 +203,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "input": pipeline.back_end_input,
         "odometry_calibration": pipeline.calibration,
     });
+    let record = match recorder {
+        None => None,
+        Some(r) => Some(r.finish(&super::record::Finished {
+            recording: &recording,
+            trajectory: &result.trajectory,
+            front_end: &front_end,
+            map: &result.map,
+            loop_closures: &pipeline.loop_closures,
+        })?),
+    };
     let graph = pipeline.graph.map(|g| (g, rebuild_s, front_end));
     write_outputs(
         &args,
@@ -212,6 +242,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     });
     staging.commit()?;
     say!("wrote {}", args.out.display());
+    if let Some(r) = record {
+        r.persist()?;
+    }
     if let Some((path, state)) = state {
         super::resume::save_state(path, &state)?;
     }

@@ -84,6 +84,7 @@ pub fn run_rbpf_in(
     let (mut neff_sum, mut ll_sum) = (0.0, 0.0);
     let angular = ro.angular_update_deg.to_radians();
     let mut have_first = false;
+    let mut poses: Vec<Pose2> = Vec::with_capacity(opts.particles);
     for i in first..total {
         let stamp_ns = scans.stamps_ns[i];
         let Some(odom) = cursor.advance_to(stamp_ns, |_, _| {}) else {
@@ -127,6 +128,13 @@ pub fn run_rbpf_in(
             }
             have_first = true;
             last_update_odom = odom.pose;
+            poses.clear();
+            poses.extend(pf.particles.iter().map(|p| p.pose));
+            observer(SlamEvent::Update {
+                stamp_ns,
+                particles: &poses,
+                map: Some(&pf.particles[pf.best()].map),
+            });
         }
         stats.scans_processed += 1;
         let done = i + 1;

@@ -277,6 +277,11 @@ pub fn run_slam_with<P: MapPolicy>(
             stats.timings.resample_s += t.elapsed().as_secs_f64();
             last_estimate = estimate;
             last_update_odom = odom.pose;
+            observer(SlamEvent::Update {
+                stamp_ns,
+                particles: &pf.particles.poses,
+                map: None,
+            });
             estimate
         } else {
             let estimate = last_estimate.compose(&last_update_odom.between(&odom.pose));

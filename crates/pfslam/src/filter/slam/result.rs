@@ -94,6 +94,16 @@ pub enum SlamEvent<'a> {
         /// Scans in the recording.
         total: usize,
     },
+    /// A filter update at the scan stamped `stamp_ns`: every particle's `world_from_body`
+    /// pose, and the best particle's map where the mode keeps one per particle (`rbpf`).
+    Update {
+        /// The scan's stamp (ns).
+        stamp_ns: i64,
+        /// The particles' poses after the update.
+        particles: &'a [crate::geometry::Pose2],
+        /// The best particle's map, when it is at hand without work.
+        map: Option<&'a OccupancyGrid>,
+    },
     /// A map snapshot after `scan_index` scans (every `filter.snapshot_every_scans`).
     Snapshot {
         /// Number of scans handled so far.
