@@ -17,6 +17,20 @@ fn assert_ok(out: &std::process::Output) {
     );
 }
 
+/// Simulates a 6 s drive into `dir/sim` and writes `dir/run.toml` (a map snapshot every 200
+/// scans); returns both paths.
+fn short_simulated_drive(dir: &std::path::Path) -> (std::path::PathBuf, std::path::PathBuf) {
+    let data = dir.join("sim");
+    run_ok(
+        pfslam()
+            .args(["simulate", "--duration-s", "6", "--out"])
+            .arg(&data),
+    );
+    let cfg = dir.join("run.toml");
+    std::fs::write(&cfg, "[filter]\nsnapshot_every_scans = 200\n").unwrap();
+    (data, cfg)
+}
+
 /// Runs the command and asserts it succeeded.
 fn run_ok(cmd: &mut Command) -> std::process::Output {
     let out = cmd.output().unwrap();

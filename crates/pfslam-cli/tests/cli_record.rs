@@ -37,14 +37,7 @@ fn read_back(
 #[test]
 fn a_simulated_run_is_recorded() {
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("sim");
-    run_ok(
-        pfslam()
-            .args(["simulate", "--duration-s", "6", "--out"])
-            .arg(&data),
-    );
-    let cfg = dir.path().join("run.toml");
-    std::fs::write(&cfg, "[filter]\nsnapshot_every_scans = 200\n").unwrap();
+    let (data, cfg) = super::short_simulated_drive(dir.path());
     let record = dir.path().join("run.mcap");
     let out = dir.path().join("out");
     run_ok(

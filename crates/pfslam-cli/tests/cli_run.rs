@@ -6,14 +6,7 @@ use std::process::Command;
 #[test]
 fn run_on_a_short_simulated_drive() {
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("sim");
-    run_ok(
-        pfslam()
-            .args(["simulate", "--duration-s", "6", "--out"])
-            .arg(&data),
-    );
-    let cfg = dir.path().join("run.toml");
-    std::fs::write(&cfg, "[filter]\nsnapshot_every_scans = 200\n").unwrap();
+    let (data, cfg) = super::short_simulated_drive(dir.path());
     let res = dir.path().join("out");
     let out = pfslam()
         .arg("run")
