@@ -214,20 +214,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         })?),
     };
     let graph = pipeline.graph.map(|g| (g, rebuild_s, front_end));
-    write_outputs(
-        &args,
-        &config,
-        &recording,
-        true_map.as_ref(),
-        &result,
+    write_outputs(&RunOutputs {
+        args: &args,
+        config: &config,
+        recording: &recording,
+        true_map: true_map.as_ref(),
+        result: &result,
         load_s,
         anchored,
-        graph.as_ref(),
+        graph: graph.as_ref(),
         back_end_input,
-        &account,
-        &pipeline.quality,
-        &out_dir,
-    )?;
+        account: &account,
+        quality: &pipeline.quality,
+        out: &out_dir,
+    })?;
     // The ground's colours along the SLAM path, when the dataset has stereo images.
     let (traj, map) = (&result.trajectory, &result.map);
     super::texture::texture_after_run(&args.dataset, traj, &config, map, &out_dir);
@@ -277,22 +277,39 @@ fn metrics_and_alignment(
     Ok((serde_json::json!({ "ate": a, "rpe_10m": r }), alignment))
 }
 
-#[allow(clippy::too_many_arguments)]
-fn write_outputs(
-    args: &Args,
-    config: &Config,
-    recording: &Recording,
-    true_map: Option<&super::dataset::TrueMaps>,
-    result: &SlamResult,
+/// What `run` writes its outputs from.
+struct RunOutputs<'a> {
+    args: &'a Args,
+    config: &'a Config,
+    recording: &'a Recording,
+    true_map: Option<&'a super::dataset::TrueMaps>,
+    result: &'a SlamResult,
     load_s: f64,
     anchored: bool,
-    graph: Option<&(GraphStats, f64, Vec<StampedPose2>)>,
+    /// The back end's statistics, the map rebuild's seconds and its input, when it ran.
+    graph: Option<&'a (GraphStats, f64, Vec<StampedPose2>)>,
     back_end_input: serde_json::Value,
-    account: &pfslam::io::account::InputAccount,
-    quality: &pfslam::quality::Quality,
-    out: &std::path::Path,
-) -> anyhow::Result<()> {
+    account: &'a pfslam::io::account::InputAccount,
+    quality: &'a pfslam::quality::Quality,
+    out: &'a std::path::Path,
+}
+
+/// Writes the trajectories, the maps, `summary.json` and `report.html`, and prints the
+/// figures.
+fn write_outputs(o: &RunOutputs<'_>) -> anyhow::Result<()> {
     let t = Instant::now();
+    let binary = write_paths_and_maps(o)?;
+    let write_s = t.elapsed().as_secs_f64();
+    let summary = summary_json(o, &binary, write_s)?;
+    super::report::write_summary_and_report(o.out, &summary, o.config, "map with the paths")?;
+    print_figures(o, &summary, write_s);
+    Ok(())
+}
+
+/// The TUM files and the map pictures; returns the binary map.
+fn write_paths_and_maps(o: &RunOutputs<'_>) -> anyhow::Result<pfslam::map::BinaryMap> {
+    let (out, result, recording, graph, anchored) =
+        (o.out, o.result, o.recording, o.graph, o.anchored);
     write_tum(&out.join("trajectory.tum"), &result.trajectory)?;
     if let Some((_, _, front)) = graph {
         write_tum(&out.join("front_end.tum"), front)?;
@@ -332,8 +349,18 @@ fn write_outputs(
     write_binary_png(&out.join("binary_map.png"), &result.map, None)?;
     let binary = result.map.to_binary_map(None);
     write_map_server(&binary, &out.join("map.yaml"))?;
-    let write_s = t.elapsed().as_secs_f64();
+    Ok(binary)
+}
 
+/// `summary.json`: the run's figures, and the metrics when there is ground truth.
+fn summary_json(
+    o: &RunOutputs<'_>,
+    binary: &pfslam::map::BinaryMap,
+    write_s: f64,
+) -> anyhow::Result<serde_json::Value> {
+    let (args, config, recording, result, graph) =
+        (o.args, o.config, o.recording, o.result, o.graph);
+    let (account, quality, load_s) = (o.account, o.quality, o.load_s);
     let mut summary = serde_json::json!({
         "dataset": args.dataset.display().to_string(),
         "recording": recording.name,
@@ -350,7 +377,7 @@ fn write_outputs(
     });
     if let Some((stats, remap_s, _)) = graph {
         summary["graph"] = serde_json::to_value(stats)?;
-        summary["graph_input"] = back_end_input;
+        summary["graph_input"] = o.back_end_input.clone();
         summary["timings_s"]["graph"] = stats.total_s.into();
         summary["timings_s"]["graph_remap"] = (*remap_s).into();
     }
@@ -364,8 +391,8 @@ fn write_outputs(
         slam_alignment = Some(alignment);
         summary["dead_reckoning_vs_ground_truth"] = metrics(&result.dead_reckoning, gt)?;
     }
-    if let Some(truth) = true_map
-        && anchored
+    if let Some(truth) = o.true_map
+        && o.anchored
         && binary.width > 0
     {
         let figures = |c: pfslam::map::MapComparison| {
@@ -378,17 +405,21 @@ fn write_outputs(
             })
         };
         // As written: the map in the frame of the true start pose.
-        summary["map_vs_true_map"] = figures(truth.compare(&binary, 1)?);
+        summary["map_vs_true_map"] = figures(truth.compare(binary, 1)?);
         // Through the ATE's alignment: the map's shape, without the drift of its frame.
         if let Some(a) = slam_alignment {
-            let mut v = figures(truth.compare_aligned(&binary, 1, &a)?);
+            let mut v = figures(truth.compare_aligned(binary, 1, &a)?);
             v["ground_truth_from_map"] =
                 serde_json::json!({ "x_m": a.x_m, "y_m": a.y_m, "yaw_rad": a.yaw_rad });
             summary["map_vs_true_map_aligned"] = v;
         }
     }
-    super::report::write_summary_and_report(out, &summary, config, "map with the paths")?;
+    Ok(summary)
+}
 
+/// The run's figures on standard output.
+fn print_figures(o: &RunOutputs<'_>, summary: &serde_json::Value, write_s: f64) {
+    let (recording, result, graph, load_s) = (o.recording, o.result, o.graph, o.load_s);
     let s = &result.stats;
     say!(
         "{}: {} of {} scans, {} particles, {} updates, {} resamples, Neff mean {:.1} min {:.1}",
@@ -467,5 +498,4 @@ fn write_outputs(
             m["recall"].as_f64().unwrap_or(f64::NAN)
         );
     }
-    Ok(())
 }
