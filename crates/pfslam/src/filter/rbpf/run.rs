@@ -42,111 +42,178 @@ pub fn run_rbpf_in(
     observer: &mut dyn FnMut(SlamEvent<'_>),
     prior: Option<&PriorMap<'_>>,
 ) -> Result<SlamResult, SlamError> {
-    let opts = &config.filter;
-    let ro = &opts.rbpf;
     let t_start = Instant::now();
     let (first, mut cursor) = crate::filter::slam::check_and_start(recording, config)?;
-    let scans = &recording.scans;
-    let total = scans.len();
     let odom_start = cursor.current().pose;
-    let start = prior.map_or(odom_start, |p| p.world_from_odom.compose(&odom_start));
-    let mut map_opts = config.map.clone();
-    if ro.resolution_m > 0.0 {
-        map_opts.resolution_m = ro.resolution_m;
-    }
-    let mut grid = OccupancyGrid::new(&map_opts)?;
-    let mut scan_opts = config.map.scan.for_filter();
-    scan_opts.range_min_m = ro.range_min_m as f32;
-    if !ro.densify {
-        scan_opts.densify_max_gap_m = None;
-    }
-    scan_opts.validate().map_err(MapError::Options)?;
-    if let Some(p) = prior {
-        insert_prior(&mut grid, p, &scan_opts, ro.range_max_m)?;
-    }
-    let mut projector =
-        ScanProjector::new(&recording.lidar, &recording.body_from_lidar, &scan_opts)?;
-    let mut stats = SlamStats {
-        particles: opts.particles,
-        mode: crate::filter::FilterMode::Rbpf,
-        seed,
-        scans_total: total,
-        scans_skipped: first,
-        neff_min: f64::INFINITY,
-        ..SlamStats::default()
-    };
-    let mut pf = Rbpf::new(opts.particles, start, odom_start, grid, ro, seed);
-    let mut dead_reckoning: Vec<StampedPose2> = Vec::with_capacity(total - first);
-    let mut scan_index: Vec<usize> = Vec::with_capacity(total - first);
-    let mut body = PlanarScan::default();
-    let mut pts: Vec<[f64; 2]> = Vec::new();
-    let mut last_update_odom = odom_start;
-    let (mut neff_sum, mut ll_sum) = (0.0, 0.0);
-    let angular = ro.angular_update_deg.to_radians();
-    let mut have_first = false;
-    let mut poses: Vec<Pose2> = Vec::with_capacity(opts.particles);
+    let mut front = RbpfFrontEnd::new(recording, config, seed, prior, odom_start)?;
+    front.stats.scans_skipped = first;
+    let total = recording.scans.len();
     for i in first..total {
-        let stamp_ns = scans.stamps_ns[i];
-        let Some(odom) = cursor.advance_to(stamp_ns, |_, _| {}) else {
-            stats.scans_skipped += 1;
+        let Some(odom) = cursor.advance_to(recording.scans.stamps_ns[i], |_, _| {}) else {
+            front.stats.scans_skipped += 1;
             continue;
         };
-        let k = dead_reckoning.len();
-        dead_reckoning.push(odom);
-        scan_index.push(i);
-        let delta = last_update_odom.between(&odom.pose);
-        let due = !have_first
+        front.step(i, odom, observer)?;
+        front.report(i + 1, observer);
+    }
+    front.finish(t_start)
+}
+
+/// The filter fed one scan at a time, with its odometry pose: what [`run_rbpf_in`] runs
+/// over a recording.
+pub struct RbpfFrontEnd<'r> {
+    recording: &'r Recording,
+    opts: &'r crate::filter::FilterOptions,
+    pf: Rbpf,
+    projector: ScanProjector,
+    stats: SlamStats,
+    dead_reckoning: Vec<StampedPose2>,
+    scan_index: Vec<usize>,
+    body: PlanarScan,
+    pts: Vec<[f64; 2]>,
+    poses: Vec<Pose2>,
+    last_update_odom: Pose2,
+    neff_sum: f64,
+    ll_sum: f64,
+    have_first: bool,
+}
+
+impl<'r> RbpfFrontEnd<'r> {
+    /// The particles at the start (see [`run_rbpf_in`]), the first odometry pose
+    /// `odom_start`.
+    pub fn new(
+        recording: &'r Recording,
+        config: &'r Config,
+        seed: u64,
+        prior: Option<&PriorMap<'_>>,
+        odom_start: Pose2,
+    ) -> Result<Self, SlamError> {
+        let opts = &config.filter;
+        let ro = &opts.rbpf;
+        let start = prior.map_or(odom_start, |p| p.world_from_odom.compose(&odom_start));
+        let mut map_opts = config.map.clone();
+        if ro.resolution_m > 0.0 {
+            map_opts.resolution_m = ro.resolution_m;
+        }
+        let mut grid = OccupancyGrid::new(&map_opts)?;
+        let mut scan_opts = config.map.scan.for_filter();
+        scan_opts.range_min_m = ro.range_min_m as f32;
+        if !ro.densify {
+            scan_opts.densify_max_gap_m = None;
+        }
+        scan_opts.validate().map_err(MapError::Options)?;
+        if let Some(p) = prior {
+            insert_prior(&mut grid, p, &scan_opts, ro.range_max_m)?;
+        }
+        let projector =
+            ScanProjector::new(&recording.lidar, &recording.body_from_lidar, &scan_opts)?;
+        let total = recording.scans.len();
+        let stats = SlamStats {
+            particles: opts.particles,
+            mode: crate::filter::FilterMode::Rbpf,
+            seed,
+            scans_total: total,
+            neff_min: f64::INFINITY,
+            ..SlamStats::default()
+        };
+        Ok(RbpfFrontEnd {
+            recording,
+            opts,
+            pf: Rbpf::new(opts.particles, start, odom_start, grid, ro, seed),
+            projector,
+            stats,
+            dead_reckoning: Vec::with_capacity(total),
+            scan_index: Vec::with_capacity(total),
+            body: PlanarScan::default(),
+            pts: Vec::new(),
+            poses: Vec::with_capacity(opts.particles),
+            last_update_odom: odom_start,
+            neff_sum: 0.0,
+            ll_sum: 0.0,
+            have_first: false,
+        })
+    }
+
+    /// Handles scan `i` of the recording at odometry pose `odom`: a filter update once the
+    /// odometry moved far enough since the last one (reported to `observer`).
+    pub fn step(
+        &mut self,
+        i: usize,
+        odom: StampedPose2,
+        observer: &mut dyn FnMut(SlamEvent<'_>),
+    ) -> Result<(), SlamError> {
+        let ro = &self.opts.rbpf;
+        let k = self.dead_reckoning.len();
+        self.dead_reckoning.push(odom);
+        self.scan_index.push(i);
+        let delta = self.last_update_odom.between(&odom.pose);
+        let due = !self.have_first
             || delta.translation_norm_m() >= ro.linear_update_m
-            || delta.yaw_rad.abs() >= angular;
+            || delta.yaw_rad.abs() >= ro.angular_update_deg.to_radians();
         if due {
-            let t = Instant::now();
-            projector.aim(recording, i);
-            projector.to_body(scans.ranges(i), &mut body)?;
-            clip_scan(&mut body, ro.range_max_m);
-            match_points(&body, ro.range_max_m, ro.beam_decimation, &mut pts);
-            stats.timings.preprocess_s += t.elapsed().as_secs_f64();
-            let t = Instant::now();
-            let input = UpdateScan {
-                scan_index: k,
-                odom_pose: odom.pose,
-                odom_delta: &delta,
-                match_points_m: &pts,
-                body_scan: &body,
-                map_only: !have_first,
-            };
-            let report = pf.update(&input, opts.resample_method)?;
-            stats.timings.correlate_s += report.match_s;
-            stats.timings.map_update_s += report.map_s;
-            stats.timings.resample_s += t.elapsed().as_secs_f64() - report.match_s - report.map_s;
-            if have_first {
-                stats.updates += 1;
-                neff_sum += report.neff;
-                ll_sum += report.best_ll_per_point;
-                stats.neff_min = stats.neff_min.min(report.neff);
-                stats.neff_last = report.neff;
-                stats.resamples += usize::from(report.resampled);
-            }
-            have_first = true;
-            last_update_odom = odom.pose;
-            poses.clear();
-            poses.extend(pf.particles.iter().map(|p| p.pose));
+            self.update(i, k, odom, &delta)?;
+            self.poses.clear();
+            self.poses.extend(self.pf.particles.iter().map(|p| p.pose));
             observer(SlamEvent::Update {
-                stamp_ns,
-                particles: &poses,
-                map: Some(&pf.particles[pf.best()].map),
+                stamp_ns: odom.stamp_ns,
+                particles: &self.poses,
+                map: Some(&self.pf.particles[self.pf.best()].map),
             });
         }
-        stats.scans_processed += 1;
-        let done = i + 1;
-        if crate::filter::slam::report_progress(
-            observer,
-            done,
-            total,
-            &stats,
-            opts.snapshot_every_scans,
-        ) {
-            let best = &pf.particles[pf.best()];
-            let trajectory = path_poses(&best.node, &dead_reckoning);
+        self.stats.scans_processed += 1;
+        Ok(())
+    }
+
+    /// One filter update with scan `i`, the `k`-th scan handled.
+    fn update(
+        &mut self,
+        i: usize,
+        k: usize,
+        odom: StampedPose2,
+        delta: &Pose2,
+    ) -> Result<(), SlamError> {
+        let ro = &self.opts.rbpf;
+        let stats = &mut self.stats;
+        let t = Instant::now();
+        self.projector.aim(self.recording, i);
+        self.projector
+            .to_body(self.recording.scans.ranges(i), &mut self.body)?;
+        clip_scan(&mut self.body, ro.range_max_m);
+        match_points(&self.body, ro.range_max_m, ro.beam_decimation, &mut self.pts);
+        stats.timings.preprocess_s += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let input = UpdateScan {
+            scan_index: k,
+            odom_pose: odom.pose,
+            odom_delta: delta,
+            match_points_m: &self.pts,
+            body_scan: &self.body,
+            map_only: !self.have_first,
+        };
+        let report = self.pf.update(&input, self.opts.resample_method)?;
+        stats.timings.correlate_s += report.match_s;
+        stats.timings.map_update_s += report.map_s;
+        stats.timings.resample_s += t.elapsed().as_secs_f64() - report.match_s - report.map_s;
+        if self.have_first {
+            stats.updates += 1;
+            self.neff_sum += report.neff;
+            self.ll_sum += report.best_ll_per_point;
+            stats.neff_min = stats.neff_min.min(report.neff);
+            stats.neff_last = report.neff;
+            stats.resamples += usize::from(report.resampled);
+        }
+        self.have_first = true;
+        self.last_update_odom = odom.pose;
+        Ok(())
+    }
+
+    /// Progress after `done` scans of the recording, and a map snapshot when one is due.
+    pub fn report(&self, done: usize, observer: &mut dyn FnMut(SlamEvent<'_>)) {
+        let total = self.recording.scans.len();
+        let every = self.opts.snapshot_every_scans;
+        if crate::filter::slam::report_progress(observer, done, total, &self.stats, every) {
+            let best = &self.pf.particles[self.pf.best()];
+            let trajectory = path_poses(&best.node, &self.dead_reckoning);
             observer(SlamEvent::Snapshot {
                 scans_done: done,
                 map: &best.map,
@@ -154,30 +221,36 @@ pub fn run_rbpf_in(
             });
         }
     }
-    stats.odometry_steps = dead_reckoning.len();
-    stats.finish_means(neff_sum, ll_sum);
-    let best = &pf.particles[pf.best()];
-    let mut trajectory = path_poses(&best.node, &dead_reckoning);
-    if ro.final_refine && recording.body_from_lidar_per_scan.is_none() {
-        let t = Instant::now();
-        refine_in_final_map(
-            &mut trajectory,
-            &scan_index,
-            recording,
-            &projector,
-            &best.map,
-            ro,
-        )?;
-        stats.timings.correlate_s += t.elapsed().as_secs_f64();
+
+    /// The best particle's whole path (each pose re-matched in its final map with
+    /// `final_refine`), its map and the statistics; `t_start` began the run.
+    pub fn finish(mut self, t_start: Instant) -> Result<SlamResult, SlamError> {
+        let ro = &self.opts.rbpf;
+        self.stats.odometry_steps = self.dead_reckoning.len();
+        self.stats.finish_means(self.neff_sum, self.ll_sum);
+        let best = &self.pf.particles[self.pf.best()];
+        let mut trajectory = path_poses(&best.node, &self.dead_reckoning);
+        if ro.final_refine && self.recording.body_from_lidar_per_scan.is_none() {
+            let t = Instant::now();
+            refine_in_final_map(
+                &mut trajectory,
+                &self.scan_index,
+                self.recording,
+                &self.projector,
+                &best.map,
+                ro,
+            )?;
+            self.stats.timings.correlate_s += t.elapsed().as_secs_f64();
+        }
+        self.stats.timings.total_s = t_start.elapsed().as_secs_f64();
+        self.stats.map_memory = Some(self.pf.map_memory());
+        Ok(SlamResult {
+            trajectory,
+            dead_reckoning: self.dead_reckoning,
+            map: best.map.clone(),
+            stats: self.stats,
+        })
     }
-    stats.timings.total_s = t_start.elapsed().as_secs_f64();
-    stats.map_memory = Some(pf.map_memory());
-    Ok(SlamResult {
-        trajectory,
-        dead_reckoning,
-        map: best.map.clone(),
-        stats,
-    })
 }
 
 /// Maps `prior`'s scans at their poses into `grid`, as the particles map theirs.
