@@ -179,7 +179,12 @@ impl<'r> RbpfFrontEnd<'r> {
         self.projector
             .to_body(self.recording.scans.ranges(i), &mut self.body)?;
         clip_scan(&mut self.body, ro.range_max_m);
-        match_points(&self.body, ro.range_max_m, ro.beam_decimation, &mut self.pts);
+        match_points(
+            &self.body,
+            ro.range_max_m,
+            ro.beam_decimation,
+            &mut self.pts,
+        );
         stats.timings.preprocess_s += t.elapsed().as_secs_f64();
         let t = Instant::now();
         let input = UpdateScan {

@@ -19,9 +19,11 @@ use rayon::prelude::*;
 use serde::Serialize;
 use std::time::Instant;
 
+mod front_end;
 mod maps;
 mod result;
 
+pub use front_end::MatchFrontEnd;
 pub use maps::*;
 pub use result::*;
 
@@ -119,213 +121,22 @@ pub fn run_slam_with<P: MapPolicy>(
     policy: &mut P,
     observer: &mut dyn FnMut(SlamEvent<'_>),
 ) -> Result<SlamResult, SlamError> {
-    let opts = &config.filter;
-    // `rbpf` (from `auto` too) reaches here only through this explicit-policy entry point;
-    // it then runs the scan-matching loop with the given policy.
-    let mode = opts.mode.resolve(recording);
     let t_start = Instant::now();
     let (first, mut cursor) = check_and_start(recording, config)?;
-    let scans = &recording.scans;
-    let total = scans.len();
     let start = cursor.current().pose;
-    let mut projector = ScanProjector::new(
-        &recording.lidar,
-        &recording.body_from_lidar,
-        &config.map.scan.for_filter(),
-    )?;
-    let search: CorrelationSearch = opts.search();
-    let mut pf = ParticleFilter::new(opts.particles, start, seed);
-    let mut stats = SlamStats {
-        particles: opts.particles,
-        mode,
-        seed,
-        scans_total: total,
-        scans_skipped: first,
-        neff_min: f64::INFINITY,
-        ..SlamStats::default()
-    };
-    let mut trajectory = Vec::with_capacity(total - first);
-    let mut dead_reckoning = Vec::with_capacity(total - first);
-    let mut body = PlanarScan::default();
-    let mut hits: Vec<[f64; 2]> = Vec::new();
+    let mut front = MatchFrontEnd::new(recording, config, seed, motion, policy, (start, first))?;
     let mut steps: Vec<(StampedPose2, StampedPose2)> = Vec::new();
-    let mut last_estimate = start;
-    let mut last_update_odom = start;
-    let mut match_pts: Vec<[f64; 2]> = Vec::new();
-    let mut field = scanmatch::LikelihoodField::new();
-    let mut field_cache = super::field_cache::FieldCache::new();
-    policy.log_changes(field.source_threshold_on(policy.map_for_output(0)));
-    let match_params = opts.scan_match.params(config.map.resolution_m);
-    let resample_threshold = match mode {
-        FilterMode::Seed => opts.resample_threshold,
-        FilterMode::ScanMatch | FilterMode::Rbpf | FilterMode::Auto => {
-            opts.scan_match.resample_threshold
-        }
-    };
-    let mut neff_sum = 0.0;
-    let mut score_sum = 0.0;
-    let mut increments: Vec<Pose2> = Vec::new();
-    for i in first..total {
-        let stamp_ns = scans.stamps_ns[i];
+    for i in first..recording.scans.len() {
         let t = Instant::now();
         steps.clear();
+        let stamp_ns = recording.scans.stamps_ns[i];
         let Some(odom) = cursor.advance_to(stamp_ns, |a, b| steps.push((*a, *b))) else {
-            stats.scans_skipped += 1;
+            front.stats.scans_skipped += 1;
             continue;
         };
-        stats.odometry_steps += steps.len();
-        if !steps.is_empty() {
-            match mode {
-                FilterMode::Seed => pf.predict_steps(&steps, motion),
-                // The scan match is the proposal: odometry without noise here, the spread
-                // comes from sampling around each match.
-                FilterMode::ScanMatch | FilterMode::Rbpf | FilterMode::Auto => {
-                    pf.predict_exact(&steps, &mut increments)
-                }
-            }
-        }
-        stats.timings.predict_s += t.elapsed().as_secs_f64();
-        let k = i - first;
-        let due = k.is_multiple_of(opts.update_every_scans);
-        let estimate = if due {
-            let t = Instant::now();
-            projector.aim(recording, i);
-            projector.to_body(scans.ranges(i), &mut body)?;
-            super::correlate::hit_points(&body, &mut hits);
-            stats.timings.preprocess_s += t.elapsed().as_secs_f64();
-            let best = if k == 0 {
-                // The first scan seeds the map at the start pose; nothing to correlate with.
-                0
-            } else {
-                let t = Instant::now();
-                policy.flush()?;
-                stats.timings.map_update_s += t.elapsed().as_secs_f64();
-                let t = Instant::now();
-                let report = match mode {
-                    FilterMode::Seed => pf.reweight(
-                        &*policy,
-                        &hits,
-                        &search,
-                        opts.temperature,
-                        opts.move_to_best_offset,
-                    ),
-                    FilterMode::ScanMatch | FilterMode::Rbpf | FilterMode::Auto => {
-                        let sm = &opts.scan_match;
-                        scanmatch::match_points(
-                            &body,
-                            sm.match_range_max_m,
-                            sm.beam_decimation,
-                            &mut match_pts,
-                        );
-                        let grid = policy.map_for_output(pf.particles.best_index());
-                        let rect = field_window(
-                            grid.limits(),
-                            &pf.particles.poses,
-                            pf.best_pose(),
-                            &match_pts,
-                            match_params.xy_radius_cells + 2,
-                        );
-                        let tb = Instant::now();
-                        // The field from its cache (the map's changes since the last update).
-                        policy.take_changes(pf.particles.best_index(), |grid, changes| {
-                            field.build_cached(
-                                grid,
-                                &rect,
-                                sm.field_sigma_m,
-                                sm.unknown_value,
-                                &mut field_cache,
-                                changes,
-                            )
-                        });
-                        stats.timings.field_s += tb.elapsed().as_secs_f64();
-                        let report = pf.scan_match_update(
-                            &field,
-                            &match_pts,
-                            &match_params,
-                            sm.weight_temperature,
-                        );
-                        let best = pf.particles.poses[report.best];
-                        pf.jitter(
-                            sm.proposal_sigma_xy_m,
-                            sm.proposal_sigma_yaw_deg.to_radians(),
-                        );
-                        // The estimate is the match itself, not its jittered sample.
-                        pf.particles.poses[report.best] = best;
-                        report
-                    }
-                };
-                stats.timings.correlate_s += t.elapsed().as_secs_f64();
-                stats.updates += 1;
-                neff_sum += report.neff;
-                score_sum += f64::from(report.best_score);
-                stats.neff_min = stats.neff_min.min(report.neff);
-                stats.neff_last = report.neff;
-                report.best
-            };
-            let estimate = pf.particles.poses[best];
-            let t = Instant::now();
-            policy.integrate(&pf.particles.poses, best, &body)?;
-            stats.timings.map_update_s += t.elapsed().as_secs_f64();
-            let t = Instant::now();
-            if k > 0
-                && let Some(ancestors) =
-                    pf.resample_if_needed(resample_threshold, opts.resample_method)
-            {
-                policy.resampled(ancestors);
-                stats.resamples += 1;
-            }
-            stats.timings.resample_s += t.elapsed().as_secs_f64();
-            last_estimate = estimate;
-            last_update_odom = odom.pose;
-            observer(SlamEvent::Update {
-                stamp_ns,
-                particles: &pf.particles.poses,
-                map: None,
-            });
-            estimate
-        } else {
-            let estimate = last_estimate.compose(&last_update_odom.between(&odom.pose));
-            if opts.map_between_updates || mode == FilterMode::ScanMatch {
-                // Insert this scan at the composed pose: the map then reaches up to the
-                // latest scan when the next update correlates against it.
-                let t = Instant::now();
-                projector.aim(recording, i);
-                projector.to_body(scans.ranges(i), &mut body)?;
-                stats.timings.preprocess_s += t.elapsed().as_secs_f64();
-                let t = Instant::now();
-                policy.integrate_at(&estimate, &body)?;
-                stats.timings.map_update_s += t.elapsed().as_secs_f64();
-            }
-            estimate
-        };
-        trajectory.push(StampedPose2 {
-            stamp_ns,
-            pose: estimate,
-        });
-        dead_reckoning.push(odom);
-        stats.scans_processed += 1;
-        let done = i + 1;
-        if report_progress(observer, done, total, &stats, opts.snapshot_every_scans) {
-            policy.flush()?;
-            observer(SlamEvent::Snapshot {
-                scans_done: done,
-                map: policy.map_for_output(pf.particles.best_index()),
-                trajectory: &trajectory,
-            });
-        }
+        front.step(i, odom, &steps, t, observer)?;
     }
-    let t = Instant::now();
-    policy.flush()?;
-    stats.timings.map_update_s += t.elapsed().as_secs_f64();
-    stats.finish_means(neff_sum, score_sum);
-    stats.timings.total_s = t_start.elapsed().as_secs_f64();
-    let map = policy.map_for_output(pf.particles.best_index()).clone();
-    Ok(SlamResult {
-        trajectory,
-        dead_reckoning,
-        map,
-        stats,
-    })
+    front.finish(t_start)
 }
 
 /// Validates the options and the recording, and finds the first scan inside the odometry's

@@ -1,0 +1,322 @@
+//! The `scan_match` and `seed` filters fed one scan at a time: what [`run_slam_with`] runs
+//! over a recording.
+//!
+//! [`run_slam_with`]: super::run_slam_with
+
+use super::*;
+use crate::filter::UpdateReport;
+
+/// The state of a `scan_match` or `seed` run between scans.
+pub struct MatchFrontEnd<'r, P: MapPolicy> {
+    recording: &'r Recording,
+    config: &'r Config,
+    mode: FilterMode,
+    motion: &'r dyn MotionModel,
+    policy: &'r mut P,
+    projector: ScanProjector,
+    search: CorrelationSearch,
+    pf: ParticleFilter,
+    pub(crate) stats: SlamStats,
+    trajectory: Vec<StampedPose2>,
+    dead_reckoning: Vec<StampedPose2>,
+    body: PlanarScan,
+    hits: Vec<[f64; 2]>,
+    match_pts: Vec<[f64; 2]>,
+    field: scanmatch::LikelihoodField,
+    field_cache: super::super::field_cache::FieldCache,
+    match_params: scanmatch::MatchParams,
+    resample_threshold: f64,
+    increments: Vec<Pose2>,
+    last_estimate: Pose2,
+    last_update_odom: Pose2,
+    neff_sum: f64,
+    score_sum: f64,
+    /// The index of the first scan handled.
+    first: usize,
+}
+
+impl<'r, P: MapPolicy> MatchFrontEnd<'r, P> {
+    /// The particles at the odometry's pose `start` at scan `first`, the map `policy`'s.
+    pub fn new(
+        recording: &'r Recording,
+        config: &'r Config,
+        seed: u64,
+        motion: &'r dyn MotionModel,
+        policy: &'r mut P,
+        (start, first): (Pose2, usize),
+    ) -> Result<Self, SlamError> {
+        let opts = &config.filter;
+        // `rbpf` (from `auto` too) reaches here only through the explicit-policy entry
+        // point; it then runs the scan-matching loop with the given policy.
+        let mode = opts.mode.resolve(recording);
+        let total = recording.scans.len();
+        let projector = ScanProjector::new(
+            &recording.lidar,
+            &recording.body_from_lidar,
+            &config.map.scan.for_filter(),
+        )?;
+        let stats = SlamStats {
+            particles: opts.particles,
+            mode,
+            seed,
+            scans_total: total,
+            scans_skipped: first,
+            neff_min: f64::INFINITY,
+            ..SlamStats::default()
+        };
+        let field = scanmatch::LikelihoodField::new();
+        policy.log_changes(field.source_threshold_on(policy.map_for_output(0)));
+        let resample_threshold = match mode {
+            FilterMode::Seed => opts.resample_threshold,
+            FilterMode::ScanMatch | FilterMode::Rbpf | FilterMode::Auto => {
+                opts.scan_match.resample_threshold
+            }
+        };
+        Ok(MatchFrontEnd {
+            recording,
+            config,
+            mode,
+            motion,
+            policy,
+            projector,
+            search: opts.search(),
+            pf: ParticleFilter::new(opts.particles, start, seed),
+            stats,
+            trajectory: Vec::with_capacity(total - first),
+            dead_reckoning: Vec::with_capacity(total - first),
+            body: PlanarScan::default(),
+            hits: Vec::new(),
+            match_pts: Vec::new(),
+            field,
+            field_cache: super::super::field_cache::FieldCache::new(),
+            match_params: opts.scan_match.params(config.map.resolution_m),
+            resample_threshold,
+            increments: Vec::new(),
+            last_estimate: start,
+            last_update_odom: start,
+            neff_sum: 0.0,
+            score_sum: 0.0,
+            first,
+        })
+    }
+
+    /// Handles scan `i` at odometry pose `odom`, reached through the odometry `steps` since
+    /// the last scan (`t` started before they were read): the particles predicted along
+    /// them, then an update every `update_every_scans` scans, else the last estimate moved
+    /// by the odometry.
+    pub fn step(
+        &mut self,
+        i: usize,
+        odom: StampedPose2,
+        steps: &[(StampedPose2, StampedPose2)],
+        t: Instant,
+        observer: &mut dyn FnMut(SlamEvent<'_>),
+    ) -> Result<(), SlamError> {
+        self.stats.odometry_steps += steps.len();
+        if !steps.is_empty() {
+            match self.mode {
+                FilterMode::Seed => self.pf.predict_steps(steps, self.motion),
+                // The scan match is the proposal: odometry without noise here, the spread
+                // comes from sampling around each match.
+                FilterMode::ScanMatch | FilterMode::Rbpf | FilterMode::Auto => {
+                    self.pf.predict_exact(steps, &mut self.increments)
+                }
+            }
+        }
+        self.stats.timings.predict_s += t.elapsed().as_secs_f64();
+        let k = i - self.first;
+        let estimate = if k.is_multiple_of(self.config.filter.update_every_scans) {
+            self.update(i, k, odom, observer)?
+        } else {
+            self.between_updates(i, odom)?
+        };
+        self.trajectory.push(StampedPose2 {
+            stamp_ns: odom.stamp_ns,
+            pose: estimate,
+        });
+        self.dead_reckoning.push(odom);
+        self.stats.scans_processed += 1;
+        self.report(i + 1, observer)
+    }
+
+    /// A filter update with scan `i`, the `k`-th since the first; returns the estimate.
+    fn update(
+        &mut self,
+        i: usize,
+        k: usize,
+        odom: StampedPose2,
+        observer: &mut dyn FnMut(SlamEvent<'_>),
+    ) -> Result<Pose2, SlamError> {
+        let t = Instant::now();
+        self.projector.aim(self.recording, i);
+        let ranges = self.recording.scans.ranges(i);
+        self.projector.to_body(ranges, &mut self.body)?;
+        super::super::correlate::hit_points(&self.body, &mut self.hits);
+        self.stats.timings.preprocess_s += t.elapsed().as_secs_f64();
+        let best = if k == 0 {
+            // The first scan seeds the map at the start pose; nothing to correlate with.
+            0
+        } else {
+            self.weigh()?
+        };
+        let estimate = self.pf.particles.poses[best];
+        let t = Instant::now();
+        self.policy
+            .integrate(&self.pf.particles.poses, best, &self.body)?;
+        self.stats.timings.map_update_s += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let method = self.config.filter.resample_method;
+        if k > 0
+            && let Some(ancestors) = self.pf.resample_if_needed(self.resample_threshold, method)
+        {
+            self.policy.resampled(ancestors);
+            self.stats.resamples += 1;
+        }
+        self.stats.timings.resample_s += t.elapsed().as_secs_f64();
+        self.last_estimate = estimate;
+        self.last_update_odom = odom.pose;
+        observer(SlamEvent::Update {
+            stamp_ns: odom.stamp_ns,
+            particles: &self.pf.particles.poses,
+            map: None,
+        });
+        Ok(estimate)
+    }
+
+    /// Weighs the particles against the map (the seeds' correlation, or a scan match per
+    /// particle); returns the best particle.
+    fn weigh(&mut self) -> Result<usize, SlamError> {
+        let t = Instant::now();
+        self.policy.flush()?;
+        self.stats.timings.map_update_s += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let opts = &self.config.filter;
+        let report = match self.mode {
+            FilterMode::Seed => self.pf.reweight(
+                &*self.policy,
+                &self.hits,
+                &self.search,
+                opts.temperature,
+                opts.move_to_best_offset,
+            ),
+            FilterMode::ScanMatch | FilterMode::Rbpf | FilterMode::Auto => self.scan_match(),
+        };
+        let stats = &mut self.stats;
+        stats.timings.correlate_s += t.elapsed().as_secs_f64();
+        stats.updates += 1;
+        self.neff_sum += report.neff;
+        self.score_sum += f64::from(report.best_score);
+        stats.neff_min = stats.neff_min.min(report.neff);
+        stats.neff_last = report.neff;
+        Ok(report.best)
+    }
+
+    /// Every particle matched in the likelihood field of the best one's map, then sampled
+    /// around its match.
+    fn scan_match(&mut self) -> UpdateReport {
+        let sm = &self.config.filter.scan_match;
+        let pf = &mut self.pf;
+        scanmatch::match_points(
+            &self.body,
+            sm.match_range_max_m,
+            sm.beam_decimation,
+            &mut self.match_pts,
+        );
+        let grid = self.policy.map_for_output(pf.particles.best_index());
+        let rect = field_window(
+            grid.limits(),
+            &pf.particles.poses,
+            pf.best_pose(),
+            &self.match_pts,
+            self.match_params.xy_radius_cells + 2,
+        );
+        let tb = Instant::now();
+        // The field from its cache (the map's changes since the last update).
+        let (field, cache) = (&mut self.field, &mut self.field_cache);
+        self.policy
+            .take_changes(pf.particles.best_index(), |grid, changes| {
+                field.build_cached(
+                    grid,
+                    &rect,
+                    sm.field_sigma_m,
+                    sm.unknown_value,
+                    cache,
+                    changes,
+                )
+            });
+        self.stats.timings.field_s += tb.elapsed().as_secs_f64();
+        let report = pf.scan_match_update(
+            &self.field,
+            &self.match_pts,
+            &self.match_params,
+            sm.weight_temperature,
+        );
+        let best = pf.particles.poses[report.best];
+        pf.jitter(
+            sm.proposal_sigma_xy_m,
+            sm.proposal_sigma_yaw_deg.to_radians(),
+        );
+        // The estimate is the match itself, not its jittered sample.
+        pf.particles.poses[report.best] = best;
+        report
+    }
+
+    /// The pose of scan `i` between updates: the last estimate moved by the odometry (the
+    /// scan mapped there when `map_between_updates` or in `scan_match` mode).
+    fn between_updates(&mut self, i: usize, odom: StampedPose2) -> Result<Pose2, SlamError> {
+        let estimate = self
+            .last_estimate
+            .compose(&self.last_update_odom.between(&odom.pose));
+        if self.config.filter.map_between_updates || self.mode == FilterMode::ScanMatch {
+            // Insert this scan at the composed pose: the map then reaches up to the
+            // latest scan when the next update correlates against it.
+            let t = Instant::now();
+            self.projector.aim(self.recording, i);
+            let ranges = self.recording.scans.ranges(i);
+            self.projector.to_body(ranges, &mut self.body)?;
+            self.stats.timings.preprocess_s += t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            self.policy.integrate_at(&estimate, &self.body)?;
+            self.stats.timings.map_update_s += t.elapsed().as_secs_f64();
+        }
+        Ok(estimate)
+    }
+
+    /// Progress after `done` scans of the recording, and a map snapshot when one is due.
+    fn report(
+        &mut self,
+        done: usize,
+        observer: &mut dyn FnMut(SlamEvent<'_>),
+    ) -> Result<(), SlamError> {
+        let total = self.recording.scans.len();
+        let every = self.config.filter.snapshot_every_scans;
+        if report_progress(observer, done, total, &self.stats, every) {
+            self.policy.flush()?;
+            observer(SlamEvent::Snapshot {
+                scans_done: done,
+                map: self.policy.map_for_output(self.pf.particles.best_index()),
+                trajectory: &self.trajectory,
+            });
+        }
+        Ok(())
+    }
+
+    /// The estimates, the odometry, the best map and the statistics; `t_start` began the run.
+    pub fn finish(mut self, t_start: Instant) -> Result<SlamResult, SlamError> {
+        let t = Instant::now();
+        self.policy.flush()?;
+        self.stats.timings.map_update_s += t.elapsed().as_secs_f64();
+        self.stats.finish_means(self.neff_sum, self.score_sum);
+        self.stats.timings.total_s = t_start.elapsed().as_secs_f64();
+        let map = self
+            .policy
+            .map_for_output(self.pf.particles.best_index())
+            .clone();
+        Ok(SlamResult {
+            trajectory: self.trajectory,
+            dead_reckoning: self.dead_reckoning,
+            map,
+            stats: self.stats,
+        })
+    }
+}
