@@ -3,7 +3,7 @@
 use super::*;
 use crate::config::Config;
 use crate::filter::scanmatch::match_points;
-use crate::filter::slam::{SlamError, SlamEvent, SlamResult, SlamStats};
+use crate::filter::slam::{FrontEnd, SlamError, SlamEvent, SlamResult, SlamStats};
 use crate::geometry::{Pose2, StampedPose2};
 use crate::map::{MapError, OccupancyGrid, PlanarScan, ScanProjector};
 use crate::sensors::Recording;
@@ -43,20 +43,11 @@ pub fn run_rbpf_in(
     prior: Option<&PriorMap<'_>>,
 ) -> Result<SlamResult, SlamError> {
     let t_start = Instant::now();
-    let (first, mut cursor) = crate::filter::slam::check_and_start(recording, config)?;
+    let (first, cursor) = crate::filter::slam::check_and_start(recording, config)?;
     let odom_start = cursor.current().pose;
     let mut front = RbpfFrontEnd::new(recording, config, seed, prior, odom_start)?;
     front.stats.scans_skipped = first;
-    let total = recording.scans.len();
-    for i in first..total {
-        let Some(odom) = cursor.advance_to(recording.scans.stamps_ns[i], |_, _| {}) else {
-            front.stats.scans_skipped += 1;
-            continue;
-        };
-        front.step(i, odom, observer)?;
-        front.report(i + 1, observer);
-    }
-    front.finish(t_start)
+    crate::filter::slam::drive(recording, (first, cursor), front, t_start, observer)
 }
 
 /// The filter fed one scan at a time, with its odometry pose: what [`run_rbpf_in`] runs
@@ -133,13 +124,16 @@ impl<'r> RbpfFrontEnd<'r> {
             have_first: false,
         })
     }
+}
 
-    /// Handles scan `i` of the recording at odometry pose `odom`: a filter update once the
-    /// odometry moved far enough since the last one (reported to `observer`).
-    pub fn step(
+impl FrontEnd for RbpfFrontEnd<'_> {
+    /// A filter update once the odometry moved far enough since the last one (the odometry
+    /// steps between are not needed: the update composes the whole increment).
+    fn step(
         &mut self,
         i: usize,
         odom: StampedPose2,
+        _steps: &[(StampedPose2, StampedPose2)],
         observer: &mut dyn FnMut(SlamEvent<'_>),
     ) -> Result<(), SlamError> {
         let ro = &self.opts.rbpf;
@@ -161,9 +155,46 @@ impl<'r> RbpfFrontEnd<'r> {
             });
         }
         self.stats.scans_processed += 1;
+        self.report(i + 1, observer);
         Ok(())
     }
 
+    fn skip(&mut self) {
+        self.stats.scans_skipped += 1;
+    }
+
+    /// The best particle's whole path (each pose re-matched in its final map with
+    /// `final_refine`), its map and the statistics.
+    fn finish(mut self, t_start: Instant) -> Result<SlamResult, SlamError> {
+        let ro = &self.opts.rbpf;
+        self.stats.odometry_steps = self.dead_reckoning.len();
+        self.stats.finish_means(self.neff_sum, self.ll_sum);
+        let best = &self.pf.particles[self.pf.best()];
+        let mut trajectory = path_poses(&best.node, &self.dead_reckoning);
+        if ro.final_refine && self.recording.body_from_lidar_per_scan.is_none() {
+            let t = Instant::now();
+            refine_in_final_map(
+                &mut trajectory,
+                &self.scan_index,
+                self.recording,
+                &self.projector,
+                &best.map,
+                ro,
+            )?;
+            self.stats.timings.correlate_s += t.elapsed().as_secs_f64();
+        }
+        self.stats.timings.total_s = t_start.elapsed().as_secs_f64();
+        self.stats.map_memory = Some(self.pf.map_memory());
+        Ok(SlamResult {
+            trajectory,
+            dead_reckoning: self.dead_reckoning,
+            map: best.map.clone(),
+            stats: self.stats,
+        })
+    }
+}
+
+impl RbpfFrontEnd<'_> {
     /// One filter update with scan `i`, the `k`-th scan handled.
     fn update(
         &mut self,
@@ -213,7 +244,7 @@ impl<'r> RbpfFrontEnd<'r> {
     }
 
     /// Progress after `done` scans of the recording, and a map snapshot when one is due.
-    pub fn report(&self, done: usize, observer: &mut dyn FnMut(SlamEvent<'_>)) {
+    fn report(&self, done: usize, observer: &mut dyn FnMut(SlamEvent<'_>)) {
         let total = self.recording.scans.len();
         let every = self.opts.snapshot_every_scans;
         if crate::filter::slam::report_progress(observer, done, total, &self.stats, every) {
@@ -225,36 +256,6 @@ impl<'r> RbpfFrontEnd<'r> {
                 trajectory: &trajectory,
             });
         }
-    }
-
-    /// The best particle's whole path (each pose re-matched in its final map with
-    /// `final_refine`), its map and the statistics; `t_start` began the run.
-    pub fn finish(mut self, t_start: Instant) -> Result<SlamResult, SlamError> {
-        let ro = &self.opts.rbpf;
-        self.stats.odometry_steps = self.dead_reckoning.len();
-        self.stats.finish_means(self.neff_sum, self.ll_sum);
-        let best = &self.pf.particles[self.pf.best()];
-        let mut trajectory = path_poses(&best.node, &self.dead_reckoning);
-        if ro.final_refine && self.recording.body_from_lidar_per_scan.is_none() {
-            let t = Instant::now();
-            refine_in_final_map(
-                &mut trajectory,
-                &self.scan_index,
-                self.recording,
-                &self.projector,
-                &best.map,
-                ro,
-            )?;
-            self.stats.timings.correlate_s += t.elapsed().as_secs_f64();
-        }
-        self.stats.timings.total_s = t_start.elapsed().as_secs_f64();
-        self.stats.map_memory = Some(self.pf.map_memory());
-        Ok(SlamResult {
-            trajectory,
-            dead_reckoning: self.dead_reckoning,
-            map: best.map.clone(),
-            stats: self.stats,
-        })
     }
 }
 

@@ -1,10 +1,51 @@
-//! The `scan_match` and `seed` filters fed one scan at a time: what [`run_slam_with`] runs
-//! over a recording.
-//!
-//! [`run_slam_with`]: super::run_slam_with
+//! The filters fed one scan at a time ([`FrontEnd`], one per mode) and the one loop that
+//! feeds them a recording ([`drive`]); here the `scan_match` and `seed` modes' front end.
 
 use super::*;
 use crate::filter::UpdateReport;
+
+/// A filter fed one scan at a time.
+pub trait FrontEnd {
+    /// Handles scan `i` of the recording at odometry pose `odom`, reached through the
+    /// odometry `steps` since the last scan; reports updates, progress and snapshots to
+    /// `observer`.
+    fn step(
+        &mut self,
+        i: usize,
+        odom: StampedPose2,
+        steps: &[(StampedPose2, StampedPose2)],
+        observer: &mut dyn FnMut(SlamEvent<'_>),
+    ) -> Result<(), SlamError>;
+
+    /// Counts a scan left out (no odometry at its stamp).
+    fn skip(&mut self);
+
+    /// The trajectory, odometry, map and statistics; `t_start` began the run.
+    fn finish(self, t_start: Instant) -> Result<SlamResult, SlamError>;
+}
+
+/// The one driver loop of every mode: each scan from `first` on, with the odometry
+/// interpolated at its stamp by `cursor` (and the odometry steps since the last scan), is
+/// handed to `front`.
+pub(crate) fn drive<F: FrontEnd>(
+    recording: &Recording,
+    (first, mut cursor): (usize, OdometryCursor<'_>),
+    mut front: F,
+    t_start: Instant,
+    observer: &mut dyn FnMut(SlamEvent<'_>),
+) -> Result<SlamResult, SlamError> {
+    let mut steps: Vec<(StampedPose2, StampedPose2)> = Vec::new();
+    for i in first..recording.scans.len() {
+        steps.clear();
+        let stamp_ns = recording.scans.stamps_ns[i];
+        let Some(odom) = cursor.advance_to(stamp_ns, |a, b| steps.push((*a, *b))) else {
+            front.skip();
+            continue;
+        };
+        front.step(i, odom, &steps, observer)?;
+    }
+    front.finish(t_start)
+}
 
 /// The state of a `scan_match` or `seed` run between scans.
 pub struct MatchFrontEnd<'r, P: MapPolicy> {
@@ -16,7 +57,7 @@ pub struct MatchFrontEnd<'r, P: MapPolicy> {
     projector: ScanProjector,
     search: CorrelationSearch,
     pf: ParticleFilter,
-    pub(crate) stats: SlamStats,
+    stats: SlamStats,
     trajectory: Vec<StampedPose2>,
     dead_reckoning: Vec<StampedPose2>,
     body: PlanarScan,
@@ -98,45 +139,6 @@ impl<'r, P: MapPolicy> MatchFrontEnd<'r, P> {
             score_sum: 0.0,
             first,
         })
-    }
-
-    /// Handles scan `i` at odometry pose `odom`, reached through the odometry `steps` since
-    /// the last scan (`t` started before they were read): the particles predicted along
-    /// them, then an update every `update_every_scans` scans, else the last estimate moved
-    /// by the odometry.
-    pub fn step(
-        &mut self,
-        i: usize,
-        odom: StampedPose2,
-        steps: &[(StampedPose2, StampedPose2)],
-        t: Instant,
-        observer: &mut dyn FnMut(SlamEvent<'_>),
-    ) -> Result<(), SlamError> {
-        self.stats.odometry_steps += steps.len();
-        if !steps.is_empty() {
-            match self.mode {
-                FilterMode::Seed => self.pf.predict_steps(steps, self.motion),
-                // The scan match is the proposal: odometry without noise here, the spread
-                // comes from sampling around each match.
-                FilterMode::ScanMatch | FilterMode::Rbpf | FilterMode::Auto => {
-                    self.pf.predict_exact(steps, &mut self.increments)
-                }
-            }
-        }
-        self.stats.timings.predict_s += t.elapsed().as_secs_f64();
-        let k = i - self.first;
-        let estimate = if k.is_multiple_of(self.config.filter.update_every_scans) {
-            self.update(i, k, odom, observer)?
-        } else {
-            self.between_updates(i, odom)?
-        };
-        self.trajectory.push(StampedPose2 {
-            stamp_ns: odom.stamp_ns,
-            pose: estimate,
-        });
-        self.dead_reckoning.push(odom);
-        self.stats.scans_processed += 1;
-        self.report(i + 1, observer)
     }
 
     /// A filter update with scan `i`, the `k`-th since the first; returns the estimate.
@@ -300,9 +302,51 @@ impl<'r, P: MapPolicy> MatchFrontEnd<'r, P> {
         }
         Ok(())
     }
+}
 
-    /// The estimates, the odometry, the best map and the statistics; `t_start` began the run.
-    pub fn finish(mut self, t_start: Instant) -> Result<SlamResult, SlamError> {
+impl<P: MapPolicy> FrontEnd for MatchFrontEnd<'_, P> {
+    /// The particles predicted along the odometry `steps`, then an update every
+    /// `update_every_scans` scans, else the last estimate moved by the odometry.
+    fn step(
+        &mut self,
+        i: usize,
+        odom: StampedPose2,
+        steps: &[(StampedPose2, StampedPose2)],
+        observer: &mut dyn FnMut(SlamEvent<'_>),
+    ) -> Result<(), SlamError> {
+        let t = Instant::now();
+        self.stats.odometry_steps += steps.len();
+        if !steps.is_empty() {
+            match self.mode {
+                FilterMode::Seed => self.pf.predict_steps(steps, self.motion),
+                // The scan match is the proposal: odometry without noise here, the spread
+                // comes from sampling around each match.
+                FilterMode::ScanMatch | FilterMode::Rbpf | FilterMode::Auto => {
+                    self.pf.predict_exact(steps, &mut self.increments)
+                }
+            }
+        }
+        self.stats.timings.predict_s += t.elapsed().as_secs_f64();
+        let k = i - self.first;
+        let estimate = if k.is_multiple_of(self.config.filter.update_every_scans) {
+            self.update(i, k, odom, observer)?
+        } else {
+            self.between_updates(i, odom)?
+        };
+        self.trajectory.push(StampedPose2 {
+            stamp_ns: odom.stamp_ns,
+            pose: estimate,
+        });
+        self.dead_reckoning.push(odom);
+        self.stats.scans_processed += 1;
+        self.report(i + 1, observer)
+    }
+
+    fn skip(&mut self) {
+        self.stats.scans_skipped += 1;
+    }
+
+    fn finish(mut self, t_start: Instant) -> Result<SlamResult, SlamError> {
         let t = Instant::now();
         self.policy.flush()?;
         self.stats.timings.map_update_s += t.elapsed().as_secs_f64();

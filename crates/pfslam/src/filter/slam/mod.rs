@@ -23,7 +23,8 @@ mod front_end;
 mod maps;
 mod result;
 
-pub use front_end::MatchFrontEnd;
+pub(crate) use front_end::drive;
+pub use front_end::{FrontEnd, MatchFrontEnd};
 pub use maps::*;
 pub use result::*;
 
@@ -122,21 +123,10 @@ pub fn run_slam_with<P: MapPolicy>(
     observer: &mut dyn FnMut(SlamEvent<'_>),
 ) -> Result<SlamResult, SlamError> {
     let t_start = Instant::now();
-    let (first, mut cursor) = check_and_start(recording, config)?;
+    let (first, cursor) = check_and_start(recording, config)?;
     let start = cursor.current().pose;
-    let mut front = MatchFrontEnd::new(recording, config, seed, motion, policy, (start, first))?;
-    let mut steps: Vec<(StampedPose2, StampedPose2)> = Vec::new();
-    for i in first..recording.scans.len() {
-        let t = Instant::now();
-        steps.clear();
-        let stamp_ns = recording.scans.stamps_ns[i];
-        let Some(odom) = cursor.advance_to(stamp_ns, |a, b| steps.push((*a, *b))) else {
-            front.stats.scans_skipped += 1;
-            continue;
-        };
-        front.step(i, odom, &steps, t, observer)?;
-    }
-    front.finish(t_start)
+    let front = MatchFrontEnd::new(recording, config, seed, motion, policy, (start, first))?;
+    drive(recording, (first, cursor), front, t_start, observer)
 }
 
 /// Validates the options and the recording, and finds the first scan inside the odometry's
