@@ -24,6 +24,7 @@ pub mod input;
 pub mod interrupt;
 pub mod localize;
 pub mod map;
+pub mod observer;
 pub mod output;
 pub mod perturb;
 pub mod print_config;

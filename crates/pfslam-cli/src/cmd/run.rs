@@ -8,7 +8,7 @@
 use anyhow::Context;
 use pfslam::config::Config;
 use pfslam::eval::{Association, ate::ate, rpe::RpeDelta, rpe::rpe};
-use pfslam::filter::slam::{SlamEvent, SlamResult, anchor_odometry_to_ground_truth};
+use pfslam::filter::slam::{SlamResult, anchor_odometry_to_ground_truth};
 use pfslam::geometry::{Pose2, StampedPose2, Trajectory};
 use pfslam::graph::GraphStats;
 use pfslam::io::map_files::write_map_server;
@@ -16,7 +16,6 @@ use pfslam::io::tum::write_tum;
 use pfslam::pipeline::{BackEndInput, PipelineOptions, run_pipeline};
 use pfslam::sensors::Recording;
 use pfslam::viz::map_image::{MapImageOptions, TrajectoryOverlay, write_binary_png, write_map_png};
-use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -85,7 +84,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let staging = super::output::Staging::new(&args.out)?;
     let out_dir = staging.path().to_path_buf();
-    let mut recorder = match &args.record {
+    let recorder = match &args.record {
         Some(path) => Some(super::record::Recorder::create(path)?),
         None => None,
     };
@@ -101,24 +100,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     super::input::report(&account);
     // With ground truth, start at the true pose so maps and paths overlay without alignment.
     let anchored = anchor_odometry_to_ground_truth(&mut recording);
-    let snapshots = out_dir.join("snapshots");
-
-    let total = recording.scans.len();
-    let bar = if std::io::stderr().is_terminal() {
-        let b = indicatif::ProgressBar::new(total as u64);
-        b.set_style(
-            indicatif::ProgressStyle::with_template(
-                "{bar:40} {pos}/{len} scans  {per_sec}  ETA {eta}",
-            )
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        Some(b)
-    } else {
-        None
-    };
-    let mut last_logged = 0usize;
-    let mut snapshot_error: Option<anyhow::Error> = None;
-    let t_slam = Instant::now();
+    let mut observer = super::observer::RunObserver::new(
+        recording.scans.len(),
+        out_dir.join("snapshots"),
+        recorder,
+    );
     let pipeline = run_pipeline(
         &recording,
         &config,
@@ -127,69 +113,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             back_end_input: args.graph_on_odometry.then_some(BackEndInput::Odometry),
             ..PipelineOptions::default()
         },
-        &mut |ev| match ev {
-            SlamEvent::Update { .. } => {
-                if let Some(r) = recorder.as_mut() {
-                    r.on_event(&ev);
-                }
-            }
-            SlamEvent::Progress { done, total } => {
-                if let Some(b) = &bar {
-                    b.set_position(done as u64);
-                } else if done * 10 / total.max(1) > last_logged * 10 / total.max(1)
-                    || done == total
-                {
-                    last_logged = done;
-                    let s = t_slam.elapsed().as_secs_f64();
-                    tracing::info!(
-                        "{done}/{total} scans ({:.0} scans/s)",
-                        done as f64 / s.max(1e-9)
-                    );
-                }
-            }
-            SlamEvent::Snapshot {
-                scans_done,
-                map,
-                trajectory,
-            } => {
-                if let Some(r) = recorder.as_mut() {
-                    r.on_event(&SlamEvent::Snapshot {
-                        scans_done,
-                        map,
-                        trajectory,
-                    });
-                }
-                if snapshot_error.is_some() {
-                    return;
-                }
-                let poses: Vec<Pose2> = trajectory.iter().map(|p| p.pose).collect();
-                let res = std::fs::create_dir_all(&snapshots)
-                    .map_err(anyhow::Error::from)
-                    .and_then(|()| {
-                        write_map_png(
-                            &snapshots.join(format!("map_{scans_done:07}.png")),
-                            map,
-                            &[TrajectoryOverlay {
-                                label: "SLAM",
-                                poses: &poses,
-                            }],
-                            None,
-                            &MapImageOptions::default(),
-                        )
-                        .map_err(anyhow::Error::from)
-                    });
-                if let Err(e) = res {
-                    snapshot_error = Some(e.context("writing a snapshot"));
-                }
-            }
-        },
+        &mut |ev| observer.on_event(ev),
     )?;
-    if let Some(b) = &bar {
-        b.finish_and_clear();
-    }
-    if let Some(e) = snapshot_error {
-        return Err(e);
-    }
+    let recorder = observer.finish()?;
     // The back end's figures: its statistics, the wall time of the map rebuilt along its
     // trajectory, and its input (the filter's trajectory, or the dead reckoning).
     let result = pipeline.result;
