@@ -69,8 +69,11 @@ pub(crate) fn repair_in_file_order(stamps: &[Option<i64>]) -> Option<RepairedClo
     let period_ns = median_period(&anchors, &at);
     let mut out = vec![0i64; stamps.len()];
     let (first, last) = (anchors[0], anchors[anchors.len() - 1]);
+    // Extrapolated stamps beyond the range of i64 (wild stamps, a wild period) make the
+    // clock useless, not a wrapped one.
+    let step = |k: usize| i64::try_from(k).ok()?.checked_mul(period_ns);
     for (i, o) in out.iter_mut().enumerate().take(first) {
-        *o = at(first) - (first - i) as i64 * period_ns;
+        *o = at(first).checked_sub(step(first - i)?)?;
     }
     for w in anchors.windows(2) {
         let (a, b) = (w[0], w[1]);
@@ -80,7 +83,7 @@ pub(crate) fn repair_in_file_order(stamps: &[Option<i64>]) -> Option<RepairedClo
         }
     }
     for (i, o) in out.iter_mut().enumerate().skip(last) {
-        *o = at(last) + (i - last) as i64 * period_ns;
+        *o = at(last).checked_add(step(i - last)?)?;
     }
     make_strictly_increasing(&mut out);
     Some(RepairedClock {
@@ -199,6 +202,22 @@ mod tests {
         assert!(repair_in_file_order(&[]).is_none());
         // equal stamps (rounded): only the first is trusted
         assert!(repair_in_file_order(&[Some(7); 4]).is_none());
+    }
+
+    #[test]
+    fn a_clock_that_would_run_past_i64_is_no_clock() {
+        // found by fuzzing: the stamps after the last trusted one overflowed
+        let near_end = i64::MAX - 10;
+        let stamps = [Some(near_end - 2_000_000_000), Some(near_end), None, None];
+        assert_eq!(repair_in_file_order(&stamps), None);
+        // a wild period: the stamps before the first trusted one would fall below i64::MIN
+        let before_start = [None, None, Some(1), Some(i64::MAX - 1)];
+        assert_eq!(repair_in_file_order(&before_start), None);
+        let fine = [Some(1_000), Some(2_000), None];
+        assert_eq!(
+            repair_in_file_order(&fine).unwrap().stamps_ns,
+            vec![1_000, 2_000, 3_000]
+        );
     }
 
     #[test]
