@@ -167,23 +167,29 @@ enum Field {
     Len64,
     /// A `u32` byte length, then `(string, string)` entries filling exactly that length.
     StringMap,
+    /// A `u32` byte length, then entries of this many bytes filling exactly that length.
+    Entries(usize),
+    /// A fixed-size field that must be there: the crate slices it without a check.
+    Required(usize),
 }
 
-/// The length-prefixed layout of the records the reader may meet (Message and Chunk have
-/// none to check here); `None` for opcodes without one.
+/// The length-prefixed layout of the records the reader may meet (a Message has none to
+/// check; a Chunk's records are checked apart, but a chunk nested in a chunk only here);
+/// `None` for opcodes without one.
 fn record_layout(op: u8) -> Option<&'static [Field]> {
-    use Field::{Fixed, Len32, Len64, StringMap};
+    use Field::{Entries, Fixed, Len32, Len64, Required, StringMap};
     Some(match op {
-        0x01 => &[Len32, Len32],                      // Header
-        0x03 => &[Fixed(2), Len32, Len32, Len32],     // Schema
-        0x04 => &[Fixed(4), Len32, Len32, StringMap], // Channel
-        0x07 => &[Fixed(2), Len32],                   // Message Index
-        0x08 => &[Fixed(32), Len32, Fixed(8), Len32], // Chunk Index (up to compression)
-        0x09 => &[Fixed(16), Len32, Len32, Len64],    // Attachment
-        0x0A => &[Fixed(40), Len32, Len32],           // Attachment Index
-        0x0B => &[Fixed(42), Len32],                  // Statistics
-        0x0C => &[Len32, StringMap],                  // Metadata
-        0x0D => &[Fixed(16), Len32],                  // Metadata Index
+        0x01 => &[Len32, Len32],                                // Header
+        0x03 => &[Fixed(2), Len32, Len32, Len32],               // Schema
+        0x04 => &[Fixed(4), Len32, Len32, StringMap],           // Channel
+        0x06 => &[Fixed(28), Len32, Len64],                     // Chunk
+        0x07 => &[Fixed(2), Entries(16)],                       // Message Index: (u64, u64)
+        0x08 => &[Fixed(32), Entries(10), Fixed(8), Len32],     // Chunk Index: u16 -> u64
+        0x09 => &[Fixed(16), Len32, Len32, Len64, Required(4)], // Attachment, its CRC
+        0x0A => &[Fixed(40), Len32, Len32],                     // Attachment Index
+        0x0B => &[Fixed(42), Entries(10)],                      // Statistics: u16 -> u64
+        0x0C => &[Len32, StringMap],                            // Metadata
+        0x0D => &[Fixed(16), Len32],                            // Metadata Index
         _ => return None,
     })
 }
@@ -199,8 +205,8 @@ fn check_record_fields(op: u8, record: &[u8]) -> Result<(), ()> {
     let mut at = 0usize;
     for field in layout {
         let (prefix, len) = match field {
-            Field::Fixed(n) => (0, *n as u64),
-            Field::Len32 | Field::StringMap => match record.get(at..at + 4) {
+            Field::Fixed(n) | Field::Required(n) => (0, *n as u64),
+            Field::Len32 | Field::StringMap | Field::Entries(_) => match record.get(at..at + 4) {
                 Some(b) => (4, u64::from(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))),
                 None => return Ok(()),
             },
@@ -218,9 +224,22 @@ fn check_record_fields(op: u8, record: &[u8]) -> Result<(), ()> {
             .and_then(|l| start.checked_add(l))
             .filter(|&e| e <= record.len());
         let Some(end) = end else {
-            // A fixed field cut short is the crate's to report; a length is ours.
-            return if prefix == 0 { Ok(()) } else { Err(()) };
+            // A fixed field cut short is the crate's to report (but for those it slices
+            // without a check); a length is ours.
+            let required = matches!(field, Field::Required(_));
+            return if prefix == 0 && !required {
+                Ok(())
+            } else {
+                Err(())
+            };
         };
+        // The crate reads whole entries until it passes the length: a partial one would
+        // shift every field after it.
+        if let Field::Entries(size) = field
+            && (end - start) % size != 0
+        {
+            return Err(());
+        }
         if matches!(field, Field::StringMap) {
             let map = &record[start..end];
             let mut k = 0usize;
@@ -524,5 +543,47 @@ mod tests {
         assert!(check_record_fields(0x04, &good).is_ok());
         // Messages carry no length to check.
         assert!(check_record_fields(0x05, &[0; 3]).is_ok());
+    }
+
+    #[test]
+    fn a_map_of_fixed_entries_must_hold_whole_entries() {
+        // found by fuzzing: a chunk index whose offsets map held 2.4 entries; the crate
+        // read 3 and took the compression's length from the wrong bytes
+        let index = |map_len: u32| {
+            let mut r = vec![0u8; 32];
+            r.extend_from_slice(&map_len.to_le_bytes());
+            r.extend(std::iter::repeat_n(0u8, map_len as usize));
+            r.extend_from_slice(&[0; 8]);
+            r.extend(string(b"zstd"));
+            r
+        };
+        assert!(check_record_fields(0x08, &index(20)).is_ok());
+        assert!(check_record_fields(0x08, &index(24)).is_err());
+        // message index entries are (u64, u64)
+        let mut message_index = vec![1, 0];
+        message_index.extend_from_slice(&24u32.to_le_bytes());
+        message_index.extend_from_slice(&[0; 24]);
+        assert!(check_record_fields(0x07, &message_index).is_err());
+    }
+
+    #[test]
+    fn nested_chunks_and_attachments_are_checked() {
+        // found by fuzzing: a chunk inside a chunk whose compression string claimed 4 GiB
+        let chunk = |comp_len: u32| {
+            let mut r = vec![0u8; 28];
+            r.extend_from_slice(&comp_len.to_le_bytes());
+            r.extend_from_slice(b"lz4");
+            r.extend_from_slice(&0u64.to_le_bytes());
+            r
+        };
+        assert!(check_record_fields(0x06, &chunk(3)).is_ok());
+        assert!(check_record_fields(0x06, &chunk(u32::MAX)).is_err());
+        // an attachment must keep room for its CRC, which the crate slices unchecked
+        let mut attachment = vec![0u8; 16];
+        attachment.extend([string(b"a"), string(b"b")].concat());
+        attachment.extend_from_slice(&0u64.to_le_bytes());
+        assert!(check_record_fields(0x09, &attachment).is_err());
+        attachment.extend_from_slice(&[0; 4]);
+        assert!(check_record_fields(0x09, &attachment).is_ok());
     }
 }
