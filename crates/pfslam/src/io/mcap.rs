@@ -236,7 +236,7 @@ fn check_record_fields(op: u8, record: &[u8]) -> Result<(), ()> {
         // The crate reads whole entries until it passes the length: a partial one would
         // shift every field after it.
         if let Field::Entries(size) = field
-            && (end - start) % size != 0
+            && !(end - start).is_multiple_of(*size)
         {
             return Err(());
         }
