@@ -34,12 +34,11 @@ fn write_log(path: &Path, bytes: u64) -> u64 {
     lines
 }
 
-/// Runs `pfslam dead-reckon LOG --out OUT`; returns its peak resident memory (KiB).
-// The child is reaped by `wait4`, which gives its own peak memory, not by `Child::wait`.
-#[allow(clippy::zombie_processes)]
+/// Runs `pfslam dead-reckon LOG --out OUT`; returns its peak resident memory (KiB): the
+/// largest `VmHWM` of `/proc/PID/status` while the process is `pfslam`. (A `wait4` figure
+/// would also count the test process it may have been forked from before its `exec`.)
 fn dead_reckon_peak_kib(log: &Path, out: &Path) -> i64 {
-    use std::os::unix::process::ExitStatusExt;
-    let child = pfslam()
+    let mut child = pfslam()
         .arg("dead-reckon")
         .arg(log)
         .arg("--out")
@@ -48,16 +47,27 @@ fn dead_reckon_peak_kib(log: &Path, out: &Path) -> i64 {
         .stderr(std::process::Stdio::null())
         .spawn()
         .unwrap();
-    let pid = child.id() as libc::pid_t;
-    let mut status: libc::c_int = 0;
-    // SAFETY: an all-zero rusage is a valid value; wait4 fills it for this child only.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    // SAFETY: `pid` is our child, not yet waited for; the pointers are to live locals.
-    let r = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
-    assert_eq!(r, pid, "wait4 failed");
-    let status = std::process::ExitStatus::from_raw(status);
-    assert!(status.success(), "dead-reckon {}: {status}", log.display());
-    usage.ru_maxrss
+    let status_path = format!("/proc/{}/status", child.id());
+    let mut peak_kib = 0;
+    loop {
+        if let Ok(status) = std::fs::read_to_string(&status_path)
+            && status
+                .lines()
+                .any(|l| l.split_whitespace().eq(["Name:", "pfslam"]))
+            && let Some(kib) = status
+                .lines()
+                .find_map(|l| l.strip_prefix("VmHWM:"))
+                .and_then(|v| v.split_whitespace().next())
+                .and_then(|v| v.parse::<i64>().ok())
+        {
+            peak_kib = peak_kib.max(kib);
+        }
+        if let Some(status) = child.try_wait().unwrap() {
+            assert!(status.success(), "dead-reckon {}: {status}", log.display());
+            return peak_kib;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
 }
 
 #[test]
