@@ -3,7 +3,7 @@
 //! levels, as `[graph]`'s defaults on the full-size car) and verifying a closure in it (the
 //! branch and bound, its ambiguity test and the sub-cell refinement), and a per-scan
 //! refinement field (11 keyframes, level 0 only) and the sub-cell refinement in it (the
-//! pattern search of `refine_scans`). Run on a one-thread pool that includes the
+//! pattern search of `refine.scans`). Run on a one-thread pool that includes the
 //! calling thread, so the calling thread's CPU time is the kernel's whole CPU time.
 
 mod cpu_time;
@@ -139,12 +139,12 @@ fn bench(c: &mut Criterion<ThreadCpuTime>) {
     let body = scan(&segs, &truth, 200, &mut rng);
     let centre = truth.compose(&Pose2::new(0.2, -0.15, 1f64.to_radians()));
     let win = SearchWindow {
-        xy_m: opts.loop_window_m,
-        yaw_rad: opts.loop_window_deg.to_radians(),
+        xy_m: opts.loops.window_m,
+        yaw_rad: opts.loops.window_deg.to_radians(),
         yaw_step_rad: opts.yaw_step_deg.to_radians(),
     };
     let (res, sigma) = (opts.resolution_m, opts.field_sigma_m);
-    let margin = opts.loop_window_m + 3.0 * sigma + res;
+    let margin = opts.loops.window_m + 3.0 * sigma + res;
     let (lo, hi) = bounds(&body, &centre, margin, &loop_submap, sigma);
     let (rlo, rhi) = bounds(&body, &centre, 1.06, &refine_submap, sigma);
     let mut g = c.benchmark_group("loop_field");
@@ -186,7 +186,7 @@ fn bench(c: &mut Criterion<ThreadCpuTime>) {
                 ))
             })
         });
-        // From a cell-grid optimum's distance (as after `refine_scans`' exhaustive search).
+        // From a cell-grid optimum's distance (as after `refine.scans`' exhaustive search).
         let refine_field = PointField::build(&refine_submap, rlo, rhi, res, sigma, 0);
         let start = truth.compose(&Pose2::new(0.03, -0.02, 0.2f64.to_radians()));
         g.bench_function("refine", |b| {

@@ -270,6 +270,28 @@ mod tests {
     #[test]
     fn unknown_key_is_an_error() {
         assert!(toml::from_str::<Config>("nonsense = 1").is_err());
+        // A back-end key outside its part is unknown (the flat form before the nesting).
+        let err = toml::from_str::<Config>("[graph]\nloop_window_m = 1.0")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("loop_window_m"), "{err}");
+    }
+
+    /// A bad value in a nested back-end table is reported with its whole path.
+    #[test]
+    fn nested_graph_keys_are_checked_by_path() {
+        let c: Config = toml::from_str("[graph.loops.local]\nwindow_m = 5.0").unwrap();
+        let err = c.validate().unwrap_err().to_string();
+        assert!(
+            err.contains("loops.local.window_m <= loops.window_m"),
+            "{err}"
+        );
+        let c: Config = toml::from_str("[graph.optimize]\nchi2 = -1.0").unwrap();
+        let err = c.validate().unwrap_err().to_string();
+        assert!(
+            err.contains("graph.optimize.chi2 must be positive"),
+            "{err}"
+        );
     }
 
     /// A `Switch` reads its names and, for switches that were booleans, `true` / `false`;
@@ -284,16 +306,16 @@ mod tests {
             ("true", Switch::On),
             ("false", Switch::Off),
         ] {
-            let c: Config = toml::from_str(&format!("[graph]\nrefine_scans = {text}")).unwrap();
-            assert_eq!(c.graph.refine_scans, want, "{text}");
+            let c: Config = toml::from_str(&format!("[graph.refine]\nscans = {text}")).unwrap();
+            assert_eq!(c.graph.refine.scans, want, "{text}");
             let c: Config =
-                toml::from_str(&format!("[graph]\nsequential_matching = {text}")).unwrap();
-            assert_eq!(c.graph.sequential_matching, want, "{text}");
+                toml::from_str(&format!("[graph.sequential]\nmatching = {text}")).unwrap();
+            assert_eq!(c.graph.sequential.matching, want, "{text}");
         }
-        let err = toml::from_str::<Config>("[graph]\nrefine_scans = \"sometimes\"")
+        let err = toml::from_str::<Config>("[graph.refine]\nscans = \"sometimes\"")
             .unwrap_err()
             .to_string();
         assert!(err.contains("expected `auto`, `on`, `off`"), "{err}");
-        assert!(toml::from_str::<Config>("[graph]\nrefine_scans = 1").is_err());
+        assert!(toml::from_str::<Config>("[graph.refine]\nscans = 1").is_err());
     }
 }

@@ -289,7 +289,7 @@ pub(crate) fn back_end_over(
 
 /// The back end's trajectory unless its map is much less consistent than the front end's
 /// (`[graph] max_free_share_ratio`). Then, when it matched consecutive keyframes itself, it
-/// runs again tied by the front end's motion alone (`sequential_matching = "off"`, no
+/// runs again tied by the front end's motion alone (`sequential.matching = "off"`, no
 /// odometry-yaw edges): on Intel its own sequential matches led its closures astray on half
 /// of the seeds (decision 0006). The front end's trajectory when that fails too.
 fn choose_trajectory(
@@ -339,8 +339,8 @@ fn choose_trajectory(
     let mut stats = g.stats;
     if stats.sequential_matched > 0 {
         let mut retry = graph_opts.clone();
-        retry.sequential_matching = crate::graph::Switch::Off;
-        retry.odometry_yaw_edges = crate::graph::Switch::Off;
+        retry.sequential.matching = crate::graph::Switch::Off;
+        retry.sequential.odometry_yaw_edges = crate::graph::Switch::Off;
         let g2 = optimize_trajectory(recording, &config.map.scan, input, &retry)?;
         let (grid, share) = map_and_free_share(recording, &g2.trajectory, config)?;
         signals.back_end_retried = true;

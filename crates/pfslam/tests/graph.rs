@@ -127,9 +127,9 @@ fn a_wrong_closure_is_down_weighted_by_the_kernel() {
         robust_err < tolerance_m(),
         "{robust_err:.3} m with the kernel"
     );
-    // The wrong edge stands out (the back end drops edges above `loop_outlier_chi2`).
+    // The wrong edge stands out (the back end drops edges above `loops.outlier_chi2`).
     let k = robust.edges.len() - 1;
-    assert!(robust.edge_chi2(k) > GraphOptions::default().loop_outlier_chi2);
+    assert!(robust.edge_chi2(k) > GraphOptions::default().loops.outlier_chi2);
     // Without the kernel the same edge bends the square.
     let mut plain = g.clone();
     plain.edges.push(Edge {
@@ -178,8 +178,8 @@ fn field_for(world: &[[f64; 2]], lo: [f64; 2], hi: [f64; 2], opts: &GraphOptions
 
 fn loop_window(opts: &GraphOptions) -> SearchWindow {
     SearchWindow {
-        xy_m: opts.loop_window_m,
-        yaw_rad: opts.loop_window_deg.to_radians(),
+        xy_m: opts.loops.window_m,
+        yaw_rad: opts.loops.window_deg.to_radians(),
         yaw_step_rad: opts.yaw_step_deg.to_radians(),
     }
 }
@@ -255,8 +255,8 @@ fn verify_local(
     opts: &GraphOptions,
 ) -> Option<Verdict> {
     let window = SearchWindow {
-        xy_m: opts.loop_local_window_m,
-        yaw_rad: opts.loop_local_window_deg.to_radians(),
+        xy_m: opts.loops.local.window_m,
+        yaw_rad: opts.loops.local.window_deg.to_radians(),
         yaw_step_rad: opts.yaw_step_deg.to_radians(),
     };
     verify_closure_in(
@@ -264,13 +264,13 @@ fn verify_local(
         scan,
         guess,
         &window,
-        opts.loop_local_ambiguity_radius_m,
+        opts.loops.local.ambiguity_radius_m,
         true,
         opts,
     )
 }
 
-/// `loop_local_search`: around an estimate within the local window of the truth, the local
+/// `loops.local.search`: around an estimate within the local window of the truth, the local
 /// search (+-0.3 m / 2 deg, its smaller ambiguity radius) accepts the very closure the
 /// full window finds (the same cell-grid best, so the same refined bits); around an
 /// estimate beyond it, the local search finds its best on the window's edge (or nothing),
@@ -427,7 +427,7 @@ fn simulated_car_loop_closes_on_dead_reckoning() {
     let mut config = pfslam::config::Config::default();
     // The front end is the odometry itself, so an odometry-yaw edge would count its yaw
     // twice, and this FOG's bias is far beyond that edge's default uncertainty.
-    config.graph.odometry_yaw_sigma_deg_per_sqrt_m = 0.0;
+    config.graph.sequential.odometry_yaw_sigma_deg_per_sqrt_m = 0.0;
     let g = pfslam::graph::optimize_trajectory(&recording, &config.map.scan, &front, &config.graph)
         .unwrap();
     assert_eq!(g.stats.loop_local, 0, "loop_local_search auto: off here");
@@ -477,14 +477,14 @@ fn simulated_car_loop_closes_on_dead_reckoning() {
     assert_eq!(one.stats.final_cost.to_bits(), g.stats.final_cost.to_bits());
 }
 
-/// `loop_local_search` on the loop of `simulated_car_loop_closes_on_dead_reckoning`, from
-/// the first consistent closure on (`loop_local_min_closures = 1`): the candidates before
+/// `loops.local.search` on the loop of `simulated_car_loop_closes_on_dead_reckoning`, from
+/// the first consistent closure on (`loops.local.min_closures = 1`): the candidates before
 /// the first optimisation (no closure vouches yet) are searched in the full window, most
 /// later ones in the local window, some of those again in the full one (the dead
 /// reckoning's FOG bias moves the estimate by decimetres between optimisations: best pose
 /// on the local window's edge); the loop still closes, no closure is removed, and the
 /// look-ahead (the local decision depends on the last optimisation only) gives the bits of
-/// one keyframe at a time. With the default `loop_local_min_closures` (200) this short loop
+/// one keyframe at a time. With the default `loops.local.min_closures` (200) this short loop
 /// never has enough closures for a local search.
 #[test]
 fn simulated_car_local_loop_search() {
@@ -493,14 +493,14 @@ fn simulated_car_local_loop_search() {
     use pfslam::graph::Switch;
     let (recording, front, gt) = biased_loop();
     let mut config = pfslam::config::Config::default();
-    config.graph.odometry_yaw_sigma_deg_per_sqrt_m = 0.0;
-    config.graph.loop_local_search = Switch::On;
+    config.graph.sequential.odometry_yaw_sigma_deg_per_sqrt_m = 0.0;
+    config.graph.loops.local.search = Switch::On;
     let few =
         pfslam::graph::optimize_trajectory(&recording, &config.map.scan, &front, &config.graph)
             .unwrap();
-    assert!(few.stats.loop_accepted < config.graph.loop_local_min_closures);
+    assert!(few.stats.loop_accepted < config.graph.loops.local.min_closures);
     assert_eq!(few.stats.loop_local, 0, "{:?}", few.stats);
-    config.graph.loop_local_min_closures = 1;
+    config.graph.loops.local.min_closures = 1;
     let g = pfslam::graph::optimize_trajectory(&recording, &config.map.scan, &front, &config.graph)
         .unwrap();
     let assoc = Association::Nearest { tolerance_ns: 0 };
@@ -538,7 +538,7 @@ fn simulated_car_local_loop_search() {
 }
 
 /// The humanoid (LiDAR on a moving head, odometry yaw from the legs, not a gyro): the back end
-/// adds no odometry-yaw edges there (`[graph] odometry_yaw_edges = "auto"`) and does not make
+/// adds no odometry-yaw edges there (`[graph.sequential] sequential.odometry_yaw_edges = "auto"`) and does not make
 /// the filter's trajectory worse. With those edges (tuned for the car's FOG) it pulled the
 /// default 180 s walk from 0.138 to 0.369 m ATE (`pfslam run`, seed 1); without them
 /// 0.130 m (seeds 2, 3: 0.143 -> 0.132, 0.133 -> 0.129 m). Here: 0.157 -> 0.147 m.

@@ -97,12 +97,12 @@ fn pipeline_calibrates_the_odometry_or_falls_back_to_the_filter() {
     assert_eq!(b.result.trajectory, c.result.trajectory);
     assert_ne!(a.result.trajectory, c.result.trajectory);
 
-    // `[graph] refine_scans = "auto"`: off when the back end is fed the odometry (its smooth
+    // `[graph.refine] scans = "auto"`: off when the back end is fed the odometry (its smooth
     // local motion stays between keyframes), on when it is fed the front end.
     use pfslam::graph::Switch;
     let with = |base: &Config, switch: Switch| {
         let mut config = base.clone();
-        config.graph.refine_scans = switch;
+        config.graph.refine.scans = switch;
         pipeline(&rec, &config, 2).result.trajectory
     };
     assert_eq!(with(&calibrated, Switch::Off), a.result.trajectory);

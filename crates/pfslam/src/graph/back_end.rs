@@ -12,38 +12,39 @@ impl<'a> BackEnd<'a> {
         look_ahead: usize,
     ) -> Self {
         let opt_opts = OptimizeOptions {
-            max_iterations: opts.max_iterations,
+            max_iterations: opts.optimize.max_iterations,
             ..OptimizeOptions::default()
         };
         let periodic_opts = OptimizeOptions {
-            relative_tolerance: opts.periodic_relative_tolerance,
+            relative_tolerance: opts.optimize.periodic_relative_tolerance,
             ..opt_opts
         };
         let seq_win = SearchWindow {
-            xy_m: opts.sequential_window_m,
-            yaw_rad: opts.sequential_window_deg.to_radians(),
+            xy_m: opts.sequential.window_m,
+            yaw_rad: opts.sequential.window_deg.to_radians(),
             yaw_step_rad: opts.yaw_step_deg.to_radians(),
         };
         let loop_win = SearchWindow {
-            xy_m: opts.loop_window_m,
-            yaw_rad: opts.loop_window_deg.to_radians(),
+            xy_m: opts.loops.window_m,
+            yaw_rad: opts.loops.window_deg.to_radians(),
             yaw_step_rad: seq_win.yaw_step_rad,
         };
         let local_win = SearchWindow {
-            xy_m: opts.loop_local_window_m,
-            yaw_rad: opts.loop_local_window_deg.to_radians(),
+            xy_m: opts.loops.local.window_m,
+            yaw_rad: opts.loops.local.window_deg.to_radians(),
             yaw_step_rad: seq_win.yaw_step_rad,
         };
         // What the last optimisation vouches for (nothing before the first).
-        let local_on = opts.loop_local_search.is_on(false);
+        let local_on = opts.loops.local.search.is_on(false);
         // `auto`: sequential matching for a level LiDAR fixed on the body (the recordings `auto`
         // runs `rbpf` on); odometry-yaw edges for a LiDAR fixed on the body.
         let level_and_fixed =
             crate::filter::FilterMode::Auto.resolve(recording) == crate::filter::FilterMode::Rbpf;
-        let seq_matching = opts.sequential_matching.is_on(level_and_fixed);
+        let seq_matching = opts.sequential.matching.is_on(level_and_fixed);
         let yaw_edges = !seq_matching
-            && opts.odometry_yaw_sigma_deg_per_sqrt_m > 0.0
+            && opts.sequential.odometry_yaw_sigma_deg_per_sqrt_m > 0.0
             && opts
+                .sequential
                 .odometry_yaw_edges
                 .is_on(recording.body_from_lidar_per_scan.is_none());
         BackEnd {
@@ -87,7 +88,7 @@ impl<'a> BackEnd<'a> {
         let pose = self.add_sequential_edges(k);
         // Loop closures.
         let due =
-            k.is_multiple_of(opts.loop_every_keyframes) && kf.points_body.len() >= opts.min_points;
+            k.is_multiple_of(opts.loops.every_keyframes) && kf.points_body.len() >= opts.min_points;
         if due {
             self.search_loops(k, pose);
         }
@@ -96,11 +97,11 @@ impl<'a> BackEnd<'a> {
     }
 
     /// Optimises after keyframe `k` when a closure disagreed with the estimates, or when
-    /// closures were accepted and `optimize_every_keyframes` passed since the last time.
+    /// closures were accepted and `optimize.every_keyframes` passed since the last time.
     fn maybe_optimize(&mut self, k: usize) {
         let opts = self.opts;
         if self.urgent
-            || (self.closures_pending && k - self.last_opt >= opts.optimize_every_keyframes)
+            || (self.closures_pending && k - self.last_opt >= opts.optimize.every_keyframes)
         {
             let t = Instant::now();
             let last_opt = self.last_opt;
@@ -109,10 +110,10 @@ impl<'a> BackEnd<'a> {
                 true => graph.optimize(&self.opt_opts),
                 // Keyframe 0 is always held: from keyframe 1 on is the whole graph.
                 false
-                    if opts.periodic_free_keyframes > 0
-                        && last_opt > opts.periodic_free_keyframes + 1 =>
+                    if opts.optimize.periodic_free_keyframes > 0
+                        && last_opt > opts.optimize.periodic_free_keyframes + 1 =>
                 {
-                    let first = last_opt - opts.periodic_free_keyframes;
+                    let first = last_opt - opts.optimize.periodic_free_keyframes;
                     optimize_tail(graph, first, &self.periodic_opts)
                 }
                 false => graph.optimize(&self.periodic_opts),
@@ -136,7 +137,7 @@ impl<'a> BackEnd<'a> {
     }
 
     /// The final optimisation, outlier removal and again; every scan's corrected pose
-    /// (refined when `refine_scans` is on).
+    /// (refined when `refine.scans` is on).
     pub(super) fn finish(
         self,
         scan_opts: &ScanOptions,
@@ -161,7 +162,7 @@ impl<'a> BackEnd<'a> {
         let outliers: Vec<usize> = loop_edges
             .iter()
             .copied()
-            .filter(|&e| graph.edge_chi2(e) > opts.loop_outlier_chi2)
+            .filter(|&e| graph.edge_chi2(e) > opts.loops.outlier_chi2)
             .collect();
         if !outliers.is_empty() {
             stats.loop_removed_outliers = outliers.len();
@@ -194,7 +195,7 @@ impl<'a> BackEnd<'a> {
             graph.poses = keyframes.iter().map(|kf| kf.front_pose).collect();
         }
         let mut out = correct_trajectory(trajectory, keyframes, &graph.poses);
-        if opts.refine_scans.is_on(true) && (closed || !opts.keep_front_end_without_closures) {
+        if opts.refine.scans.is_on(true) && (closed || !opts.keep_front_end_without_closures) {
             refine_scans(
                 recording,
                 scan_opts,

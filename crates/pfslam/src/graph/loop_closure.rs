@@ -16,7 +16,7 @@ use crate::geometry::Pose2;
 pub const LOOK_AHEAD_SEARCHES: usize = 16;
 
 /// ... but at most this many when an optimisation may come at any accepted closure (after
-/// `optimize_every_keyframes` without one): a look-ahead past it is discarded.
+/// `optimize.every_keyframes` without one): a look-ahead past it is discarded.
 pub(super) const LOOK_AHEAD_UNBOUNDED: usize = 4;
 
 /// One keyframe's loop search verified ahead.
@@ -60,7 +60,8 @@ pub(super) fn look_ahead_jobs(
             .between(&keyframes[m].front_pose);
         p = p.compose(&rel);
         poses.push(p);
-        if m % opts.loop_every_keyframes == 0 && keyframes[m].points_body.len() >= opts.min_points {
+        if m % opts.loops.every_keyframes == 0 && keyframes[m].points_body.len() >= opts.min_points
+        {
             let tried = loop_candidates(keyframes, poses, m, &p, opts);
             searches += usize::from(!tried.is_empty());
             jobs.push(AheadJob {
@@ -75,8 +76,8 @@ pub(super) fn look_ahead_jobs(
 }
 
 /// The loop-closure candidates of keyframe `k` at `pose`: earlier keyframes (at `poses`)
-/// within `loop_search_radius_m` and at least `loop_min_path_m` back along the path, the
-/// nearest first, at most `loop_max_candidates`, no two within `loop_submap_keyframes`.
+/// within `loops.search_radius_m` and at least `loops.min_path_m` back along the path, the
+/// nearest first, at most `loops.max_candidates`, no two within `loops.submap_keyframes`.
 pub(super) fn loop_candidates(
     keyframes: &[Keyframe],
     poses: &[Pose2],
@@ -85,10 +86,10 @@ pub(super) fn loop_candidates(
     opts: &GraphOptions,
 ) -> Vec<usize> {
     let path_m = keyframes[k].path_m;
-    let radius = opts.loop_search_radius_m;
+    let radius = opts.loops.search_radius_m;
     let near = pose.x_m.abs() + pose.y_m.abs() + radius + 1.0;
     let mut cands: Vec<(f64, usize)> = (0..k)
-        .filter(|&j| path_m - keyframes[j].path_m >= opts.loop_min_path_m)
+        .filter(|&j| path_m - keyframes[j].path_m >= opts.loops.min_path_m)
         .filter_map(|j| {
             let q = &poses[j];
             // The distance is `between`'s (its rounding decides ties and the radius), but
@@ -107,13 +108,13 @@ pub(super) fn loop_candidates(
     cands.sort_by(|a, b| a.0.total_cmp(&b.0));
     let mut tried: Vec<usize> = Vec::new();
     for &(_, j) in &cands {
-        if tried.len() >= opts.loop_max_candidates {
+        if tried.len() >= opts.loops.max_candidates {
             break;
         }
         // Candidates next to one already tried would test the same submap.
         if tried
             .iter()
-            .any(|&t| t.abs_diff(j) <= opts.loop_submap_keyframes)
+            .any(|&t| t.abs_diff(j) <= opts.loops.submap_keyframes)
         {
             continue;
         }
@@ -142,14 +143,14 @@ pub(super) struct Checked {
 }
 
 /// What the last optimisation vouches for: the loop edges it left consistent (whitened
-/// squared error at most `optimize_chi2`), by the path lengths at their ends (see
-/// `GraphOptions::loop_local_search`).
+/// squared error at most `optimize.chi2`), by the path lengths at their ends (see
+/// `[graph.loops.local] search`).
 #[derive(Debug, Clone)]
 pub(super) struct Vouches {
     /// Path length (m) at the later end of the last consistent loop edge.
     last_path_m: f64,
     /// Path lengths (m) at both ends of every consistent loop edge, sorted (empty when
-    /// fewer than `loop_local_min_closures`: no vouch).
+    /// fewer than `loops.local.min_closures`: no vouch).
     ends_path_m: Vec<f64>,
 }
 
@@ -172,7 +173,7 @@ impl Vouches {
     ) -> Vouches {
         let mut out = Vouches::default();
         for &e in loop_edges {
-            if graph.edge_chi2(e) > opts.optimize_chi2 {
+            if graph.edge_chi2(e) > opts.optimize.chi2 {
                 continue;
             }
             let edge = &graph.edges[e];
@@ -180,7 +181,7 @@ impl Vouches {
             out.last_path_m = out.last_path_m.max(a.max(b));
             out.ends_path_m.extend([a, b]);
         }
-        if out.ends_path_m.len() < 2 * opts.loop_local_min_closures {
+        if out.ends_path_m.len() < 2 * opts.loops.local.min_closures {
             return Vouches::default();
         }
         out.ends_path_m.sort_by(f64::total_cmp);
@@ -188,8 +189,8 @@ impl Vouches {
     }
 
     /// Whether candidate `j` of keyframe `k` is searched in the local window: a consistent
-    /// loop edge ends at most `loop_local_vouch_path_m` before `k`, and one within that
-    /// much of `j` (none vouches below `loop_local_min_closures`).
+    /// loop edge ends at most `loops.local.vouch_path_m` before `k`, and one within that
+    /// much of `j` (none vouches below `loops.local.min_closures`).
     pub(super) fn vouch(
         &self,
         keyframes: &[Keyframe],
@@ -197,7 +198,7 @@ impl Vouches {
         j: usize,
         opts: &GraphOptions,
     ) -> bool {
-        let d = opts.loop_local_vouch_path_m;
+        let d = opts.loops.local.vouch_path_m;
         let (pk, pj) = (keyframes[k].path_m, keyframes[j].path_m);
         if pk - self.last_path_m > d {
             return false;
@@ -235,8 +236,8 @@ pub(super) fn verify_candidate(
         pose,
     } = *pair;
     let kf = &keyframes[k];
-    let lo = j.saturating_sub(opts.loop_submap_keyframes);
-    let hi = (j + opts.loop_submap_keyframes + 1).min(k);
+    let lo = j.saturating_sub(opts.loops.submap_keyframes);
+    let hi = (j + opts.loops.submap_keyframes + 1).min(k);
     let mut submap = Vec::new();
     gather_points(keyframes, poses, lo..hi, &mut submap);
     // The local window's search is small beside building a pooled level: one level fewer
@@ -273,7 +274,7 @@ pub(super) fn verify_candidate(
     };
     let mut search = Search::Full;
     if let Some(win) = local {
-        match in_window(win, opts.loop_local_ambiguity_radius_m, true) {
+        match in_window(win, opts.loops.local.ambiguity_radius_m, true) {
             None | Some(Verdict::LowScore) => search = Search::LocalThenFull,
             Some(verdict) => {
                 return Checked {
@@ -283,7 +284,7 @@ pub(super) fn verify_candidate(
             }
         }
     }
-    let verdict = in_window(loop_win, opts.loop_ambiguity_radius_m, false);
+    let verdict = in_window(loop_win, opts.loops.ambiguity_radius_m, false);
     Checked {
         verdict: verdict.unwrap_or(Verdict::LowScore),
         search,
@@ -295,7 +296,7 @@ pub(super) fn verify_candidate(
 pub enum Verdict {
     /// The matched pose of the scan (world frame of the submap).
     Accepted(Pose2),
-    /// Best score below `loop_min_score` (or too few points).
+    /// Best score below `loops.min_score` (or too few points).
     LowScore,
     /// Another pose scores nearly as well.
     Ambiguous,
@@ -310,7 +311,7 @@ pub fn verify_closure(
     win: &SearchWindow,
     opts: &GraphOptions,
 ) -> Verdict {
-    let radius = opts.loop_ambiguity_radius_m;
+    let radius = opts.loops.ambiguity_radius_m;
     verify_closure_in(field, points_body, centre, win, radius, false, opts)
         .unwrap_or(Verdict::LowScore)
 }
@@ -334,14 +335,14 @@ pub fn verify_closure_in(
     let Some(start) = field.bnb_start(points_body, centre, win) else {
         return Some(Verdict::LowScore);
     };
-    let Some((best, score)) = field.search_bnb_from(&start, opts.loop_min_score, None) else {
+    let Some((best, score)) = field.search_bnb_from(&start, opts.loops.min_score, None) else {
         return Some(Verdict::LowScore);
     };
     if edge_stops && field.on_window_edge(&start, &best) {
         return None;
     }
     let exclusion = (best, ambiguity_radius_m, win.yaw_rad * 2.0 + 1.0);
-    if field.any_bnb_from(&start, opts.loop_ambiguity_ratio * score, Some(exclusion)) {
+    if field.any_bnb_from(&start, opts.loops.ambiguity_ratio * score, Some(exclusion)) {
         return Some(Verdict::Ambiguous);
     }
     let (pose, _) = field.refine(points_body, &best, win.yaw_step_rad, 4, None);

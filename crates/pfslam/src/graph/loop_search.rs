@@ -18,18 +18,18 @@ impl BackEnd<'_> {
                 Verdict::Accepted(found) => {
                     stats.loop_accepted += 1;
                     let z = graph.poses[j].between(&found);
-                    let width = (opts.loop_kernel_width > 0.0).then_some(opts.loop_kernel_width);
+                    let width = (opts.loops.kernel_width > 0.0).then_some(opts.loops.kernel_width);
                     graph.edges.push(Edge::with_sigmas(
                         j,
                         k,
                         z,
-                        opts.loop_sigma_m,
-                        opts.loop_sigma_deg.to_radians(),
+                        opts.loops.sigma_m,
+                        opts.loops.sigma_deg.to_radians(),
                         width,
                     ));
                     self.loop_edges.push(graph.edges.len() - 1);
                     self.closures_pending = true;
-                    if graph.edge_chi2(graph.edges.len() - 1) > opts.optimize_chi2 {
+                    if graph.edge_chi2(graph.edges.len() - 1) > opts.optimize.chi2 {
                         self.urgent = true;
                     }
                 }
@@ -69,7 +69,7 @@ impl BackEnd<'_> {
                     let mut jobs = if !self.seq_matching && look_ahead > 1 {
                         // No periodic optimisation before `last_opt + every`: up to
                         // there the look-ahead cannot be overtaken by one.
-                        let bound = self.last_opt + opts.optimize_every_keyframes;
+                        let bound = self.last_opt + opts.optimize.every_keyframes;
                         let (searches, last) = if k < bound {
                             (look_ahead, bound)
                         } else {

@@ -2,21 +2,21 @@
 //!
 //! 1. Keyframes every `keyframe_distance_m` / `keyframe_angle_deg` of the front end's path.
 //! 2. Sequential edges: each keyframe's scan is matched against a submap of the preceding
-//!    `submap_keyframes` keyframes (at their current, already corrected estimates) around
+//!    `sequential.submap_keyframes` keyframes (at their current, already corrected estimates) around
 //!    the front end's relative motion, with a prior on the deviation from it; a poor front
 //!    end still gives good local edges. For a tilted or moving LiDAR (the car) these matches
 //!    are biased, so there the front end's relative motion alone ties consecutive keyframes,
-//!    with a random-walk uncertainty (`sequential_matching`).
-//! 3. Loop closures: earlier keyframes within `loop_search_radius_m` of the new keyframe's
-//!    estimate but at least `loop_min_path_m` back along the path are candidates; the scan
-//!    is matched by branch and bound over a window of `loop_window_m` / `loop_window_deg`
+//!    with a random-walk uncertainty (`sequential.matching`).
+//! 3. Loop closures: earlier keyframes within `loops.search_radius_m` of the new keyframe's
+//!    estimate but at least `loops.min_path_m` back along the path are candidates; the scan
+//!    is matched by branch and bound over a window of `loops.window_m` / `loops.window_deg`
 //!    against the candidate's neighbourhood submap, refined below a cell, and accepted only
 //!    if the score is high, enough points fall on the submap, and no other pose outside
-//!    `loop_ambiguity_radius_m` scores nearly as well (a corridor is ambiguous along its
+//!    `loops.ambiguity_radius_m` scores nearly as well (a corridor is ambiguous along its
 //!    axis). Loop edges carry a Cauchy kernel; after the final optimisation edges with a large
 //!    error are dropped and the graph is optimised again.
 //! 4. The graph is optimised ([`optimize`]) whenever closures were accepted and at least
-//!    `optimize_every_keyframes` keyframes passed, so the next search starts from corrected
+//!    `optimize.every_keyframes` keyframes passed, so the next search starts from corrected
 //!    estimates, and once more at the end.
 //! 5. Every scan's corrected pose = its keyframe's corrected pose composed with the front
 //!    end's motion since that keyframe.
@@ -82,9 +82,9 @@ pub struct GraphStats {
     pub sequential_matched: usize,
     /// Sequential edges from the front end (match too poor).
     pub sequential_fallback: usize,
-    /// Sequential edges from the front end alone (`sequential_matching` off).
+    /// Sequential edges from the front end alone (`sequential.matching` off).
     pub sequential_front_end: usize,
-    /// Odometry-yaw edges (`odometry_yaw_sigma_deg_per_sqrt_m`).
+    /// Odometry-yaw edges (`sequential.odometry_yaw_sigma_deg_per_sqrt_m`).
     pub odometry_yaw_edges: usize,
     /// Loop-closure candidates tried.
     pub loop_candidates: usize,
@@ -94,7 +94,7 @@ pub struct GraphStats {
     pub loop_rejected_score: usize,
     /// Candidates rejected as ambiguous.
     pub loop_rejected_ambiguous: usize,
-    /// Candidates verified in the local window (`loop_local_search`), those counted again
+    /// Candidates verified in the local window (`loops.local.search`), those counted again
     /// in `loop_local_fallbacks` included.
     pub loop_local: usize,
     /// ... of which searched again in the full window (best pose on the local window's

@@ -1,5 +1,5 @@
 //! The refinement of the scans between keyframes against the corrected keyframes around
-//! them (`GraphOptions::refine_scans`).
+//! them (`graph refine.scans`).
 
 use super::keyframes::{Keyframe, ScanPoints, bounds_around, clip_to_points, gather_points};
 use super::matcher::{PointField, Prior, SearchWindow};
@@ -10,7 +10,7 @@ use crate::sensors::Recording;
 use rayon::prelude::*;
 
 /// Matches every non-keyframe pose of `out` (already moved with its keyframe) against the
-/// corrected keyframes around its keyframe (see `GraphOptions::refine_scans`).
+/// corrected keyframes around its keyframe (see `graph refine.scans`).
 pub(super) fn refine_scans(
     recording: &Recording,
     scan_opts: &ScanOptions,
@@ -21,10 +21,10 @@ pub(super) fn refine_scans(
     out: &mut [StampedPose2],
 ) -> Result<(), GraphError> {
     let pts = ScanPoints::new(recording, scan_opts, opts)?;
-    let half = opts.submap_keyframes.div_ceil(2);
+    let half = opts.sequential.submap_keyframes.div_ceil(2);
     let win = SearchWindow {
-        xy_m: opts.refine_window_m,
-        yaw_rad: opts.refine_window_deg.to_radians(),
+        xy_m: opts.refine.window_m,
+        yaw_rad: opts.refine.window_deg.to_radians(),
         yaw_step_rad: opts.yaw_step_deg.to_radians(),
     };
     let current: &[StampedPose2] = out;
@@ -60,13 +60,13 @@ pub(super) fn refine_scans(
                     }
                     let prior = Prior {
                         pose: current[t].pose,
-                        sigma_xy_m: opts.sequential_prior_sigma_m,
-                        sigma_yaw_rad: opts.sequential_prior_sigma_deg.to_radians(),
+                        sigma_xy_m: opts.sequential.prior_sigma_m,
+                        sigma_yaw_rad: opts.sequential.prior_sigma_deg.to_radians(),
                     };
                     let coarse = field.search_with_prior(&body, &prior, &win);
                     let (pose, score) =
                         field.refine(&body, &coarse, win.yaw_step_rad, 4, Some(&prior));
-                    if score >= opts.sequential_min_score {
+                    if score >= opts.sequential.min_score {
                         found.push((t, pose));
                     }
                 }

@@ -36,8 +36,8 @@ impl BackEnd<'_> {
                     information: capped_information(
                         &curv,
                         pose.yaw_rad,
-                        opts.sequential_sigma_m,
-                        opts.sequential_sigma_deg.to_radians(),
+                        opts.sequential.sigma_m,
+                        opts.sequential.sigma_deg.to_radians(),
                     ),
                     robust_width: None,
                 };
@@ -73,10 +73,10 @@ impl BackEnd<'_> {
         let keyframes = self.keyframes;
         let seq_win = &self.seq_win;
         let kf = &keyframes[k];
-        let first = k.saturating_sub(opts.submap_keyframes);
+        let first = k.saturating_sub(opts.sequential.submap_keyframes);
         gather_points(keyframes, &self.graph.poses, first..k, &mut self.submap_pts);
         let submap_pts = &self.submap_pts;
-        let margin = opts.sequential_window_m + 3.0 * opts.field_sigma_m + opts.resolution_m;
+        let margin = opts.sequential.window_m + 3.0 * opts.field_sigma_m + opts.resolution_m;
         let bounds = bounds_around(&kf.points_body, predicted, margin)
             .and_then(|b| clip_to_points(b, submap_pts, 3.0 * opts.field_sigma_m));
         let enough = self.seq_matching && kf.points_body.len() >= opts.min_points;
@@ -85,8 +85,8 @@ impl BackEnd<'_> {
                 PointField::build(submap_pts, lo, hi, opts.resolution_m, opts.field_sigma_m, 0);
             let prior = Prior {
                 pose: *predicted,
-                sigma_xy_m: opts.sequential_prior_sigma_m,
-                sigma_yaw_rad: opts.sequential_prior_sigma_deg.to_radians(),
+                sigma_xy_m: opts.sequential.prior_sigma_m,
+                sigma_yaw_rad: opts.sequential.prior_sigma_deg.to_radians(),
             };
             let coarse = field.search_with_prior(&kf.points_body, &prior, seq_win);
             let (pose, score) = field.refine(
@@ -96,7 +96,7 @@ impl BackEnd<'_> {
                 4,
                 Some(&prior),
             );
-            (score >= opts.sequential_min_score).then(|| {
+            (score >= opts.sequential.min_score).then(|| {
                 let curv = field.curvature(
                     &kf.points_body,
                     &pose,
@@ -117,7 +117,10 @@ impl BackEnd<'_> {
         if !self.seq_matching {
             return self.chained_edge(k, rel_front);
         }
-        let (sigma_m, sigma_deg) = (opts.fallback_sigma_m, opts.fallback_sigma_deg);
+        let (sigma_m, sigma_deg) = (
+            opts.sequential.fallback_sigma_m,
+            opts.sequential.fallback_sigma_deg,
+        );
         Edge::with_sigmas(k - 1, k, rel_front, sigma_m, sigma_deg.to_radians(), None)
     }
 
@@ -126,8 +129,8 @@ impl BackEnd<'_> {
     fn chained_edge(&self, k: usize, rel_front: Pose2) -> Edge {
         let opts = self.opts;
         let root = rel_front.translation_norm_m().max(0.01).sqrt();
-        let sigma_m = opts.front_end_sigma_m_per_sqrt_m * root;
-        let sigma_rad = (opts.front_end_sigma_deg_per_sqrt_m * root).to_radians();
+        let sigma_m = opts.sequential.front_end_sigma_m_per_sqrt_m * root;
+        let sigma_rad = (opts.sequential.front_end_sigma_deg_per_sqrt_m * root).to_radians();
         Edge::with_sigmas(k - 1, k, rel_front, sigma_m, sigma_rad, None)
     }
 
@@ -143,7 +146,7 @@ impl BackEnd<'_> {
             // Yaw only: the x/y standard deviation is far beyond any error.
             let z = a.between(&b);
             let root = z.translation_norm_m().max(0.01).sqrt();
-            let sigma_yaw_deg = opts.odometry_yaw_sigma_deg_per_sqrt_m * root;
+            let sigma_yaw_deg = opts.sequential.odometry_yaw_sigma_deg_per_sqrt_m * root;
             self.graph.edges.push(Edge::with_sigmas(
                 k - 1,
                 k,
