@@ -51,7 +51,7 @@ pub struct GraphOptions {
     /// Before the final optimisation, tie consecutive keyframes by the odometry too, with
     /// its noise measured from how it, the front end's motion and the sequential match
     /// disagree (needs sequential matching). Much better where the odometry is good
-    /// (corrected logs: 2-6x lower error), mixed on perturbed odometry, so off by default:
+    /// (corrected logs: 1.2-6x lower error), mixed on perturbed odometry, so off by default:
     /// `docs/decisions/0052-odometry-edges-from-the-chains-agreement.md`.
     pub odometry_edges_from_agreement: bool,
     /// Edges between consecutive keyframes.
