@@ -72,7 +72,6 @@ impl<'a> BackEnd<'a> {
             ahead: None,
             generation: 0,
             saved_prefix: 0,
-            chain: Vec::with_capacity(keyframes.len()),
         }
     }
 
@@ -153,20 +152,10 @@ impl<'a> BackEnd<'a> {
             mut stats,
             mut graph,
             loop_edges,
-            chain,
-            seq_matching,
-            saved_prefix,
             ..
         } = self;
         // Final optimisation, outlier removal, again.
         let t = Instant::now();
-        if opts.odometry_edges_from_agreement && seq_matching && saved_prefix == 0 {
-            let odometry = edge_noise::odometry_steps(recording, trajectory, keyframes);
-            if let Some(noise) = edge_noise::add_odometry_edges(&mut graph, &chain, &odometry) {
-                tracing::debug!("edge noise per step: {noise:?}");
-                stats.edge_noise = Some(noise);
-            }
-        }
         let r = graph.optimize(&opt_opts);
         stats.optimizations += 1;
         stats.iterations += r.iterations;

@@ -33,8 +33,6 @@ pub mod matcher;
 pub mod optimize;
 
 mod back_end;
-mod edge_noise;
-pub use edge_noise::StepNoise;
 mod keyframes;
 mod loop_closure;
 mod loop_search;
@@ -118,9 +116,6 @@ pub struct GraphStats {
     pub refine_s: f64,
     /// Seconds in all.
     pub total_s: f64,
-    /// The per-step noise of the three chains, measured from their disagreement, when the
-    /// odometry edges were added with it (`odometry_edges_from_agreement`).
-    pub edge_noise: Option<StepNoise>,
 }
 
 /// What the back end produced.
@@ -224,8 +219,6 @@ struct BackEnd<'a> {
     generation: usize,
     /// Input poses before this index are a saved session's keyframes.
     saved_prefix: usize,
-    /// The edges from keyframe `k` to `k - 1` (at `k - 1`; none for a saved session's).
-    chain: Vec<edge_noise::ChainStep>,
 }
 
 #[cfg(test)]

@@ -48,12 +48,6 @@ pub struct GraphOptions {
     /// matched consecutive keyframes itself runs again without (`sequential.matching`
     /// off), guarded alike; see `docs/decisions/0006-self-check-and-back-end-guard.md`.
     pub max_free_share_ratio: f64,
-    /// Before the final optimisation, tie consecutive keyframes by the odometry too, with
-    /// its noise measured from how it, the front end's motion and the sequential match
-    /// disagree (needs sequential matching). Much better where the odometry is good
-    /// (corrected logs: 1.2-6x lower error), mixed on perturbed odometry, so off by default:
-    /// `docs/decisions/0052-odometry-edges-from-the-chains-agreement.md`.
-    pub odometry_edges_from_agreement: bool,
     /// Edges between consecutive keyframes.
     pub sequential: SequentialOptions,
     /// Loop closures.
@@ -348,7 +342,6 @@ impl Default for GraphOptions {
             yaw_step_deg: 0.3,
             keep_front_end_without_closures: true,
             max_free_share_ratio: 1.5,
-            odometry_edges_from_agreement: false,
             sequential: SequentialOptions::default(),
             loops: LoopOptions::default(),
             optimize: OptimizeSchedule::default(),

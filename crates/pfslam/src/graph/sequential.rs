@@ -2,7 +2,6 @@
 //! relative motion and the odometry's yaw.
 
 use super::*;
-use edge_noise::ChainStep;
 
 impl BackEnd<'_> {
     /// Keyframe `k`'s pose and the edges to keyframe `k - 1`: a sequential match (with the
@@ -26,11 +25,6 @@ impl BackEnd<'_> {
         let matched = self.match_sequential(k, &predicted);
         let front_edge = self.front_end_edge(k, rel_front);
         let (graph, stats) = (&mut self.graph, &mut self.stats);
-        let first_edge = graph.edges.len();
-        self.chain.push(ChainStep {
-            front_edge: first_edge,
-            seq_edge: matched.is_some().then_some(first_edge + 1),
-        });
         let (pose, edge) = match matched {
             Some((pose, curv)) => {
                 stats.sequential_matched += 1;
