@@ -249,11 +249,48 @@ impl OccupancyGrid {
         scratches: &mut [BatchScratch],
         mut log: Option<&mut ChangeLog>,
     ) -> Result<(), MapError> {
-        let Some(first) = scans.first() else {
+        let Some((o, half)) = self.batch_extent(scans)? else {
             return Ok(());
         };
-        // Each scan checked as `insert_scan` checks it; the mask placed around the first
-        // scan's sensor cell, wide enough for every ray of the batch.
+        // 2 * half + 1 cells starting anywhere in a tile span at most this many tiles; the
+        // mask only grows (all scratches alike), so it is allocated a few times per run.
+        let need = ((2 * half + 1 + TILE_MASK) / TILE_SIZE as i32 + 1) as usize;
+        let blocks = scratches.iter().map(|s| s.blocks).fold(need, usize::max);
+        for s in scratches.iter_mut() {
+            s.ensure_blocks(blocks);
+        }
+        let t0 = ((o.i - half) >> TILE_SHIFT, (o.j - half) >> TILE_SHIFT);
+        self.trace_batch(scans, pieces, scratches, t0);
+        let used = &mut scratches[..pieces.len().max(1)];
+        let parallel = used.len() > 1;
+        let mut jobs = self.tile_jobs(used, blocks, t0);
+        let f = self.fixed;
+        let watch = log.as_deref().map(|l| ChangeLog {
+            threshold: l.threshold,
+            changes: Vec::new(),
+        });
+        let apply = |job: &mut TileJob<'_>| apply_tile_job(job, &f, watch.as_ref());
+        if parallel {
+            jobs.par_iter_mut().for_each(apply);
+        } else {
+            jobs.iter_mut().for_each(apply);
+        }
+        for job in jobs {
+            self.dir.tiles[job.slot] = job.tile;
+            if let Some(log) = log.as_deref_mut() {
+                log.changes.extend_from_slice(&job.changes);
+            }
+        }
+        Ok(())
+    }
+
+    /// Each scan of the batch checked as `insert_scan` checks it: the first scan's sensor
+    /// cell, around which the mask is placed, and the half-width (cells) that holds every
+    /// ray of the batch; `None` for an empty batch.
+    fn batch_extent(&self, scans: &[PlanarScan]) -> Result<Option<(Cell, i32)>, MapError> {
+        let Some(first) = scans.first() else {
+            return Ok(None);
+        };
         let o = self.cell_of(first.sensor_x_m, first.sensor_y_m);
         let mut half = 0i32;
         for scan in scans {
@@ -274,18 +311,19 @@ impl OccupancyGrid {
                 });
             }
         }
-        // 2 * half + 1 cells starting anywhere in a tile span at most this many tiles; the
-        // mask only grows (all scratches alike), so it is allocated a few times per run.
-        let need = ((2 * half + 1 + TILE_MASK) / TILE_SIZE as i32 + 1) as usize;
-        let blocks = scratches.iter().map(|s| s.blocks).fold(need, usize::max);
-        for s in scratches.iter_mut() {
-            s.ensure_blocks(blocks);
-        }
-        let (t0i, t0j) = ((o.i - half) >> TILE_SHIFT, (o.j - half) >> TILE_SHIFT);
+        Ok(Some((o, half)))
+    }
+
+    /// Traces the batch: each scratch its pieces, scan `s` of the batch into bits 2s
+    /// (touched) and 2s + 1 (occupied) of the mask whose first tile is `t0`.
+    fn trace_batch(
+        &self,
+        scans: &[PlanarScan],
+        pieces: &[Vec<(usize, std::ops::Range<usize>)>],
+        scratches: &mut [BatchScratch],
+        (t0i, t0j): (i32, i32),
+    ) {
         let (mi0, mj0) = (t0i << TILE_SHIFT, t0j << TILE_SHIFT);
-        // Trace: each scratch its pieces, scan `s` of the batch into bits 2s (touched) and
-        // 2s + 1 (occupied).
-        let grid = &*self;
         let trace = |(scratch, run): (&mut BatchScratch, &Vec<(usize, std::ops::Range<usize>)>)| {
             let BatchScratch {
                 mask,
@@ -303,7 +341,7 @@ impl OccupancyGrid {
             };
             for (s, rays) in run {
                 let scan = &scans[*s];
-                let origin = grid.cell_of(scan.sensor_x_m, scan.sensor_y_m);
+                let origin = self.cell_of(scan.sensor_x_m, scan.sensor_y_m);
                 let end = rays.end.min(scan.points.len());
                 let points = &scan.points[rays.start.min(end)..end];
                 let mut marks = BitMarks {
@@ -312,7 +350,7 @@ impl OccupancyGrid {
                     free: 1 << (2 * s),
                     occupied: 3 << (2 * s),
                 };
-                grid.trace_planar_marks(scan, points, origin, &layout, walk, &mut marks);
+                self.trace_planar_marks(scan, points, origin, &layout, walk, &mut marks);
             }
         };
         if pieces.len() > 1 {
@@ -323,10 +361,17 @@ impl OccupancyGrid {
         } else {
             scratches.iter_mut().zip(pieces.iter()).for_each(trace);
         }
-        // Apply: the tiles with a marked block in any scratch, created in mask order, then
-        // updated in parallel.
-        let used = &mut scratches[..pieces.len().max(1)];
-        let parallel = used.len() > 1;
+    }
+
+    /// The tiles with a marked block in any of the `used` scratches (masks `blocks` tiles
+    /// a side from tile `t0`), created in mask order and taken out of the directory, each
+    /// with its part of every scratch.
+    fn tile_jobs<'m>(
+        &mut self,
+        used: &'m mut [BatchScratch],
+        blocks: usize,
+        (t0i, t0j): (i32, i32),
+    ) -> Vec<TileJob<'m>> {
         let tiles = blocks * blocks;
         // An OR over the tile's flag bytes, which compiles to whole-vector ORs (the u64
         // assembled from single bytes it replaced did not, and this serial scan of every
@@ -340,7 +385,7 @@ impl OccupancyGrid {
         let touched: Vec<usize> = (0..tiles)
             .filter(|&t| used.iter().any(|s| marked(&s.flags, t)))
             .collect();
-        let mut views: Vec<Vec<Option<MaskPart<'_>>>> = used
+        let mut views: Vec<Vec<Option<MaskPart<'m>>>> = used
             .iter_mut()
             .map(|s| {
                 s.mask
@@ -356,7 +401,7 @@ impl OccupancyGrid {
             self.dir.get_mut(ti, tj, Tile::unknown);
         }
         // Slots once every tile exists (creating one may grow the directory).
-        let mut jobs: Vec<TileJob<'_>> = Vec::with_capacity(touched.len());
+        let mut jobs: Vec<TileJob<'m>> = Vec::with_capacity(touched.len());
         for &t in &touched {
             let (ti, tj) = tile_of(t);
             let Some(slot) = self.dir.slot(ti, tj) else {
@@ -373,73 +418,73 @@ impl OccupancyGrid {
         for job in &mut jobs {
             job.tile = self.dir.tiles[job.slot].take();
         }
-        let f = self.fixed;
-        let watch = log.as_deref().map(|l| ChangeLog {
-            threshold: l.threshold,
-            changes: Vec::new(),
-        });
-        let apply = |job: &mut TileJob<'_>| {
-            let Some(tile) = job.tile.as_mut().map(Arc::make_mut) else {
-                return;
-            };
-            for b in 0..TILE_CELLS / 16 {
-                if job.parts.iter().all(|(_, flags)| flags[b] == 0) {
-                    continue;
-                }
-                // The block's marks (all scratches ORed, the masks left zeroed) and its
-                // cells: four runs of four in the tile's rows.
-                let mut m = [0u16; 16];
-                for (mask, _) in job.parts.iter_mut() {
-                    for (x, k) in m.iter_mut().zip(&mut mask[b * 16..b * 16 + 16]) {
-                        *x |= std::mem::take(k);
-                    }
-                }
-                let base = local_of(b * 16);
-                let mut cells = [0i16; 16];
-                for r in 0..4 {
-                    let row = base + r * TILE_SIZE;
-                    cells[4 * r..4 * r + 4].copy_from_slice(&tile.cells[row..row + 4]);
-                }
-                let old = cells;
-                apply_block_marks(&mut cells, &m, &f);
-                for r in 0..4 {
-                    let row = base + r * TILE_SIZE;
-                    tile.cells[row..row + 4].copy_from_slice(&cells[4 * r..4 * r + 4]);
-                }
-                if let Some(w) = &watch
-                    && old != cells
-                {
-                    for l in 0..16 {
-                        if w.matters(old[l], cells[l]) {
-                            let local = base + (l >> 2) * TILE_SIZE + (l & 3);
-                            job.changes.push(CellChange {
-                                cell: Cell::new(
-                                    job.origin.i + (local & (TILE_SIZE - 1)) as i32,
-                                    job.origin.j + (local >> TILE_SHIFT) as i32,
-                                ),
-                                old: old[l],
-                                new: cells[l],
-                            });
-                        }
-                    }
-                }
-                for (_, flags) in job.parts.iter_mut() {
-                    flags[b] = 0;
-                }
-            }
-        };
-        if parallel {
-            jobs.par_iter_mut().for_each(apply);
-        } else {
-            jobs.iter_mut().for_each(apply);
+        jobs
+    }
+}
+
+/// Applies a tile's marks block by block (all scratches ORed, the masks and flags left
+/// zeroed) with the fixed-point update `f`; with `watch`, logs the cells whose step
+/// [`ChangeLog::matters`].
+fn apply_tile_job(job: &mut TileJob<'_>, f: &FixedLogOdds, watch: Option<&ChangeLog>) {
+    let Some(tile) = job.tile.as_mut().map(Arc::make_mut) else {
+        return;
+    };
+    for b in 0..TILE_CELLS / 16 {
+        if job.parts.iter().all(|(_, flags)| flags[b] == 0) {
+            continue;
         }
-        for job in jobs {
-            self.dir.tiles[job.slot] = job.tile;
-            if let Some(log) = log.as_deref_mut() {
-                log.changes.extend_from_slice(&job.changes);
+        // The block's marks (all scratches ORed, the masks left zeroed) and its cells: four
+        // runs of four in the tile's rows.
+        let mut m = [0u16; 16];
+        for (mask, _) in job.parts.iter_mut() {
+            for (x, k) in m.iter_mut().zip(&mut mask[b * 16..b * 16 + 16]) {
+                *x |= std::mem::take(k);
             }
         }
-        Ok(())
+        let base = local_of(b * 16);
+        let mut cells = [0i16; 16];
+        for r in 0..4 {
+            let row = base + r * TILE_SIZE;
+            cells[4 * r..4 * r + 4].copy_from_slice(&tile.cells[row..row + 4]);
+        }
+        let old = cells;
+        apply_block_marks(&mut cells, &m, f);
+        for r in 0..4 {
+            let row = base + r * TILE_SIZE;
+            tile.cells[row..row + 4].copy_from_slice(&cells[4 * r..4 * r + 4]);
+        }
+        if let Some(w) = watch
+            && old != cells
+        {
+            log_block_changes(w, job.origin, &mut job.changes, base, (&old, &cells));
+        }
+        for (_, flags) in job.parts.iter_mut() {
+            flags[b] = 0;
+        }
+    }
+}
+
+/// Appends to `changes` the cells of the block at `base` of the tile at `origin` whose step
+/// from `old` to `new` [`ChangeLog::matters`] to `watch`.
+fn log_block_changes(
+    watch: &ChangeLog,
+    origin: Cell,
+    changes: &mut Vec<CellChange>,
+    base: usize,
+    (old, new): (&[i16; 16], &[i16; 16]),
+) {
+    for l in 0..16 {
+        if watch.matters(old[l], new[l]) {
+            let local = base + (l >> 2) * TILE_SIZE + (l & 3);
+            changes.push(CellChange {
+                cell: Cell::new(
+                    origin.i + (local & (TILE_SIZE - 1)) as i32,
+                    origin.j + (local >> TILE_SHIFT) as i32,
+                ),
+                old: old[l],
+                new: new[l],
+            });
+        }
     }
 }
 
