@@ -295,7 +295,29 @@ impl OccupancyGrid {
     /// one mask would), so each cell still gets one update per scan. The updates must come
     /// from this grid (or a clone with the same options) and be applied once, in scan order.
     pub fn apply_updates(&mut self, scans: &[&ScanUpdates]) {
-        // Create the tiles in the order sequential insertion would (the directory grows alike).
+        self.create_update_tiles(scans);
+        let entries = self.sorted_entries(scans);
+        let mut jobs = self.update_jobs(scans, &entries);
+        let plan = UpdatePlan {
+            scans,
+            entries: &entries,
+            scan_of: &scan_numbers(scans),
+            f: self.fixed,
+            model: self.height.as_ref().map(|l| l.model),
+        };
+        use rayon::prelude::*;
+        jobs.par_iter_mut().for_each(|job| plan.apply(job));
+        for job in jobs {
+            self.dir.tiles[job.slot] = job.tile;
+            if let (Some(h), Some(l)) = (job.hslot, self.height.as_mut()) {
+                l.dir.tiles[h] = job.htile;
+            }
+        }
+    }
+
+    /// Creates the tiles `scans` touch in the order sequential insertion would (the
+    /// directory grows alike).
+    fn create_update_tiles(&mut self, scans: &[&ScanUpdates]) {
         for su in scans {
             for &(ti, tj, _) in &su.tiles {
                 self.dir.get_mut(ti, tj, Tile::unknown);
@@ -306,7 +328,10 @@ impl OccupancyGrid {
                 }
             }
         }
-        // (directory slot, scan, tile group), sorted: each tile's groups in scan order.
+    }
+
+    /// (directory slot, scan, tile group), sorted: each tile's groups in scan order.
+    fn sorted_entries(&self, scans: &[&ScanUpdates]) -> Vec<(u32, u32, u32)> {
         let mut entries: Vec<(u32, u32, u32)> = Vec::new();
         for (s, su) in scans.iter().enumerate() {
             for (g, &(ti, tj, _)) in su.tiles.iter().enumerate() {
@@ -316,6 +341,12 @@ impl OccupancyGrid {
             }
         }
         entries.sort_unstable();
+        entries
+    }
+
+    /// One job per tile of `entries`, its tile (and bins, when a scan of it has heights)
+    /// taken out of the directory.
+    fn update_jobs(&mut self, scans: &[&ScanUpdates], entries: &[(u32, u32, u32)]) -> Vec<TileJob> {
         let mut jobs: Vec<TileJob> = Vec::new();
         let mut start = 0;
         while start < entries.len() {
@@ -345,118 +376,137 @@ impl OccupancyGrid {
             });
             start = end;
         }
-        let f = self.fixed;
-        let model = self.height.as_ref().map(|l| l.model);
-        // Pieces of one scan ([`Self::trace_updates_part`]) share the number of its first.
-        let mut scan_of: Vec<u32> = Vec::with_capacity(scans.len());
-        for (p, su) in scans.iter().enumerate() {
-            let first = match scan_of.last() {
-                Some(&prev) if su.continues => prev,
-                _ => p as u32,
+        jobs
+    }
+}
+
+/// Per piece, the number of its scan: pieces of one scan
+/// ([`OccupancyGrid::trace_updates_part`]) share the number of its first.
+fn scan_numbers(scans: &[&ScanUpdates]) -> Vec<u32> {
+    let mut scan_of: Vec<u32> = Vec::with_capacity(scans.len());
+    for (p, su) in scans.iter().enumerate() {
+        let first = match scan_of.last() {
+            Some(&prev) if su.continues => prev,
+            _ => p as u32,
+        };
+        scan_of.push(first);
+    }
+    scan_of
+}
+
+/// What every tile's job of [`OccupancyGrid::apply_updates`] reads.
+struct UpdatePlan<'a> {
+    scans: &'a [&'a ScanUpdates],
+    entries: &'a [(u32, u32, u32)],
+    scan_of: &'a [u32],
+    f: FixedLogOdds,
+    model: Option<BinLogOdds>,
+}
+
+impl UpdatePlan<'_> {
+    /// A piece's updates of one tile: the piece and its range of updates.
+    fn group(&self, &(_, p, g): &(u32, u32, u32)) -> (&ScanUpdates, std::ops::Range<usize>) {
+        let su = self.scans[p as usize];
+        let g = g as usize;
+        let from = if g == 0 {
+            0
+        } else {
+            su.tiles[g - 1].2 as usize
+        };
+        (su, from..su.tiles[g].2 as usize)
+    }
+
+    /// Applies the job's updates scan by scan.
+    fn apply(&self, job: &mut TileJob) {
+        let Some(tile) = job.tile.as_mut().map(Arc::make_mut) else {
+            return;
+        };
+        let mut htile = job.htile.as_mut().map(Arc::make_mut);
+        // Cells whose bins changed since their 2-D value was last projected: a cell's value
+        // is only read by a later 2-D update or at the end, so it is projected then (once
+        // per batch instead of once per scan; the same value). One byte per cell: flagging
+        // neighbours makes no chain of stores to one word.
+        let mut stale = [false; TILE_CELLS];
+        let job_entries = &self.entries[job.entries.clone()];
+        let mut e = 0;
+        while e < job_entries.len() {
+            // This tile's entries of one scan: one piece, or several to merge.
+            let scan = self.scan_of[job_entries[e].1 as usize];
+            let mut end = e + 1;
+            while end < job_entries.len() && self.scan_of[job_entries[end].1 as usize] == scan {
+                end += 1;
+            }
+            let mut run = TileRun {
+                tile: &mut *tile,
+                htile: htile.as_deref_mut(),
+                stale: &mut stale,
+                model: self.model,
+                heights: self.scans[job_entries[e].1 as usize].heights,
+                f: &self.f,
             };
-            scan_of.push(first);
+            if end == e + 1 {
+                self.apply_piece(&mut run, &job_entries[e]);
+            } else {
+                self.apply_merged(&mut run, &job_entries[e..end]);
+            }
+            e = end;
         }
-        let (entries, scan_of) = (&entries, &scan_of);
-        let apply = |job: &mut TileJob| {
-            let Some(tile) = job.tile.as_mut().map(Arc::make_mut) else {
-                return;
-            };
-            let mut htile = job.htile.as_mut().map(Arc::make_mut);
-            // Cells whose bins changed since their 2-D value was last projected: a cell's
-            // value is only read by a later 2-D update or at the end, so it is projected then
-            // (once per batch instead of once per scan; the same value).
-            // One byte per cell: flagging neighbours makes no chain of stores to one word.
-            let mut stale = [false; TILE_CELLS];
-            let job_entries = &entries[job.entries.clone()];
-            let group = |&(_, p, g): &(u32, u32, u32)| {
-                let su = scans[p as usize];
-                let g = g as usize;
-                let from = if g == 0 {
-                    0
-                } else {
-                    su.tiles[g - 1].2 as usize
-                };
-                (su, from..su.tiles[g].2 as usize)
-            };
-            let mut e = 0;
-            while e < job_entries.len() {
-                // This tile's entries of one scan: one piece, or several to merge.
-                let scan = scan_of[job_entries[e].1 as usize];
-                let mut end = e + 1;
-                while end < job_entries.len() && scan_of[job_entries[end].1 as usize] == scan {
-                    end += 1;
+        if let (Some(ht), Some(model)) = (&htile, self.model) {
+            for (local, _) in stale.iter().enumerate().filter(|s| *s.1) {
+                tile.cells[local] = project_column(&ht.bins[local], &model, self.f.occupied);
+            }
+        }
+    }
+
+    /// One piece, the scan's only one in this tile.
+    #[inline(always)]
+    fn apply_piece(&self, run: &mut TileRun<'_>, entry: &(u32, u32, u32)) {
+        let (su, range) = self.group(entry);
+        let updates = &su.updates[range.clone()];
+        if run.heights() {
+            run.apply_bins(updates, &su.bin_marks[range]);
+        } else {
+            run.apply(updates.iter().map(|&u| {
+                (
+                    usize::from(u) & (TILE_CELLS - 1),
+                    u32::from(u & UPDATE_OCCUPIED != 0),
+                )
+            }));
+        }
+    }
+
+    /// Several pieces of one scan: marks ORed per cell as one mask would (occupied wins,
+    /// bins united), then applied once per cell.
+    fn apply_merged(&self, run: &mut TileRun<'_>, entries: &[(u32, u32, u32)]) {
+        MERGE.with_borrow_mut(|m| {
+            let MergeScratch { acc, order } = m;
+            let mut n = 0;
+            let mut add = |local: usize, mark: u32| {
+                if acc[local] == 0 {
+                    order[n] = local as u16;
+                    n += 1;
                 }
-                let heights = scans[job_entries[e].1 as usize].heights;
-                let mut run = TileRun {
-                    tile: &mut *tile,
-                    htile: htile.as_deref_mut(),
-                    stale: &mut stale,
-                    model,
-                    heights,
-                    f: &f,
-                };
-                if end == e + 1 {
-                    let (su, range) = group(&job_entries[e]);
-                    let updates = &su.updates[range.clone()];
-                    if run.heights() {
-                        run.apply_bins(updates, &su.bin_marks[range]);
-                    } else {
-                        run.apply(updates.iter().map(|&u| {
-                            (
-                                usize::from(u) & (TILE_CELLS - 1),
-                                u32::from(u & UPDATE_OCCUPIED != 0),
-                            )
-                        }));
+                acc[local] |= mark;
+            };
+            for entry in entries {
+                let (su, range) = self.group(entry);
+                let updates = &su.updates[range.clone()];
+                if su.heights {
+                    for (&u, &m) in updates.iter().zip(&su.bin_marks[range]) {
+                        add(usize::from(u) & (TILE_CELLS - 1), m);
                     }
                 } else {
-                    // Marks ORed per cell as one mask would (occupied wins, bins united),
-                    // then applied once per cell.
-                    MERGE.with_borrow_mut(|m| {
-                        let MergeScratch { acc, order } = m;
-                        let mut n = 0;
-                        let mut add = |local: usize, mark: u32| {
-                            if acc[local] == 0 {
-                                order[n] = local as u16;
-                                n += 1;
-                            }
-                            acc[local] |= mark;
-                        };
-                        for entry in &job_entries[e..end] {
-                            let (su, range) = group(entry);
-                            let updates = &su.updates[range.clone()];
-                            if su.heights {
-                                for (&u, &m) in updates.iter().zip(&su.bin_marks[range]) {
-                                    add(usize::from(u) & (TILE_CELLS - 1), m);
-                                }
-                            } else {
-                                for &u in updates {
-                                    let occupied = u32::from(u & UPDATE_OCCUPIED != 0);
-                                    add(usize::from(u) & (TILE_CELLS - 1), 1 | occupied << 1);
-                                }
-                            }
-                        }
-                        let shift = if heights { 0 } else { 1 };
-                        run.apply(order[..n].iter().map(|&l| {
-                            let l = usize::from(l);
-                            (l, std::mem::take(&mut acc[l]) >> shift)
-                        }));
-                    });
-                }
-                e = end;
-            }
-            if let (Some(ht), Some(model)) = (&htile, model) {
-                for (local, _) in stale.iter().enumerate().filter(|s| *s.1) {
-                    tile.cells[local] = project_column(&ht.bins[local], &model, f.occupied);
+                    for &u in updates {
+                        let occupied = u32::from(u & UPDATE_OCCUPIED != 0);
+                        add(usize::from(u) & (TILE_CELLS - 1), 1 | occupied << 1);
+                    }
                 }
             }
-        };
-        use rayon::prelude::*;
-        jobs.par_iter_mut().for_each(apply);
-        for job in jobs {
-            self.dir.tiles[job.slot] = job.tile;
-            if let (Some(h), Some(l)) = (job.hslot, self.height.as_mut()) {
-                l.dir.tiles[h] = job.htile;
-            }
-        }
+            let shift = if run.heights { 0 } else { 1 };
+            run.apply(order[..n].iter().map(|&l| {
+                let l = usize::from(l);
+                (l, std::mem::take(&mut acc[l]) >> shift)
+            }));
+        });
     }
 }
