@@ -3,6 +3,14 @@
 //! pfslam estimates where a robot drove and draws the map it saw: a log-odds occupancy grid,
 //! its binary map and the ground colours seen by a stereo camera.
 //!
+//! ## Use it incrementally
+//!
+//! [`Slam`] takes odometry and scans as they arrive and reports the pose after each scan;
+//! [`Slam::finish`] runs the back end and returns the trajectory, the map and the
+//! self-check. The [`online`] module shows a whole run;
+//! `crates/pfslam/examples/incremental.rs` feeds a recording through it message by message.
+//! [`pipeline::run_pipeline`] does the same over a whole [`sensors::Recording`].
+//!
 //! ## The pipeline (data flows one way)
 //!
 //! ```text
@@ -41,6 +49,7 @@ pub mod io;
 pub mod localize;
 pub mod map;
 pub mod motion;
+pub mod online;
 pub mod pipeline;
 pub mod quality;
 pub mod sensors;
@@ -48,3 +57,6 @@ pub mod session;
 pub mod sim;
 pub mod stereo;
 pub mod viz;
+
+pub use config::Config;
+pub use online::{OnlineError, ScanInput, SensorSetup, Slam};

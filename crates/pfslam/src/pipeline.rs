@@ -138,8 +138,20 @@ pub fn run_pipeline(
         return run_pipeline(&with, config, seed, options, observer);
     }
     let t = Clock::start();
-    let mut result = run_slam(recording, config, seed, observer)?;
-    let (filter_s, filter_cpu_s) = t.elapsed();
+    let result = run_slam(recording, config, seed, observer)?;
+    after_filter(recording, config, options, result, t.elapsed())
+}
+
+/// The stages after the filter's `result` on `recording` (which took `filter_time`, wall
+/// and CPU seconds): the back end when `[graph] enabled`, guarded by the self-check, and
+/// the map rebuilt along its trajectory when `options.rebuild_map`.
+pub(crate) fn after_filter(
+    recording: &Recording,
+    config: &Config,
+    options: &PipelineOptions,
+    mut result: SlamResult,
+    (filter_s, filter_cpu_s): (f64, Option<f64>),
+) -> Result<PipelineResult, PipelineError> {
     let t = Clock::start();
     let front_end = result.trajectory.clone();
     let mut calibration = None;

@@ -315,8 +315,8 @@ fn run_synthetic(
         imu_yaw: None,
     };
     let grid = pfslam::map::OccupancyGrid::new(&config.map).unwrap();
-    let mut policy = BestParticleMap::new(grid);
-    run_slam_with(rec, &config, seed, &motion, &mut policy, &mut |_| {}).unwrap()
+    let policy = BestParticleMap::new(grid);
+    run_slam_with(rec, &config, seed, Box::new(motion), policy, &mut |_| {}).unwrap()
 }
 
 #[test]

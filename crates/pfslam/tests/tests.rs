@@ -9,6 +9,7 @@ mod graph;
 mod localize;
 mod map;
 mod motion;
+mod online;
 mod pipeline;
 mod rbpf;
 mod readers;

@@ -5,22 +5,20 @@ use crate::geometry::{StampedPose2, Trajectory};
 
 /// A cursor over an odometry trajectory that yields its steps up to successive stamps.
 #[derive(Debug, Clone)]
-pub struct OdometryCursor<'a> {
-    odometry: &'a Trajectory,
+pub struct OdometryCursor {
     /// Index of the next odometry pose not yet consumed.
     next: usize,
     /// The pose the next step starts from.
     last: StampedPose2,
 }
 
-impl<'a> OdometryCursor<'a> {
+impl OdometryCursor {
     /// A cursor positioned at `stamp_ns` (must lie inside the trajectory's span; `None`
     /// otherwise).
-    pub fn new(odometry: &'a Trajectory, stamp_ns: i64) -> Option<Self> {
+    pub fn new(odometry: &Trajectory, stamp_ns: i64) -> Option<Self> {
         let pose = odometry.pose_at(stamp_ns)?;
         let next = odometry.poses.partition_point(|p| p.stamp_ns <= stamp_ns);
         Some(OdometryCursor {
-            odometry,
             next,
             last: StampedPose2 { stamp_ns, pose },
         })
@@ -35,7 +33,12 @@ impl<'a> OdometryCursor<'a> {
     /// every recorded pose in `(current, stamp_ns]`, then the interpolated pose at
     /// `stamp_ns` when it is not itself recorded. Returns the odometry pose at `stamp_ns`, or
     /// `None` (cursor unchanged) when `stamp_ns` is before the cursor or after the trajectory.
-    pub fn advance_to<F>(&mut self, stamp_ns: i64, mut step: F) -> Option<StampedPose2>
+    pub fn advance_to<F>(
+        &mut self,
+        odometry: &Trajectory,
+        stamp_ns: i64,
+        mut step: F,
+    ) -> Option<StampedPose2>
     where
         F: FnMut(&StampedPose2, &StampedPose2),
     {
@@ -44,9 +47,9 @@ impl<'a> OdometryCursor<'a> {
         }
         let target = StampedPose2 {
             stamp_ns,
-            pose: self.odometry.pose_at(stamp_ns)?,
+            pose: odometry.pose_at(stamp_ns)?,
         };
-        let poses = &self.odometry.poses;
+        let poses = &odometry.poses;
         while self.next < poses.len() && poses[self.next].stamp_ns <= stamp_ns {
             let to = poses[self.next];
             if to.stamp_ns > self.last.stamp_ns {
@@ -85,18 +88,18 @@ mod tests {
         let mut c = OdometryCursor::new(&t, 5).unwrap();
         let mut steps = Vec::new();
         let p = c
-            .advance_to(27, |a, b| steps.push((a.stamp_ns, b.stamp_ns)))
+            .advance_to(&t, 27, |a, b| steps.push((a.stamp_ns, b.stamp_ns)))
             .unwrap();
         assert_eq!(steps, vec![(5, 10), (10, 20), (20, 27)]);
         assert!((p.pose.x_m - 2.7).abs() < 1e-12);
         steps.clear();
-        c.advance_to(30, |a, b| steps.push((a.stamp_ns, b.stamp_ns)));
+        c.advance_to(&t, 30, |a, b| steps.push((a.stamp_ns, b.stamp_ns)));
         assert_eq!(steps, vec![(27, 30)]);
         steps.clear();
-        c.advance_to(30, |a, b| steps.push((a.stamp_ns, b.stamp_ns)));
+        c.advance_to(&t, 30, |a, b| steps.push((a.stamp_ns, b.stamp_ns)));
         assert!(steps.is_empty());
-        assert!(c.advance_to(41, |_, _| {}).is_none());
-        assert!(c.advance_to(29, |_, _| {}).is_none());
+        assert!(c.advance_to(&t, 41, |_, _| {}).is_none());
+        assert!(c.advance_to(&t, 29, |_, _| {}).is_none());
         assert_eq!(c.current().stamp_ns, 30);
     }
 }

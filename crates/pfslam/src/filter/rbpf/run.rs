@@ -45,16 +45,14 @@ pub fn run_rbpf_in(
     let t_start = Instant::now();
     let (first, cursor) = crate::filter::slam::check_and_start(recording, config)?;
     let odom_start = cursor.current().pose;
-    let mut front = RbpfFrontEnd::new(recording, config, seed, prior, odom_start)?;
-    front.stats.scans_skipped = first;
+    let front = RbpfFrontEnd::new(recording, config, seed, prior, odom_start)?.skipped(first);
     crate::filter::slam::drive(recording, (first, cursor), front, t_start, observer)
 }
 
 /// The filter fed one scan at a time, with its odometry pose: what [`run_rbpf_in`] runs
 /// over a recording.
-pub struct RbpfFrontEnd<'r> {
-    recording: &'r Recording,
-    opts: &'r crate::filter::FilterOptions,
+pub struct RbpfFrontEnd {
+    opts: crate::filter::FilterOptions,
     pf: Rbpf,
     projector: ScanProjector,
     stats: SlamStats,
@@ -69,12 +67,12 @@ pub struct RbpfFrontEnd<'r> {
     have_first: bool,
 }
 
-impl<'r> RbpfFrontEnd<'r> {
+impl RbpfFrontEnd {
     /// The particles at the start (see [`run_rbpf_in`]), the first odometry pose
     /// `odom_start`.
     pub fn new(
-        recording: &'r Recording,
-        config: &'r Config,
+        recording: &Recording,
+        config: &Config,
         seed: u64,
         prior: Option<&PriorMap<'_>>,
         odom_start: Pose2,
@@ -108,8 +106,7 @@ impl<'r> RbpfFrontEnd<'r> {
             ..SlamStats::default()
         };
         Ok(RbpfFrontEnd {
-            recording,
-            opts,
+            opts: opts.clone(),
             pf: Rbpf::new(opts.particles, start, odom_start, grid, ro, seed),
             projector,
             stats,
@@ -126,11 +123,12 @@ impl<'r> RbpfFrontEnd<'r> {
     }
 }
 
-impl FrontEnd for RbpfFrontEnd<'_> {
+impl FrontEnd for RbpfFrontEnd {
     /// A filter update once the odometry moved far enough since the last one (the odometry
     /// steps between are not needed: the update composes the whole increment).
     fn step(
         &mut self,
+        recording: &Recording,
         i: usize,
         odom: StampedPose2,
         _steps: &[(StampedPose2, StampedPose2)],
@@ -145,7 +143,7 @@ impl FrontEnd for RbpfFrontEnd<'_> {
             || delta.translation_norm_m() >= ro.linear_update_m
             || delta.yaw_rad.abs() >= ro.angular_update_deg.to_radians();
         if due {
-            self.update(i, k, odom, &delta)?;
+            self.update(recording, i, k, odom, &delta)?;
             self.poses.clear();
             self.poses.extend(self.pf.particles.iter().map(|p| p.pose));
             observer(SlamEvent::Update {
@@ -155,7 +153,7 @@ impl FrontEnd for RbpfFrontEnd<'_> {
             });
         }
         self.stats.scans_processed += 1;
-        self.report(i + 1, observer);
+        self.report((i + 1, recording.scans.len()), observer);
         Ok(())
     }
 
@@ -163,20 +161,36 @@ impl FrontEnd for RbpfFrontEnd<'_> {
         self.stats.scans_skipped += 1;
     }
 
+    fn current_map(&mut self) -> Result<&OccupancyGrid, SlamError> {
+        Ok(&self.pf.particles[self.pf.best()].map)
+    }
+
+    /// The best particle's pose at its last update moved by the odometry since.
+    fn latest_pose(&self) -> Option<StampedPose2> {
+        let odom = self.dead_reckoning.last()?;
+        let best = &self.pf.particles[self.pf.best()];
+        Some(StampedPose2 {
+            stamp_ns: odom.stamp_ns,
+            pose: best
+                .pose
+                .compose(&self.last_update_odom.between(&odom.pose)),
+        })
+    }
+
     /// The best particle's whole path (each pose re-matched in its final map with
     /// `final_refine`), its map and the statistics.
-    fn finish(mut self, t_start: Instant) -> Result<SlamResult, SlamError> {
+    fn finish(mut self, recording: &Recording, t_start: Instant) -> Result<SlamResult, SlamError> {
         let ro = &self.opts.rbpf;
         self.stats.odometry_steps = self.dead_reckoning.len();
         self.stats.finish_means(self.neff_sum, self.ll_sum);
         let best = &self.pf.particles[self.pf.best()];
         let mut trajectory = path_poses(&best.node, &self.dead_reckoning);
-        if ro.final_refine && self.recording.body_from_lidar_per_scan.is_none() {
+        if ro.final_refine && recording.body_from_lidar_per_scan.is_none() {
             let t = Instant::now();
             refine_in_final_map(
                 &mut trajectory,
                 &self.scan_index,
-                self.recording,
+                recording,
                 &self.projector,
                 &best.map,
                 ro,
@@ -194,10 +208,17 @@ impl FrontEnd for RbpfFrontEnd<'_> {
     }
 }
 
-impl RbpfFrontEnd<'_> {
+impl RbpfFrontEnd {
+    /// The same, counting the `first` scans before the odometry's start as skipped.
+    pub(crate) fn skipped(mut self, first: usize) -> Self {
+        self.stats.scans_skipped = first;
+        self
+    }
+
     /// One filter update with scan `i`, the `k`-th scan handled.
     fn update(
         &mut self,
+        recording: &Recording,
         i: usize,
         k: usize,
         odom: StampedPose2,
@@ -206,9 +227,9 @@ impl RbpfFrontEnd<'_> {
         let ro = &self.opts.rbpf;
         let stats = &mut self.stats;
         let t = Instant::now();
-        self.projector.aim(self.recording, i);
+        self.projector.aim(recording, i);
         self.projector
-            .to_body(self.recording.scans.ranges(i), &mut self.body)?;
+            .to_body(recording.scans.ranges(i), &mut self.body)?;
         clip_scan(&mut self.body, ro.range_max_m);
         match_points(
             &self.body,
@@ -243,9 +264,8 @@ impl RbpfFrontEnd<'_> {
         Ok(())
     }
 
-    /// Progress after `done` scans of the recording, and a map snapshot when one is due.
-    fn report(&self, done: usize, observer: &mut dyn FnMut(SlamEvent<'_>)) {
-        let total = self.recording.scans.len();
+    /// Progress after `done` of the `total` scans, and a map snapshot when one is due.
+    fn report(&self, (done, total): (usize, usize), observer: &mut dyn FnMut(SlamEvent<'_>)) {
         let every = self.opts.snapshot_every_scans;
         if crate::filter::slam::report_progress(observer, done, total, &self.stats, every) {
             let best = &self.pf.particles[self.pf.best()];

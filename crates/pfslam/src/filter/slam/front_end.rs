@@ -6,11 +6,13 @@ use crate::filter::UpdateReport;
 
 /// A filter fed one scan at a time.
 pub trait FrontEnd {
-    /// Handles scan `i` of the recording at odometry pose `odom`, reached through the
+    /// Handles scan `i` of `recording` at odometry pose `odom`, reached through the
     /// odometry `steps` since the last scan; reports updates, progress and snapshots to
-    /// `observer`.
+    /// `observer`. Every call gets the same recording, which may have grown since the last
+    /// (live input).
     fn step(
         &mut self,
+        recording: &Recording,
         i: usize,
         odom: StampedPose2,
         steps: &[(StampedPose2, StampedPose2)],
@@ -20,8 +22,35 @@ pub trait FrontEnd {
     /// Counts a scan left out (no odometry at its stamp).
     fn skip(&mut self);
 
+    /// The pose of the latest scan handled, `None` before the first.
+    fn latest_pose(&self) -> Option<StampedPose2>;
+
+    /// The map of the best particle now (its pending insertions applied first).
+    fn current_map(&mut self) -> Result<&OccupancyGrid, SlamError>;
+
     /// The trajectory, odometry, map and statistics; `t_start` began the run.
-    fn finish(self, t_start: Instant) -> Result<SlamResult, SlamError>;
+    fn finish(self, recording: &Recording, t_start: Instant) -> Result<SlamResult, SlamError>;
+}
+
+/// Hands scan `i` of `recording` to `front`, with the odometry interpolated at its stamp by
+/// `cursor` and the odometry steps since the last scan (gathered in `steps`); a scan the
+/// odometry does not reach is counted as skipped. The batch loop ([`drive`]) and the
+/// incremental API ([`crate::Slam`]) both feed scans through here.
+pub(crate) fn feed_scan<F: FrontEnd + ?Sized>(
+    front: &mut F,
+    recording: &Recording,
+    i: usize,
+    (cursor, steps): (&mut OdometryCursor, &mut Vec<(StampedPose2, StampedPose2)>),
+    observer: &mut dyn FnMut(SlamEvent<'_>),
+) -> Result<(), SlamError> {
+    steps.clear();
+    let stamp_ns = recording.scans.stamps_ns[i];
+    let Some(odom) = cursor.advance_to(&recording.odometry, stamp_ns, |a, b| steps.push((*a, *b)))
+    else {
+        front.skip();
+        return Ok(());
+    };
+    front.step(recording, i, odom, steps, observer)
 }
 
 /// The one driver loop of every mode: each scan from `first` on, with the odometry
@@ -29,31 +58,30 @@ pub trait FrontEnd {
 /// handed to `front`.
 pub(crate) fn drive<F: FrontEnd>(
     recording: &Recording,
-    (first, mut cursor): (usize, OdometryCursor<'_>),
+    (first, mut cursor): (usize, OdometryCursor),
     mut front: F,
     t_start: Instant,
     observer: &mut dyn FnMut(SlamEvent<'_>),
 ) -> Result<SlamResult, SlamError> {
     let mut steps: Vec<(StampedPose2, StampedPose2)> = Vec::new();
     for i in first..recording.scans.len() {
-        steps.clear();
-        let stamp_ns = recording.scans.stamps_ns[i];
-        let Some(odom) = cursor.advance_to(stamp_ns, |a, b| steps.push((*a, *b))) else {
-            front.skip();
-            continue;
-        };
-        front.step(i, odom, &steps, observer)?;
+        feed_scan(
+            &mut front,
+            recording,
+            i,
+            (&mut cursor, &mut steps),
+            observer,
+        )?;
     }
-    front.finish(t_start)
+    front.finish(recording, t_start)
 }
 
 /// The state of a `scan_match` or `seed` run between scans.
-pub struct MatchFrontEnd<'r, P: MapPolicy> {
-    recording: &'r Recording,
-    config: &'r Config,
+pub struct MatchFrontEnd<P: MapPolicy> {
+    config: Config,
     mode: FilterMode,
-    motion: &'r dyn MotionModel,
-    policy: &'r mut P,
+    motion: Box<dyn MotionModel>,
+    policy: P,
     projector: ScanProjector,
     search: CorrelationSearch,
     pf: ParticleFilter,
@@ -76,14 +104,14 @@ pub struct MatchFrontEnd<'r, P: MapPolicy> {
     first: usize,
 }
 
-impl<'r, P: MapPolicy> MatchFrontEnd<'r, P> {
+impl<P: MapPolicy> MatchFrontEnd<P> {
     /// The particles at the odometry's pose `start` at scan `first`, the map `policy`'s.
     pub fn new(
-        recording: &'r Recording,
-        config: &'r Config,
+        recording: &Recording,
+        config: &Config,
         seed: u64,
-        motion: &'r dyn MotionModel,
-        policy: &'r mut P,
+        motion: Box<dyn MotionModel>,
+        mut policy: P,
         (start, first): (Pose2, usize),
     ) -> Result<Self, SlamError> {
         let opts = &config.filter;
@@ -114,8 +142,7 @@ impl<'r, P: MapPolicy> MatchFrontEnd<'r, P> {
             }
         };
         Ok(MatchFrontEnd {
-            recording,
-            config,
+            config: config.clone(),
             mode,
             motion,
             policy,
@@ -144,14 +171,15 @@ impl<'r, P: MapPolicy> MatchFrontEnd<'r, P> {
     /// A filter update with scan `i`, the `k`-th since the first; returns the estimate.
     fn update(
         &mut self,
+        recording: &Recording,
         i: usize,
         k: usize,
         odom: StampedPose2,
         observer: &mut dyn FnMut(SlamEvent<'_>),
     ) -> Result<Pose2, SlamError> {
         let t = Instant::now();
-        self.projector.aim(self.recording, i);
-        let ranges = self.recording.scans.ranges(i);
+        self.projector.aim(recording, i);
+        let ranges = recording.scans.ranges(i);
         self.projector.to_body(ranges, &mut self.body)?;
         super::super::correlate::hit_points(&self.body, &mut self.hits);
         self.stats.timings.preprocess_s += t.elapsed().as_secs_f64();
@@ -195,7 +223,7 @@ impl<'r, P: MapPolicy> MatchFrontEnd<'r, P> {
         let opts = &self.config.filter;
         let report = match self.mode {
             FilterMode::Seed => self.pf.reweight(
-                &*self.policy,
+                &self.policy,
                 &self.hits,
                 &self.search,
                 opts.temperature,
@@ -265,7 +293,12 @@ impl<'r, P: MapPolicy> MatchFrontEnd<'r, P> {
 
     /// The pose of scan `i` between updates: the last estimate moved by the odometry (the
     /// scan mapped there when `map_between_updates` or in `scan_match` mode).
-    fn between_updates(&mut self, i: usize, odom: StampedPose2) -> Result<Pose2, SlamError> {
+    fn between_updates(
+        &mut self,
+        recording: &Recording,
+        i: usize,
+        odom: StampedPose2,
+    ) -> Result<Pose2, SlamError> {
         let estimate = self
             .last_estimate
             .compose(&self.last_update_odom.between(&odom.pose));
@@ -273,8 +306,8 @@ impl<'r, P: MapPolicy> MatchFrontEnd<'r, P> {
             // Insert this scan at the composed pose: the map then reaches up to the
             // latest scan when the next update correlates against it.
             let t = Instant::now();
-            self.projector.aim(self.recording, i);
-            let ranges = self.recording.scans.ranges(i);
+            self.projector.aim(recording, i);
+            let ranges = recording.scans.ranges(i);
             self.projector.to_body(ranges, &mut self.body)?;
             self.stats.timings.preprocess_s += t.elapsed().as_secs_f64();
             let t = Instant::now();
@@ -284,13 +317,12 @@ impl<'r, P: MapPolicy> MatchFrontEnd<'r, P> {
         Ok(estimate)
     }
 
-    /// Progress after `done` scans of the recording, and a map snapshot when one is due.
+    /// Progress after `done` of the `total` scans, and a map snapshot when one is due.
     fn report(
         &mut self,
-        done: usize,
+        (done, total): (usize, usize),
         observer: &mut dyn FnMut(SlamEvent<'_>),
     ) -> Result<(), SlamError> {
-        let total = self.recording.scans.len();
         let every = self.config.filter.snapshot_every_scans;
         if report_progress(observer, done, total, &self.stats, every) {
             self.policy.flush()?;
@@ -304,11 +336,12 @@ impl<'r, P: MapPolicy> MatchFrontEnd<'r, P> {
     }
 }
 
-impl<P: MapPolicy> FrontEnd for MatchFrontEnd<'_, P> {
+impl<P: MapPolicy> FrontEnd for MatchFrontEnd<P> {
     /// The particles predicted along the odometry `steps`, then an update every
     /// `update_every_scans` scans, else the last estimate moved by the odometry.
     fn step(
         &mut self,
+        recording: &Recording,
         i: usize,
         odom: StampedPose2,
         steps: &[(StampedPose2, StampedPose2)],
@@ -318,7 +351,7 @@ impl<P: MapPolicy> FrontEnd for MatchFrontEnd<'_, P> {
         self.stats.odometry_steps += steps.len();
         if !steps.is_empty() {
             match self.mode {
-                FilterMode::Seed => self.pf.predict_steps(steps, self.motion),
+                FilterMode::Seed => self.pf.predict_steps(steps, self.motion.as_ref()),
                 // The scan match is the proposal: odometry without noise here, the spread
                 // comes from sampling around each match.
                 FilterMode::ScanMatch | FilterMode::Rbpf | FilterMode::Auto => {
@@ -329,9 +362,9 @@ impl<P: MapPolicy> FrontEnd for MatchFrontEnd<'_, P> {
         self.stats.timings.predict_s += t.elapsed().as_secs_f64();
         let k = i - self.first;
         let estimate = if k.is_multiple_of(self.config.filter.update_every_scans) {
-            self.update(i, k, odom, observer)?
+            self.update(recording, i, k, odom, observer)?
         } else {
-            self.between_updates(i, odom)?
+            self.between_updates(recording, i, odom)?
         };
         self.trajectory.push(StampedPose2 {
             stamp_ns: odom.stamp_ns,
@@ -339,14 +372,23 @@ impl<P: MapPolicy> FrontEnd for MatchFrontEnd<'_, P> {
         });
         self.dead_reckoning.push(odom);
         self.stats.scans_processed += 1;
-        self.report(i + 1, observer)
+        self.report((i + 1, recording.scans.len()), observer)
     }
 
     fn skip(&mut self) {
         self.stats.scans_skipped += 1;
     }
 
-    fn finish(mut self, t_start: Instant) -> Result<SlamResult, SlamError> {
+    fn latest_pose(&self) -> Option<StampedPose2> {
+        self.trajectory.last().copied()
+    }
+
+    fn current_map(&mut self) -> Result<&OccupancyGrid, SlamError> {
+        self.policy.flush()?;
+        Ok(self.policy.map_for_output(self.pf.particles.best_index()))
+    }
+
+    fn finish(mut self, _: &Recording, t_start: Instant) -> Result<SlamResult, SlamError> {
         let t = Instant::now();
         self.policy.flush()?;
         self.stats.timings.map_update_s += t.elapsed().as_secs_f64();

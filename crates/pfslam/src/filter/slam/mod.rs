@@ -23,8 +23,8 @@ mod front_end;
 mod maps;
 mod result;
 
-pub(crate) use front_end::drive;
 pub use front_end::{FrontEnd, MatchFrontEnd};
+pub(crate) use front_end::{drive, feed_scan};
 pub use maps::*;
 pub use result::*;
 
@@ -80,6 +80,88 @@ pub(crate) fn report_progress(
     snapshot_every_scans > 0 && stats.scans_processed.is_multiple_of(snapshot_every_scans)
 }
 
+/// The front end of the mode `config` runs on `recording` (`auto` resolved), its particles
+/// at the odometry's pose `start` at scan `first` (the scans before counted as skipped).
+pub enum AnyFrontEnd {
+    /// The `rbpf` mode.
+    Rbpf(Box<super::rbpf::RbpfFrontEnd>),
+    /// The `scan_match` and `seed` modes.
+    Match(Box<MatchFrontEnd<BestParticleMap>>),
+}
+
+impl AnyFrontEnd {
+    /// The front end `run_slam` runs (see the type).
+    pub fn new(
+        recording: &Recording,
+        config: &Config,
+        seed: u64,
+        (start, first): (Pose2, usize),
+    ) -> Result<Self, SlamError> {
+        let mode = config.filter.mode.resolve(recording);
+        if mode == FilterMode::Rbpf {
+            let front = super::rbpf::RbpfFrontEnd::new(recording, config, seed, None, start)?;
+            return Ok(AnyFrontEnd::Rbpf(Box::new(front.skipped(first))));
+        }
+        let motion = super::motion_model(config, recording)?;
+        // `scan_match` matches against a map without height bins
+        // (docs/decisions/0015-height-bins.md).
+        let grid = if mode == FilterMode::ScanMatch {
+            let mut map = config.map.clone();
+            map.height.enabled = false;
+            OccupancyGrid::new(&map)?
+        } else {
+            OccupancyGrid::new(&config.map)?
+        };
+        let policy = BestParticleMap::new(grid);
+        let front = MatchFrontEnd::new(recording, config, seed, motion, policy, (start, first))?;
+        Ok(AnyFrontEnd::Match(Box::new(front)))
+    }
+}
+
+impl FrontEnd for AnyFrontEnd {
+    fn step(
+        &mut self,
+        recording: &Recording,
+        i: usize,
+        odom: StampedPose2,
+        steps: &[(StampedPose2, StampedPose2)],
+        observer: &mut dyn FnMut(SlamEvent<'_>),
+    ) -> Result<(), SlamError> {
+        match self {
+            AnyFrontEnd::Rbpf(f) => f.step(recording, i, odom, steps, observer),
+            AnyFrontEnd::Match(f) => f.step(recording, i, odom, steps, observer),
+        }
+    }
+
+    fn skip(&mut self) {
+        match self {
+            AnyFrontEnd::Rbpf(f) => f.skip(),
+            AnyFrontEnd::Match(f) => f.skip(),
+        }
+    }
+
+    fn latest_pose(&self) -> Option<StampedPose2> {
+        match self {
+            AnyFrontEnd::Rbpf(f) => f.latest_pose(),
+            AnyFrontEnd::Match(f) => f.latest_pose(),
+        }
+    }
+
+    fn current_map(&mut self) -> Result<&OccupancyGrid, SlamError> {
+        match self {
+            AnyFrontEnd::Rbpf(f) => f.current_map(),
+            AnyFrontEnd::Match(f) => f.current_map(),
+        }
+    }
+
+    fn finish(self, recording: &Recording, t_start: Instant) -> Result<SlamResult, SlamError> {
+        match self {
+            AnyFrontEnd::Rbpf(f) => f.finish(recording, t_start),
+            AnyFrontEnd::Match(f) => f.finish(recording, t_start),
+        }
+    }
+}
+
 /// Runs the seeds' particle-filter SLAM on `recording` with `config` and random `seed`,
 /// reporting progress and snapshots to `observer`.
 pub fn run_slam(
@@ -88,29 +170,11 @@ pub fn run_slam(
     seed: u64,
     observer: &mut dyn FnMut(SlamEvent<'_>),
 ) -> Result<SlamResult, SlamError> {
-    let mode = config.filter.mode.resolve(recording);
-    if mode == FilterMode::Rbpf {
-        return super::rbpf::run_rbpf(recording, config, seed, observer);
-    }
-    let motion = super::motion_model(config, recording)?;
-    // `scan_match` matches against a map without height bins
-    // (docs/decisions/0015-height-bins.md).
-    let grid = if mode == FilterMode::ScanMatch {
-        let mut map = config.map.clone();
-        map.height.enabled = false;
-        OccupancyGrid::new(&map)?
-    } else {
-        OccupancyGrid::new(&config.map)?
-    };
-    let mut policy = BestParticleMap::new(grid);
-    run_slam_with(
-        recording,
-        config,
-        seed,
-        motion.as_ref(),
-        &mut policy,
-        observer,
-    )
+    let t_start = Instant::now();
+    let (first, cursor) = check_and_start(recording, config)?;
+    let start = (cursor.current().pose, first);
+    let front = AnyFrontEnd::new(recording, config, seed, start)?;
+    drive(recording, (first, cursor), front, t_start, observer)
 }
 
 /// [`run_slam`] with an explicit motion model and map policy.
@@ -118,8 +182,8 @@ pub fn run_slam_with<P: MapPolicy>(
     recording: &Recording,
     config: &Config,
     seed: u64,
-    motion: &dyn MotionModel,
-    policy: &mut P,
+    motion: Box<dyn MotionModel>,
+    policy: P,
     observer: &mut dyn FnMut(SlamEvent<'_>),
 ) -> Result<SlamResult, SlamError> {
     let t_start = Instant::now();
@@ -131,10 +195,10 @@ pub fn run_slam_with<P: MapPolicy>(
 
 /// Validates the options and the recording, and finds the first scan inside the odometry's
 /// time span: its index and an odometry cursor standing on it (shared by every mode's loop).
-pub(crate) fn check_and_start<'a>(
-    recording: &'a Recording,
+pub(crate) fn check_and_start(
+    recording: &Recording,
     config: &Config,
-) -> Result<(usize, OdometryCursor<'a>), SlamError> {
+) -> Result<(usize, OdometryCursor), SlamError> {
     config.filter.validate()?;
     config.map.validate().map_err(MapError::Options)?;
     let scans = &recording.scans;
