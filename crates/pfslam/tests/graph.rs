@@ -399,7 +399,7 @@ fn biased_loop() -> (
         duration_s: 140.0,
         ..SimOptions::default()
     };
-    opts.car.fog_yaw_bias_rad_per_s = 3e-4;
+    opts.car.errors.fog_yaw_bias_rad_per_s = 3e-4;
     opts.car.lidar_rate_hz = 50.0;
     let sim = simulate_car(&world, &opts).unwrap();
     let recording = sim
