@@ -82,7 +82,7 @@ fn run_on_a_short_simulated_drive() {
     assert!(report.contains(&format!("class=\"{status}\">{status}</span>")));
     assert!(report.contains("Accuracy against the ground truth"));
     assert!(report.contains("filter.snapshot_every_scans") && report.contains("filter.particles"));
-    assert!(!report.contains("filter.rbpf.sigma_m"));
+    assert!(!report.contains("filter.rbpf.likelihood.sigma_m"));
 }
 
 #[test]

@@ -28,8 +28,8 @@ fn bench(c: &mut Criterion) {
     let mut search = SearchParams::new(&o, 0.05);
     // The prior's smallest sigmas (as after a short step).
     search.prior = Some(MatchPrior {
-        inv_var_xy: 1.0 / (o.prior_min_xy_m * o.prior_min_xy_m),
-        inv_var_yaw: 1.0 / o.prior_min_yaw_deg.to_radians().powi(2),
+        inv_var_xy: 1.0 / (o.search.prior_min_xy_m * o.search.prior_min_xy_m),
+        inv_var_yaw: 1.0 / o.search.prior_min_yaw_deg.to_radians().powi(2),
     });
     let start = Pose2::new(truth.x_m + 0.04, truth.y_m - 0.03, truth.yaw_rad + 0.01);
     let mut g = c.benchmark_group("rbpf");

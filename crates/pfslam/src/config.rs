@@ -275,6 +275,37 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("loop_window_m"), "{err}");
+        // The filter's and the simulator's keys are refused outside their own tables too:
+        // a key of a part in the parent table, or in a sibling part.
+        for (text, key) in [
+            ("[filter.rbpf]\nsrr = 0.1", "srr"),
+            (
+                "[filter.rbpf]\nrefine_sigma_xy_m = 0.03",
+                "refine_sigma_xy_m",
+            ),
+            ("[filter.rbpf]\njitter_xy_m = 0.01", "jitter_xy_m"),
+            ("[filter.rbpf.search]\nsigma_m = 0.05", "sigma_m"),
+            ("[sim.car]\nwheel_slip_std = 0.0", "wheel_slip_std"),
+            (
+                "[sim.humanoid]\nhead_pitch_max_rad = 0.5",
+                "head_pitch_max_rad",
+            ),
+            (
+                "[sim.humanoid]\nimu_noise_std_rad = 0.0",
+                "imu_noise_std_rad",
+            ),
+        ] {
+            let err = toml::from_str::<Config>(text).unwrap_err().to_string();
+            assert!(err.contains(&format!("unknown field `{key}`")), "{err}");
+        }
+        // `final_refine` is a table: a boolean in its place is refused.
+        assert!(toml::from_str::<Config>("[filter.rbpf]\nfinal_refine = false").is_err());
+        let c: Config = toml::from_str(
+            "[filter.rbpf.final_refine]\nenabled = false\n[sim.car.errors]\nwheel_slip_std = 0.0",
+        )
+        .unwrap();
+        assert!(!c.filter.rbpf.final_refine.enabled);
+        assert_eq!(c.sim.car.errors.wheel_slip_std, 0.0);
     }
 
     /// A bad value in a nested back-end table is reported with its whole path.
@@ -292,6 +323,46 @@ mod tests {
             err.contains("graph.optimize.chi2 must be positive"),
             "{err}"
         );
+    }
+
+    /// A bad value in a nested table of the filter or the simulator is reported with its
+    /// whole path.
+    #[test]
+    fn nested_filter_and_sim_keys_are_checked_by_path() {
+        for (text, want) in [
+            (
+                "[filter.rbpf.search]\njitter_xy_m = -1.0",
+                "filter.rbpf.search.jitter_xy_m must be finite and >= 0",
+            ),
+            (
+                "[filter.rbpf.final_refine]\nsigma_yaw_deg = 0.0",
+                "filter.rbpf.final_refine.sigma_yaw_deg must be positive",
+            ),
+            (
+                "[filter.rbpf.likelihood]\nkernel_cells = 9",
+                "filter.rbpf.likelihood.kernel_cells must be at most 8",
+            ),
+            (
+                "[filter.rbpf.odometry_noise]\nstt = -0.1",
+                "filter.rbpf.odometry_noise.stt must be finite and >= 0",
+            ),
+            (
+                "[sim.car.errors]\nlidar_dropout_prob = 2.0",
+                "sim.car.errors.lidar_dropout_prob must be in [0, 1]",
+            ),
+            (
+                "[sim.humanoid.head]\npitch_period_s = 0.0",
+                "sim.humanoid.head.pitch_period_s must be positive",
+            ),
+            (
+                "[sim.humanoid.errors]\nstamp_jitter_std_ns = -1.0",
+                "sim.humanoid.errors.stamp_jitter_std_ns must be >= 0",
+            ),
+        ] {
+            let c: Config = toml::from_str(text).unwrap();
+            let err = c.validate().unwrap_err().to_string();
+            assert!(err.contains(want), "{text}: {err}");
+        }
     }
 
     /// A `Switch` reads its names and, for switches that were booleans, `true` / `false`;

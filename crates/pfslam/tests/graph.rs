@@ -399,7 +399,7 @@ fn biased_loop() -> (
         duration_s: 140.0,
         ..SimOptions::default()
     };
-    opts.car.fog_yaw_bias_rad_per_s = 3e-4;
+    opts.car.errors.fog_yaw_bias_rad_per_s = 3e-4;
     opts.car.lidar_rate_hz = 50.0;
     let sim = simulate_car(&world, &opts).unwrap();
     let recording = sim
@@ -538,7 +538,7 @@ fn simulated_car_local_loop_search() {
 }
 
 /// The humanoid (LiDAR on a moving head, odometry yaw from the legs, not a gyro): the back end
-/// adds no odometry-yaw edges there (`[graph.sequential] sequential.odometry_yaw_edges = "auto"`) and does not make
+/// adds no odometry-yaw edges there (`[graph.sequential] odometry_yaw_edges = "auto"`) and does not make
 /// the filter's trajectory worse. With those edges (tuned for the car's FOG) it pulled the
 /// default 180 s walk from 0.138 to 0.369 m ATE (`pfslam run`, seed 1); without them
 /// 0.130 m (seeds 2, 3: 0.143 -> 0.132, 0.133 -> 0.129 m). Here: 0.157 -> 0.147 m.

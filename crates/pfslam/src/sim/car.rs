@@ -95,7 +95,7 @@ pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, Si
         mut rng_drop,
         lidar_base,
     ] = jumped_streams(Xoshiro256PlusPlus::seed_from_u64(opts.seed));
-    let jitter = c.stamp_jitter_std_ns;
+    let jitter = c.errors.stamp_jitter_std_ns;
     let enc_times = sample_times(opts, c.encoder_rate_hz, 0.0, jitter, &mut rng_stamps);
     let fog_times = sample_times(opts, c.fog_rate_hz, 0.000_37, jitter, &mut rng_stamps);
     let lidar_times = sample_times(opts, c.lidar_rate_hz, 0.003_1, jitter, &mut rng_stamps);
@@ -109,8 +109,8 @@ pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, Si
     // Encoders: cumulative TRUE wheel rotation (m of tyre circumference), with slip.
     let e = &calib.encoder;
     let half_base = 0.5 * e.wheel_base_m;
-    let true_d_left = e.left_wheel_diameter_m * (1.0 + c.left_wheel_diameter_error);
-    let true_d_right = e.right_wheel_diameter_m * (1.0 + c.right_wheel_diameter_error);
+    let true_d_left = e.left_wheel_diameter_m * (1.0 + c.errors.left_wheel_diameter_error);
+    let true_d_right = e.right_wheel_diameter_m * (1.0 + c.errors.right_wheel_diameter_error);
     let ticks = f64::from(e.resolution_ticks);
     let mut encoder = Vec::with_capacity(enc_times.len());
     let (mut rot_l, mut rot_r) = (0.0f64, 0.0f64);
@@ -119,10 +119,10 @@ pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, Si
         let sv = motion.s_at(t);
         let dl = motion.path.offset_distance_m(sv, half_base);
         let dr = motion.path.offset_distance_m(sv, -half_base);
-        let (slip_l, slip_r) = if c.wheel_slip_std > 0.0 {
+        let (slip_l, slip_r) = if c.errors.wheel_slip_std > 0.0 {
             (
-                1.0 + c.wheel_slip_std * normal(&mut rng_enc),
-                1.0 + c.wheel_slip_std * normal(&mut rng_enc),
+                1.0 + c.errors.wheel_slip_std * normal(&mut rng_enc),
+                1.0 + c.errors.wheel_slip_std * normal(&mut rng_enc),
             )
         } else {
             (1.0, 1.0)
@@ -141,7 +141,7 @@ pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, Si
     // FOG: true yaw increments between consecutive true sampling times.
     let mut fog = Vec::with_capacity(fog_times.len());
     let fog_dt = 1.0 / c.fog_rate_hz;
-    let noise_row = c.fog_noise_rad_per_sqrt_s * fog_dt.sqrt();
+    let noise_row = c.errors.fog_noise_rad_per_sqrt_s * fog_dt.sqrt();
     let mut prev_yaw = motion
         .pose_at(fog_times.first().map_or(0.0, |f| f.0) - fog_dt)
         .1;
@@ -160,7 +160,7 @@ pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, Si
             stamp_ns,
             delta_roll_rad: nr,
             delta_pitch_rad: np,
-            delta_yaw_rad: yaw - prev_yaw + c.fog_yaw_bias_rad_per_s * fog_dt + ny,
+            delta_yaw_rad: yaw - prev_yaw + c.errors.fog_yaw_bias_rad_per_s * fog_dt + ny,
         });
         prev_yaw = yaw;
     }
@@ -169,9 +169,9 @@ pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, Si
     let geom = calib.lidar;
     let beams = beam_directions(&geom);
     let errors = BeamErrors {
-        range_noise_std_m: c.lidar_range_noise_std_m,
-        dropout_prob: c.lidar_dropout_prob,
-        max_range_prob: c.lidar_max_range_prob,
+        range_noise_std_m: c.errors.lidar_range_noise_std_m,
+        dropout_prob: c.errors.lidar_dropout_prob,
+        max_range_prob: c.errors.lidar_max_range_prob,
     };
     let caster = RayCaster::new(world, 4.0, 100.0);
     let nb = geom.beam_count;
@@ -201,7 +201,7 @@ pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, Si
     lidar.stamps_ns.reserve(lidar_times.len());
     lidar.ranges_m.reserve(ranges.len());
     let dropped = |rng: &mut Xoshiro256PlusPlus| {
-        c.drop_row_prob > 0.0 && rng.random::<f64>() < c.drop_row_prob
+        c.errors.drop_row_prob > 0.0 && rng.random::<f64>() < c.errors.drop_row_prob
     };
     for (i, &(t, stamp_ns)) in lidar_times.iter().enumerate() {
         if dropped(&mut rng_drop) {

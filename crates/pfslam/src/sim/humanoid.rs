@@ -72,12 +72,12 @@ impl HumanoidSimOutput {
 }
 
 /// Neck yaw and head pitch (rad) at time `t_s`.
-fn joints_at(h: &super::HumanoidSimOptions, t_s: f64) -> (f64, f64) {
-    let yaw = h.neck_yaw_amplitude_rad * (2.0 * PI * t_s / h.neck_yaw_period_s).sin();
-    let f = 0.5 - 0.5 * (2.0 * PI * t_s / h.head_pitch_period_s).cos();
+fn joints_at(head: &super::HumanoidSimHead, t_s: f64) -> (f64, f64) {
+    let yaw = head.neck_yaw_amplitude_rad * (2.0 * PI * t_s / head.neck_yaw_period_s).sin();
+    let f = 0.5 - 0.5 * (2.0 * PI * t_s / head.pitch_period_s).cos();
     (
         yaw,
-        h.head_pitch_min_rad + f * (h.head_pitch_max_rad - h.head_pitch_min_rad),
+        head.pitch_min_rad + f * (head.pitch_max_rad - head.pitch_min_rad),
     )
 }
 
@@ -109,7 +109,7 @@ pub fn simulate_humanoid(world: &World, opts: &SimOptions) -> Result<HumanoidSim
     )?;
     let [mut rng_stamps, mut rng_odo, mut rng_imu, lidar_base] =
         jumped_streams(Xoshiro256PlusPlus::seed_from_u64(opts.seed));
-    let jitter = h.stamp_jitter_std_ns;
+    let jitter = h.errors.stamp_jitter_std_ns;
     let odo_times = sample_times(opts, h.odometry_rate_hz, 0.0, jitter, &mut rng_stamps);
     let imu_times = sample_times(opts, h.odometry_rate_hz, 0.002, jitter, &mut rng_stamps);
     let joint_times = sample_times(opts, h.odometry_rate_hz, 0.004, jitter, &mut rng_stamps);
@@ -124,8 +124,8 @@ pub fn simulate_humanoid(world: &World, opts: &SimOptions) -> Result<HumanoidSim
         let p = motion.pose_at(t).0;
         let d = prev_true.between(&p);
         prev_true = p;
-        let (nx, ny, nth) = if h.odometry_noise_std > 0.0 {
-            let sd = h.odometry_noise_std;
+        let (nx, ny, nth) = if h.errors.odometry_noise_std > 0.0 {
+            let sd = h.errors.odometry_noise_std;
             (
                 sd * normal(&mut rng_odo),
                 sd * normal(&mut rng_odo),
@@ -134,11 +134,11 @@ pub fn simulate_humanoid(world: &World, opts: &SimOptions) -> Result<HumanoidSim
         } else {
             (0.0, 0.0, 0.0)
         };
-        let k = 1.0 + h.odometry_scale_error;
+        let k = 1.0 + h.errors.odometry_scale_error;
         let noisy = Pose2::new(
             d.x_m * k + nx,
             d.y_m * k + ny,
-            d.yaw_rad + h.odometry_yaw_drift_rad_per_s * dt + nth,
+            d.yaw_rad + h.errors.odometry_yaw_drift_rad_per_s * dt + nth,
         );
         odo = odo.compose(&noisy);
         odometry.push(StampedPose2 {
@@ -151,8 +151,8 @@ pub fn simulate_humanoid(world: &World, opts: &SimOptions) -> Result<HumanoidSim
         .iter()
         .map(|&(t, stamp_ns)| {
             let (roll, pitch) = sway_at(h, t);
-            let yaw = motion.pose_at(t).1 + h.imu_yaw_drift_rad_per_s * (t - t0);
-            let sd = h.imu_noise_std_rad;
+            let yaw = motion.pose_at(t).1 + h.errors.imu_yaw_drift_rad_per_s * (t - t0);
+            let sd = h.errors.imu_noise_std_rad;
             let mut n = || {
                 if sd > 0.0 {
                     sd * normal(&mut rng_imu)
@@ -171,8 +171,8 @@ pub fn simulate_humanoid(world: &World, opts: &SimOptions) -> Result<HumanoidSim
     let joints: Vec<JointSample> = joint_times
         .iter()
         .map(|&(t, stamp_ns)| {
-            let (yaw, pitch) = joints_at(h, t);
-            let sd = h.joint_noise_std_rad;
+            let (yaw, pitch) = joints_at(&h.head, t);
+            let sd = h.errors.joint_noise_std_rad;
             let mut n = || {
                 if sd > 0.0 {
                     sd * normal(&mut rng_imu)
@@ -199,8 +199,8 @@ pub fn simulate_humanoid(world: &World, opts: &SimOptions) -> Result<HumanoidSim
     let block_rngs = jumped_stream_vec(lidar_base, n_blocks);
     let beams = beam_directions(&geom);
     let errors = BeamErrors {
-        range_noise_std_m: h.lidar_range_noise_std_m,
-        dropout_prob: h.lidar_dropout_prob,
+        range_noise_std_m: h.errors.lidar_range_noise_std_m,
+        dropout_prob: h.errors.lidar_dropout_prob,
         max_range_prob: 0.0,
     };
     ranges
@@ -213,7 +213,7 @@ pub fn simulate_humanoid(world: &World, opts: &SimOptions) -> Result<HumanoidSim
                 let t = lidar_times[bi * SCAN_BLOCK + k].0;
                 let pose = motion.pose_at(t).0;
                 let (roll, pitch) = sway_at(h, t);
-                let (ny, np) = joints_at(h, t);
+                let (ny, np) = joints_at(&h.head, t);
                 let world_from_body =
                     Rigid3::from_rpy(roll, pitch, pose.yaw_rad, [pose.x_m, pose.y_m, 0.0]);
                 let wl = world_from_body.compose(&cal.body_from_lidar(ny, np));

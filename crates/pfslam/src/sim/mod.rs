@@ -7,7 +7,7 @@
 //! - [`RayCaster`]: 3-D ray casting against the world and the ground plane.
 //! - [`simulate_car`] / [`write_car_sim`]: the seed car with its real calibration
 //!   ([`crate::sensors::CarCalibration::ucsd`]): encoders, FOG, the tilted LiDAR, and the
-//!   configurable errors of [`CarSimOptions`], and optionally the stereo camera's raw pairs
+//!   configurable errors of [`CarSimErrors`], and optionally the stereo camera's raw pairs
 //!   (`stereo_rate_hz`, rendered by [`crate::stereo::render::WorldScene`]).
 //! - [`TrueMap`]: the world rasterised by the rule documented in [`truth`].
 //!
@@ -139,16 +139,16 @@ impl SimOptions {
     pub fn validate(&self) -> Result<(), SimError> {
         let bad = |m: &str| Err(SimError::BadOption(m.to_string()));
         if self.seed > i64::MAX as u64 {
-            return bad("seed must be <= 9223372036854775807");
+            return bad("sim.seed must be <= 9223372036854775807");
         }
         if !(self.duration_s > 0.0 && self.duration_s <= 86_400.0) {
-            return bad("duration_s must be in (0, 86400]");
+            return bad("sim.duration_s must be in (0, 86400]");
         }
         if !(self.truth_map_resolution_m >= 0.01 && self.truth_map_resolution_m <= 10.0) {
-            return bad("truth_map_resolution_m must be in [0.01, 10]");
+            return bad("sim.truth_map_resolution_m must be in [0.01, 10]");
         }
         if self.truth_band_max_m.is_nan() || self.truth_band_max_m < self.truth_band_min_m {
-            return bad("truth_band_max_m must be >= truth_band_min_m");
+            return bad("sim.truth_band_max_m must be >= sim.truth_band_min_m");
         }
         self.scan_truth.validate()?;
         self.car.validate()?;
@@ -156,8 +156,7 @@ impl SimOptions {
     }
 }
 
-/// The car's motion and its errors (`[sim.car]`). Every error is zero in
-/// [`CarSimOptions::noise_free`].
+/// The car's motion and sensor rates (`[sim.car]`); its errors are `[sim.car.errors]`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct CarSimOptions {
@@ -179,6 +178,26 @@ pub struct CarSimOptions {
     pub max_lateral_accel_mps2: f64,
     /// Corner radius of the rounded route (m).
     pub corner_radius_m: f64,
+    /// Stereo pair rate (Hz; 0 = no stereo images). Pairs are ray-cast renderings of the
+    /// world (textured ground, coloured obstacles) through the real rig
+    /// ([`crate::sensors::StereoCalibration::ucsd`]: 1280x560, distortion, extrinsic), written
+    /// as raw 8-bit Bayer BG PNGs in `stereo_images/stereo_{left,right}/<stamp_ns>.png`. The
+    /// real camera runs at ~10 Hz, but one pair costs ~1 s of rendering on 2 busy cores
+    /// (~0.6 s more to match it later), hence off by default.
+    pub stereo_rate_hz: f64,
+    /// Rays per pixel along each image axis (1 = one ray per pixel). 2 costs 4x (~3.6 s a
+    /// pair) and anti-aliases the fine ground grain, which the matcher rewards: on a 24 s
+    /// drive, texture coverage 87 % -> 96 % and mean colour error 3.2 -> 2.8 (0-255).
+    pub stereo_supersample: usize,
+    /// The car's sensor and wheel errors.
+    pub errors: CarSimErrors,
+}
+
+/// The car's sensor and wheel errors (`[sim.car.errors]`). All zero in
+/// [`CarSimErrors::none`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct CarSimErrors {
     /// True left wheel diameter = calibrated * (1 + this): tyre pressure, wear.
     pub left_wheel_diameter_error: f64,
     /// True right wheel diameter = calibrated * (1 + this).
@@ -203,17 +222,6 @@ pub struct CarSimOptions {
     /// Probability that a row of any stream is missing (a dropped FOG row loses its
     /// increments, as on a real logger).
     pub drop_row_prob: f64,
-    /// Stereo pair rate (Hz; 0 = no stereo images). Pairs are ray-cast renderings of the
-    /// world (textured ground, coloured obstacles) through the real rig
-    /// ([`crate::sensors::StereoCalibration::ucsd`]: 1280x560, distortion, extrinsic), written
-    /// as raw 8-bit Bayer BG PNGs in `stereo_images/stereo_{left,right}/<stamp_ns>.png`. The
-    /// real camera runs at ~10 Hz, but one pair costs ~1 s of rendering on 2 busy cores
-    /// (~0.6 s more to match it later), hence off by default.
-    pub stereo_rate_hz: f64,
-    /// Rays per pixel along each image axis (1 = one ray per pixel). 2 costs 4x (~3.6 s a
-    /// pair) and anti-aliases the fine ground grain, which the matcher rewards: on a 24 s
-    /// drive, texture coverage 87 % -> 96 % and mean colour error 3.2 -> 2.8 (0-255).
-    pub stereo_supersample: usize,
 }
 
 impl Default for CarSimOptions {
@@ -228,6 +236,16 @@ impl Default for CarSimOptions {
             max_decel_mps2: 2.0,
             max_lateral_accel_mps2: 2.0,
             corner_radius_m: 9.0,
+            stereo_rate_hz: 0.0,
+            stereo_supersample: 1,
+            errors: CarSimErrors::default(),
+        }
+    }
+}
+
+impl Default for CarSimErrors {
+    fn default() -> Self {
+        CarSimErrors {
             left_wheel_diameter_error: 0.004,
             right_wheel_diameter_error: 0.002,
             wheel_slip_std: 0.01,
@@ -238,18 +256,16 @@ impl Default for CarSimOptions {
             lidar_max_range_prob: 0.001,
             stamp_jitter_std_ns: 100_000.0,
             drop_row_prob: 1e-4,
-            stereo_rate_hz: 0.0,
-            stereo_supersample: 1,
         }
     }
 }
 
-impl CarSimOptions {
-    /// The default motion with every error off: true wheels = calibrated, no slip, perfect
-    /// FOG, exact ranges, exact stamps, no dropped rows. (Encoder counts are still integers:
-    /// quantisation is part of the format; counts are cumulative, so it never accumulates.)
-    pub fn noise_free() -> Self {
-        CarSimOptions {
+impl CarSimErrors {
+    /// No error: true wheels = calibrated, no slip, perfect FOG, exact ranges, exact stamps,
+    /// no dropped rows. (Encoder counts are still integers: quantisation is part of the
+    /// format; counts are cumulative, so it never accumulates.)
+    pub fn none() -> Self {
+        CarSimErrors {
             left_wheel_diameter_error: 0.0,
             right_wheel_diameter_error: 0.0,
             wheel_slip_std: 0.0,
@@ -260,81 +276,104 @@ impl CarSimOptions {
             lidar_max_range_prob: 0.0,
             stamp_jitter_std_ns: 0.0,
             drop_row_prob: 0.0,
-            ..CarSimOptions::default()
         }
     }
 
     fn validate(&self) -> Result<(), SimError> {
-        let positive = [
-            ("encoder_rate_hz", self.encoder_rate_hz),
-            ("fog_rate_hz", self.fog_rate_hz),
-            ("lidar_rate_hz", self.lidar_rate_hz),
-            ("cruise_speed_mps", self.cruise_speed_mps),
-            ("max_accel_mps2", self.max_accel_mps2),
-            ("max_decel_mps2", self.max_decel_mps2),
-            ("max_lateral_accel_mps2", self.max_lateral_accel_mps2),
-            ("corner_radius_m", self.corner_radius_m),
-        ];
-        for (name, v) in positive {
-            if !(v > 0.0 && v.is_finite()) {
-                return Err(SimError::BadOption(format!("car.{name} must be positive")));
-            }
-        }
-        let non_negative = [
-            ("initial_standstill_s", self.initial_standstill_s),
-            ("wheel_slip_std", self.wheel_slip_std),
-            ("fog_noise_rad_per_sqrt_s", self.fog_noise_rad_per_sqrt_s),
-            ("lidar_range_noise_std_m", self.lidar_range_noise_std_m),
-            ("stamp_jitter_std_ns", self.stamp_jitter_std_ns),
-        ];
-        for (name, v) in non_negative {
-            if !(v >= 0.0 && v.is_finite()) {
-                return Err(SimError::BadOption(format!("car.{name} must be >= 0")));
-            }
-        }
-        for (name, v) in [
-            ("lidar_dropout_prob", self.lidar_dropout_prob),
-            ("lidar_max_range_prob", self.lidar_max_range_prob),
-            ("drop_row_prob", self.drop_row_prob),
-        ] {
-            if !(0.0..=1.0).contains(&v) {
-                return Err(SimError::BadOption(format!("car.{name} must be in [0, 1]")));
-            }
-        }
-        for (name, v) in [
-            ("left_wheel_diameter_error", self.left_wheel_diameter_error),
-            (
-                "right_wheel_diameter_error",
-                self.right_wheel_diameter_error,
-            ),
-        ] {
-            if v.is_nan() || v.abs() >= 0.5 {
-                return Err(SimError::BadOption(format!(
-                    "car.{name} must be in (-0.5, 0.5)"
-                )));
-            }
-        }
-        if !(self.stereo_rate_hz >= 0.0 && self.stereo_rate_hz <= 100.0) {
-            return Err(SimError::BadOption(
-                "car.stereo_rate_hz must be in [0, 100] (0 = no stereo images)".into(),
-            ));
-        }
-        if !(1..=4).contains(&self.stereo_supersample) {
-            return Err(SimError::BadOption(
-                "car.stereo_supersample must be in [1, 4]".into(),
-            ));
-        }
+        check_all(
+            &[
+                ("car.errors.wheel_slip_std", self.wheel_slip_std),
+                (
+                    "car.errors.fog_noise_rad_per_sqrt_s",
+                    self.fog_noise_rad_per_sqrt_s,
+                ),
+                (
+                    "car.errors.lidar_range_noise_std_m",
+                    self.lidar_range_noise_std_m,
+                ),
+                ("car.errors.stamp_jitter_std_ns", self.stamp_jitter_std_ns),
+            ],
+            |v| v >= 0.0 && v.is_finite(),
+            "must be >= 0",
+        )?;
+        check_all(
+            &[
+                ("car.errors.lidar_dropout_prob", self.lidar_dropout_prob),
+                ("car.errors.lidar_max_range_prob", self.lidar_max_range_prob),
+                ("car.errors.drop_row_prob", self.drop_row_prob),
+            ],
+            |v| (0.0..=1.0).contains(&v),
+            "must be in [0, 1]",
+        )?;
+        check_all(
+            &[
+                (
+                    "car.errors.left_wheel_diameter_error",
+                    self.left_wheel_diameter_error,
+                ),
+                (
+                    "car.errors.right_wheel_diameter_error",
+                    self.right_wheel_diameter_error,
+                ),
+            ],
+            |v| v.abs() < 0.5,
+            "must be in (-0.5, 0.5)",
+        )?;
         if !self.fog_yaw_bias_rad_per_s.is_finite() {
             return Err(SimError::BadOption(
-                "car.fog_yaw_bias_rad_per_s must be finite".into(),
+                "sim.car.errors.fog_yaw_bias_rad_per_s must be finite".into(),
             ));
         }
         Ok(())
     }
 }
 
-/// The humanoid's walk, head motion and errors (`[sim.humanoid]`). Every error is zero in
-/// [`HumanoidSimOptions::noise_free`].
+impl CarSimOptions {
+    /// The default motion with every error off ([`CarSimErrors::none`]).
+    pub fn noise_free() -> Self {
+        CarSimOptions {
+            errors: CarSimErrors::none(),
+            ..CarSimOptions::default()
+        }
+    }
+
+    fn validate(&self) -> Result<(), SimError> {
+        check_all(
+            &[
+                ("car.encoder_rate_hz", self.encoder_rate_hz),
+                ("car.fog_rate_hz", self.fog_rate_hz),
+                ("car.lidar_rate_hz", self.lidar_rate_hz),
+                ("car.cruise_speed_mps", self.cruise_speed_mps),
+                ("car.max_accel_mps2", self.max_accel_mps2),
+                ("car.max_decel_mps2", self.max_decel_mps2),
+                ("car.max_lateral_accel_mps2", self.max_lateral_accel_mps2),
+                ("car.corner_radius_m", self.corner_radius_m),
+            ],
+            |v| v > 0.0 && v.is_finite(),
+            "must be positive",
+        )?;
+        check_all(
+            &[("car.initial_standstill_s", self.initial_standstill_s)],
+            |v| v >= 0.0 && v.is_finite(),
+            "must be >= 0",
+        )?;
+        self.errors.validate()?;
+        if !(self.stereo_rate_hz >= 0.0 && self.stereo_rate_hz <= 100.0) {
+            return Err(SimError::BadOption(
+                "sim.car.stereo_rate_hz must be in [0, 100] (0 = no stereo images)".into(),
+            ));
+        }
+        if !(1..=4).contains(&self.stereo_supersample) {
+            return Err(SimError::BadOption(
+                "sim.car.stereo_supersample must be in [1, 4]".into(),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The humanoid's walk (`[sim.humanoid]`); its head motion is `[sim.humanoid.head]`, its
+/// errors `[sim.humanoid.errors]`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct HumanoidSimOptions {
@@ -350,20 +389,42 @@ pub struct HumanoidSimOptions {
     pub max_lateral_accel_mps2: f64,
     /// Corner radius of the rounded route (m).
     pub corner_radius_m: f64,
+    /// Gait sway amplitude in roll and pitch of the body (rad).
+    pub sway_amplitude_rad: f64,
+    /// Step frequency (Hz) of the sway.
+    pub step_frequency_hz: f64,
+    /// Lower end of the height band of the humanoid's true map (m).
+    pub truth_band_min_m: f64,
+    /// Upper end of that band (m).
+    pub truth_band_max_m: f64,
+    /// The head's motion on the neck, which carries the LiDAR.
+    pub head: HumanoidSimHead,
+    /// The humanoid's sensor errors.
+    pub errors: HumanoidSimErrors,
+}
+
+/// The head's motion (`[sim.humanoid.head]`): the neck turns it left and right and tilts it
+/// down and up, both sinusoidally.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct HumanoidSimHead {
     /// Neck yaw amplitude (rad): the head looks left and right sinusoidally.
     pub neck_yaw_amplitude_rad: f64,
     /// Neck yaw period (s).
     pub neck_yaw_period_s: f64,
     /// Head pitch varies sinusoidally between this (rad, positive = down) ...
-    pub head_pitch_min_rad: f64,
+    pub pitch_min_rad: f64,
     /// ... and this (rad): far enough down that some beams hit the floor.
-    pub head_pitch_max_rad: f64,
+    pub pitch_max_rad: f64,
     /// Head pitch period (s).
-    pub head_pitch_period_s: f64,
-    /// Gait sway amplitude in roll and pitch of the body (rad).
-    pub sway_amplitude_rad: f64,
-    /// Step frequency (Hz) of the sway.
-    pub step_frequency_hz: f64,
+    pub pitch_period_s: f64,
+}
+
+/// The humanoid's sensor errors (`[sim.humanoid.errors]`). All zero in
+/// [`HumanoidSimErrors::none`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct HumanoidSimErrors {
     /// Odometry distance scale error (odometry = true * (1 + this)).
     pub odometry_scale_error: f64,
     /// Odometry heading drift (rad/s).
@@ -382,10 +443,6 @@ pub struct HumanoidSimOptions {
     pub lidar_dropout_prob: f64,
     /// Timestamp jitter (ns, standard deviation, clipped to +-40 % of the period).
     pub stamp_jitter_std_ns: f64,
-    /// Lower end of the height band of the humanoid's true map (m).
-    pub truth_band_min_m: f64,
-    /// Upper end of that band (m).
-    pub truth_band_max_m: f64,
 }
 
 impl Default for HumanoidSimOptions {
@@ -397,13 +454,31 @@ impl Default for HumanoidSimOptions {
             max_accel_mps2: 0.3,
             max_lateral_accel_mps2: 0.25,
             corner_radius_m: 0.6,
-            neck_yaw_amplitude_rad: 0.5,
-            neck_yaw_period_s: 9.0,
-            head_pitch_min_rad: 0.0,
-            head_pitch_max_rad: 0.5,
-            head_pitch_period_s: 7.0,
             sway_amplitude_rad: 0.02,
             step_frequency_hz: 0.9,
+            truth_band_min_m: 0.2,
+            truth_band_max_m: 2.0,
+            head: HumanoidSimHead::default(),
+            errors: HumanoidSimErrors::default(),
+        }
+    }
+}
+
+impl Default for HumanoidSimHead {
+    fn default() -> Self {
+        HumanoidSimHead {
+            neck_yaw_amplitude_rad: 0.5,
+            neck_yaw_period_s: 9.0,
+            pitch_min_rad: 0.0,
+            pitch_max_rad: 0.5,
+            pitch_period_s: 7.0,
+        }
+    }
+}
+
+impl Default for HumanoidSimErrors {
+    fn default() -> Self {
+        HumanoidSimErrors {
             odometry_scale_error: 0.03,
             odometry_yaw_drift_rad_per_s: 0.003,
             odometry_noise_std: 0.001,
@@ -413,17 +488,14 @@ impl Default for HumanoidSimOptions {
             lidar_range_noise_std_m: 0.01,
             lidar_dropout_prob: 0.002,
             stamp_jitter_std_ns: 200_000.0,
-            truth_band_min_m: 0.2,
-            truth_band_max_m: 2.0,
         }
     }
 }
 
-impl HumanoidSimOptions {
-    /// The default walk and head motion with every error off (the gait sway stays: it is
-    /// motion, measured exactly by the IMU).
-    pub fn noise_free() -> Self {
-        HumanoidSimOptions {
+impl HumanoidSimErrors {
+    /// No error: exact odometry, IMU, joints, ranges and stamps.
+    pub fn none() -> Self {
+        HumanoidSimErrors {
             odometry_scale_error: 0.0,
             odometry_yaw_drift_rad_per_s: 0.0,
             odometry_noise_std: 0.0,
@@ -433,50 +505,92 @@ impl HumanoidSimOptions {
             lidar_range_noise_std_m: 0.0,
             lidar_dropout_prob: 0.0,
             stamp_jitter_std_ns: 0.0,
+        }
+    }
+
+    fn validate(&self) -> Result<(), SimError> {
+        check_all(
+            &[
+                (
+                    "humanoid.errors.odometry_noise_std",
+                    self.odometry_noise_std,
+                ),
+                ("humanoid.errors.imu_noise_std_rad", self.imu_noise_std_rad),
+                (
+                    "humanoid.errors.joint_noise_std_rad",
+                    self.joint_noise_std_rad,
+                ),
+                (
+                    "humanoid.errors.lidar_range_noise_std_m",
+                    self.lidar_range_noise_std_m,
+                ),
+                (
+                    "humanoid.errors.stamp_jitter_std_ns",
+                    self.stamp_jitter_std_ns,
+                ),
+            ],
+            |v| v >= 0.0 && v.is_finite(),
+            "must be >= 0",
+        )?;
+        check_all(
+            &[(
+                "humanoid.errors.lidar_dropout_prob",
+                self.lidar_dropout_prob,
+            )],
+            |v| (0.0..=1.0).contains(&v),
+            "must be in [0, 1]",
+        )
+    }
+}
+
+impl HumanoidSimOptions {
+    /// The default walk and head motion with every error off ([`HumanoidSimErrors::none`];
+    /// the gait sway stays: it is motion, measured exactly by the IMU).
+    pub fn noise_free() -> Self {
+        HumanoidSimOptions {
+            errors: HumanoidSimErrors::none(),
             ..HumanoidSimOptions::default()
         }
     }
 
     fn validate(&self) -> Result<(), SimError> {
-        for (name, v) in [
-            ("odometry_rate_hz", self.odometry_rate_hz),
-            ("lidar_rate_hz", self.lidar_rate_hz),
-            ("walk_speed_mps", self.walk_speed_mps),
-            ("max_accel_mps2", self.max_accel_mps2),
-            ("max_lateral_accel_mps2", self.max_lateral_accel_mps2),
-            ("corner_radius_m", self.corner_radius_m),
-            ("neck_yaw_period_s", self.neck_yaw_period_s),
-            ("head_pitch_period_s", self.head_pitch_period_s),
-            ("step_frequency_hz", self.step_frequency_hz),
-        ] {
-            if !(v > 0.0 && v.is_finite()) {
-                return Err(SimError::BadOption(format!(
-                    "humanoid.{name} must be positive"
-                )));
-            }
-        }
-        for (name, v) in [
-            ("odometry_noise_std", self.odometry_noise_std),
-            ("imu_noise_std_rad", self.imu_noise_std_rad),
-            ("joint_noise_std_rad", self.joint_noise_std_rad),
-            ("lidar_range_noise_std_m", self.lidar_range_noise_std_m),
-            ("stamp_jitter_std_ns", self.stamp_jitter_std_ns),
-        ] {
-            if !(v >= 0.0 && v.is_finite()) {
-                return Err(SimError::BadOption(format!("humanoid.{name} must be >= 0")));
-            }
-        }
-        if !(0.0..=1.0).contains(&self.lidar_dropout_prob) {
-            return Err(SimError::BadOption(
-                "humanoid.lidar_dropout_prob must be in [0, 1]".into(),
-            ));
-        }
+        check_all(
+            &[
+                ("humanoid.odometry_rate_hz", self.odometry_rate_hz),
+                ("humanoid.lidar_rate_hz", self.lidar_rate_hz),
+                ("humanoid.walk_speed_mps", self.walk_speed_mps),
+                ("humanoid.max_accel_mps2", self.max_accel_mps2),
+                (
+                    "humanoid.max_lateral_accel_mps2",
+                    self.max_lateral_accel_mps2,
+                ),
+                ("humanoid.corner_radius_m", self.corner_radius_m),
+                (
+                    "humanoid.head.neck_yaw_period_s",
+                    self.head.neck_yaw_period_s,
+                ),
+                ("humanoid.head.pitch_period_s", self.head.pitch_period_s),
+                ("humanoid.step_frequency_hz", self.step_frequency_hz),
+            ],
+            |v| v > 0.0 && v.is_finite(),
+            "must be positive",
+        )?;
+        self.errors.validate()?;
         if self.truth_band_max_m.is_nan() || self.truth_band_max_m < self.truth_band_min_m {
             return Err(SimError::BadOption(
-                "humanoid.truth_band_max_m must be >= truth_band_min_m".into(),
+                "sim.humanoid.truth_band_max_m must be >= sim.humanoid.truth_band_min_m".into(),
             ));
         }
         Ok(())
+    }
+}
+
+/// The first of `keyed` (names under `sim.`) whose value fails `ok`, as an error saying it
+/// `must`.
+fn check_all(keyed: &[(&str, f64)], ok: impl Fn(f64) -> bool, must: &str) -> Result<(), SimError> {
+    match keyed.iter().find(|(_, v)| !ok(*v)) {
+        Some((k, _)) => Err(SimError::BadOption(format!("sim.{k} {must}"))),
+        None => Ok(()),
     }
 }
 
@@ -586,7 +700,7 @@ mod tests {
         assert_eq!(c.sim, o);
         assert!(toml::from_str::<crate::config::Config>("[sim]\nbogus = 1\n").is_err());
         let mut bad = SimOptions::default();
-        bad.car.lidar_dropout_prob = 2.0;
+        bad.car.errors.lidar_dropout_prob = 2.0;
         assert!(bad.validate().is_err());
         assert!(SimOptions::default().validate().is_ok());
     }

@@ -110,17 +110,17 @@ impl ScanTruthOptions {
     pub fn validate(&self) -> Result<(), SimError> {
         if self.pose_step == 0 {
             return Err(SimError::BadOption(
-                "scan_truth.pose_step must be >= 1".into(),
+                "sim.scan_truth.pose_step must be >= 1".into(),
             ));
         }
         if !(0.01..=10.0).contains(&self.angle_step_deg) {
             return Err(SimError::BadOption(
-                "scan_truth.angle_step_deg must be in [0.01, 10]".into(),
+                "sim.scan_truth.angle_step_deg must be in [0.01, 10]".into(),
             ));
         }
         if !(self.range_max_m > 0.0 && self.range_max_m.is_finite() && self.range_max_m <= 1000.0) {
             return Err(SimError::BadOption(
-                "scan_truth.range_max_m must be in (0, 1000]".into(),
+                "sim.scan_truth.range_max_m must be in (0, 1000]".into(),
             ));
         }
         Ok(())

@@ -26,6 +26,7 @@ pub struct SearchParams {
 impl SearchParams {
     /// From the options, for maps of `resolution_m`.
     pub fn new(o: &RbpfOptions, resolution_m: f64) -> Self {
+        let o = &o.search;
         let steps = (o.coarse_yaw_deg / o.coarse_yaw_step_deg).floor() as i32;
         let mut yaw_offsets_rad = vec![0.0];
         for k in 1..=steps {

@@ -1,4 +1,5 @@
-//! The options of the Rao-Blackwellised filter (`[filter.rbpf]`).
+//! The options of the Rao-Blackwellised filter (`[filter.rbpf]` and its tables
+//! `odometry_noise`, `likelihood`, `search`, `final_refine`).
 
 use super::*;
 use serde::{Deserialize, Serialize};
@@ -15,14 +16,6 @@ pub struct RbpfOptions {
     pub linear_update_m: f64,
     /// ... or turned this much (deg; GMapping: 0.5 rad).
     pub angular_update_deg: f64,
-    /// Odometry noise: translation sigma per metre travelled (GMapping `srr`).
-    pub srr: f64,
-    /// Translation sigma per radian turned (m/rad; GMapping `str`).
-    pub str_m_per_rad: f64,
-    /// Rotation sigma per metre travelled (rad/m; GMapping `srt`).
-    pub srt_rad_per_m: f64,
-    /// Rotation sigma per radian turned (GMapping `stt`).
-    pub stt: f64,
     /// Use every k-th return for matching and weighting (1 = all; mapping uses all).
     pub beam_decimation: usize,
     /// Returns farther than this are neither matched nor mapped (m; GMapping `maxUrange`).
@@ -33,6 +26,41 @@ pub struct RbpfOptions {
     /// Keep `[map.scan]`'s densification of walls (joining returns); off matches and maps
     /// the real beams only.
     pub densify: bool,
+    /// Divisor of the match log-likelihood in the log-weight update (GMapping: `ogain` times
+    /// the particle count).
+    pub weight_temperature: f64,
+    /// Resample when Neff < this fraction of the particle count.
+    pub resample_threshold: f64,
+    /// The motion model's noise, GMapping's four parameters.
+    pub odometry_noise: RbpfOdometryNoise,
+    /// The observation model the particles are matched and weighted with.
+    pub likelihood: RbpfLikelihood,
+    /// Each particle's scan match at an update, and the sample drawn around it.
+    pub search: RbpfSearch,
+    /// The re-match of every output pose in the final map.
+    pub final_refine: RbpfFinalRefine,
+}
+
+/// Odometry noise of the motion model (`[filter.rbpf.odometry_noise]`): the sigmas of an
+/// update's increment grow with the distance travelled and the angle turned.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RbpfOdometryNoise {
+    /// Translation sigma per metre travelled (GMapping `srr`).
+    pub srr: f64,
+    /// Translation sigma per radian turned (m/rad; GMapping `str`).
+    pub str_m_per_rad: f64,
+    /// Rotation sigma per metre travelled (rad/m; GMapping `srt`).
+    pub srt_rad_per_m: f64,
+    /// Rotation sigma per radian turned (GMapping `stt`).
+    pub stt: f64,
+}
+
+/// The observation model (`[filter.rbpf.likelihood]`): how a scan scores in a particle's
+/// map.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RbpfLikelihood {
     /// Standard deviation of the observation model: a point at distance d from the nearest
     /// occupied cell centre scores `-d^2 / (2 sigma^2)` (m).
     pub sigma_m: f64,
@@ -42,6 +70,14 @@ pub struct RbpfOptions {
     pub no_hit_log_likelihood: f64,
     /// A cell counts as occupied for matching above this log-odds (0 = p > 0.5, one hit).
     pub occupied_logodds: f64,
+}
+
+/// The proposal (`[filter.rbpf.search]`): each particle's scan match in its own map (a
+/// coarse search, then a hill climb, under a prior from the motion model) and the sample
+/// drawn around the match.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RbpfSearch {
     /// Half-width of the coarse yaw search around each particle's sampled pose (deg).
     pub coarse_yaw_deg: f64,
     /// Step of the coarse yaw search (deg).
@@ -54,29 +90,17 @@ pub struct RbpfOptions {
     pub step_yaw_deg: f64,
     /// Step halvings of the hill climb (GMapping `iterations`).
     pub refine_levels: u32,
-    /// Divisor of the match log-likelihood in the log-weight update (GMapping: `ogain` times
-    /// the particle count).
-    pub weight_temperature: f64,
-    /// Resample when Neff < this fraction of the particle count.
-    pub resample_threshold: f64,
     /// The matcher's prior on the deviation from each particle's predicted pose (the sample,
-    /// with `match_from_prediction = false`): a Gaussian with the motion model's sigmas for
-    /// this update times this factor (0 = no prior, the match may go anywhere the search
-    /// reaches). Keeps matches from sliding along corridors.
+    /// with `search.match_from_prediction = false`): a Gaussian with the motion model's
+    /// sigmas (`odometry_noise`) for this update times this factor (0 = no prior, the match
+    /// may go anywhere the search reaches). Keeps matches from sliding along corridors.
     pub prior_scale: f64,
     /// Smallest x/y sigma of that prior (m).
     pub prior_min_xy_m: f64,
     /// Smallest yaw sigma of that prior (deg).
     pub prior_min_yaw_deg: f64,
-    /// After the run, re-match every output pose against the final best particle's map
-    /// (hill climb from the path's pose): corrects the odometry composed between updates.
-    pub final_refine: bool,
-    /// x/y sigma of that re-match's prior around the path's pose (m).
-    pub refine_sigma_xy_m: f64,
-    /// Yaw sigma of that re-match's prior (deg).
-    pub refine_sigma_yaw_deg: f64,
     /// The proposal. `true`: each particle is matched from its noise-free prediction (the
-    /// prior centred there) and then sampled around its match (`jitter_*`). `false`
+    /// prior centred there) and then sampled around its match (`search.jitter_*`). `false`
     /// (GMapping's order): the motion noise is sampled first and the match starts from the
     /// sample, the prior centred on it; with noise sized for poor odometry the samples land
     /// in other basins of the likelihood and good odometry is made worse. See
@@ -88,38 +112,73 @@ pub struct RbpfOptions {
     pub jitter_yaw_deg: f64,
 }
 
+/// The re-match of the output poses (`[filter.rbpf.final_refine]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RbpfFinalRefine {
+    /// After the run, re-match every output pose against the final best particle's map
+    /// (hill climb from the path's pose): corrects the odometry composed between updates.
+    pub enabled: bool,
+    /// x/y sigma of that re-match's prior around the path's pose (m).
+    pub sigma_xy_m: f64,
+    /// Yaw sigma of that re-match's prior (deg).
+    pub sigma_yaw_deg: f64,
+}
+
 impl Default for RbpfOptions {
     fn default() -> Self {
         RbpfOptions {
             resolution_m: 0.05,
             linear_update_m: 0.3,
             angular_update_deg: 15.0,
-            srr: 0.1,
-            str_m_per_rad: 0.1,
-            srt_rad_per_m: 0.2,
-            stt: 0.2,
             beam_decimation: 2,
             range_max_m: 30.0,
             range_min_m: 0.1,
             densify: false,
+            weight_temperature: 30.0,
+            resample_threshold: 0.5,
+            odometry_noise: RbpfOdometryNoise::default(),
+            likelihood: RbpfLikelihood::default(),
+            search: RbpfSearch::default(),
+            final_refine: RbpfFinalRefine::default(),
+        }
+    }
+}
+
+impl Default for RbpfOdometryNoise {
+    fn default() -> Self {
+        RbpfOdometryNoise {
+            srr: 0.1,
+            str_m_per_rad: 0.1,
+            srt_rad_per_m: 0.2,
+            stt: 0.2,
+        }
+    }
+}
+
+impl Default for RbpfLikelihood {
+    fn default() -> Self {
+        RbpfLikelihood {
             sigma_m: 0.05,
             kernel_cells: 1,
             no_hit_log_likelihood: -2.0,
             occupied_logodds: 0.0,
+        }
+    }
+}
+
+impl Default for RbpfSearch {
+    fn default() -> Self {
+        RbpfSearch {
             coarse_yaw_deg: 3.0,
             coarse_yaw_step_deg: 1.0,
             coarse_xy_cells: 0,
             step_xy_m: 0.05,
             step_yaw_deg: 2.865,
             refine_levels: 4,
-            weight_temperature: 30.0,
-            resample_threshold: 0.5,
             prior_scale: 1.0,
             prior_min_xy_m: 0.02,
             prior_min_yaw_deg: 1.0,
-            final_refine: true,
-            refine_sigma_xy_m: 0.03,
-            refine_sigma_yaw_deg: 3.0,
             match_from_prediction: true,
             jitter_xy_m: 0.01,
             jitter_yaw_deg: 0.25,
@@ -127,11 +186,27 @@ impl Default for RbpfOptions {
     }
 }
 
+impl Default for RbpfFinalRefine {
+    fn default() -> Self {
+        RbpfFinalRefine {
+            enabled: true,
+            sigma_xy_m: 0.03,
+            sigma_yaw_deg: 3.0,
+        }
+    }
+}
+
 impl RbpfOptions {
-    /// Checks ranges; the message names the bad key.
+    /// Checks ranges; the message names the bad key by its path under `filter.rbpf.`.
     pub fn validate(&self) -> Result<(), String> {
         let pos = |v: f64| v.is_finite() && v > 0.0;
         let nonneg = |v: f64| v.is_finite() && v >= 0.0;
+        let (noise, lik, search, fin) = (
+            &self.odometry_noise,
+            &self.likelihood,
+            &self.search,
+            &self.final_refine,
+        );
         if !(nonneg(self.resolution_m) && self.resolution_m <= 10.0) {
             return Err("filter.rbpf.resolution_m must lie in [0, 10]".into());
         }
@@ -139,16 +214,16 @@ impl RbpfOptions {
             ("range_min_m", self.range_min_m),
             ("linear_update_m", self.linear_update_m),
             ("angular_update_deg", self.angular_update_deg),
-            ("srr", self.srr),
-            ("str_m_per_rad", self.str_m_per_rad),
-            ("srt_rad_per_m", self.srt_rad_per_m),
-            ("stt", self.stt),
-            ("coarse_yaw_deg", self.coarse_yaw_deg),
-            ("step_xy_m", self.step_xy_m),
-            ("step_yaw_deg", self.step_yaw_deg),
-            ("prior_scale", self.prior_scale),
-            ("jitter_xy_m", self.jitter_xy_m),
-            ("jitter_yaw_deg", self.jitter_yaw_deg),
+            ("odometry_noise.srr", noise.srr),
+            ("odometry_noise.str_m_per_rad", noise.str_m_per_rad),
+            ("odometry_noise.srt_rad_per_m", noise.srt_rad_per_m),
+            ("odometry_noise.stt", noise.stt),
+            ("search.coarse_yaw_deg", search.coarse_yaw_deg),
+            ("search.step_xy_m", search.step_xy_m),
+            ("search.step_yaw_deg", search.step_yaw_deg),
+            ("search.prior_scale", search.prior_scale),
+            ("search.jitter_xy_m", search.jitter_xy_m),
+            ("search.jitter_yaw_deg", search.jitter_yaw_deg),
         ] {
             if !nonneg(v) {
                 return Err(format!("filter.rbpf.{k} must be finite and >= 0"));
@@ -156,13 +231,13 @@ impl RbpfOptions {
         }
         for (k, v) in [
             ("range_max_m", self.range_max_m),
-            ("sigma_m", self.sigma_m),
-            ("coarse_yaw_step_deg", self.coarse_yaw_step_deg),
+            ("likelihood.sigma_m", lik.sigma_m),
+            ("search.coarse_yaw_step_deg", search.coarse_yaw_step_deg),
             ("weight_temperature", self.weight_temperature),
-            ("prior_min_xy_m", self.prior_min_xy_m),
-            ("prior_min_yaw_deg", self.prior_min_yaw_deg),
-            ("refine_sigma_xy_m", self.refine_sigma_xy_m),
-            ("refine_sigma_yaw_deg", self.refine_sigma_yaw_deg),
+            ("search.prior_min_xy_m", search.prior_min_xy_m),
+            ("search.prior_min_yaw_deg", search.prior_min_yaw_deg),
+            ("final_refine.sigma_xy_m", fin.sigma_xy_m),
+            ("final_refine.sigma_yaw_deg", fin.sigma_yaw_deg),
         ] {
             if !pos(v) {
                 return Err(format!("filter.rbpf.{k} must be positive and finite"));
@@ -171,23 +246,29 @@ impl RbpfOptions {
         if self.beam_decimation == 0 {
             return Err("filter.rbpf.beam_decimation must be at least 1".into());
         }
-        if self.kernel_cells > 8 {
-            return Err("filter.rbpf.kernel_cells must be at most 8".into());
+        if lik.kernel_cells > 8 {
+            return Err("filter.rbpf.likelihood.kernel_cells must be at most 8".into());
         }
-        if self.coarse_xy_cells > 16 {
-            return Err("filter.rbpf.coarse_xy_cells must be at most 16".into());
+        if search.coarse_xy_cells > 16 {
+            return Err("filter.rbpf.search.coarse_xy_cells must be at most 16".into());
         }
-        if self.coarse_yaw_deg > 45.0 || self.coarse_yaw_deg / self.coarse_yaw_step_deg > 200.0 {
-            return Err("filter.rbpf.coarse_yaw_deg must be at most 45 and 200 steps".into());
+        if search.coarse_yaw_deg > 45.0
+            || search.coarse_yaw_deg / search.coarse_yaw_step_deg > 200.0
+        {
+            return Err(
+                "filter.rbpf.search.coarse_yaw_deg must be at most 45 and 200 steps".into(),
+            );
         }
-        if self.refine_levels > 12 {
-            return Err("filter.rbpf.refine_levels must be at most 12".into());
+        if search.refine_levels > 12 {
+            return Err("filter.rbpf.search.refine_levels must be at most 12".into());
         }
-        if !(self.no_hit_log_likelihood.is_finite() && self.no_hit_log_likelihood <= 0.0) {
-            return Err("filter.rbpf.no_hit_log_likelihood must be finite and <= 0".into());
+        if !(lik.no_hit_log_likelihood.is_finite() && lik.no_hit_log_likelihood <= 0.0) {
+            return Err(
+                "filter.rbpf.likelihood.no_hit_log_likelihood must be finite and <= 0".into(),
+            );
         }
-        if !(self.occupied_logodds.is_finite() && self.occupied_logodds.abs() <= 100.0) {
-            return Err("filter.rbpf.occupied_logodds must lie in [-100, 100]".into());
+        if !(lik.occupied_logodds.is_finite() && lik.occupied_logodds.abs() <= 100.0) {
+            return Err("filter.rbpf.likelihood.occupied_logodds must lie in [-100, 100]".into());
         }
         if !(0.0..=1.0).contains(&self.resample_threshold) {
             return Err("filter.rbpf.resample_threshold must lie in [0, 1]".into());
@@ -197,16 +278,18 @@ impl RbpfOptions {
 
     /// The observation model these options describe, for maps of `resolution_m`.
     pub fn observation(&self, resolution_m: f64) -> ObservationModel {
+        let lik = &self.likelihood;
         ObservationModel {
-            kernel: self.kernel_cells as i32,
-            occupied_fixed: (self.occupied_logodds * 256.0).round() as i16,
-            res2_over_2s2: resolution_m * resolution_m / (2.0 * self.sigma_m * self.sigma_m),
-            no_hit: self.no_hit_log_likelihood,
+            kernel: lik.kernel_cells as i32,
+            occupied_fixed: (lik.occupied_logodds * 256.0).round() as i16,
+            res2_over_2s2: resolution_m * resolution_m / (2.0 * lik.sigma_m * lik.sigma_m),
+            no_hit: lik.no_hit_log_likelihood,
         }
     }
 
     /// Odometry noise sigmas `[srr, str, srt, stt]`.
     pub(super) fn noise(&self) -> [f64; 4] {
-        [self.srr, self.str_m_per_rad, self.srt_rad_per_m, self.stt]
+        let n = &self.odometry_noise;
+        [n.srr, n.str_m_per_rad, n.srt_rad_per_m, n.stt]
     }
 }

@@ -206,7 +206,7 @@ impl Rbpf {
             map_only: first,
         } = *input;
         let noise = self.options.noise();
-        let o = &self.options;
+        let o = &self.options.search;
         self.search.prior = (o.prior_scale > 0.0).then(|| {
             let [srr, str_, srt, stt] = noise;
             let (d, a) = (delta.translation_norm_m(), delta.yaw_rad.abs());

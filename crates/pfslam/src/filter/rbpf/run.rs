@@ -178,14 +178,14 @@ impl FrontEnd for RbpfFrontEnd {
     }
 
     /// The best particle's whole path (each pose re-matched in its final map with
-    /// `final_refine`), its map and the statistics.
+    /// `final_refine.enabled`), its map and the statistics.
     fn finish(mut self, recording: &Recording, t_start: Instant) -> Result<SlamResult, SlamError> {
         let ro = &self.opts.rbpf;
         self.stats.odometry_steps = self.dead_reckoning.len();
         self.stats.finish_means(self.neff_sum, self.ll_sum);
         let best = &self.pf.particles[self.pf.best()];
         let mut trajectory = path_poses(&best.node, &self.dead_reckoning);
-        if ro.final_refine && recording.body_from_lidar_per_scan.is_none() {
+        if ro.final_refine.enabled && recording.body_from_lidar_per_scan.is_none() {
             let t = Instant::now();
             refine_in_final_map(
                 &mut trajectory,
@@ -322,11 +322,11 @@ fn refine_in_final_map(
     let mut search = SearchParams::new(ro, res);
     search.yaw_offsets_rad = vec![0.0];
     search.xy_cells = 0;
-    search.step_xy_m = 0.5 * ro.step_xy_m;
-    search.step_yaw_rad = 0.5 * ro.step_yaw_deg.to_radians();
+    search.step_xy_m = 0.5 * ro.search.step_xy_m;
+    search.step_yaw_rad = 0.5 * ro.search.step_yaw_deg.to_radians();
     search.prior = Some(MatchPrior {
-        inv_var_xy: 1.0 / ro.refine_sigma_xy_m.powi(2),
-        inv_var_yaw: 1.0 / ro.refine_sigma_yaw_deg.to_radians().powi(2),
+        inv_var_xy: 1.0 / ro.final_refine.sigma_xy_m.powi(2),
+        inv_var_yaw: 1.0 / ro.final_refine.sigma_yaw_deg.to_radians().powi(2),
     });
     trajectory
         .par_iter_mut()

@@ -141,8 +141,11 @@ fn optimised_likelihood_equals_the_plain_rule_bit_for_bit() {
         for kernel in [0, 1, 2] {
             for occupied_logodds in [0.0, -0.5, 0.7] {
                 let o = RbpfOptions {
-                    kernel_cells: kernel,
-                    occupied_logodds,
+                    likelihood: RbpfLikelihood {
+                        kernel_cells: kernel,
+                        occupied_logodds,
+                        ..RbpfLikelihood::default()
+                    },
                     ..RbpfOptions::default()
                 };
                 let model = o.observation(res);
