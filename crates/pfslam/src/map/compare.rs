@@ -223,125 +223,26 @@ fn compare_impl(
     }
     let truth_from_estimate = truth_from_estimate.map(Through::new);
     let estimate_from_truth = truth_from_estimate.map(|t| Through::new(t.pose.inverse()));
-    let to_truth = truth_from_estimate.as_ref();
-    let to_estimate = estimate_from_truth.as_ref();
     if estimate.width == 0 || estimate.height == 0 {
         return Err(MapError::Compare("the estimated map is empty".into()));
     }
     if truth.width == 0 || truth.height == 0 {
         return Err(MapError::Compare("the true map is empty".into()));
     }
-    let tol = tolerance_cells as i64;
-    // Estimate side, rows in parallel; integer sums are order-independent.
-    let est = (0..estimate.height)
-        .into_par_iter()
-        .map(|j| {
-            let mut n = [0usize; 5];
-            for i in 0..estimate.width {
-                let s = estimate.cells[j * estimate.width + i];
-                let (x, y) = estimate
-                    .limits
-                    .cell_centre(super::Cell::new(i as i32, j as i32));
-                let (x, y) = through(to_truth, x, y);
-                match s {
-                    CellState::Occupied => {
-                        n[0] += 1;
-                        if state_near(truth, x, y, tol, CellState::Occupied) {
-                            n[1] += 1;
-                        }
-                    }
-                    CellState::Free => {
-                        n[2] += 1;
-                        if let Some(v) = visible {
-                            if state_near(v, x, y, tol, CellState::Free) {
-                                n[3] += 1;
-                            } else if truth.state_at(x, y) == CellState::Occupied {
-                                n[4] += 1;
-                            }
-                            continue;
-                        }
-                        match truth.state_at(x, y) {
-                            CellState::Free => n[3] += 1,
-                            CellState::Occupied => {
-                                n[4] += 1;
-                                // A wall-boundary cell (true free within tolerance) is not
-                                // counted as wrong.
-                                if state_near(truth, x, y, tol, CellState::Free) {
-                                    n[3] += 1;
-                                }
-                            }
-                            CellState::Unknown => {}
-                        }
-                    }
-                    CellState::Unknown => {}
-                }
-            }
-            n
-        })
-        .reduce(|| [0; 5], |a, b| std::array::from_fn(|k| a[k] + b[k]));
-    // Extent of the estimate in world coordinates.
-    let er = estimate.limits.resolution_m();
-    let (ex0, ey0) = (estimate.limits.origin_x_m(), estimate.limits.origin_y_m());
-    let (ex1, ey1) = (
-        ex0 + estimate.width as f64 * er,
-        ey0 + estimate.height as f64 * er,
-    );
-    let tru = (0..truth.height)
-        .into_par_iter()
-        .map(|j| {
-            let mut n = [0usize; 4];
-            for i in 0..truth.width {
-                if truth.cells[j * truth.width + i] != CellState::Occupied {
-                    continue;
-                }
-                let (tx, ty) = truth
-                    .limits
-                    .cell_centre(super::Cell::new(i as i32, j as i32));
-                let (x, y) = through(to_estimate, tx, ty);
-                if !(x >= ex0 && x < ex1 && y >= ey0 && y < ey1) {
-                    continue;
-                }
-                let matched = state_near(estimate, x, y, tol, CellState::Occupied);
-                n[0] += 1;
-                n[1] += matched as usize;
-                if visible.is_some() {
-                    // recall is counted over the visibility truth below
-                    continue;
-                }
-                let observed = matched
-                    || match estimate.state_at(x, y) {
-                        CellState::Occupied => true,
-                        // Free on a wall's boundary cell is within the tolerance.
-                        CellState::Free => !state_near(truth, tx, ty, tol, CellState::Free),
-                        CellState::Unknown => false,
-                    };
-                if observed {
-                    n[2] += 1;
-                    n[3] += matched as usize;
-                }
-            }
-            n
-        })
-        .reduce(|| [0; 4], |a, b| std::array::from_fn(|k| a[k] + b[k]));
+    let pair = MapPair {
+        estimate,
+        truth,
+        visible,
+        tol: tolerance_cells as i64,
+        to_truth: truth_from_estimate.as_ref(),
+        to_estimate: estimate_from_truth.as_ref(),
+    };
+    let est = pair.estimate_counts();
+    let tru = pair.truth_counts();
     let tru = match visible {
         None => tru,
         Some(v) => {
-            let seen = (0..v.height)
-                .into_par_iter()
-                .map(|j| {
-                    let mut n = [0usize; 2];
-                    for i in 0..v.width {
-                        if v.cells[j * v.width + i] != CellState::Occupied {
-                            continue;
-                        }
-                        let (x, y) = v.limits.cell_centre(super::Cell::new(i as i32, j as i32));
-                        let (x, y) = through(to_estimate, x, y);
-                        n[0] += 1;
-                        n[1] += state_near(estimate, x, y, tol, CellState::Occupied) as usize;
-                    }
-                    n
-                })
-                .reduce(|| [0; 2], |a, b| [a[0] + b[0], a[1] + b[1]]);
+            let seen = pair.visible_counts(v);
             [tru[0], tru[1], seen[0], seen[1]]
         }
     };
@@ -357,6 +258,147 @@ fn compare_impl(
         true_occupied_observed: tru[2],
         true_occupied_observed_matched: tru[3],
     })
+}
+
+/// The two maps of a comparison, how far a match may be, and the transforms between them.
+struct MapPair<'a> {
+    estimate: &'a BinaryMap,
+    truth: &'a BinaryMap,
+    visible: Option<&'a BinaryMap>,
+    tol: i64,
+    to_truth: Option<&'a Through>,
+    to_estimate: Option<&'a Through>,
+}
+
+impl MapPair<'_> {
+    /// The estimate's cells: occupied, occupied near a true wall, free, free where truly
+    /// free (or visible), free where truly occupied. Rows in parallel; integer sums are
+    /// order-independent.
+    fn estimate_counts(&self) -> [usize; 5] {
+        let estimate = self.estimate;
+        (0..estimate.height)
+            .into_par_iter()
+            .map(|j| {
+                let mut n = [0usize; 5];
+                for i in 0..estimate.width {
+                    let s = estimate.cells[j * estimate.width + i];
+                    let (x, y) = estimate
+                        .limits
+                        .cell_centre(super::Cell::new(i as i32, j as i32));
+                    let (x, y) = through(self.to_truth, x, y);
+                    self.count_estimate_cell(s, (x, y), &mut n);
+                }
+                n
+            })
+            .reduce(|| [0; 5], |a, b| std::array::from_fn(|k| a[k] + b[k]))
+    }
+
+    /// One estimated cell in state `s` at `(x, y)` in the truth's frame, counted into `n`.
+    #[inline]
+    fn count_estimate_cell(&self, s: CellState, (x, y): (f64, f64), n: &mut [usize; 5]) {
+        let (truth, tol) = (self.truth, self.tol);
+        match s {
+            CellState::Occupied => {
+                n[0] += 1;
+                if state_near(truth, x, y, tol, CellState::Occupied) {
+                    n[1] += 1;
+                }
+            }
+            CellState::Free => {
+                n[2] += 1;
+                if let Some(v) = self.visible {
+                    if state_near(v, x, y, tol, CellState::Free) {
+                        n[3] += 1;
+                    } else if truth.state_at(x, y) == CellState::Occupied {
+                        n[4] += 1;
+                    }
+                    return;
+                }
+                match truth.state_at(x, y) {
+                    CellState::Free => n[3] += 1,
+                    CellState::Occupied => {
+                        n[4] += 1;
+                        // A wall-boundary cell (true free within tolerance) is not counted
+                        // as wrong.
+                        if state_near(truth, x, y, tol, CellState::Free) {
+                            n[3] += 1;
+                        }
+                    }
+                    CellState::Unknown => {}
+                }
+            }
+            CellState::Unknown => {}
+        }
+    }
+
+    /// The true walls inside the estimate's extent: all, matched, observed (without a
+    /// visibility truth), observed and matched.
+    fn truth_counts(&self) -> [usize; 4] {
+        let (estimate, truth, tol) = (self.estimate, self.truth, self.tol);
+        let er = estimate.limits.resolution_m();
+        let (ex0, ey0) = (estimate.limits.origin_x_m(), estimate.limits.origin_y_m());
+        let (ex1, ey1) = (
+            ex0 + estimate.width as f64 * er,
+            ey0 + estimate.height as f64 * er,
+        );
+        (0..truth.height)
+            .into_par_iter()
+            .map(|j| {
+                let mut n = [0usize; 4];
+                for i in 0..truth.width {
+                    if truth.cells[j * truth.width + i] != CellState::Occupied {
+                        continue;
+                    }
+                    let (tx, ty) = truth
+                        .limits
+                        .cell_centre(super::Cell::new(i as i32, j as i32));
+                    let (x, y) = through(self.to_estimate, tx, ty);
+                    if !(x >= ex0 && x < ex1 && y >= ey0 && y < ey1) {
+                        continue;
+                    }
+                    let matched = state_near(estimate, x, y, tol, CellState::Occupied);
+                    n[0] += 1;
+                    n[1] += matched as usize;
+                    if self.visible.is_some() {
+                        // recall is counted over the visibility truth
+                        continue;
+                    }
+                    let observed = matched
+                        || match estimate.state_at(x, y) {
+                            CellState::Occupied => true,
+                            // Free on a wall's boundary cell is within the tolerance.
+                            CellState::Free => !state_near(truth, tx, ty, tol, CellState::Free),
+                            CellState::Unknown => false,
+                        };
+                    if observed {
+                        n[2] += 1;
+                        n[3] += matched as usize;
+                    }
+                }
+                n
+            })
+            .reduce(|| [0; 4], |a, b| std::array::from_fn(|k| a[k] + b[k]))
+    }
+
+    /// The walls of the visibility truth `v`: all, and those the estimate matched.
+    fn visible_counts(&self, v: &BinaryMap) -> [usize; 2] {
+        (0..v.height)
+            .into_par_iter()
+            .map(|j| {
+                let mut n = [0usize; 2];
+                for i in 0..v.width {
+                    if v.cells[j * v.width + i] != CellState::Occupied {
+                        continue;
+                    }
+                    let (x, y) = v.limits.cell_centre(super::Cell::new(i as i32, j as i32));
+                    let (x, y) = through(self.to_estimate, x, y);
+                    n[0] += 1;
+                    n[1] += state_near(self.estimate, x, y, self.tol, CellState::Occupied) as usize;
+                }
+                n
+            })
+            .reduce(|| [0; 2], |a, b| [a[0] + b[0], a[1] + b[1]])
+    }
 }
 
 #[cfg(test)]
