@@ -197,14 +197,58 @@ impl Rbpf {
         input: &UpdateScan<'_>,
         method: resample::ResampleMethod,
     ) -> Result<RbpfUpdate, MapError> {
-        let UpdateScan {
-            scan_index: scan,
-            odom_pose: odom,
-            odom_delta: delta,
-            match_points_m: points,
-            body_scan: body,
-            map_only: first,
-        } = *input;
+        let first = input.map_only;
+        self.set_prior(input.odom_delta);
+        let n = self.particles.len();
+        let t = Instant::now();
+        let jitters = if first {
+            Vec::new()
+        } else {
+            self.move_particles(input.odom_delta)
+        };
+        let map_thread_s = self.match_and_map(input, &jitters)?;
+        let elapsed = t.elapsed().as_secs_f64();
+        // Wall times of the two parts: the pass's wall time split by the threads' time
+        // spent mapping (an estimate: the parts now overlap).
+        let threads = rayon::current_num_threads().max(1);
+        let map_s = (map_thread_s / threads as f64).min(elapsed);
+        let match_s = elapsed - map_s;
+        if first {
+            return Ok(RbpfUpdate {
+                neff: n as f64,
+                resampled: false,
+                best_ll_per_point: 0.0,
+                match_s,
+                map_s,
+            });
+        }
+        weights::update_log_space(
+            &mut self.weights,
+            &self.lls,
+            self.options.weight_temperature,
+        );
+        let neff = weights::neff(&self.weights);
+        let best = self.best();
+        let best_ll_per_point = self.lls[best] / input.match_points_m.len().max(1) as f64;
+        let resampled = neff < self.options.resample_threshold * n as f64;
+        if resampled {
+            resample::resample(&self.weights, method, &mut self.master, &mut self.ancestors);
+            let old = std::mem::take(&mut self.particles);
+            self.particles = self.ancestors.iter().map(|&a| old[a].clone()).collect();
+            self.weights.iter_mut().for_each(|w| *w = 1.0 / n as f64);
+        }
+        Ok(RbpfUpdate {
+            neff,
+            resampled,
+            best_ll_per_point,
+            match_s,
+            map_s,
+        })
+    }
+
+    /// The matcher's prior for an update after the odometry moved by `delta`: the motion
+    /// model's sigmas for it, scaled and floored (`[filter.rbpf.search]`).
+    fn set_prior(&mut self, delta: &Pose2) {
         let noise = self.options.noise();
         let o = &self.options.search;
         self.search.prior = (o.prior_scale > 0.0).then(|| {
@@ -217,46 +261,56 @@ impl Rbpf {
                 inv_var_yaw: 1.0 / (syaw * syaw),
             }
         });
-        let (model, search) = (&self.model, &self.search);
-        let n = self.particles.len();
-        let t = Instant::now();
+    }
+
+    /// Moves every particle by `delta`: to its noise-free prediction (returning the jitter
+    /// each adds to its match, drawn now), or by a motion sample. Drawn per chunk, from the
+    /// chunk's stream in particle order (cheap, and the same for any thread count).
+    fn move_particles(&mut self, delta: &Pose2) -> Vec<[f64; 3]> {
+        let noise = self.options.noise();
+        let o = &self.options.search;
         let from_prediction = o.match_from_prediction;
         let jitter_sigma = [o.jitter_xy_m, o.jitter_xy_m, o.jitter_yaw_deg.to_radians()];
-        // Per particle, drawn before the parallel pass: the jitter added to its match.
         let mut jitters: Vec<[f64; 3]> = Vec::new();
-        if !first {
-            // Motion draws per chunk, from the chunk's stream in particle order (cheap).
-            for (parts, st) in self
-                .particles
-                .chunks_mut(CHUNK_PARTICLES)
-                .zip(self.chunks.iter_mut())
-            {
-                for p in parts.iter_mut() {
-                    if from_prediction {
-                        p.pose = p.pose.compose(delta);
-                        p.pose.yaw_rad = wrap_angle(p.pose.yaw_rad);
-                        jitters.push(
-                            jitter_sigma.map(|s| s * st.rng.sample::<f64, _>(StandardNormal)),
-                        );
-                    } else {
-                        p.pose = sample_motion(&p.pose, delta, noise, &mut st.rng);
-                    }
+        for (parts, st) in self
+            .particles
+            .chunks_mut(CHUNK_PARTICLES)
+            .zip(self.chunks.iter_mut())
+        {
+            for p in parts.iter_mut() {
+                if from_prediction {
+                    p.pose = p.pose.compose(delta);
+                    p.pose.yaw_rad = wrap_angle(p.pose.yaw_rad);
+                    jitters.push(jitter_sigma.map(|s| s * st.rng.sample::<f64, _>(StandardNormal)));
+                } else {
+                    p.pose = sample_motion(&p.pose, delta, noise, &mut st.rng);
                 }
             }
         }
-        let jitters = &jitters;
-        // Then every particle on its own (the threads balance whatever the particle count;
-        // 5 chunks of 40 particles would split 3:2 over two threads): match in its map, then
-        // map the scan into it, in one pass (a particle's match reads only its own map, and
-        // copy-on-write tiles keep the others' maps apart, so the same maps as matching all
-        // first). Mapped before resampling, so copies share the tiles this update wrote.
-        // Each worker thread has its own insertion scratch (a mask of megabytes: never per
-        // particle); the scratch does not affect results.
+        jitters
+    }
+
+    /// Every particle on its own (the threads balance whatever the particle count; 5
+    /// chunks of 40 particles would split 3:2 over two threads): matched in its map (unless
+    /// `map_only`), moved by its jitter, then the scan mapped into it, in one pass (a
+    /// particle's match reads only its own map, and copy-on-write tiles keep the others'
+    /// maps apart, so the same maps as matching all first). Mapped before resampling, so
+    /// copies share the tiles this update wrote. Each worker thread has its own insertion
+    /// scratch (a mask of megabytes: never per particle); the scratch does not affect
+    /// results. Returns the threads' seconds spent mapping; the first error in particle
+    /// order.
+    fn match_and_map(
+        &mut self,
+        input: &UpdateScan<'_>,
+        jitters: &[[f64; 3]],
+    ) -> Result<f64, MapError> {
+        let first = input.map_only;
+        let (points, body) = (input.match_points_m, input.body_scan);
         let threads = rayon::current_num_threads().max(1);
         if self.scratch.0.len() < threads {
             self.scratch.0.resize_with(threads, Default::default);
         }
-        let scratch = &self.scratch.0;
+        let (model, search, scratch) = (&self.model, &self.search, &self.scratch.0);
         let results: Vec<Result<f64, MapError>> = self
             .particles
             .par_iter_mut()
@@ -286,54 +340,18 @@ impl Rbpf {
                 p.map.insert_scan(world, insert)?;
                 p.node = Arc::new(PathNode {
                     pose: p.pose,
-                    odom,
-                    scan,
+                    odom: input.odom_pose,
+                    scan: input.scan_index,
                     parent: Some(p.node.clone()),
                 });
                 Ok(t_map.elapsed().as_secs_f64())
             })
             .collect();
-        let elapsed = t.elapsed().as_secs_f64();
-        // The first error in particle order.
         let mut map_thread_s = 0.0;
         for r in results {
             map_thread_s += r?;
         }
-        // Wall times of the two parts: the pass's wall time split by the threads' time
-        // spent mapping (an estimate: the parts now overlap).
-        let map_s = (map_thread_s / threads as f64).min(elapsed);
-        let match_s = elapsed - map_s;
-        if first {
-            return Ok(RbpfUpdate {
-                neff: n as f64,
-                resampled: false,
-                best_ll_per_point: 0.0,
-                match_s,
-                map_s,
-            });
-        }
-        weights::update_log_space(
-            &mut self.weights,
-            &self.lls,
-            self.options.weight_temperature,
-        );
-        let neff = weights::neff(&self.weights);
-        let best = self.best();
-        let best_ll_per_point = self.lls[best] / points.len().max(1) as f64;
-        let resampled = neff < self.options.resample_threshold * n as f64;
-        if resampled {
-            resample::resample(&self.weights, method, &mut self.master, &mut self.ancestors);
-            let old = std::mem::take(&mut self.particles);
-            self.particles = self.ancestors.iter().map(|&a| old[a].clone()).collect();
-            self.weights.iter_mut().for_each(|w| *w = 1.0 / n as f64);
-        }
-        Ok(RbpfUpdate {
-            neff,
-            resampled,
-            best_ll_per_point,
-            match_s,
-            map_s,
-        })
+        Ok(map_thread_s)
     }
 
     /// Memory held by the particles' maps.
