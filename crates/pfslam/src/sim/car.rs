@@ -106,96 +106,10 @@ pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, Si
         Vec::new()
     };
 
-    // Encoders: cumulative TRUE wheel rotation (m of tyre circumference), with slip.
-    let e = &calib.encoder;
-    let half_base = 0.5 * e.wheel_base_m;
-    let true_d_left = e.left_wheel_diameter_m * (1.0 + c.errors.left_wheel_diameter_error);
-    let true_d_right = e.right_wheel_diameter_m * (1.0 + c.errors.right_wheel_diameter_error);
-    let ticks = f64::from(e.resolution_ticks);
-    let mut encoder = Vec::with_capacity(enc_times.len());
-    let (mut rot_l, mut rot_r) = (0.0f64, 0.0f64);
-    let (mut prev_l, mut prev_r) = (0.0f64, 0.0f64);
-    for &(t, stamp_ns) in &enc_times {
-        let sv = motion.s_at(t);
-        let dl = motion.path.offset_distance_m(sv, half_base);
-        let dr = motion.path.offset_distance_m(sv, -half_base);
-        let (slip_l, slip_r) = if c.errors.wheel_slip_std > 0.0 {
-            (
-                1.0 + c.errors.wheel_slip_std * normal(&mut rng_enc),
-                1.0 + c.errors.wheel_slip_std * normal(&mut rng_enc),
-            )
-        } else {
-            (1.0, 1.0)
-        };
-        rot_l += (dl - prev_l) * slip_l;
-        rot_r += (dr - prev_r) * slip_r;
-        prev_l = dl;
-        prev_r = dr;
-        encoder.push(EncoderSample {
-            stamp_ns,
-            left_count: (rot_l / (std::f64::consts::PI * true_d_left) * ticks).floor() as i64,
-            right_count: (rot_r / (std::f64::consts::PI * true_d_right) * ticks).floor() as i64,
-        });
-    }
-
-    // FOG: true yaw increments between consecutive true sampling times.
-    let mut fog = Vec::with_capacity(fog_times.len());
-    let fog_dt = 1.0 / c.fog_rate_hz;
-    let noise_row = c.errors.fog_noise_rad_per_sqrt_s * fog_dt.sqrt();
-    let mut prev_yaw = motion
-        .pose_at(fog_times.first().map_or(0.0, |f| f.0) - fog_dt)
-        .1;
-    for &(t, stamp_ns) in &fog_times {
-        let yaw = motion.pose_at(t).1;
-        let (nr, np, ny) = if noise_row > 0.0 {
-            (
-                noise_row * normal(&mut rng_fog),
-                noise_row * normal(&mut rng_fog),
-                noise_row * normal(&mut rng_fog),
-            )
-        } else {
-            (0.0, 0.0, 0.0)
-        };
-        fog.push(FogSample {
-            stamp_ns,
-            delta_roll_rad: nr,
-            delta_pitch_rad: np,
-            delta_yaw_rad: yaw - prev_yaw + c.errors.fog_yaw_bias_rad_per_s * fog_dt + ny,
-        });
-        prev_yaw = yaw;
-    }
-
-    // LiDAR: each scan cast from its true pose with the real mount.
-    let geom = calib.lidar;
-    let beams = beam_directions(&geom);
-    let errors = BeamErrors {
-        range_noise_std_m: c.errors.lidar_range_noise_std_m,
-        dropout_prob: c.errors.lidar_dropout_prob,
-        max_range_prob: c.errors.lidar_max_range_prob,
-    };
-    let caster = RayCaster::new(world, 4.0, 100.0);
-    let nb = geom.beam_count;
-    let max_range = f64::from(geom.range_max_m);
-    let mut ranges = vec![0.0f32; lidar_times.len() * nb];
-    let n_blocks = lidar_times.len().div_ceil(SCAN_BLOCK);
-    let block_rngs = jumped_stream_vec(lidar_base, n_blocks);
-    ranges
-        .par_chunks_mut(SCAN_BLOCK * nb)
-        .zip(block_rngs.into_par_iter())
-        .enumerate()
-        .for_each(|(bi, (chunk, mut rng))| {
-            for (k, scan) in chunk.chunks_mut(nb).enumerate() {
-                let t = lidar_times[bi * SCAN_BLOCK + k].0;
-                let (pose, _) = motion.pose_at(t);
-                let wl = Rigid3::from_pose2(&pose).compose(&calib.body_from_lidar);
-                let sensor = ScanBeams {
-                    world_from_sensor: &wl,
-                    beams: &beams,
-                    max_range_m: max_range,
-                };
-                cast_scan(&caster, &sensor, &errors, &mut rng, scan, None);
-            }
-        });
+    let mut encoder = simulate_encoder(&motion, c, &calib, &enc_times, &mut rng_enc);
+    let mut fog = simulate_fog(&motion, c, &fog_times, &mut rng_fog);
+    let nb = calib.lidar.beam_count;
+    let ranges = cast_scans(world, &motion, &calib, (c, &lidar_times), lidar_base);
     let mut ground_truth = Vec::with_capacity(lidar_times.len());
     let mut lidar = ScanSet::new(nb);
     lidar.stamps_ns.reserve(lidar_times.len());
@@ -258,6 +172,127 @@ pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, Si
         stereo_poses,
         world: world.clone(),
     })
+}
+
+/// The wheel encoders at `times` (seconds, stamp): cumulative true wheel rotation (m of
+/// tyre circumference) with slip, counted in ticks of the wheels' true (miscalibrated)
+/// diameters.
+fn simulate_encoder(
+    motion: &Motion,
+    c: &super::CarSimOptions,
+    calib: &CarCalibration,
+    times: &[(f64, i64)],
+    rng: &mut Xoshiro256PlusPlus,
+) -> Vec<EncoderSample> {
+    let e = &calib.encoder;
+    let half_base = 0.5 * e.wheel_base_m;
+    let true_d_left = e.left_wheel_diameter_m * (1.0 + c.errors.left_wheel_diameter_error);
+    let true_d_right = e.right_wheel_diameter_m * (1.0 + c.errors.right_wheel_diameter_error);
+    let ticks = f64::from(e.resolution_ticks);
+    let mut encoder = Vec::with_capacity(times.len());
+    let (mut rot_l, mut rot_r) = (0.0f64, 0.0f64);
+    let (mut prev_l, mut prev_r) = (0.0f64, 0.0f64);
+    for &(t, stamp_ns) in times {
+        let sv = motion.s_at(t);
+        let dl = motion.path.offset_distance_m(sv, half_base);
+        let dr = motion.path.offset_distance_m(sv, -half_base);
+        let (slip_l, slip_r) = if c.errors.wheel_slip_std > 0.0 {
+            (
+                1.0 + c.errors.wheel_slip_std * normal(rng),
+                1.0 + c.errors.wheel_slip_std * normal(rng),
+            )
+        } else {
+            (1.0, 1.0)
+        };
+        rot_l += (dl - prev_l) * slip_l;
+        rot_r += (dr - prev_r) * slip_r;
+        prev_l = dl;
+        prev_r = dr;
+        encoder.push(EncoderSample {
+            stamp_ns,
+            left_count: (rot_l / (std::f64::consts::PI * true_d_left) * ticks).floor() as i64,
+            right_count: (rot_r / (std::f64::consts::PI * true_d_right) * ticks).floor() as i64,
+        });
+    }
+    encoder
+}
+
+/// The FOG at `times`: true yaw increments between consecutive sampling times, with the
+/// gyro's noise and yaw-rate bias.
+fn simulate_fog(
+    motion: &Motion,
+    c: &super::CarSimOptions,
+    times: &[(f64, i64)],
+    rng: &mut Xoshiro256PlusPlus,
+) -> Vec<FogSample> {
+    let mut fog = Vec::with_capacity(times.len());
+    let fog_dt = 1.0 / c.fog_rate_hz;
+    let noise_row = c.errors.fog_noise_rad_per_sqrt_s * fog_dt.sqrt();
+    let mut prev_yaw = motion
+        .pose_at(times.first().map_or(0.0, |f| f.0) - fog_dt)
+        .1;
+    for &(t, stamp_ns) in times {
+        let yaw = motion.pose_at(t).1;
+        let (nr, np, ny) = if noise_row > 0.0 {
+            (
+                noise_row * normal(rng),
+                noise_row * normal(rng),
+                noise_row * normal(rng),
+            )
+        } else {
+            (0.0, 0.0, 0.0)
+        };
+        fog.push(FogSample {
+            stamp_ns,
+            delta_roll_rad: nr,
+            delta_pitch_rad: np,
+            delta_yaw_rad: yaw - prev_yaw + c.errors.fog_yaw_bias_rad_per_s * fog_dt + ny,
+        });
+        prev_yaw = yaw;
+    }
+    fog
+}
+
+/// Every scan at `times`, cast from its true pose with the real mount: blocks of
+/// [`SCAN_BLOCK`] scans in parallel, each with its own stream jumped from `base`.
+fn cast_scans(
+    world: &World,
+    motion: &Motion,
+    calib: &CarCalibration,
+    (c, times): (&super::CarSimOptions, &[(f64, i64)]),
+    base: Xoshiro256PlusPlus,
+) -> Vec<f32> {
+    let geom = calib.lidar;
+    let beams = beam_directions(&geom);
+    let errors = BeamErrors {
+        range_noise_std_m: c.errors.lidar_range_noise_std_m,
+        dropout_prob: c.errors.lidar_dropout_prob,
+        max_range_prob: c.errors.lidar_max_range_prob,
+    };
+    let caster = RayCaster::new(world, 4.0, 100.0);
+    let nb = geom.beam_count;
+    let max_range = f64::from(geom.range_max_m);
+    let mut ranges = vec![0.0f32; times.len() * nb];
+    let n_blocks = times.len().div_ceil(SCAN_BLOCK);
+    let block_rngs = jumped_stream_vec(base, n_blocks);
+    ranges
+        .par_chunks_mut(SCAN_BLOCK * nb)
+        .zip(block_rngs.into_par_iter())
+        .enumerate()
+        .for_each(|(bi, (chunk, mut rng))| {
+            for (k, scan) in chunk.chunks_mut(nb).enumerate() {
+                let t = times[bi * SCAN_BLOCK + k].0;
+                let (pose, _) = motion.pose_at(t);
+                let wl = Rigid3::from_pose2(&pose).compose(&calib.body_from_lidar);
+                let sensor = ScanBeams {
+                    world_from_sensor: &wl,
+                    beams: &beams,
+                    max_range_m: max_range,
+                };
+                cast_scan(&caster, &sensor, &errors, &mut rng, scan, None);
+            }
+        });
+    ranges
 }
 
 /// Writes a simulated car recording into `dir`: the dataset in the car's layout, plus
