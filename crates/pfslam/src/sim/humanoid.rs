@@ -115,116 +115,11 @@ pub fn simulate_humanoid(world: &World, opts: &SimOptions) -> Result<HumanoidSim
     let joint_times = sample_times(opts, h.odometry_rate_hz, 0.004, jitter, &mut rng_stamps);
     let lidar_times = sample_times(opts, h.lidar_rate_hz, 0.011, jitter, &mut rng_stamps);
 
-    // Odometry: true increments with scale error, heading drift and noise, integrated.
-    let mut odometry = Vec::with_capacity(odo_times.len());
-    let dt = 1.0 / h.odometry_rate_hz;
-    let mut prev_true = motion.pose_at(odo_times.first().map_or(0.0, |o| o.0)).0;
-    let mut odo = prev_true;
-    for &(t, stamp_ns) in &odo_times {
-        let p = motion.pose_at(t).0;
-        let d = prev_true.between(&p);
-        prev_true = p;
-        let (nx, ny, nth) = if h.errors.odometry_noise_std > 0.0 {
-            let sd = h.errors.odometry_noise_std;
-            (
-                sd * normal(&mut rng_odo),
-                sd * normal(&mut rng_odo),
-                sd * normal(&mut rng_odo),
-            )
-        } else {
-            (0.0, 0.0, 0.0)
-        };
-        let k = 1.0 + h.errors.odometry_scale_error;
-        let noisy = Pose2::new(
-            d.x_m * k + nx,
-            d.y_m * k + ny,
-            d.yaw_rad + h.errors.odometry_yaw_drift_rad_per_s * dt + nth,
-        );
-        odo = odo.compose(&noisy);
-        odometry.push(StampedPose2 {
-            stamp_ns,
-            pose: odo,
-        });
-    }
-    let t0 = imu_times.first().map_or(0.0, |o| o.0);
-    let imu: Vec<ImuSample> = imu_times
-        .iter()
-        .map(|&(t, stamp_ns)| {
-            let (roll, pitch) = sway_at(h, t);
-            let yaw = motion.pose_at(t).1 + h.errors.imu_yaw_drift_rad_per_s * (t - t0);
-            let sd = h.errors.imu_noise_std_rad;
-            let mut n = || {
-                if sd > 0.0 {
-                    sd * normal(&mut rng_imu)
-                } else {
-                    0.0
-                }
-            };
-            ImuSample {
-                stamp_ns,
-                roll_rad: roll + n(),
-                pitch_rad: pitch + n(),
-                yaw_rad: crate::geometry::wrap_angle(yaw + n()),
-            }
-        })
-        .collect();
-    let joints: Vec<JointSample> = joint_times
-        .iter()
-        .map(|&(t, stamp_ns)| {
-            let (yaw, pitch) = joints_at(&h.head, t);
-            let sd = h.errors.joint_noise_std_rad;
-            let mut n = || {
-                if sd > 0.0 {
-                    sd * normal(&mut rng_imu)
-                } else {
-                    0.0
-                }
-            };
-            JointSample {
-                stamp_ns,
-                neck_yaw_rad: yaw + n(),
-                head_pitch_rad: pitch + n(),
-            }
-        })
-        .collect();
-
-    // LiDAR with labels.
-    let geom = cal.lidar;
-    let nb = geom.beam_count;
-    let max_range = f64::from(geom.range_max_m);
-    let caster = RayCaster::new(world, 1.0, 40.0);
-    let mut ranges = vec![0.0f32; lidar_times.len() * nb];
-    let mut labels = vec![BEAM_NONE; lidar_times.len() * nb];
-    let n_blocks = lidar_times.len().div_ceil(SCAN_BLOCK);
-    let block_rngs = jumped_stream_vec(lidar_base, n_blocks);
-    let beams = beam_directions(&geom);
-    let errors = BeamErrors {
-        range_noise_std_m: h.errors.lidar_range_noise_std_m,
-        dropout_prob: h.errors.lidar_dropout_prob,
-        max_range_prob: 0.0,
-    };
-    ranges
-        .par_chunks_mut(SCAN_BLOCK * nb)
-        .zip(labels.par_chunks_mut(SCAN_BLOCK * nb))
-        .zip(block_rngs.into_par_iter())
-        .enumerate()
-        .for_each(|(bi, ((rchunk, lchunk), mut rng))| {
-            for (k, (scan, lab)) in rchunk.chunks_mut(nb).zip(lchunk.chunks_mut(nb)).enumerate() {
-                let t = lidar_times[bi * SCAN_BLOCK + k].0;
-                let pose = motion.pose_at(t).0;
-                let (roll, pitch) = sway_at(h, t);
-                let (ny, np) = joints_at(&h.head, t);
-                let world_from_body =
-                    Rigid3::from_rpy(roll, pitch, pose.yaw_rad, [pose.x_m, pose.y_m, 0.0]);
-                let wl = world_from_body.compose(&cal.body_from_lidar(ny, np));
-                let sensor = ScanBeams {
-                    world_from_sensor: &wl,
-                    beams: &beams,
-                    max_range_m: max_range,
-                };
-                cast_scan(&caster, &sensor, &errors, &mut rng, scan, Some(lab));
-            }
-        });
+    let odometry = simulate_odometry(&motion, h, &odo_times, &mut rng_odo);
+    let imu = simulate_imu(&motion, h, &imu_times, &mut rng_imu);
+    let joints = simulate_joints(h, &joint_times, &mut rng_imu);
+    let nb = cal.lidar.beam_count;
+    let (ranges, labels) = cast_scans(world, &motion, (h, &cal), &lidar_times, lidar_base);
     let mut lidar = ScanSet::new(nb);
     lidar.stamps_ns = lidar_times.iter().map(|x| x.1).collect();
     lidar.ranges_m = ranges;
@@ -256,6 +151,138 @@ pub fn simulate_humanoid(world: &World, opts: &SimOptions) -> Result<HumanoidSim
         world_text: world.to_text(),
         distance_m: motion.s_at(opts.duration_s),
     })
+}
+
+/// The odometry at `times`: true increments with scale error, heading drift and noise,
+/// integrated.
+fn simulate_odometry(
+    motion: &Motion,
+    h: &super::HumanoidSimOptions,
+    times: &[(f64, i64)],
+    rng: &mut Xoshiro256PlusPlus,
+) -> Vec<StampedPose2> {
+    let mut odometry = Vec::with_capacity(times.len());
+    let dt = 1.0 / h.odometry_rate_hz;
+    let mut prev_true = motion.pose_at(times.first().map_or(0.0, |o| o.0)).0;
+    let mut odo = prev_true;
+    for &(t, stamp_ns) in times {
+        let p = motion.pose_at(t).0;
+        let d = prev_true.between(&p);
+        prev_true = p;
+        let (nx, ny, nth) = if h.errors.odometry_noise_std > 0.0 {
+            let sd = h.errors.odometry_noise_std;
+            (sd * normal(rng), sd * normal(rng), sd * normal(rng))
+        } else {
+            (0.0, 0.0, 0.0)
+        };
+        let k = 1.0 + h.errors.odometry_scale_error;
+        let noisy = Pose2::new(
+            d.x_m * k + nx,
+            d.y_m * k + ny,
+            d.yaw_rad + h.errors.odometry_yaw_drift_rad_per_s * dt + nth,
+        );
+        odo = odo.compose(&noisy);
+        odometry.push(StampedPose2 {
+            stamp_ns,
+            pose: odo,
+        });
+    }
+    odometry
+}
+
+/// The IMU at `times`: the body's sway and its true yaw with drift and noise.
+fn simulate_imu(
+    motion: &Motion,
+    h: &super::HumanoidSimOptions,
+    times: &[(f64, i64)],
+    rng: &mut Xoshiro256PlusPlus,
+) -> Vec<ImuSample> {
+    let t0 = times.first().map_or(0.0, |o| o.0);
+    times
+        .iter()
+        .map(|&(t, stamp_ns)| {
+            let (roll, pitch) = sway_at(h, t);
+            let yaw = motion.pose_at(t).1 + h.errors.imu_yaw_drift_rad_per_s * (t - t0);
+            let sd = h.errors.imu_noise_std_rad;
+            let mut n = || if sd > 0.0 { sd * normal(rng) } else { 0.0 };
+            ImuSample {
+                stamp_ns,
+                roll_rad: roll + n(),
+                pitch_rad: pitch + n(),
+                yaw_rad: crate::geometry::wrap_angle(yaw + n()),
+            }
+        })
+        .collect()
+}
+
+/// The head's joint angles at `times`, with noise (drawn from the IMU's stream, after it).
+fn simulate_joints(
+    h: &super::HumanoidSimOptions,
+    times: &[(f64, i64)],
+    rng: &mut Xoshiro256PlusPlus,
+) -> Vec<JointSample> {
+    times
+        .iter()
+        .map(|&(t, stamp_ns)| {
+            let (yaw, pitch) = joints_at(&h.head, t);
+            let sd = h.errors.joint_noise_std_rad;
+            let mut n = || if sd > 0.0 { sd * normal(rng) } else { 0.0 };
+            JointSample {
+                stamp_ns,
+                neck_yaw_rad: yaw + n(),
+                head_pitch_rad: pitch + n(),
+            }
+        })
+        .collect()
+}
+
+/// Every scan at `times` with its beams' labels, cast from the head's true pose (body
+/// pose, sway, neck and head joints): blocks of [`SCAN_BLOCK`] scans in parallel, each with
+/// its own stream jumped from `base`.
+fn cast_scans(
+    world: &World,
+    motion: &Motion,
+    (h, cal): (&super::HumanoidSimOptions, &HumanoidCalibration),
+    times: &[(f64, i64)],
+    base: Xoshiro256PlusPlus,
+) -> (Vec<f32>, Vec<u8>) {
+    let geom = cal.lidar;
+    let nb = geom.beam_count;
+    let max_range = f64::from(geom.range_max_m);
+    let caster = RayCaster::new(world, 1.0, 40.0);
+    let mut ranges = vec![0.0f32; times.len() * nb];
+    let mut labels = vec![BEAM_NONE; times.len() * nb];
+    let n_blocks = times.len().div_ceil(SCAN_BLOCK);
+    let block_rngs = jumped_stream_vec(base, n_blocks);
+    let beams = beam_directions(&geom);
+    let errors = BeamErrors {
+        range_noise_std_m: h.errors.lidar_range_noise_std_m,
+        dropout_prob: h.errors.lidar_dropout_prob,
+        max_range_prob: 0.0,
+    };
+    ranges
+        .par_chunks_mut(SCAN_BLOCK * nb)
+        .zip(labels.par_chunks_mut(SCAN_BLOCK * nb))
+        .zip(block_rngs.into_par_iter())
+        .enumerate()
+        .for_each(|(bi, ((rchunk, lchunk), mut rng))| {
+            for (k, (scan, lab)) in rchunk.chunks_mut(nb).zip(lchunk.chunks_mut(nb)).enumerate() {
+                let t = times[bi * SCAN_BLOCK + k].0;
+                let pose = motion.pose_at(t).0;
+                let (roll, pitch) = sway_at(h, t);
+                let (ny, np) = joints_at(&h.head, t);
+                let world_from_body =
+                    Rigid3::from_rpy(roll, pitch, pose.yaw_rad, [pose.x_m, pose.y_m, 0.0]);
+                let wl = world_from_body.compose(&cal.body_from_lidar(ny, np));
+                let sensor = ScanBeams {
+                    world_from_sensor: &wl,
+                    beams: &beams,
+                    max_range_m: max_range,
+                };
+                cast_scan(&caster, &sensor, &errors, &mut rng, scan, Some(lab));
+            }
+        });
+    (ranges, labels)
 }
 
 /// Writes the humanoid dataset plus `ground_truth.tum`, `beam_labels.csv`,
