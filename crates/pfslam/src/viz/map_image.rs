@@ -257,47 +257,22 @@ pub fn render_map(
         .ok_or(MapImageError::Empty)?;
     let lay = Layout::new(rect, opts);
     let (w, h) = (lay.w, lay.h);
-    let mut rgb = vec![0u8; w * h * 3];
-    rgb.par_chunks_mut(w * 3).enumerate().for_each(|(py, row)| {
-        for px in 0..w {
-            let v = match lay.state(grid, px, py) {
-                CellState::Occupied => 0,
-                CellState::Free => 255,
-                CellState::Unknown => UNKNOWN_GREY,
-            };
-            row[px * 3..px * 3 + 3].fill(v);
-        }
-    });
+    let mut rgb = map_pixels(grid, &lay);
     ensure_font();
     {
         let root = BitMapBackend::with_buffer(&mut rgb, (w as u32, h as u32)).into_drawing_area();
         let thick = ((w.max(h) as f64 / 800.0).ceil() as u32).max(2);
-        for (k, t) in trajectories.iter().enumerate() {
-            let colour = TRAJECTORY_COLOURS[k % TRAJECTORY_COLOURS.len()];
-            let pts: Vec<(i32, i32)> = t
-                .poses
-                .iter()
-                .map(|p| lay.pixel_of(grid, p.x_m, p.y_m))
-                .collect();
-            root.draw(&PathElement::new(pts, colour.stroke_width(thick)))
-                .map_err(draw_err)?;
-        }
+        let pen = Pen {
+            root: &root,
+            grid,
+            lay: &lay,
+            thick,
+            font_px: ((w.max(h) as f64 / 60.0).round() as u32).clamp(12, 48),
+        };
+        pen.trajectories(trajectories)?;
         if let Some(s) = last_scan {
-            let r = thick as i32;
-            for p in s.points.iter().filter(|p| p.hit) {
-                let (x, y) = lay.pixel_of(grid, p.x_m, p.y_m);
-                root.draw(&Rectangle::new(
-                    [(x - r / 2, y - r / 2), (x + r - r / 2, y + r - r / 2)],
-                    SCAN_COLOUR.filled(),
-                ))
-                .map_err(draw_err)?;
-            }
-            let (x, y) = lay.pixel_of(grid, s.sensor_x_m, s.sensor_y_m);
-            root.draw(&Circle::new((x, y), 2 * r, SCAN_COLOUR.filled()))
-                .map_err(draw_err)?;
+            pen.scan(s)?;
         }
-        let font_px = ((w.max(h) as f64 / 60.0).round() as u32).clamp(12, 48);
-        let font = (FONT_FAMILY, font_px).into_font().color(&BLACK);
         let mut legend: Vec<(String, RGBColor)> = trajectories
             .iter()
             .enumerate()
@@ -311,67 +286,11 @@ pub fn render_map(
         if last_scan.is_some() {
             legend.push(("last scan".to_string(), SCAN_COLOUR));
         }
-        let fp = font_px as i32;
         if !legend.is_empty() {
-            let longest = legend
-                .iter()
-                .map(|l| l.0.chars().count())
-                .max()
-                .unwrap_or(0) as i32;
-            let (x0, y0) = (fp / 2, fp / 2);
-            let bw = 3 * fp + longest * fp * 6 / 10 + fp / 2;
-            let bh = legend.len() as i32 * fp * 14 / 10 + fp / 2;
-            root.draw(&Rectangle::new(
-                [(x0, y0), (x0 + bw, y0 + bh)],
-                WHITE.mix(0.85).filled(),
-            ))
-            .map_err(draw_err)?;
-            root.draw(&Rectangle::new([(x0, y0), (x0 + bw, y0 + bh)], BLACK))
-                .map_err(draw_err)?;
-            for (k, (label, colour)) in legend.iter().enumerate() {
-                let y = y0 + fp / 2 + k as i32 * fp * 14 / 10 + fp / 2;
-                root.draw(&PathElement::new(
-                    vec![(x0 + fp / 3, y), (x0 + 2 * fp, y)],
-                    colour.stroke_width(thick.max(3)),
-                ))
-                .map_err(draw_err)?;
-                root.draw(&Text::new(
-                    label.clone(),
-                    (x0 + 2 * fp + fp / 3, y - fp / 2),
-                    font.clone(),
-                ))
-                .map_err(draw_err)?;
-            }
+            pen.legend(&legend)?;
         }
         if opts.scale_bar {
-            let m_per_px = grid.limits().resolution_m() / lay.px_per_cell();
-            let len_m = nice_length_m(w as f64 * m_per_px / 5.0);
-            let len_px = (len_m / m_per_px).round() as i32;
-            let (x0, y1) = (fp, h as i32 - fp);
-            let label = if len_m >= 1.0 {
-                format!("{len_m} m")
-            } else {
-                format!("{} cm", (len_m * 100.0).round())
-            };
-            root.draw(&Rectangle::new(
-                [
-                    (x0 - fp / 3, y1 - 2 * fp),
-                    (x0 + len_px + fp / 3, y1 + fp / 3),
-                ],
-                WHITE.mix(0.85).filled(),
-            ))
-            .map_err(draw_err)?;
-            root.draw(&Rectangle::new(
-                [(x0, y1 - fp / 3), (x0 + len_px, y1)],
-                BLACK.filled(),
-            ))
-            .map_err(draw_err)?;
-            root.draw(&Text::new(
-                label,
-                (x0, y1 - fp / 3 - fp * 12 / 10),
-                font.clone(),
-            ))
-            .map_err(draw_err)?;
+            pen.scale_bar()?;
         }
         root.present().map_err(draw_err)?;
     }
@@ -382,6 +301,146 @@ pub fn render_map(
         rect,
         px_per_cell: lay.px_per_cell(),
     })
+}
+
+/// The map's cells as RGB pixels (walls black, free white, unknown grey), rows in parallel.
+fn map_pixels(grid: &OccupancyGrid, lay: &Layout) -> Vec<u8> {
+    let w = lay.w;
+    let mut rgb = vec![0u8; w * lay.h * 3];
+    rgb.par_chunks_mut(w * 3).enumerate().for_each(|(py, row)| {
+        for px in 0..w {
+            let v = match lay.state(grid, px, py) {
+                CellState::Occupied => 0,
+                CellState::Free => 255,
+                CellState::Unknown => UNKNOWN_GREY,
+            };
+            row[px * 3..px * 3 + 3].fill(v);
+        }
+    });
+    rgb
+}
+
+/// What draws on a map picture: its drawing area, where cells land, the line width and
+/// the font size (pixels).
+struct Pen<'a, 'b> {
+    root: &'a DrawingArea<BitMapBackend<'b>, plotters::coord::Shift>,
+    grid: &'a OccupancyGrid,
+    lay: &'a Layout,
+    thick: u32,
+    font_px: u32,
+}
+
+impl Pen<'_, '_> {
+    fn font(&self) -> TextStyle<'static> {
+        (FONT_FAMILY, self.font_px).into_font().color(&BLACK)
+    }
+
+    /// Each trajectory as a line in its colour.
+    fn trajectories(&self, trajectories: &[TrajectoryOverlay]) -> Result<(), MapImageError> {
+        for (k, t) in trajectories.iter().enumerate() {
+            let colour = TRAJECTORY_COLOURS[k % TRAJECTORY_COLOURS.len()];
+            let pts: Vec<(i32, i32)> = t
+                .poses
+                .iter()
+                .map(|p| self.lay.pixel_of(self.grid, p.x_m, p.y_m))
+                .collect();
+            self.root
+                .draw(&PathElement::new(pts, colour.stroke_width(self.thick)))
+                .map_err(draw_err)?;
+        }
+        Ok(())
+    }
+
+    /// A scan's returns as squares and its sensor as a dot.
+    fn scan(&self, s: &PlanarScan) -> Result<(), MapImageError> {
+        let r = self.thick as i32;
+        for p in s.points.iter().filter(|p| p.hit) {
+            let (x, y) = self.lay.pixel_of(self.grid, p.x_m, p.y_m);
+            self.root
+                .draw(&Rectangle::new(
+                    [(x - r / 2, y - r / 2), (x + r - r / 2, y + r - r / 2)],
+                    SCAN_COLOUR.filled(),
+                ))
+                .map_err(draw_err)?;
+        }
+        let (x, y) = self.lay.pixel_of(self.grid, s.sensor_x_m, s.sensor_y_m);
+        self.root
+            .draw(&Circle::new((x, y), 2 * r, SCAN_COLOUR.filled()))
+            .map_err(draw_err)?;
+        Ok(())
+    }
+
+    /// A boxed legend in the top left corner: a line of each colour with its label.
+    fn legend(&self, legend: &[(String, RGBColor)]) -> Result<(), MapImageError> {
+        let fp = self.font_px as i32;
+        let longest = legend
+            .iter()
+            .map(|l| l.0.chars().count())
+            .max()
+            .unwrap_or(0) as i32;
+        let (x0, y0) = (fp / 2, fp / 2);
+        let bw = 3 * fp + longest * fp * 6 / 10 + fp / 2;
+        let bh = legend.len() as i32 * fp * 14 / 10 + fp / 2;
+        let root = self.root;
+        root.draw(&Rectangle::new(
+            [(x0, y0), (x0 + bw, y0 + bh)],
+            WHITE.mix(0.85).filled(),
+        ))
+        .map_err(draw_err)?;
+        root.draw(&Rectangle::new([(x0, y0), (x0 + bw, y0 + bh)], BLACK))
+            .map_err(draw_err)?;
+        for (k, (label, colour)) in legend.iter().enumerate() {
+            let y = y0 + fp / 2 + k as i32 * fp * 14 / 10 + fp / 2;
+            root.draw(&PathElement::new(
+                vec![(x0 + fp / 3, y), (x0 + 2 * fp, y)],
+                colour.stroke_width(self.thick.max(3)),
+            ))
+            .map_err(draw_err)?;
+            root.draw(&Text::new(
+                label.clone(),
+                (x0 + 2 * fp + fp / 3, y - fp / 2),
+                self.font(),
+            ))
+            .map_err(draw_err)?;
+        }
+        Ok(())
+    }
+
+    /// A scale bar of a round length near a fifth of the width, bottom left.
+    fn scale_bar(&self) -> Result<(), MapImageError> {
+        let (w, h) = (self.lay.w, self.lay.h);
+        let fp = self.font_px as i32;
+        let m_per_px = self.grid.limits().resolution_m() / self.lay.px_per_cell();
+        let len_m = nice_length_m(w as f64 * m_per_px / 5.0);
+        let len_px = (len_m / m_per_px).round() as i32;
+        let (x0, y1) = (fp, h as i32 - fp);
+        let label = if len_m >= 1.0 {
+            format!("{len_m} m")
+        } else {
+            format!("{} cm", (len_m * 100.0).round())
+        };
+        let root = self.root;
+        root.draw(&Rectangle::new(
+            [
+                (x0 - fp / 3, y1 - 2 * fp),
+                (x0 + len_px + fp / 3, y1 + fp / 3),
+            ],
+            WHITE.mix(0.85).filled(),
+        ))
+        .map_err(draw_err)?;
+        root.draw(&Rectangle::new(
+            [(x0, y1 - fp / 3), (x0 + len_px, y1)],
+            BLACK.filled(),
+        ))
+        .map_err(draw_err)?;
+        root.draw(&Text::new(
+            label,
+            (x0, y1 - fp / 3 - fp * 12 / 10),
+            self.font(),
+        ))
+        .map_err(draw_err)?;
+        Ok(())
+    }
 }
 
 /// Renders and writes the map PNG atomically.
