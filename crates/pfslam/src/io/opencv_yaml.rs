@@ -64,111 +64,129 @@ fn parse_entries(path: &Path, text: &str) -> Result<Vec<(String, Value)>, IoErro
             out.push((key, Value::Scalar(line_no, value.to_string())));
             continue;
         }
-        // Matrix block: indented `rows`, `cols`, `dt`, `data: [ ... ]`.
-        let mut rows: Option<usize> = None;
-        let mut cols: Option<usize> = None;
-        let mut data: Option<Vec<f64>> = None;
-        while i < lines.len() && (lines[i].starts_with(' ') || lines[i].starts_with('\t')) {
-            let ln = i + 1;
-            let t = lines[i].trim();
-            i += 1;
-            let Some((k, v)) = t.split_once(':') else {
-                return Err(IoError::parse(
-                    path,
-                    ln,
-                    format!("{key}: expected `name: value` in matrix, found {t:?}"),
-                ));
-            };
-            match k.trim() {
-                "rows" | "cols" => {
-                    let n: usize = v.trim().parse().map_err(|_| {
-                        IoError::parse(path, ln, format!("{key}.{}: not an integer", k.trim()))
-                    })?;
-                    if k.trim() == "rows" {
-                        rows = Some(n);
-                    } else {
-                        cols = Some(n);
-                    }
+        let value = parse_matrix(path, &key, (&lines, &mut i), line_no)?;
+        out.push((key, value));
+    }
+    Ok(out)
+}
+
+/// The matrix block of `key` (declared at line `line_no`) from line `*i` on: its indented
+/// `rows`, `cols`, `dt` and `data: [ ... ]`; `*i` ends past the block.
+fn parse_matrix(
+    path: &Path,
+    key: &str,
+    (lines, i): (&[&str], &mut usize),
+    line_no: usize,
+) -> Result<Value, IoError> {
+    let mut rows: Option<usize> = None;
+    let mut cols: Option<usize> = None;
+    let mut data: Option<Vec<f64>> = None;
+    while *i < lines.len() && (lines[*i].starts_with(' ') || lines[*i].starts_with('\t')) {
+        let ln = *i + 1;
+        let t = lines[*i].trim();
+        *i += 1;
+        let Some((k, v)) = t.split_once(':') else {
+            return Err(IoError::parse(
+                path,
+                ln,
+                format!("{key}: expected `name: value` in matrix, found {t:?}"),
+            ));
+        };
+        match k.trim() {
+            "rows" | "cols" => {
+                let n: usize = v.trim().parse().map_err(|_| {
+                    IoError::parse(path, ln, format!("{key}.{}: not an integer", k.trim()))
+                })?;
+                if k.trim() == "rows" {
+                    rows = Some(n);
+                } else {
+                    cols = Some(n);
                 }
-                "dt" => {
-                    if v.trim() != "d" && v.trim() != "f" {
-                        return Err(IoError::parse(
-                            path,
-                            ln,
-                            format!("{key}.dt: unsupported element type {:?}", v.trim()),
-                        ));
-                    }
-                }
-                "data" => {
-                    let mut body = v.trim().to_string();
-                    if !body.starts_with('[') {
-                        return Err(IoError::parse(
-                            path,
-                            ln,
-                            format!("{key}.data: expected '['"),
-                        ));
-                    }
-                    while !body.contains(']') {
-                        if i >= lines.len() {
-                            return Err(IoError::parse(
-                                path,
-                                ln,
-                                format!("{key}.data: unterminated '['"),
-                            ));
-                        }
-                        body.push(' ');
-                        body.push_str(lines[i].trim());
-                        i += 1;
-                    }
-                    let inner = body.trim_start_matches('[').split(']').next().unwrap_or("");
-                    let mut vals = Vec::new();
-                    for f in inner.split(',') {
-                        let f = f.trim();
-                        if f.is_empty() {
-                            continue;
-                        }
-                        vals.push(parse_finite_f64(path, ln, &format!("{key}.data"), f)?);
-                    }
-                    data = Some(vals);
-                }
-                other => {
+            }
+            "dt" => {
+                if v.trim() != "d" && v.trim() != "f" {
                     return Err(IoError::parse(
                         path,
                         ln,
-                        format!("{key}: unknown matrix field {other:?}"),
+                        format!("{key}.dt: unsupported element type {:?}", v.trim()),
                     ));
                 }
             }
+            "data" => data = Some(matrix_data(path, key, v, (lines, i), ln)?),
+            other => {
+                return Err(IoError::parse(
+                    path,
+                    ln,
+                    format!("{key}: unknown matrix field {other:?}"),
+                ));
+            }
         }
-        let (Some(rows), Some(cols), Some(data)) = (rows, cols, data) else {
-            return Err(IoError::parse(
-                path,
-                line_no,
-                format!("{key}: matrix needs rows, cols and data"),
-            ));
-        };
-        // rows and cols come from the file: their product may overflow
-        if rows.checked_mul(cols) != Some(data.len()) {
-            return Err(IoError::parse(
-                path,
-                line_no,
-                format!(
-                    "{key}: a {rows}x{cols} matrix cannot have {} values",
-                    data.len()
-                ),
-            ));
-        }
-        out.push((
-            key,
-            Value::Matrix {
-                line: line_no,
-                rows,
-                cols,
-                data,
-            },
+    }
+    let (Some(rows), Some(cols), Some(data)) = (rows, cols, data) else {
+        return Err(IoError::parse(
+            path,
+            line_no,
+            format!("{key}: matrix needs rows, cols and data"),
+        ));
+    };
+    // rows and cols come from the file: their product may overflow
+    if rows.checked_mul(cols) != Some(data.len()) {
+        return Err(IoError::parse(
+            path,
+            line_no,
+            format!(
+                "{key}: a {rows}x{cols} matrix cannot have {} values",
+                data.len()
+            ),
         ));
     }
-    Ok(out)
+    Ok(Value::Matrix {
+        line: line_no,
+        rows,
+        cols,
+        data,
+    })
+}
+
+/// The values of a matrix's `data: [ ... ]` starting with `v` on line `ln`, continued on
+/// the lines from `*i` until the `]` (`*i` ends past them).
+fn matrix_data(
+    path: &Path,
+    key: &str,
+    v: &str,
+    (lines, i): (&[&str], &mut usize),
+    ln: usize,
+) -> Result<Vec<f64>, IoError> {
+    let mut body = v.trim().to_string();
+    if !body.starts_with('[') {
+        return Err(IoError::parse(
+            path,
+            ln,
+            format!("{key}.data: expected '['"),
+        ));
+    }
+    while !body.contains(']') {
+        if *i >= lines.len() {
+            return Err(IoError::parse(
+                path,
+                ln,
+                format!("{key}.data: unterminated '['"),
+            ));
+        }
+        body.push(' ');
+        body.push_str(lines[*i].trim());
+        *i += 1;
+    }
+    let inner = body.trim_start_matches('[').split(']').next().unwrap_or("");
+    let mut vals = Vec::new();
+    for f in inner.split(',') {
+        let f = f.trim();
+        if f.is_empty() {
+            continue;
+        }
+        vals.push(parse_finite_f64(path, ln, &format!("{key}.data"), f)?);
+    }
+    Ok(vals)
 }
 
 fn find<'a>(entries: &'a [(String, Value)], key: &str) -> Option<&'a Value> {
