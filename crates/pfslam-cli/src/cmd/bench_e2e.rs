@@ -11,7 +11,7 @@
 use super::dataset::{Dataset, load_dataset};
 use anyhow::Context;
 use pfslam::config::Config;
-use pfslam::filter::slam::{StageTimings, anchor_odometry_to_ground_truth};
+use pfslam::filter::slam::{SlamResult, StageTimings, anchor_odometry_to_ground_truth};
 use pfslam::geometry::Pose2;
 use pfslam::io::map_files::write_map_server;
 use pfslam::io::tum::write_tum;
@@ -141,25 +141,7 @@ fn one_run(dataset: &Path, config: &Config, seed: u64, out: &Path) -> anyhow::Re
     let back_end = cost(pipeline.back_end_s, pipeline.back_end_cpu_s);
     let rebuild = cost(pipeline.rebuild_s, pipeline.rebuild_cpu_s);
     let result = pipeline.result;
-    let ((), write) = timed(|| {
-        std::fs::create_dir_all(out)?;
-        write_tum(&out.join("trajectory.tum"), &result.trajectory)?;
-        let poses: Vec<Pose2> = result.trajectory.iter().map(|p| p.pose).collect();
-        let overlay = [TrajectoryOverlay {
-            label: "SLAM",
-            poses: &poses,
-        }];
-        write_map_png(
-            &out.join("map.png"),
-            &result.map,
-            &overlay,
-            None,
-            &MapImageOptions::default(),
-        )?;
-        write_binary_png(&out.join("binary_map.png"), &result.map, None)?;
-        write_map_server(&result.map.to_binary_map(None), &out.join("map.yaml"))?;
-        Ok(())
-    })?;
+    let ((), write) = timed(|| write_outputs(out, &result))?;
     let total = Cost {
         wall_s: t_all.0.elapsed().as_secs_f64(),
         cpu_s: match (t_all.1, process_cpu_s()) {
@@ -177,6 +159,27 @@ fn one_run(dataset: &Path, config: &Config, seed: u64, out: &Path) -> anyhow::Re
         slam_stages: result.stats.timings,
         peak_rss_mb: if rss_reset { peak_rss_mb() } else { None },
     })
+}
+
+/// Writes the trajectory and the maps as `pfslam run` does.
+fn write_outputs(out: &Path, result: &SlamResult) -> anyhow::Result<()> {
+    std::fs::create_dir_all(out)?;
+    write_tum(&out.join("trajectory.tum"), &result.trajectory)?;
+    let poses: Vec<Pose2> = result.trajectory.iter().map(|p| p.pose).collect();
+    let overlay = [TrajectoryOverlay {
+        label: "SLAM",
+        poses: &poses,
+    }];
+    write_map_png(
+        &out.join("map.png"),
+        &result.map,
+        &overlay,
+        None,
+        &MapImageOptions::default(),
+    )?;
+    write_binary_png(&out.join("binary_map.png"), &result.map, None)?;
+    write_map_server(&result.map.to_binary_map(None), &out.join("map.yaml"))?;
+    Ok(())
 }
 
 /// Runs the benchmark.
@@ -212,40 +215,62 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     result
 }
 
+/// The timed runs, with the recording's scan count and length for the rates.
+struct Timed {
+    runs: Vec<RunFigures>,
+    scans: usize,
+    span_s: f64,
+}
+
+/// Times the runs on the dataset (simulated first without `--dataset`) and reports them.
 fn bench(args: &Args, config: &Config, work: &Path) -> anyhow::Result<()> {
     let dataset = match &args.dataset {
         Some(d) => d.clone(),
-        None => {
-            let opts = SimOptions {
-                duration_s: args.duration_s,
-                seed: args.seed,
-                ..config.sim.clone()
-            };
-            opts.validate()?;
-            let world = World::from_name_or_file(opts.world_name())?;
-            let dir = work.join("dataset");
-            let t = Instant::now();
-            let out = pfslam::sim::simulate_car(&world, &opts)?;
-            pfslam::sim::write_car_sim(&dir, &out)
-                .with_context(|| format!("writing {}", dir.display()))?;
-            say!(
-                "simulated {:.1} s ({} scans, {} FOG rows) into {} in {:.1} s (not timed below)",
-                opts.duration_s,
-                out.dataset.lidar.len(),
-                out.dataset.fog.len(),
-                dir.display(),
-                t.elapsed().as_secs_f64()
-            );
-            dir
-        }
+        None => simulate(args, config, work)?,
     };
     let input_mb = input_bytes(&dataset) as f64 / 1e6;
+    let timed = timed_runs(args, config, &dataset, work)?;
+    let summary = summary_json(&dataset, input_mb, config, &timed);
+    print_medians(&timed, config, input_mb, &summary);
+    if let Some(p) = &args.json {
+        let text = serde_json::to_string_pretty(&summary)?;
+        pfslam::io::write_bytes_atomic(p, text.as_bytes())?;
+    }
+    Ok(())
+}
+
+/// Simulates the car into `work/dataset` (untimed); returns that directory.
+fn simulate(args: &Args, config: &Config, work: &Path) -> anyhow::Result<PathBuf> {
+    let opts = SimOptions {
+        duration_s: args.duration_s,
+        seed: args.seed,
+        ..config.sim.clone()
+    };
+    opts.validate()?;
+    let world = World::from_name_or_file(opts.world_name())?;
+    let dir = work.join("dataset");
+    let t = Instant::now();
+    let out = pfslam::sim::simulate_car(&world, &opts)?;
+    pfslam::sim::write_car_sim(&dir, &out).with_context(|| format!("writing {}", dir.display()))?;
+    say!(
+        "simulated {:.1} s ({} scans, {} FOG rows) into {} in {:.1} s (not timed below)",
+        opts.duration_s,
+        out.dataset.lidar.len(),
+        out.dataset.fog.len(),
+        dir.display(),
+        t.elapsed().as_secs_f64()
+    );
+    Ok(dir)
+}
+
+/// The `--runs` timed runs, each printed as it ends.
+fn timed_runs(args: &Args, config: &Config, dataset: &Path, work: &Path) -> anyhow::Result<Timed> {
     let mut runs = Vec::with_capacity(args.runs);
     let mut scans = 0usize;
     let mut span_s = 0.0;
     for k in 0..args.runs {
         let out = work.join(format!("out_{k}"));
-        let r = one_run(&dataset, config, args.seed, &out)?;
+        let r = one_run(dataset, config, args.seed, &out)?;
         if k == 0 {
             // Scan count and recording length, for rates (from the trajectory written).
             let traj = pfslam::io::tum::read_tum(&out.join("trajectory.tum"))?;
@@ -254,35 +279,55 @@ fn bench(args: &Args, config: &Config, work: &Path) -> anyhow::Result<()> {
                 span_s = (b.stamp_ns - a.stamp_ns) as f64 * 1e-9;
             }
         }
-        say!(
-            "run {}: total {:.2} s wall / {:.2} s CPU; load {:.2} / {:.2}, SLAM {:.2} / {:.2} \
-             (match {:.2}, map {:.2}, predict {:.2}), back end {:.2} / {:.2} (of which the map \
-             rebuild {:.2} / {:.2}), write {:.2} / {:.2}; peak RSS {}",
-            k + 1,
-            r.total.wall_s,
-            r.total.cpu_s,
-            r.load.wall_s,
-            r.load.cpu_s,
-            r.slam.wall_s,
-            r.slam.cpu_s,
-            r.slam_stages.correlate_s,
-            r.slam_stages.map_update_s,
-            r.slam_stages.predict_s,
-            r.back_end.wall_s,
-            r.back_end.cpu_s,
-            r.rebuild.wall_s,
-            r.rebuild.cpu_s,
-            r.write.wall_s,
-            r.write.cpu_s,
-            r.peak_rss_mb
-                .map_or("n/a".to_string(), |m| format!("{m:.0} MB"))
-        );
+        print_run(k, &r);
         runs.push(r);
     }
+    Ok(Timed {
+        runs,
+        scans,
+        span_s,
+    })
+}
+
+/// One run's figures (`k` counts from 0).
+fn print_run(k: usize, r: &RunFigures) {
+    say!(
+        "run {}: total {:.2} s wall / {:.2} s CPU; load {:.2} / {:.2}, SLAM {:.2} / {:.2} \
+         (match {:.2}, map {:.2}, predict {:.2}), back end {:.2} / {:.2} (of which the map \
+         rebuild {:.2} / {:.2}), write {:.2} / {:.2}; peak RSS {}",
+        k + 1,
+        r.total.wall_s,
+        r.total.cpu_s,
+        r.load.wall_s,
+        r.load.cpu_s,
+        r.slam.wall_s,
+        r.slam.cpu_s,
+        r.slam_stages.correlate_s,
+        r.slam_stages.map_update_s,
+        r.slam_stages.predict_s,
+        r.back_end.wall_s,
+        r.back_end.cpu_s,
+        r.rebuild.wall_s,
+        r.rebuild.cpu_s,
+        r.write.wall_s,
+        r.write.cpu_s,
+        r.peak_rss_mb
+            .map_or("n/a".to_string(), |m| format!("{m:.0} MB"))
+    );
+}
+
+/// The benchmark's setting, the medians of the runs and every run's figures.
+fn summary_json(
+    dataset: &Path,
+    input_mb: f64,
+    config: &Config,
+    timed: &Timed,
+) -> serde_json::Value {
+    let (runs, scans, span_s) = (&timed.runs, timed.scans, timed.span_s);
     let med = |f: &dyn Fn(&RunFigures) -> f64| median(runs.iter().map(f).collect());
     let total_wall = med(&|r| r.total.wall_s);
     let slam_wall = med(&|r| r.slam.wall_s);
-    let summary = serde_json::json!({
+    serde_json::json!({
         "dataset": dataset.display().to_string(),
         "input_mb": input_mb,
         "scans": scans,
@@ -312,15 +357,21 @@ fn bench(args: &Args, config: &Config, work: &Path) -> anyhow::Result<()> {
             "real_time_factor": span_s / total_wall,
         },
         "runs_figures": runs,
-    });
+    })
+}
+
+/// The medians of [`summary_json`]: a sentence and one markdown row.
+fn print_medians(timed: &Timed, config: &Config, input_mb: f64, summary: &serde_json::Value) {
     let m = &summary["median"];
     let f = |k: &str| m[k].as_f64().unwrap_or(f64::NAN);
+    let total_wall = median(timed.runs.iter().map(|r| r.total.wall_s).collect());
+    let slam_wall = median(timed.runs.iter().map(|r| r.slam.wall_s).collect());
     say!(
         "median of {} runs ({} scans, {} particles, {} m cells, {:.0} MB input, {} threads): \
          total {:.2} s wall / {:.2} s CPU (load {:.2}, SLAM {:.2}, write {:.2} s wall), \
          {:.0} scans/s, {:.1}x real time, peak RSS {:.0} MB",
-        runs.len(),
-        scans,
+        timed.runs.len(),
+        timed.scans,
         config.filter.particles,
         config.map.resolution_m,
         input_mb,
@@ -337,7 +388,7 @@ fn bench(args: &Args, config: &Config, work: &Path) -> anyhow::Result<()> {
     // One markdown row for tables (scripts/scaling.sh collects them).
     say!(
         "row: | {} | {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.0} | {:.0} |",
-        scans,
+        timed.scans,
         config.filter.particles,
         config.map.resolution_m,
         total_wall,
@@ -348,11 +399,6 @@ fn bench(args: &Args, config: &Config, work: &Path) -> anyhow::Result<()> {
         f("scans_per_s"),
         f("peak_rss_mb"),
     );
-    if let Some(p) = &args.json {
-        let text = serde_json::to_string_pretty(&summary)?;
-        pfslam::io::write_bytes_atomic(p, text.as_bytes())?;
-    }
-    Ok(())
 }
 
 /// Worker threads available (rayon's default pool uses one per logical CPU).

@@ -145,17 +145,41 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     config.validate()?;
     if let Some(dir) = &args.corpus {
-        if let Some(out) = &args.out {
-            std::fs::create_dir_all(out).with_context(|| out.display().to_string())?;
-        }
-        let seeds = if args.seeds.is_empty() {
-            vec![args.seed]
-        } else {
-            args.seeds.clone()
-        };
-        super::corpus::run_corpus(dir, &args.levels, &config, &seeds, args.out.as_deref())?;
-        return Ok(());
+        return run_corpus(&args, dir, &config);
     }
+    let recordings = select_recordings(&args)?;
+    let mut rows = Vec::new();
+    for recording in &recordings {
+        let row = bench_recording(&args, &config, recording)?;
+        print_row(&row)?;
+        rows.push(row);
+    }
+    let table = render_table(&rows);
+    print!("{table}");
+    if let Some(out) = &args.out {
+        pfslam::io::write_bytes_atomic(&out.join("benchmark.md"), table.as_bytes())?;
+        let json = serde_json::to_string_pretty(&rows)?;
+        pfslam::io::write_bytes_atomic(&out.join("benchmark.json"), json.as_bytes())?;
+    }
+    Ok(())
+}
+
+/// `--corpus`: every corrected CARMEN log in `dir`, at each level and seed.
+fn run_corpus(args: &Args, dir: &Path, config: &Config) -> anyhow::Result<()> {
+    if let Some(out) = &args.out {
+        std::fs::create_dir_all(out).with_context(|| out.display().to_string())?;
+    }
+    let seeds = if args.seeds.is_empty() {
+        vec![args.seed]
+    } else {
+        args.seeds.clone()
+    };
+    super::corpus::run_corpus(dir, &args.levels, config, &seeds, args.out.as_deref())?;
+    Ok(())
+}
+
+/// The recordings to run: those found under the data directory, narrowed by `--only`.
+fn select_recordings(args: &Args) -> anyhow::Result<Vec<(String, PathBuf, PathBuf)>> {
     let data = match &args.data {
         Some(d) => d.clone(),
         None => default_data_dir().ok_or_else(|| {
@@ -180,76 +204,77 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             data.display()
         );
     }
-    let mut rows = Vec::new();
-    for (name, rec_path, rel_path) in &recordings {
-        let relations = read_relations(rel_path)?;
-        let recording = pfslam::io::recording::read_recording(rec_path, &Default::default())
-            .with_context(|| rec_path.display().to_string())?;
-        let t = Instant::now();
-        let options = PipelineOptions {
-            back_end_input: args.graph_on_odometry.then_some(BackEndInput::Odometry),
-            // The metric needs the trajectory only.
-            rebuild_map: false,
-        };
-        let PipelineResult {
-            result,
-            front_end,
-            graph,
-            ..
-        } = run_pipeline(&recording, &config, args.seed, &options, &mut |_| {})
-            .with_context(|| format!("SLAM on {}", rec_path.display()))?;
-        let wall_s = t.elapsed().as_secs_f64();
-        let opts = RelationsOptions::default();
-        let front = evaluate_relations(&Trajectory::new(front_end), &relations, &opts)?;
-        let est = Trajectory::new(result.trajectory.clone());
-        let r = evaluate_relations(&est, &relations, &opts)?;
-        let odo = evaluate_relations(
-            &Trajectory::new(result.dead_reckoning.clone()),
-            &relations,
-            &opts,
-        )?;
-        let stamps = &recording.scans.stamps_ns;
-        let duration_s = match (stamps.first(), stamps.last()) {
-            (Some(a), Some(b)) => (b - a) as f64 * 1e-9,
-            _ => 0.0,
-        };
-        if let Some(out) = &args.out {
-            pfslam::io::tum::write_tum(&out.join(format!("{name}.tum")), &result.trajectory)?;
-        }
-        let row = Row {
-            name: name.clone(),
-            scans: recording.scans.len(),
-            wall_s,
-            realtime_factor: duration_s / wall_s.max(1e-9),
-            trans_mean_m: r.trans_m.abs.mean,
-            trans_std_m: r.trans_m.abs.std,
-            rot_mean_deg: r.rot_deg.abs.mean,
-            rot_std_deg: r.rot_deg.abs.std,
-            relations_used: r.used,
-            relations_total: r.relations,
-            odometry_trans_mean_m: odo.trans_m.abs.mean,
-            front_end_trans_mean_m: front.trans_m.abs.mean,
-            graph,
-        };
-        eprintln!(
-            "{name}: {:.4} m, {:.3} deg, {:.1} s ({:.0}x real time); front end {:.4} m",
-            row.trans_mean_m,
-            row.rot_mean_deg,
-            row.wall_s,
-            row.realtime_factor,
-            row.front_end_trans_mean_m
-        );
-        if let Some(g) = &row.graph {
-            eprintln!("{name}: back end {}", serde_json::to_string(g)?);
-        }
-        rows.push(row);
-    }
-    let table = render_table(&rows);
-    print!("{table}");
+    Ok(recordings)
+}
+
+/// SLAM on one `(name, recording, relations)`, scored on its relations; with `--out` also
+/// writes its trajectory.
+fn bench_recording(
+    args: &Args,
+    config: &Config,
+    (name, rec_path, rel_path): &(String, PathBuf, PathBuf),
+) -> anyhow::Result<Row> {
+    let relations = read_relations(rel_path)?;
+    let recording = pfslam::io::recording::read_recording(rec_path, &Default::default())
+        .with_context(|| rec_path.display().to_string())?;
+    let t = Instant::now();
+    let options = PipelineOptions {
+        back_end_input: args.graph_on_odometry.then_some(BackEndInput::Odometry),
+        // The metric needs the trajectory only.
+        rebuild_map: false,
+    };
+    let PipelineResult {
+        result,
+        front_end,
+        graph,
+        ..
+    } = run_pipeline(&recording, config, args.seed, &options, &mut |_| {})
+        .with_context(|| format!("SLAM on {}", rec_path.display()))?;
+    let wall_s = t.elapsed().as_secs_f64();
+    let opts = RelationsOptions::default();
+    let front = evaluate_relations(&Trajectory::new(front_end), &relations, &opts)?;
+    let est = Trajectory::new(result.trajectory.clone());
+    let r = evaluate_relations(&est, &relations, &opts)?;
+    let dead_reckoning = Trajectory::new(result.dead_reckoning.clone());
+    let odo = evaluate_relations(&dead_reckoning, &relations, &opts)?;
+    let stamps = &recording.scans.stamps_ns;
+    let duration_s = match (stamps.first(), stamps.last()) {
+        (Some(a), Some(b)) => (b - a) as f64 * 1e-9,
+        _ => 0.0,
+    };
     if let Some(out) = &args.out {
-        pfslam::io::write_bytes_atomic(&out.join("benchmark.md"), table.as_bytes())?;
-        let json = serde_json::to_string_pretty(&rows)?;
-        pfslam::io::write_bytes_atomic(&out.join("benchmark.json"), json.as_bytes())?;
+        pfslam::io::tum::write_tum(&out.join(format!("{name}.tum")), &result.trajectory)?;
+    }
+    Ok(Row {
+        name: name.clone(),
+        scans: recording.scans.len(),
+        wall_s,
+        realtime_factor: duration_s / wall_s.max(1e-9),
+        trans_mean_m: r.trans_m.abs.mean,
+        trans_std_m: r.trans_m.abs.std,
+        rot_mean_deg: r.rot_deg.abs.mean,
+        rot_std_deg: r.rot_deg.abs.std,
+        relations_used: r.used,
+        relations_total: r.relations,
+        odometry_trans_mean_m: odo.trans_m.abs.mean,
+        front_end_trans_mean_m: front.trans_m.abs.mean,
+        graph,
+    })
+}
+
+/// One recording's figures on standard error, as they come.
+fn print_row(row: &Row) -> anyhow::Result<()> {
+    let name = &row.name;
+    eprintln!(
+        "{name}: {:.4} m, {:.3} deg, {:.1} s ({:.0}x real time); front end {:.4} m",
+        row.trans_mean_m,
+        row.rot_mean_deg,
+        row.wall_s,
+        row.realtime_factor,
+        row.front_end_trans_mean_m
+    );
+    if let Some(g) = &row.graph {
+        eprintln!("{name}: back end {}", serde_json::to_string(g)?);
     }
     Ok(())
 }

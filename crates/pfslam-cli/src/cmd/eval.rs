@@ -2,13 +2,17 @@
 //! against the relations of the Freiburg benchmark (Kümmerle et al. 2009).
 
 use anyhow::Context;
-use pfslam::eval::relations::{RelationsOptions, evaluate_relations, read_relations};
-use pfslam::eval::rpe::{RpeDelta, rpe_of_pairs};
-use pfslam::eval::{Association, ErrorStats, associate, ate::ate_of_pairs};
+use pfslam::eval::ate::{AteResult, ate_of_pairs};
+use pfslam::eval::relations::{
+    RelationsOptions, RelationsResult, evaluate_relations, read_relations,
+};
+use pfslam::eval::rpe::{RpeDelta, RpeResult, rpe_of_pairs};
+use pfslam::eval::{Association, ErrorStats, associate};
+use pfslam::geometry::Trajectory;
 use pfslam::io::recording::{ReaderOptions, detect_format, read_recording};
 use pfslam::io::tum::read_tum;
 use pfslam::sensors::sync::poses_at_stamps;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// Arguments of `eval`.
 #[derive(Debug, clap::Args)]
@@ -69,85 +73,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     {
         anyhow::bail!("--tolerance-ns must be >= 0, got {t}");
     }
-    let delta = match (args.rpe_frames, args.rpe_metres) {
-        (_, Some(m)) if !(m > 0.0 && m.is_finite()) => {
-            anyhow::bail!("--rpe-metres must be a positive distance, got {m}")
-        }
-        (_, Some(m)) => RpeDelta::Metres(m),
-        (Some(0), _) => anyhow::bail!("--rpe-frames must be >= 1"),
-        (Some(k), _) => RpeDelta::Frames(k),
-        (None, None) => RpeDelta::Frames(1),
-    };
-    let association = match args.interpolate_max_gap_s {
-        Some(g) if !(g >= 0.0 && g.is_finite()) => {
-            anyhow::bail!("--interpolate-max-gap-s must be >= 0, got {g}")
-        }
-        Some(g) => Association::Interpolate {
-            max_gap_ns: (g * 1e9).round() as i64,
-        },
-        None => Association::Nearest {
-            tolerance_ns: args.tolerance_ns.unwrap_or(1_000),
-        },
-    };
-    let estimate = match detect_format(&args.trajectory)? {
-        Some(_) => {
-            let rec = read_recording(&args.trajectory, &ReaderOptions::default())?;
-            let (poses, clamped) = poses_at_stamps(&rec.odometry, &rec.scans.stamps_ns);
-            if !args.json {
-                say!(
-                    "raw odometry of {} at its {} scan stamps ({clamped} outside the odometry's time span, given its first/last pose)",
-                    args.trajectory.display(),
-                    rec.scans.len(),
-                );
-            }
-            pfslam::geometry::Trajectory::new(poses)
-        }
-        None => read_tum(&args.trajectory)?,
-    };
+    let delta = rpe_delta(&args)?;
+    let association = association(&args)?;
+    let estimate = read_estimate(&args)?;
     // with --json, one object holding every metric asked for
     let mut json = serde_json::Map::new();
     if let Some(gt_path) = &args.ground_truth {
-        let gt = read_reference(gt_path)?;
-        let pairs = associate(&estimate, &gt, association);
-        let ate = ate_of_pairs(&pairs, estimate.len() - pairs.len())
-            .with_context(|| format!("{} vs {}", args.trajectory.display(), gt_path.display()))?;
-        let rpe = rpe_of_pairs(&pairs, delta)?;
+        let (ate, rpe) = versus_ground_truth(&args, &estimate, gt_path, association, delta)?;
         if args.json {
             json.insert("ate".into(), serde_json::to_value(&ate)?);
             json.insert("rpe".into(), serde_json::to_value(&rpe)?);
         } else {
-            say!(
-                "associated poses: {} ({} estimate poses without ground truth)",
-                ate.pairs,
-                ate.unmatched
-            );
-            say!("ATE aligned (SE(2)):   {}", stats_line(&ate.aligned_m, "m"));
-            say!(
-                "ATE unaligned:         {}",
-                stats_line(&ate.unaligned_m, "m")
-            );
-            say!(
-                "heading aligned:       {}",
-                stats_line(&ate.aligned_rot_deg, "deg")
-            );
-            say!(
-                "alignment gt_from_estimate: x {:.4} m, y {:.4} m, yaw {:.4} deg",
-                ate.alignment.x_m,
-                ate.alignment.y_m,
-                ate.alignment.yaw_rad.to_degrees()
-            );
-            let d = match rpe.delta {
-                RpeDelta::Frames(k) => format!("{k} frame(s)"),
-                RpeDelta::Metres(m) => format!("{m} m"),
-            };
-            say!(
-                "RPE over {d}: translation {}",
-                stats_line(&rpe.trans_m, "m")
-            );
-            say!(
-                "RPE over {d}: rotation    {}",
-                stats_line(&rpe.rot_deg, "deg")
-            );
+            print_ate_rpe(&ate, &rpe);
         }
     }
     if let Some(rel_path) = &args.relations {
@@ -160,34 +97,139 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         if args.json {
             json.insert("relations".into(), serde_json::to_value(&r)?);
         } else {
-            say!(
-                "relations: {} used of {} ({} skipped: a stamp without pose)",
-                r.used,
-                r.relations,
-                r.skipped
-            );
-            say!(
-                "translational error: {:.4} +- {:.4} m (max {:.4}); squared {:.5} +- {:.5} m^2 (max {:.4})",
-                r.trans_m.abs.mean,
-                r.trans_m.abs.std,
-                r.trans_m.abs.max,
-                r.trans_m.squared.mean,
-                r.trans_m.squared.std,
-                r.trans_m.squared.max
-            );
-            say!(
-                "rotational error:    {:.4} +- {:.4} deg (max {:.4}); squared {:.4} +- {:.4} deg^2 (max {:.4})",
-                r.rot_deg.abs.mean,
-                r.rot_deg.abs.std,
-                r.rot_deg.abs.max,
-                r.rot_deg.squared.mean,
-                r.rot_deg.squared.std,
-                r.rot_deg.squared.max
-            );
+            print_relations(&r);
         }
     }
     if args.json {
         say!("{}", serde_json::to_string_pretty(&json)?);
     }
     Ok(())
+}
+
+/// The RPE step from `--rpe-frames` / `--rpe-metres` (one frame by default).
+fn rpe_delta(args: &Args) -> anyhow::Result<RpeDelta> {
+    Ok(match (args.rpe_frames, args.rpe_metres) {
+        (_, Some(m)) if !(m > 0.0 && m.is_finite()) => {
+            anyhow::bail!("--rpe-metres must be a positive distance, got {m}")
+        }
+        (_, Some(m)) => RpeDelta::Metres(m),
+        (Some(0), _) => anyhow::bail!("--rpe-frames must be >= 1"),
+        (Some(k), _) => RpeDelta::Frames(k),
+        (None, None) => RpeDelta::Frames(1),
+    })
+}
+
+/// How estimate and ground truth are paired: interpolated with `--interpolate-max-gap-s`,
+/// else nearest stamp within `--tolerance-ns`.
+fn association(args: &Args) -> anyhow::Result<Association> {
+    Ok(match args.interpolate_max_gap_s {
+        Some(g) if !(g >= 0.0 && g.is_finite()) => {
+            anyhow::bail!("--interpolate-max-gap-s must be >= 0, got {g}")
+        }
+        Some(g) => Association::Interpolate {
+            max_gap_ns: (g * 1e9).round() as i64,
+        },
+        None => Association::Nearest {
+            tolerance_ns: args.tolerance_ns.unwrap_or(1_000),
+        },
+    })
+}
+
+/// The trajectory to score: a TUM file, or a recording's raw odometry at its scan stamps.
+fn read_estimate(args: &Args) -> anyhow::Result<Trajectory> {
+    Ok(match detect_format(&args.trajectory)? {
+        Some(_) => {
+            let rec = read_recording(&args.trajectory, &ReaderOptions::default())?;
+            let (poses, clamped) = poses_at_stamps(&rec.odometry, &rec.scans.stamps_ns);
+            if !args.json {
+                say!(
+                    "raw odometry of {} at its {} scan stamps ({clamped} outside the odometry's time span, given its first/last pose)",
+                    args.trajectory.display(),
+                    rec.scans.len(),
+                );
+            }
+            Trajectory::new(poses)
+        }
+        None => read_tum(&args.trajectory)?,
+    })
+}
+
+/// ATE and RPE of `estimate` against the ground truth in `gt_path`.
+fn versus_ground_truth(
+    args: &Args,
+    estimate: &Trajectory,
+    gt_path: &Path,
+    association: Association,
+    delta: RpeDelta,
+) -> anyhow::Result<(AteResult, RpeResult)> {
+    let gt = read_reference(gt_path)?;
+    let pairs = associate(estimate, &gt, association);
+    let ate = ate_of_pairs(&pairs, estimate.len() - pairs.len())
+        .with_context(|| format!("{} vs {}", args.trajectory.display(), gt_path.display()))?;
+    let rpe = rpe_of_pairs(&pairs, delta)?;
+    Ok((ate, rpe))
+}
+
+/// The ATE and RPE figures as text.
+fn print_ate_rpe(ate: &AteResult, rpe: &RpeResult) {
+    say!(
+        "associated poses: {} ({} estimate poses without ground truth)",
+        ate.pairs,
+        ate.unmatched
+    );
+    say!("ATE aligned (SE(2)):   {}", stats_line(&ate.aligned_m, "m"));
+    say!(
+        "ATE unaligned:         {}",
+        stats_line(&ate.unaligned_m, "m")
+    );
+    say!(
+        "heading aligned:       {}",
+        stats_line(&ate.aligned_rot_deg, "deg")
+    );
+    say!(
+        "alignment gt_from_estimate: x {:.4} m, y {:.4} m, yaw {:.4} deg",
+        ate.alignment.x_m,
+        ate.alignment.y_m,
+        ate.alignment.yaw_rad.to_degrees()
+    );
+    let d = match rpe.delta {
+        RpeDelta::Frames(k) => format!("{k} frame(s)"),
+        RpeDelta::Metres(m) => format!("{m} m"),
+    };
+    say!(
+        "RPE over {d}: translation {}",
+        stats_line(&rpe.trans_m, "m")
+    );
+    say!(
+        "RPE over {d}: rotation    {}",
+        stats_line(&rpe.rot_deg, "deg")
+    );
+}
+
+/// The relations metric as text.
+fn print_relations(r: &RelationsResult) {
+    say!(
+        "relations: {} used of {} ({} skipped: a stamp without pose)",
+        r.used,
+        r.relations,
+        r.skipped
+    );
+    say!(
+        "translational error: {:.4} +- {:.4} m (max {:.4}); squared {:.5} +- {:.5} m^2 (max {:.4})",
+        r.trans_m.abs.mean,
+        r.trans_m.abs.std,
+        r.trans_m.abs.max,
+        r.trans_m.squared.mean,
+        r.trans_m.squared.std,
+        r.trans_m.squared.max
+    );
+    say!(
+        "rotational error:    {:.4} +- {:.4} deg (max {:.4}); squared {:.4} +- {:.4} deg^2 (max {:.4})",
+        r.rot_deg.abs.mean,
+        r.rot_deg.abs.std,
+        r.rot_deg.abs.max,
+        r.rot_deg.squared.mean,
+        r.rot_deg.squared.std,
+        r.rot_deg.squared.max
+    );
 }

@@ -11,12 +11,15 @@ use pfslam::eval::{Association, ate::ate, rpe::RpeDelta, rpe::rpe};
 use pfslam::filter::slam::{SlamResult, anchor_odometry_to_ground_truth};
 use pfslam::geometry::{Pose2, StampedPose2, Trajectory};
 use pfslam::graph::GraphStats;
+use pfslam::io::account::InputAccount;
 use pfslam::io::map_files::write_map_server;
 use pfslam::io::tum::write_tum;
-use pfslam::pipeline::{BackEndInput, PipelineOptions, run_pipeline};
+use pfslam::pipeline::{BackEndInput, PipelineOptions, PipelineResult, run_pipeline};
+use pfslam::quality::Quality;
 use pfslam::sensors::Recording;
+use pfslam::session::SessionState;
 use pfslam::viz::map_image::{MapImageOptions, TrajectoryOverlay, write_binary_png, write_map_png};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// Arguments of `run`.
@@ -69,7 +72,20 @@ pub struct Args {
     pub input: super::input::InputArgs,
 }
 
-use super::dataset::{Dataset, load_dataset};
+use super::dataset::{Dataset, TrueMaps, load_dataset};
+use super::record::Recorder;
+
+/// A finished SLAM run on a loaded recording, before its outputs are written.
+struct Slammed {
+    recording: Recording,
+    true_map: Option<TrueMaps>,
+    account: InputAccount,
+    load_s: f64,
+    /// Whether the odometry starts at the ground truth's first pose.
+    anchored: bool,
+    pipeline: PipelineResult,
+    recorder: Option<Recorder>,
+}
 
 /// Runs SLAM and writes the outputs.
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -85,16 +101,27 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let staging = super::output::Staging::new(&args.out)?;
     let out_dir = staging.path().to_path_buf();
     let recorder = match &args.record {
-        Some(path) => Some(super::record::Recorder::create(path)?),
+        Some(path) => Some(Recorder::create(path)?),
         None => None,
     };
+    let slammed = load_and_slam(&args, &config, &out_dir, recorder)?;
+    write_and_commit(&args, &config, staging, slammed)
+}
+
+/// Loads the dataset (timed) and runs the pipeline on it, snapshots and recording included.
+fn load_and_slam(
+    args: &Args,
+    config: &Config,
+    out_dir: &Path,
+    recorder: Option<Recorder>,
+) -> anyhow::Result<Slammed> {
     let t_load = Instant::now();
     let Dataset {
         mut recording,
         true_map,
         account,
         ..
-    } = load_dataset(&args.dataset, &config, args.sort_timestamps)
+    } = load_dataset(&args.dataset, config, args.sort_timestamps)
         .with_context(|| format!("loading {}", args.dataset.display()))?;
     let load_s = t_load.elapsed().as_secs_f64();
     super::input::report(&account);
@@ -107,7 +134,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     let pipeline = run_pipeline(
         &recording,
-        &config,
+        config,
         args.seed,
         &PipelineOptions {
             back_end_input: args.graph_on_odometry.then_some(BackEndInput::Odometry),
@@ -116,6 +143,25 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &mut |ev| observer.on_event(ev),
     )?;
     let recorder = observer.finish()?;
+    Ok(Slammed {
+        recording,
+        true_map,
+        account,
+        load_s,
+        anchored,
+        pipeline,
+        recorder,
+    })
+}
+
+/// Writes the outputs into the staging directory and commits them.
+fn write_and_commit(
+    args: &Args,
+    config: &Config,
+    staging: super::output::Staging,
+    s: Slammed,
+) -> anyhow::Result<()> {
+    let (recording, pipeline, out_dir) = (&s.recording, s.pipeline, staging.path());
     // The back end's figures: its statistics, the wall time of the map rebuilt along its
     // trajectory, and its input (the filter's trajectory, or the dead reckoning).
     let result = pipeline.result;
@@ -129,10 +175,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "input": pipeline.back_end_input,
         "odometry_calibration": pipeline.calibration,
     });
-    let record = match recorder {
+    let record = match s.recorder {
         None => None,
         Some(r) => Some(r.finish(&super::record::Finished {
-            recording: &recording,
+            recording,
             trajectory: &result.trajectory,
             front_end: &front_end,
             map: &result.map,
@@ -141,31 +187,38 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let graph = pipeline.graph.map(|g| (g, rebuild_s, front_end));
     write_outputs(&RunOutputs {
-        args: &args,
-        config: &config,
-        recording: &recording,
-        true_map: true_map.as_ref(),
+        args,
+        config,
+        recording,
+        true_map: s.true_map.as_ref(),
         result: &result,
-        load_s,
-        anchored,
+        load_s: s.load_s,
+        anchored: s.anchored,
         graph: graph.as_ref(),
         back_end_input,
-        account: &account,
+        account: &s.account,
         quality: &pipeline.quality,
-        out: &out_dir,
+        out: out_dir,
     })?;
     // The ground's colours along the SLAM path, when the dataset has stereo images.
     let (traj, map) = (&result.trajectory, &result.map);
-    super::texture::texture_after_run(&args.dataset, traj, &config, map, &out_dir);
+    super::texture::texture_after_run(&args.dataset, traj, config, map, out_dir);
     let state = args.save_state.as_ref().map(|path| {
-        let s = pfslam::session::SessionState::after_session(
-            None,
-            &recording,
-            &result.trajectory,
-            &config,
-        );
+        let s = SessionState::after_session(None, recording, &result.trajectory, config);
         (path, s)
     });
+    commit_and_save(args, staging, record, state, &pipeline.quality)
+}
+
+/// Moves the outputs into `--out`, then writes the recording and the saved state (which lie
+/// outside it) and warns of a suspect result.
+fn commit_and_save(
+    args: &Args,
+    staging: super::output::Staging,
+    record: Option<super::record::Written>,
+    state: Option<(&PathBuf, SessionState)>,
+    quality: &Quality,
+) -> anyhow::Result<()> {
     staging.commit()?;
     say!("wrote {}", args.out.display());
     if let Some(r) = record {
@@ -174,7 +227,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some((path, state)) = state {
         super::resume::save_state(path, &state)?;
     }
-    for reason in &pipeline.quality.reasons {
+    for reason in &quality.reasons {
         eprintln!("warning: suspect result: {reason}");
     }
     Ok(())
@@ -208,16 +261,16 @@ struct RunOutputs<'a> {
     args: &'a Args,
     config: &'a Config,
     recording: &'a Recording,
-    true_map: Option<&'a super::dataset::TrueMaps>,
+    true_map: Option<&'a TrueMaps>,
     result: &'a SlamResult,
     load_s: f64,
     anchored: bool,
     /// The back end's statistics, the map rebuild's seconds and its input, when it ran.
     graph: Option<&'a (GraphStats, f64, Vec<StampedPose2>)>,
     back_end_input: serde_json::Value,
-    account: &'a pfslam::io::account::InputAccount,
-    quality: &'a pfslam::quality::Quality,
-    out: &'a std::path::Path,
+    account: &'a InputAccount,
+    quality: &'a Quality,
+    out: &'a Path,
 }
 
 /// Writes the trajectories, the maps, `summary.json` and `report.html`, and prints the
@@ -321,31 +374,43 @@ fn summary_json(
         && o.anchored
         && binary.width > 0
     {
-        let figures = |c: pfslam::map::MapComparison| {
-            serde_json::json!({
-                "tolerance_cells": c.tolerance_cells,
-                "precision": c.precision(),
-                "recall": c.recall(),
-                "recall_all": c.recall_all(),
-                "free_agreement": c.free_agreement(),
-            })
-        };
-        // As written: the map in the frame of the true start pose.
-        summary["map_vs_true_map"] = figures(truth.compare(binary, 1)?);
-        // Through the ATE's alignment: the map's shape, without the drift of its frame.
-        if let Some(a) = slam_alignment {
-            let mut v = figures(truth.compare_aligned(binary, 1, &a)?);
-            v["ground_truth_from_map"] =
-                serde_json::json!({ "x_m": a.x_m, "y_m": a.y_m, "yaw_rad": a.yaw_rad });
-            summary["map_vs_true_map_aligned"] = v;
-        }
+        map_vs_true_map(&mut summary, truth, binary, slam_alignment)?;
     }
     Ok(summary)
 }
 
+/// Adds the map against the true map to `summary`: as written and, with the SLAM
+/// trajectory's ATE alignment, through it.
+fn map_vs_true_map(
+    summary: &mut serde_json::Value,
+    truth: &TrueMaps,
+    binary: &pfslam::map::BinaryMap,
+    slam_alignment: Option<Pose2>,
+) -> anyhow::Result<()> {
+    let figures = |c: pfslam::map::MapComparison| {
+        serde_json::json!({
+            "tolerance_cells": c.tolerance_cells,
+            "precision": c.precision(),
+            "recall": c.recall(),
+            "recall_all": c.recall_all(),
+            "free_agreement": c.free_agreement(),
+        })
+    };
+    // As written: the map in the frame of the true start pose.
+    summary["map_vs_true_map"] = figures(truth.compare(binary, 1)?);
+    // Through the ATE's alignment: the map's shape, without the drift of its frame.
+    if let Some(a) = slam_alignment {
+        let mut v = figures(truth.compare_aligned(binary, 1, &a)?);
+        v["ground_truth_from_map"] =
+            serde_json::json!({ "x_m": a.x_m, "y_m": a.y_m, "yaw_rad": a.yaw_rad });
+        summary["map_vs_true_map_aligned"] = v;
+    }
+    Ok(())
+}
+
 /// The run's figures on standard output.
 fn print_figures(o: &RunOutputs<'_>, summary: &serde_json::Value, write_s: f64) {
-    let (recording, result, graph, load_s) = (o.recording, o.result, o.graph, o.load_s);
+    let (recording, result, load_s) = (o.recording, o.result, o.load_s);
     let s = &result.stats;
     say!(
         "{}: {} of {} scans, {} particles, {} updates, {} resamples, Neff mean {:.1} min {:.1}",
@@ -367,6 +432,15 @@ fn print_figures(o: &RunOutputs<'_>, summary: &serde_json::Value, write_s: f64) 
         s.timings.resample_s,
         s.timings.map_update_s
     );
+    print_back_end(o.graph, summary);
+    print_accuracy(summary);
+}
+
+/// The back end's figures and the calibration of the odometry fed to it, when it ran.
+fn print_back_end(
+    graph: Option<&(GraphStats, f64, Vec<StampedPose2>)>,
+    summary: &serde_json::Value,
+) {
     if let Some((g, remap_s, _)) = graph {
         say!(
             "graph: {} keyframes, {} loop closures kept ({} candidates, {} removed as outliers), \
@@ -396,6 +470,10 @@ fn print_figures(o: &RunOutputs<'_>, summary: &serde_json::Value, write_s: f64) 
                 .unwrap_or(f64::NAN)
         );
     }
+}
+
+/// The accuracy against ground truth and the true map, when there are.
+fn print_accuracy(summary: &serde_json::Value) {
     if let Some(f) = summary.get("front_end_vs_ground_truth") {
         say!(
             "ATE RMSE (SE(2)-aligned) of the filter before the back end: {:.3} m",
