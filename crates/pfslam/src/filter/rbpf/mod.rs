@@ -11,9 +11,8 @@
 //!   model, see [`scan_log_likelihood`]; the prior's sigmas are GMapping's four-parameter
 //!   motion noise for the increment, `odometry_noise`), then samples its pose around the
 //!   match (`search.jitter_xy_m`, `search.jitter_yaw_deg`); its log-weight grows by the
-//!   match log-likelihood / `weight_temperature`. (`search.match_from_prediction = false`:
-//!   GMapping's order, the motion noise sampled first and the match started from the
-//!   sample.) Maps are updated with the particle's pose; resampling is selective (Neff
+//!   match log-likelihood / `weight_temperature` (GMapping samples the motion noise first
+//!   and matches from the sample: decision 0005). Maps are updated with the particle's pose; resampling is selective (Neff
 //!   below a fraction of N).
 //! - Each particle's trajectory is a chain of [`PathNode`]s with `Arc` parent links, one per
 //!   update, so resampled copies share their history. The output is the FINAL best

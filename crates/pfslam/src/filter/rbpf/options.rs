@@ -90,8 +90,8 @@ pub struct RbpfSearch {
     pub step_yaw_deg: f64,
     /// Step halvings of the hill climb (GMapping `iterations`).
     pub refine_levels: u32,
-    /// The matcher's prior on the deviation from each particle's predicted pose (the sample,
-    /// with `search.match_from_prediction = false`): a Gaussian with the motion model's
+    /// The matcher's prior on the deviation from each particle's noise-free predicted pose
+    /// (decision 0005): a Gaussian with the motion model's
     /// sigmas (`odometry_noise`) for this update times this factor (0 = no prior, the match
     /// may go anywhere the search reaches). Keeps matches from sliding along corridors.
     pub prior_scale: f64,
@@ -99,14 +99,9 @@ pub struct RbpfSearch {
     pub prior_min_xy_m: f64,
     /// Smallest yaw sigma of that prior (deg).
     pub prior_min_yaw_deg: f64,
-    /// The proposal. `true`: each particle is matched from its noise-free prediction (the
-    /// prior centred there) and then sampled around its match (`search.jitter_*`). `false`
-    /// (GMapping's order): the motion noise is sampled first and the match starts from the
-    /// sample, the prior centred on it; with noise sized for poor odometry the samples land
-    /// in other basins of the likelihood and good odometry is made worse. See
-    /// `docs/decisions/0005-proposal-from-prediction.md`.
-    pub match_from_prediction: bool,
-    /// x/y sigma of the sample around the match (m).
+    /// x/y sigma of the sample around the match (m): each particle is matched from its
+    /// noise-free prediction, then sampled around its match
+    /// (`docs/decisions/0005-proposal-from-prediction.md`).
     pub jitter_xy_m: f64,
     /// Yaw sigma of the sample around the match (deg).
     pub jitter_yaw_deg: f64,
@@ -179,7 +174,6 @@ impl Default for RbpfSearch {
             prior_scale: 1.0,
             prior_min_xy_m: 0.02,
             prior_min_yaw_deg: 1.0,
-            match_from_prediction: true,
             jitter_xy_m: 0.01,
             jitter_yaw_deg: 0.25,
         }

@@ -14,32 +14,6 @@ use serde::Serialize;
 use std::sync::Arc;
 use std::time::Instant;
 
-/// GMapping's odometry noise: the increment `delta` (in the old body frame) gets Gaussian
-/// noise whose sigmas grow with the distance and angle travelled; returns `pose ⊕ noisy`.
-fn sample_motion(
-    pose: &Pose2,
-    delta: &Pose2,
-    noise: [f64; 4],
-    rng: &mut Xoshiro256PlusPlus,
-) -> Pose2 {
-    let [srr, str_, srt, stt] = noise;
-    let sxy = 0.3 * srr;
-    let (dx, dy, dt) = (delta.x_m.abs(), delta.y_m.abs(), delta.yaw_rad.abs());
-    let (a, b, c): (f64, f64, f64) = (
-        rng.sample(StandardNormal),
-        rng.sample(StandardNormal),
-        rng.sample(StandardNormal),
-    );
-    let noisy = Pose2::new(
-        delta.x_m + a * (srr * dx + str_ * dt + sxy * dy),
-        delta.y_m + b * (srr * dy + str_ * dt + sxy * dx),
-        delta.yaw_rad + c * (stt * dt + srt * dx.hypot(dy)),
-    );
-    let mut out = pose.compose(&noisy);
-    out.yaw_rad = wrap_angle(out.yaw_rad);
-    out
-}
-
 /// One particle: pose, own map and trajectory node.
 #[derive(Debug, Clone)]
 pub struct RbParticle {
@@ -263,13 +237,11 @@ impl Rbpf {
         });
     }
 
-    /// Moves every particle by `delta`: to its noise-free prediction (returning the jitter
-    /// each adds to its match, drawn now), or by a motion sample. Drawn per chunk, from the
-    /// chunk's stream in particle order (cheap, and the same for any thread count).
+    /// Moves every particle by `delta` to its noise-free prediction; returns the jitter
+    /// each adds to its match, drawn now per chunk from the chunk's stream in particle order
+    /// (cheap, and the same for any thread count).
     fn move_particles(&mut self, delta: &Pose2) -> Vec<[f64; 3]> {
-        let noise = self.options.noise();
         let o = &self.options.search;
-        let from_prediction = o.match_from_prediction;
         let jitter_sigma = [o.jitter_xy_m, o.jitter_xy_m, o.jitter_yaw_deg.to_radians()];
         let mut jitters: Vec<[f64; 3]> = Vec::new();
         for (parts, st) in self
@@ -278,13 +250,9 @@ impl Rbpf {
             .zip(self.chunks.iter_mut())
         {
             for p in parts.iter_mut() {
-                if from_prediction {
-                    p.pose = p.pose.compose(delta);
-                    p.pose.yaw_rad = wrap_angle(p.pose.yaw_rad);
-                    jitters.push(jitter_sigma.map(|s| s * st.rng.sample::<f64, _>(StandardNormal)));
-                } else {
-                    p.pose = sample_motion(&p.pose, delta, noise, &mut st.rng);
-                }
+                p.pose = p.pose.compose(delta);
+                p.pose.yaw_rad = wrap_angle(p.pose.yaw_rad);
+                jitters.push(jitter_sigma.map(|s| s * st.rng.sample::<f64, _>(StandardNormal)));
             }
         }
         jitters
