@@ -1,7 +1,8 @@
 //! The default SLAM pipeline in one step: the filter ([`run_slam`]), then the `[graph]` back
 //! end when enabled, then the map rebuilt along the corrected trajectory. `pfslam run`,
 //! `pfslam benchmark` and `pfslam bench-e2e` all call [`run_pipeline`], so the benchmarks
-//! time exactly what `run` does.
+//! time exactly what `run` does; [`crate::Slam::finish`] runs the same stages after its
+//! filter (`after_filter`).
 
 use crate::config::Config;
 use crate::filter::slam::{SlamError, SlamEvent, SlamResult, run_slam};

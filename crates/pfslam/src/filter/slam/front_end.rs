@@ -1,5 +1,6 @@
-//! The filters fed one scan at a time ([`FrontEnd`], one per mode) and the one loop that
-//! feeds them a recording ([`drive`]); here the `scan_match` and `seed` modes' front end.
+//! The filters fed one scan at a time ([`FrontEnd`], one per mode), the step that hands
+//! them a scan ([`feed_scan`], shared by the batch loop [`drive`] and [`crate::Slam`]);
+//! here the `scan_match` and `seed` modes' front end.
 
 use super::*;
 use crate::filter::UpdateReport;
