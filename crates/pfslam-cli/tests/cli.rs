@@ -58,6 +58,7 @@ mod cli_benchmark;
 mod cli_data;
 mod cli_demo;
 mod cli_eval;
+mod cli_live;
 mod cli_map;
 mod cli_record;
 mod cli_run;

@@ -33,7 +33,7 @@
 
 use crate::config::Config;
 use crate::filter::odometry::OdometryCursor;
-use crate::filter::slam::{AnyFrontEnd, FrontEnd, SlamError, feed_scan};
+use crate::filter::slam::{AnyFrontEnd, FrontEnd, SlamError, SlamEvent, feed_scan};
 use crate::geometry::{Pose2, Rigid3, StampedPose2};
 use crate::map::{MapError, OccupancyGrid};
 use crate::pipeline::{PipelineError, PipelineOptions, PipelineResult, after_filter};
@@ -164,12 +164,50 @@ impl Slam {
         })
     }
 
+    /// A filter over a whole `recording` already read, as `pfslam run` does with a file: its
+    /// scans are handled by [`Self::finish_observed`] (or by the next push). A recording
+    /// without odometry gets the odometry of its scans alone (LiDAR-only), as in
+    /// [`crate::pipeline::run_pipeline`].
+    pub fn with_recording(
+        config: Config,
+        mut recording: Recording,
+        seed: u64,
+    ) -> Result<Self, OnlineError> {
+        let n = recording.scans.len();
+        let lengths = [
+            recording.body_from_lidar_per_scan.as_ref().map(Vec::len),
+            recording.lidar_per_scan.as_ref().map(Vec::len),
+        ];
+        if lengths.iter().flatten().any(|&len| len != n) {
+            return Err(SlamError::Input {
+                name: recording.name.clone(),
+                message: "per-scan LiDAR mounts or beams do not match the scans".into(),
+            }
+            .into());
+        }
+        crate::pipeline::ensure_odometry(&mut recording).map_err(SlamError::from)?;
+        let mut slam = Slam::new(config, SensorSetup::of(&recording), seed)?;
+        slam.recording = recording;
+        Ok(slam)
+    }
+
     /// The odometry's pose at `stamp_ns` (in its own frame); returns the pose of the latest
     /// scan when scans waiting for this odometry were handled.
     pub fn push_odometry(
         &mut self,
         stamp_ns: i64,
         pose: Pose2,
+    ) -> Result<Option<StampedPose2>, OnlineError> {
+        self.push_odometry_observed(stamp_ns, pose, &mut |_| {})
+    }
+
+    /// [`Self::push_odometry`], reporting the filter's events (a [`SlamEvent::Pose`] per scan
+    /// handled, updates, snapshots) to `observer`.
+    pub fn push_odometry_observed(
+        &mut self,
+        stamp_ns: i64,
+        pose: Pose2,
+        observer: &mut dyn FnMut(SlamEvent<'_>),
     ) -> Result<Option<StampedPose2>, OnlineError> {
         let poses = &mut self.recording.odometry.poses;
         if let Some(last) = poses.last()
@@ -182,7 +220,7 @@ impl Slam {
             });
         }
         poses.push(StampedPose2 { stamp_ns, pose });
-        self.handle_ready()
+        self.handle_ready(observer)
     }
 
     /// A scan with the setup's beams and mount; returns the pose of the latest scan when
@@ -205,8 +243,17 @@ impl Slam {
         &mut self,
         scan: ScanInput<'_>,
     ) -> Result<Option<StampedPose2>, OnlineError> {
+        self.push_scan_observed(scan, &mut |_| {})
+    }
+
+    /// [`Self::push_scan_with`], reporting the filter's events to `observer`.
+    pub fn push_scan_observed(
+        &mut self,
+        scan: ScanInput<'_>,
+        observer: &mut dyn FnMut(SlamEvent<'_>),
+    ) -> Result<Option<StampedPose2>, OnlineError> {
         self.append_scan(&scan)?;
-        self.handle_ready()
+        self.handle_ready(observer)
     }
 
     /// The pose of the latest scan handled (`None` before the first).
@@ -234,7 +281,20 @@ impl Slam {
     }
 
     /// [`Self::finish`] with pipeline `options`.
-    pub fn finish_with(mut self, options: &PipelineOptions) -> Result<PipelineResult, OnlineError> {
+    pub fn finish_with(self, options: &PipelineOptions) -> Result<PipelineResult, OnlineError> {
+        self.finish_observed(options, &mut |_| {})
+            .map(|(result, _)| result)
+    }
+
+    /// [`Self::finish_with`], reporting the filter's events on the last scans to `observer`;
+    /// also gives back the recording pushed.
+    pub fn finish_observed(
+        mut self,
+        options: &PipelineOptions,
+        observer: &mut dyn FnMut(SlamEvent<'_>),
+    ) -> Result<(PipelineResult, Recording), OnlineError> {
+        // scans of a whole recording given at the start wait here
+        self.handle_ready(observer)?;
         let t = Instant::now();
         let Some(mut running) = self.running.take() else {
             let message = if self.recording.odometry.is_empty() {
@@ -251,17 +311,14 @@ impl Slam {
         let recording = &self.recording;
         for i in self.next_scan..recording.scans.len() {
             let feed = (&mut running.cursor, &mut running.steps);
-            feed_scan(&mut running.front, recording, i, feed, &mut |_| {})?;
+            feed_scan(&mut running.front, recording, i, feed, observer)?;
         }
-        let result = running.front.finish(recording, running.t_start)?;
+        let mut result = running.front.finish(recording, running.t_start)?;
+        // the front end was built when the first scan came
+        result.stats.scans_total = recording.scans.len();
         let filter_s = self.filter_s + t.elapsed().as_secs_f64();
-        Ok(after_filter(
-            recording,
-            &self.config,
-            options,
-            result,
-            (filter_s, None),
-        )?)
+        let pipeline = after_filter(recording, &self.config, options, result, (filter_s, None))?;
+        Ok((pipeline, self.recording))
     }
 
     /// Appends `scan` to the recording, checked.
@@ -306,7 +363,10 @@ impl Slam {
 
     /// Hands every waiting scan the odometry reaches to the front end (starting it at the
     /// first scan inside the odometry's span); the latest pose when any was handled.
-    fn handle_ready(&mut self) -> Result<Option<StampedPose2>, OnlineError> {
+    fn handle_ready(
+        &mut self,
+        observer: &mut dyn FnMut(SlamEvent<'_>),
+    ) -> Result<Option<StampedPose2>, OnlineError> {
         let t = Instant::now();
         let handled_before = self.next_scan;
         let rec = &self.recording;
@@ -333,7 +393,7 @@ impl Slam {
             }
             if let Some(r) = self.running.as_mut() {
                 let feed = (&mut r.cursor, &mut r.steps);
-                feed_scan(&mut r.front, rec, i, feed, &mut |_| {})?;
+                feed_scan(&mut r.front, rec, i, feed, observer)?;
             }
             self.next_scan += 1;
         }

@@ -79,6 +79,7 @@ fn assert_same(a: &PipelineResult, b: &PipelineResult) {
     assert_eq!(a.result.dead_reckoning, b.result.dead_reckoning);
     assert_eq!(a.result.stats.scans_skipped, b.result.stats.scans_skipped);
     assert_eq!(a.result.stats.updates, b.result.stats.updates);
+    assert_eq!(a.result.stats.scans_total, b.result.stats.scans_total);
     assert_eq!(a.result.map.tile_count(), b.result.map.tile_count());
     assert_eq!(
         a.graph
@@ -104,7 +105,33 @@ fn incremental_runs_equal_the_batch_run_in_every_mode() {
             eprintln!("{mode:?}, {order:?}");
             assert_same(&incremental(&rec, &config, 3, order), &reference);
         }
+        let whole = Slam::with_recording(config.clone(), rec.clone(), 3).unwrap();
+        assert_same(&whole.finish().unwrap(), &reference);
     }
+}
+
+#[test]
+fn a_whole_recording_with_per_scan_beams_and_mounts_gives_the_batch_run() {
+    let mut rec = synthetic::recording(10.0, 2);
+    let n = rec.scans.len();
+    let mut narrow = rec.lidar;
+    narrow.range_max_m *= 0.5;
+    rec.lidar_per_scan = Some(
+        (0..n)
+            .map(|i| if i % 3 == 0 { narrow } else { rec.lidar })
+            .collect(),
+    );
+    let mut config = Config::default();
+    config.filter.particles = 8;
+    let reference = batch(&rec, &config, 2);
+    let whole = Slam::with_recording(config.clone(), rec.clone(), 2).unwrap();
+    assert_same(&whole.finish().unwrap(), &reference);
+    rec.body_from_lidar_per_scan = Some(vec![rec.body_from_lidar; n - 1]);
+    let err = Slam::with_recording(config, rec, 2)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(err.contains("per-scan LiDAR mounts"), "{err}");
 }
 
 /// A real log with the default configuration: the whole pipeline, back end included.

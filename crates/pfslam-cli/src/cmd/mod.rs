@@ -22,6 +22,7 @@ pub mod experiment;
 pub mod info;
 pub mod input;
 pub mod interrupt;
+pub mod live;
 pub mod localize;
 pub mod map;
 pub mod observer;
@@ -35,10 +36,19 @@ pub mod run;
 pub mod simulate;
 pub mod texture;
 
-/// Writes `text` to standard output; a closed pipe (`pfslam info X | head`) ends quietly, as
-/// Unix tools do.
+/// Set when standard output carries data (`run --poses-out -`): the messages go to standard
+/// error then.
+pub static MESSAGES_TO_STDERR: std::sync::atomic::AtomicBool =
+    std::sync::atomic::AtomicBool::new(false);
+
+/// Writes `text` to standard output (standard error when it carries data); a closed pipe
+/// (`pfslam info X | head`) ends quietly, as Unix tools do.
 pub fn print_stdout(text: &str) -> anyhow::Result<()> {
     use std::io::Write;
+    if MESSAGES_TO_STDERR.load(std::sync::atomic::Ordering::Relaxed) {
+        eprint!("{text}");
+        return Ok(());
+    }
     let mut out = std::io::stdout().lock();
     match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
         Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(e.into()),

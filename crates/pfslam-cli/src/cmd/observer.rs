@@ -1,5 +1,6 @@
 //! What `run` does with the filter's events: a progress bar on a terminal (log lines
-//! otherwise), map snapshots in `snapshots/`, and the `--record` file.
+//! otherwise), map snapshots in `snapshots/`, the `--record` file, and each scan's pose as a
+//! TUM line at once (`--poses-out`).
 
 use pfslam::filter::slam::SlamEvent;
 use pfslam::geometry::Pose2;
@@ -14,20 +15,20 @@ pub struct RunObserver {
     last_logged: usize,
     t_start: Instant,
     snapshots: PathBuf,
-    snapshot_error: Option<anyhow::Error>,
+    write_error: Option<anyhow::Error>,
     /// The `--record` file being written.
     pub recorder: Option<super::record::Recorder>,
+    /// `--poses-out`: each scan's pose, flushed at once.
+    poses_out: Option<Box<dyn std::io::Write>>,
+    /// Each scan's pose so far, when kept (live snapshots draw it).
+    pub poses: Option<Vec<Pose2>>,
 }
 
 impl RunObserver {
-    /// An observer of `total` scans writing snapshots into `snapshots`.
-    pub fn new(
-        total: usize,
-        snapshots: PathBuf,
-        recorder: Option<super::record::Recorder>,
-    ) -> RunObserver {
+    /// An observer writing snapshots into `snapshots`.
+    pub fn new(snapshots: PathBuf, recorder: Option<super::record::Recorder>) -> RunObserver {
         let bar = std::io::stderr().is_terminal().then(|| {
-            let b = indicatif::ProgressBar::new(total as u64);
+            let b = indicatif::ProgressBar::new(0);
             b.set_style(
                 indicatif::ProgressStyle::with_template(
                     "{bar:40} {pos}/{len} scans  {per_sec}  ETA {eta}",
@@ -41,9 +42,35 @@ impl RunObserver {
             last_logged: 0,
             t_start: Instant::now(),
             snapshots,
-            snapshot_error: None,
+            write_error: None,
             recorder,
+            poses_out: None,
+            poses: None,
         }
+    }
+
+    /// The run to come has `total` scans: the progress bar's length; the clock of its rate
+    /// starts.
+    pub fn set_total(&mut self, total: usize) {
+        if let Some(b) = &self.bar {
+            b.set_length(total as u64);
+        }
+        self.t_start = Instant::now();
+    }
+
+    /// Also writes each scan's pose to `out` as a TUM line, flushed at once.
+    pub fn with_poses_out(mut self, out: Box<dyn std::io::Write>) -> RunObserver {
+        self.poses_out = Some(out);
+        self
+    }
+
+    /// Live input: no progress bar (the scan count is unknown), the poses kept.
+    pub fn live(mut self) -> RunObserver {
+        if let Some(b) = self.bar.take() {
+            b.finish_and_clear();
+        }
+        self.poses = Some(Vec::new());
+        self
     }
 
     /// Handles one event of the filter.
@@ -53,13 +80,14 @@ impl RunObserver {
         }
         match ev {
             SlamEvent::Update { .. } => {}
+            SlamEvent::Pose(p) => self.pose(&p),
             SlamEvent::Progress { done, total } => self.progress(done, total),
             SlamEvent::Snapshot {
                 scans_done,
                 map,
                 trajectory,
             } => {
-                if self.snapshot_error.is_some() {
+                if self.write_error.is_some() {
                     return;
                 }
                 let poses: Vec<Pose2> = trajectory.iter().map(|p| p.pose).collect();
@@ -80,13 +108,32 @@ impl RunObserver {
                         .map_err(anyhow::Error::from)
                     });
                 if let Err(e) = res {
-                    self.snapshot_error = Some(e.context("writing a snapshot"));
+                    self.write_error = Some(e.context("writing a snapshot"));
                 }
             }
         }
     }
 
+    fn pose(&mut self, p: &pfslam::geometry::StampedPose2) {
+        if let Some(poses) = self.poses.as_mut() {
+            poses.push(p.pose);
+        }
+        let Some(out) = self.poses_out.as_mut() else {
+            return;
+        };
+        let res = pfslam::io::tum::write_tum_line(out.as_mut(), p).and_then(|()| out.flush());
+        if let Err(e) = res {
+            self.poses_out = None;
+            if self.write_error.is_none() {
+                self.write_error = Some(anyhow::Error::from(e).context("writing --poses-out"));
+            }
+        }
+    }
+
     fn progress(&mut self, done: usize, total: usize) {
+        if self.poses.is_some() {
+            return; // live: the total is not known
+        }
         if let Some(b) = &self.bar {
             b.set_position(done as u64);
         } else if done * 10 / total.max(1) > self.last_logged * 10 / total.max(1) || done == total {
@@ -104,7 +151,7 @@ impl RunObserver {
         if let Some(b) = &self.bar {
             b.finish_and_clear();
         }
-        match self.snapshot_error {
+        match self.write_error {
             Some(e) => Err(e),
             None => Ok(self.recorder),
         }

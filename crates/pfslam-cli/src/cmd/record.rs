@@ -96,7 +96,7 @@ impl Recorder {
                 self.last_map_ns = Some(stamp_ns);
                 self.record.map(stamp_ns, map)
             }
-            SlamEvent::Progress { .. } => Ok(()),
+            SlamEvent::Progress { .. } | SlamEvent::Pose(_) => Ok(()),
         };
         if let Err(e) = res {
             self.error = Some(e.into());

@@ -14,7 +14,7 @@ use pfslam::graph::GraphStats;
 use pfslam::io::account::InputAccount;
 use pfslam::io::map_files::write_map_server;
 use pfslam::io::tum::write_tum;
-use pfslam::pipeline::{BackEndInput, PipelineOptions, PipelineResult, run_pipeline};
+use pfslam::pipeline::{BackEndInput, PipelineOptions, PipelineResult};
 use pfslam::quality::Quality;
 use pfslam::sensors::Recording;
 use pfslam::session::SessionState;
@@ -27,8 +27,20 @@ use std::time::Instant;
 pub struct Args {
     /// Dataset: a car dataset directory (sensor_data/, param/; a simulator output directory
     /// also brings `ground_truth.tum` and `true_map.yaml`), or a recording file (ROS bag,
-    /// MCAP, CARMEN log).
+    /// MCAP, CARMEN log); `-` reads a CARMEN log from standard input as it arrives (with
+    /// `--format carmen`).
     pub dataset: PathBuf,
+    /// The format of standard input (`-`): `carmen`.
+    #[arg(long, value_enum)]
+    pub format: Option<LiveFormat>,
+    /// Write each scan's pose as a TUM line to this file (`-`: standard output, the messages
+    /// then go to standard error) as soon as the filter handled the scan.
+    #[arg(long)]
+    pub poses_out: Option<PathBuf>,
+    /// With `-`: write the map so far to `--out`'s `live_map.png` each time this many seconds
+    /// of the recording passed (removed when the final outputs are in place).
+    #[arg(long)]
+    pub snapshot_every_s: Option<f64>,
     /// TOML configuration over the defaults (see `pfslam print-config`).
     #[arg(long)]
     pub config: Option<PathBuf>,
@@ -72,19 +84,26 @@ pub struct Args {
     pub input: super::input::InputArgs,
 }
 
+/// The formats `run -` reads from standard input.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LiveFormat {
+    /// CARMEN log lines.
+    Carmen,
+}
+
 use super::dataset::{Dataset, TrueMaps, load_dataset};
 use super::record::Recorder;
 
 /// A finished SLAM run on a loaded recording, before its outputs are written.
-struct Slammed {
-    recording: Recording,
-    true_map: Option<TrueMaps>,
-    account: InputAccount,
-    load_s: f64,
+pub(super) struct Slammed {
+    pub recording: Recording,
+    pub true_map: Option<TrueMaps>,
+    pub account: InputAccount,
+    pub load_s: f64,
     /// Whether the odometry starts at the ground truth's first pose.
-    anchored: bool,
-    pipeline: PipelineResult,
-    recorder: Option<Recorder>,
+    pub anchored: bool,
+    pub pipeline: PipelineResult,
+    pub recorder: Option<Recorder>,
 }
 
 /// Runs SLAM and writes the outputs.
@@ -95,6 +114,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     // every check before reading the recording
     config.validate()?;
+    let live = super::live::check_args(&args, &config)?;
     if args.resume.is_some() {
         return super::resume::run(&args, &config);
     }
@@ -104,16 +124,44 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(path) => Some(Recorder::create(path)?),
         None => None,
     };
-    let slammed = load_and_slam(&args, &config, &out_dir, recorder)?;
-    write_and_commit(&args, &config, staging, slammed)
+    let observer = observer(&args, &out_dir, recorder)?;
+    let slammed = match live {
+        true => super::live::read_and_slam(&args, &config, observer)?,
+        false => load_and_slam(&args, &config, observer)?,
+    };
+    write_and_commit(&args, &config, staging, slammed)?;
+    if live {
+        super::live::remove_snapshot(&args.out);
+    }
+    Ok(())
+}
+
+/// The run's observer: snapshots in the staging directory, the recorder, `--poses-out`.
+fn observer(
+    args: &Args,
+    out_dir: &Path,
+    recorder: Option<Recorder>,
+) -> anyhow::Result<super::observer::RunObserver> {
+    let observer = super::observer::RunObserver::new(out_dir.join("snapshots"), recorder);
+    Ok(match &args.poses_out {
+        None => observer,
+        Some(p) if p.as_os_str() == "-" => {
+            super::MESSAGES_TO_STDERR.store(true, std::sync::atomic::Ordering::Relaxed);
+            observer.with_poses_out(Box::new(std::io::stdout()))
+        }
+        Some(p) => {
+            let file = std::fs::File::create(p)
+                .with_context(|| format!("--poses-out {}: cannot create it", p.display()))?;
+            observer.with_poses_out(Box::new(std::io::BufWriter::new(file)))
+        }
+    })
 }
 
 /// Loads the dataset (timed) and runs the pipeline on it, snapshots and recording included.
 fn load_and_slam(
     args: &Args,
     config: &Config,
-    out_dir: &Path,
-    recorder: Option<Recorder>,
+    mut observer: super::observer::RunObserver,
 ) -> anyhow::Result<Slammed> {
     let t_load = Instant::now();
     let Dataset {
@@ -127,21 +175,11 @@ fn load_and_slam(
     super::input::report(&account);
     // With ground truth, start at the true pose so maps and paths overlay without alignment.
     let anchored = anchor_odometry_to_ground_truth(&mut recording);
-    let mut observer = super::observer::RunObserver::new(
-        recording.scans.len(),
-        out_dir.join("snapshots"),
-        recorder,
-    );
-    let pipeline = run_pipeline(
-        &recording,
-        config,
-        args.seed,
-        &PipelineOptions {
-            back_end_input: args.graph_on_odometry.then_some(BackEndInput::Odometry),
-            ..PipelineOptions::default()
-        },
-        &mut |ev| observer.on_event(ev),
-    )?;
+    observer.set_total(recording.scans.len());
+    // the incremental API's one driver loop, as for live input
+    let slam = pfslam::Slam::with_recording(config.clone(), recording, args.seed)?;
+    let (pipeline, recording) =
+        slam.finish_observed(&pipeline_options(args), &mut |ev| observer.on_event(ev))?;
     let recorder = observer.finish()?;
     Ok(Slammed {
         recording,
@@ -152,6 +190,14 @@ fn load_and_slam(
         pipeline,
         recorder,
     })
+}
+
+/// The stages after the filter as the flags ask.
+pub(super) fn pipeline_options(args: &Args) -> PipelineOptions {
+    PipelineOptions {
+        back_end_input: args.graph_on_odometry.then_some(BackEndInput::Odometry),
+        ..PipelineOptions::default()
+    }
 }
 
 /// Writes the outputs into the staging directory and commits them.

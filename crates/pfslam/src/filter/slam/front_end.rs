@@ -51,7 +51,11 @@ pub(crate) fn feed_scan<F: FrontEnd + ?Sized>(
         front.skip();
         return Ok(());
     };
-    front.step(recording, i, odom, steps, observer)
+    front.step(recording, i, odom, steps, observer)?;
+    if let Some(pose) = front.latest_pose() {
+        observer(SlamEvent::Pose(pose));
+    }
+    Ok(())
 }
 
 /// The one driver loop of every mode: each scan from `first` on, with the odometry

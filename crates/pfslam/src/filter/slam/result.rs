@@ -104,6 +104,9 @@ pub enum SlamEvent<'a> {
         /// The best particle's map, when it is at hand without work.
         map: Option<&'a OccupancyGrid>,
     },
+    /// The estimate of the scan just handled (the best particle now: the final trajectory,
+    /// chosen at the end, may differ).
+    Pose(StampedPose2),
     /// A map snapshot after `scan_index` scans (every `filter.snapshot_every_scans`).
     Snapshot {
         /// Number of scans handled so far.

@@ -46,10 +46,13 @@
 //!   [`CarmenOptions::strict`]; a cut last line (a logger stopped mid-line) is dropped with a
 //!   warning.
 
+mod lines;
+mod live;
 mod parse;
 mod stream;
 mod write;
 
+pub use live::{CarmenLive, LiveMessage, LiveScan};
 pub use stream::{ScanPose, stream_scan_poses};
 pub use write::write_carmen;
 
@@ -58,7 +61,8 @@ use super::clock::{RepairedClock, place_between, repair_in_file_order};
 use super::{IoError, clock::SYNTHETIC_PERIOD_NS};
 use crate::geometry::{Pose2, Rigid3, StampedPose2, Trajectory};
 use crate::sensors::{LidarGeometry, Recording, ScanSet};
-use parse::{LaserKind, LaserLine, Message, parse_line};
+use lines::{for_each_message, maybe_gz};
+use parse::{LaserKind, LaserLine, Message};
 use serde::{Deserialize, Serialize};
 use std::io::{BufRead, Read};
 use std::path::Path;
@@ -121,30 +125,6 @@ pub fn carmen_geometry(beam_count: usize, range_max_m: f32) -> LidarGeometry {
         beam_count,
         range_min_m: 0.0,
         range_max_m,
-    }
-}
-
-/// Wraps a possibly gzipped byte source for buffered reading (gzip detected by its magic
-/// bytes, read here and put back in front of the rest).
-fn maybe_gz<'a>(mut source: impl Read + 'a, path: &Path) -> Result<Box<dyn BufRead + 'a>, IoError> {
-    let mut magic = [0u8; 2];
-    let mut n = 0;
-    while n < magic.len() {
-        match source.read(&mut magic[n..]) {
-            Ok(0) => break,
-            Ok(k) => n += k,
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-            Err(e) => return Err(IoError::io(path, e)),
-        }
-    }
-    let whole = std::io::Cursor::new(magic).take(n as u64).chain(source);
-    if n == 2 && magic == [0x1f, 0x8b] {
-        Ok(Box::new(std::io::BufReader::with_capacity(
-            1 << 16,
-            flate2::read::MultiGzDecoder::new(whole),
-        )))
-    } else {
-        Ok(Box::new(std::io::BufReader::with_capacity(1 << 16, whole)))
     }
 }
 
@@ -235,20 +215,23 @@ impl LogContent {
             Message::TruePos { stamp_ns, pose } => {
                 self.truepos.push(StampedPose2 { stamp_ns, pose })
             }
-            Message::Param { name, value } => {
-                let which = usize::from(name.contains("rear"));
-                let k = if name.ends_with("side_offset") {
-                    1
-                } else if name.ends_with("angular_offset") {
-                    2
-                } else {
-                    0
-                };
-                self.offsets[which][k] = value;
-            }
+            Message::Param { name, value } => set_offset(&mut self.offsets, &name, value),
             Message::Other(kind) => acc.ignore_one(&kind, "lines"),
         }
     }
+}
+
+/// Stores a `PARAM` laser offset (`robot_{front,rear}laser_{offset,side_offset,angular_offset}`).
+fn set_offset(offsets: &mut [[f64; 3]; 2], name: &str, value: f64) {
+    let which = usize::from(name.contains("rear"));
+    let k = if name.ends_with("side_offset") {
+        1
+    } else if name.ends_with("angular_offset") {
+        2
+    } else {
+        0
+    };
+    offsets[which][k] = value;
 }
 
 /// Reads a CARMEN log into a [`Recording`] (see the module docs for the conventions).
@@ -282,67 +265,6 @@ fn read_lines(
         Ok(())
     })?;
     Ok(content)
-}
-
-/// Calls `f` with every line's message and readings; malformed lines are dropped and counted
-/// in `acc` (or, strict, refused).
-fn for_each_message(
-    mut reader: Box<dyn BufRead + '_>,
-    path: &Path,
-    options: &CarmenOptions,
-    acc: &mut InputAccount,
-    mut f: impl FnMut(Message, &[f32], &mut InputAccount) -> Result<(), IoError>,
-) -> Result<(), IoError> {
-    let mut buf: Vec<u8> = Vec::new();
-    let mut ranges: Vec<f32> = Vec::new();
-    let mut line_no = 0usize;
-    loop {
-        buf.clear();
-        let n = reader
-            .read_until(b'\n', &mut buf)
-            .map_err(|e| IoError::parse(path, line_no + 1, format!("read failed: {e}")))?;
-        if n == 0 {
-            break;
-        }
-        line_no += 1;
-        let cut = buf.last() != Some(&b'\n');
-        let parsed = std::str::from_utf8(&buf)
-            .map_err(|_| "line is not valid UTF-8 text".to_string())
-            .and_then(|t| parse_line(t, &mut ranges));
-        match parsed {
-            Ok(msg) => f(msg, &ranges, acc)?,
-            Err(why) if options.strict => return Err(IoError::parse(path, line_no, why)),
-            Err(why) => {
-                let kind = first_word(&buf);
-                let laser = ["FLASER", "RLASER", "ROBOTLASER1", "RAWLASER1", "RAWLASER2"];
-                let what = if laser.contains(&kind.as_str()) {
-                    acc.scans_read += 1;
-                    "scans"
-                } else {
-                    "lines"
-                };
-                if cut {
-                    acc.warnings.push(format!(
-                        "{}:{line_no}: the last line is cut ({why}): dropped",
-                        path.display()
-                    ));
-                    acc.drop_one(what, "cut last line", || format!("line {line_no}"));
-                } else {
-                    acc.drop_one(what, "malformed", || format!("line {line_no}: {why}"));
-                }
-            }
-        }
-    }
-    acc.records_read = line_no;
-    Ok(())
-}
-
-fn first_word(buf: &[u8]) -> String {
-    String::from_utf8_lossy(buf)
-        .split_ascii_whitespace()
-        .next()
-        .unwrap_or("")
-        .to_string()
 }
 
 /// The laser line types, in the order [`LaserKind`] indexes them.

@@ -8,10 +8,11 @@
 //! others (`RAWLASER` lines, whose odometry comes from the `ODOM` lines, or stamps to repair,
 //! which needs every stamp at once) the answer is `None` and the whole-file reader is the way.
 
+use super::lines::{for_each_message, maybe_gz};
 use super::parse::Message;
 use super::{
     CarmenOptions, KINDS, account_laser, account_laser_clock, account_pose_odometry, candidates,
-    for_each_message, kind_index, line_geometry, maybe_gz,
+    kind_index, line_geometry,
 };
 use crate::geometry::Pose2;
 use crate::io::IoError;
