@@ -78,6 +78,7 @@ fn assert_same(a: &PipelineResult, b: &PipelineResult) {
     );
     assert_eq!(a.result.dead_reckoning, b.result.dead_reckoning);
     assert_eq!(a.result.stats.scans_skipped, b.result.stats.scans_skipped);
+    assert_eq!(a.result.stats.scans_total, b.result.stats.scans_total);
     assert_eq!(a.result.stats.updates, b.result.stats.updates);
     assert_eq!(a.result.map.tile_count(), b.result.map.tile_count());
     assert_eq!(
