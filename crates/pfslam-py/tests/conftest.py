@@ -13,7 +13,8 @@ REPO = Path(__file__).resolve().parents[3]
 
 def cli_path() -> Path:
     """The `pfslam` binary: $PFSLAM_BIN, else the workspace's release build."""
-    return Path(os.environ.get("PFSLAM_BIN", REPO / "target" / "release" / "pfslam"))
+    target = Path(os.environ.get("CARGO_TARGET_DIR", REPO / "target"))
+    return Path(os.environ.get("PFSLAM_BIN", target / "release" / "pfslam"))
 
 
 def cli(*args: str) -> str:
