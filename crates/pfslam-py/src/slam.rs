@@ -24,7 +24,13 @@ struct Waiting {
     lidar: LidarGeometry,
 }
 
-/// The filter fed as the data arrive.
+/// The filter fed as the data arrive: `Slam(config=None, seed=1, body_from_lidar=None)`.
+///
+/// Odometry and scans come in time order, each stream on its own; a scan is handled once the
+/// odometry reaches its stamp. After `finish()` the result equals `run`'s on the same data
+/// bit for bit. `body_from_lidar`: the LiDAR's mount, a 4x4 matrix or `(x_m, y_m, yaw_rad)`.
+/// Stamps in seconds become nanoseconds as `round(t * 1e9)` (float64, halves away from
+/// zero); the `*_ns` methods take integer nanoseconds.
 #[pyclass(module = "pfslam", name = "Slam")]
 pub struct PySlam {
     config: Config,
