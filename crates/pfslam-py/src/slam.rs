@@ -98,6 +98,11 @@ impl PySlam {
         yaw: f64,
     ) -> PyResult<Option<Bound<'py, PyTuple>>> {
         self.check_running()?;
+        if !(x.is_finite() && y.is_finite() && yaw.is_finite()) {
+            return Err(PyValueError::new_err(format!(
+                "odometry at {stamp_ns} ns: x, y and yaw must be finite, not {x}, {y}, {yaw}"
+            )));
+        }
         if let Some(last_ns) = self.last_odometry_ns
             && stamp_ns <= last_ns
         {

@@ -114,6 +114,8 @@ def test_bad_pushes_are_refused_with_their_reason():
         slam.add_scan_ns(6_000, [1.0] * 10, -1.5, 0.01, 5.0, 1.0)
     with pytest.raises(ValueError, match="ranges: a 1-D sequence of numbers"):
         slam.add_scan_ns(6_000, "abc", **BEAMS)
+    with pytest.raises(ValueError, match="odometry at 3000 ns: x, y and yaw must be finite"):
+        slam.add_odometry_ns(3_000, float("nan"), 0.0, 0.0)
     with pytest.raises(ValueError, match="not a finite time"):
         slam.add_odometry(float("nan"), 0.0, 0.0, 0.0)
 
