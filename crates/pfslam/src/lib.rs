@@ -52,6 +52,7 @@ pub mod motion;
 pub mod online;
 pub mod pipeline;
 pub mod quality;
+pub mod run_file;
 pub mod sensors;
 pub mod session;
 pub mod sim;
@@ -60,3 +61,4 @@ pub mod viz;
 
 pub use config::Config;
 pub use online::{OnlineError, ScanInput, SensorSetup, Slam};
+pub use run_file::{FileRun, RunFileError, run_file};

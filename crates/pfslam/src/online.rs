@@ -101,6 +101,17 @@ pub enum OnlineError {
         /// The previous one's.
         last_ns: i64,
     },
+    /// An odometry pose that cannot be used.
+    #[error("odometry at {stamp_ns} ns: {message}")]
+    Odometry {
+        /// Its stamp.
+        stamp_ns: i64,
+        /// What is wrong.
+        message: String,
+    },
+    /// A sensor setup that cannot be used.
+    #[error("sensor setup: {0}")]
+    Setup(String),
     /// A scan that cannot be used as given.
     #[error("scan at {stamp_ns} ns: {message}")]
     Scan {
@@ -141,6 +152,9 @@ impl Slam {
     /// A filter with `config` (checked here, before any data) for the sensors `setup`,
     /// drawing its random numbers from `seed`.
     pub fn new(config: Config, setup: SensorSetup, seed: u64) -> Result<Self, OnlineError> {
+        if let Some(problem) = setup.lidar.problem() {
+            return Err(OnlineError::Setup(problem));
+        }
         config.filter.validate().map_err(SlamError::from)?;
         config
             .map
@@ -209,6 +223,13 @@ impl Slam {
         pose: Pose2,
         observer: &mut dyn FnMut(SlamEvent<'_>),
     ) -> Result<Option<StampedPose2>, OnlineError> {
+        if !(pose.x_m.is_finite() && pose.y_m.is_finite() && pose.yaw_rad.is_finite()) {
+            let (x, y, yaw) = (pose.x_m, pose.y_m, pose.yaw_rad);
+            return Err(OnlineError::Odometry {
+                stamp_ns,
+                message: format!("x, y and yaw must be finite, not {x}, {y}, {yaw}"),
+            });
+        }
         let poses = &mut self.recording.odometry.poses;
         if let Some(last) = poses.last()
             && stamp_ns <= last.stamp_ns
@@ -313,9 +334,7 @@ impl Slam {
             let feed = (&mut running.cursor, &mut running.steps);
             feed_scan(&mut running.front, recording, i, feed, observer)?;
         }
-        let mut result = running.front.finish(recording, running.t_start)?;
-        // the front end was built when the first scan came
-        result.stats.scans_total = recording.scans.len();
+        let result = running.front.finish(recording, running.t_start)?;
         let filter_s = self.filter_s + t.elapsed().as_secs_f64();
         let pipeline = after_filter(recording, &self.config, options, result, (filter_s, None))?;
         Ok((pipeline, self.recording))
@@ -338,6 +357,9 @@ impl Slam {
             });
         }
         let lidar = scan.lidar.unwrap_or(rec.lidar);
+        if let Some(problem) = lidar.problem() {
+            return Err(err(&problem));
+        }
         if scan.ranges_m.len() != lidar.beam_count {
             return Err(err(&format!(
                 "{} ranges for {} beams",

@@ -7,7 +7,7 @@ use pfslam::config::Config;
 use pfslam::filter::FilterMode;
 use pfslam::geometry::Pose2;
 use pfslam::pipeline::{PipelineOptions, PipelineResult, run_pipeline};
-use pfslam::sensors::Recording;
+use pfslam::sensors::{LidarGeometry, Recording};
 use pfslam::{OnlineError, ScanInput, SensorSetup, Slam};
 
 /// How the data reach the filter.
@@ -78,8 +78,8 @@ fn assert_same(a: &PipelineResult, b: &PipelineResult) {
     );
     assert_eq!(a.result.dead_reckoning, b.result.dead_reckoning);
     assert_eq!(a.result.stats.scans_skipped, b.result.stats.scans_skipped);
-    assert_eq!(a.result.stats.updates, b.result.stats.updates);
     assert_eq!(a.result.stats.scans_total, b.result.stats.scans_total);
+    assert_eq!(a.result.stats.updates, b.result.stats.updates);
     assert_eq!(a.result.map.tile_count(), b.result.map.tile_count());
     assert_eq!(
         a.graph
@@ -177,10 +177,33 @@ fn bad_input_is_refused_with_its_reason() {
         })
         .unwrap_err();
     assert!(mount.to_string().contains("lidar_moves"), "{mount}");
+    let mut inverted = rec.lidar;
+    inverted.range_max_m = -1.0;
+    let beams = slam
+        .push_scan_with(ScanInput {
+            lidar: Some(inverted),
+            ..scan_input(&rec, 0)
+        })
+        .unwrap_err();
+    assert!(
+        beams.to_string().contains("0 <= range_min < range_max"),
+        "{beams}"
+    );
+    let nan = slam.push_odometry(3_000, Pose2::new(f64::NAN, 0.0, 0.0));
+    assert!(nan.unwrap_err().to_string().contains("must be finite"));
     // Scans that never meet the odometry: no filter ran.
     let ended = slam.finish().unwrap_err();
     assert!(ended.to_string().contains("no scan lies within"), "{ended}");
     let mut config = Config::default();
     config.filter.particles = 0;
     assert!(Slam::new(config, SensorSetup::of(&rec), 1).is_err());
+    let no_beams = SensorSetup::planar(
+        "x",
+        LidarGeometry {
+            beam_count: 0,
+            ..rec.lidar
+        },
+    );
+    let setup = Slam::new(Config::default(), no_beams, 1).err().unwrap();
+    assert!(setup.to_string().contains("no ranges"), "{setup}");
 }

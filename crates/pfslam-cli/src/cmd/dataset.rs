@@ -11,7 +11,7 @@ use pfslam::config::Config;
 use pfslam::geometry::Pose2;
 use pfslam::io::account::InputAccount;
 use pfslam::io::map_files::read_map_server;
-use pfslam::io::recording::{Opened, open_recording};
+use pfslam::io::recording::Opened;
 use pfslam::io::tum::read_tum;
 use pfslam::io::ucsd::{ReadOptions, TimestampPolicy, read_car_dataset};
 use pfslam::map::{BinaryMap, MapComparison, compare_maps_aligned, compare_maps_visible_aligned};
@@ -96,14 +96,7 @@ pub fn load_dataset(
             account: opened.account,
         });
     }
-    let Opened {
-        mut recording,
-        mut account,
-    } = open_recording(path, &config.input)?;
-    if pfslam::pipeline::ensure_odometry(&mut recording)? {
-        account.odometry_source = "scan matching of the scans alone (LiDAR-only)".into();
-        account.odometry_kept = recording.odometry.len();
-    }
+    let Opened { recording, account } = pfslam::run_file::load_file(path, config)?;
     Ok(Dataset {
         recording,
         true_map: None,

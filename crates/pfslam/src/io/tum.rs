@@ -142,13 +142,17 @@ pub fn write_tum_line(w: &mut dyn Write, p: &StampedPose2) -> std::io::Result<()
 
 /// Writes a trajectory as a TUM file, atomically.
 pub fn write_tum(path: &Path, poses: &[StampedPose2]) -> Result<(), IoError> {
-    write_atomic(path, |w| {
-        writeln!(w, "# stamp_s x y z qx qy qz qw")?;
-        for p in poses {
-            write_tum_line(w, p)?;
-        }
-        Ok(())
-    })
+    write_atomic(path, |w| write_tum_to(w, poses))
+}
+
+/// Writes a trajectory as TUM text (the header line, then [`write_tum_line`] per pose): what
+/// [`write_tum`] puts in the file.
+pub fn write_tum_to(w: &mut dyn Write, poses: &[StampedPose2]) -> std::io::Result<()> {
+    writeln!(w, "# stamp_s x y z qx qy qz qw")?;
+    for p in poses {
+        write_tum_line(w, p)?;
+    }
+    Ok(())
 }
 
 #[cfg(test)]

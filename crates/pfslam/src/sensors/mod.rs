@@ -58,6 +58,22 @@ pub struct LidarGeometry {
 }
 
 impl LidarGeometry {
+    /// Why scans with these beams cannot be used, if they cannot.
+    pub fn problem(&self) -> Option<String> {
+        if self.beam_count == 0 {
+            Some("no ranges".to_string())
+        } else if !(self.angle_min_rad.is_finite() && self.angle_increment_rad.is_finite()) {
+            Some("angle_min and angle_increment must be finite".to_string())
+        } else if !(self.range_min_m >= 0.0 && self.range_max_m > self.range_min_m) {
+            Some(format!(
+                "range_min {} and range_max {} must satisfy 0 <= range_min < range_max",
+                self.range_min_m, self.range_max_m
+            ))
+        } else {
+            None
+        }
+    }
+
     /// The seed car's SICK LMS511: 286 beams from -5 deg in 0.666 deg steps, 2-80 m.
     pub fn ucsd_lms511() -> Self {
         LidarGeometry {

@@ -181,6 +181,8 @@ impl FrontEnd for RbpfFrontEnd {
     /// `final_refine.enabled`), its map and the statistics.
     fn finish(mut self, recording: &Recording, t_start: Instant) -> Result<SlamResult, SlamError> {
         let ro = &self.opts.rbpf;
+        // Fed incrementally, the recording grew after the filter started.
+        self.stats.scans_total = recording.scans.len();
         self.stats.odometry_steps = self.dead_reckoning.len();
         self.stats.finish_means(self.neff_sum, self.ll_sum);
         let best = &self.pf.particles[self.pf.best()];

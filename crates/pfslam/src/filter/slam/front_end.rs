@@ -393,8 +393,10 @@ impl<P: MapPolicy> FrontEnd for MatchFrontEnd<P> {
         Ok(self.policy.map_for_output(self.pf.particles.best_index()))
     }
 
-    fn finish(mut self, _: &Recording, t_start: Instant) -> Result<SlamResult, SlamError> {
+    fn finish(mut self, recording: &Recording, t_start: Instant) -> Result<SlamResult, SlamError> {
         let t = Instant::now();
+        // Fed incrementally, the recording grew after the filter started.
+        self.stats.scans_total = recording.scans.len();
         self.policy.flush()?;
         self.stats.timings.map_update_s += t.elapsed().as_secs_f64();
         self.stats.finish_means(self.neff_sum, self.score_sum);

@@ -50,8 +50,9 @@ pub enum SlamError {
     },
 }
 
-/// A noisy motion model: moves a particle by the odometry step `from -> to`.
-pub trait MotionModel: Sync {
+/// A noisy motion model: moves a particle by the odometry step `from -> to`. `Send` too, so
+/// that a [`crate::Slam`] can run on another thread than the one that made it.
+pub trait MotionModel: Send + Sync {
     /// The particle's new pose after the odometry step `from -> to`, with noise drawn from
     /// `rng`.
     fn sample(
