@@ -44,9 +44,11 @@ pub fn config_error(err: &(dyn std::error::Error + 'static)) -> PyErr {
 pub fn online_error(err: &pfslam::OnlineError) -> PyErr {
     use pfslam::OnlineError as E;
     match err {
-        E::OutOfOrder { .. } | E::Odometry { .. } | E::Setup(_) | E::Scan { .. } => {
-            PyValueError::new_err(message(err))
-        }
+        E::OutOfOrder { .. }
+        | E::Odometry { .. }
+        | E::Imu { .. }
+        | E::Setup(_)
+        | E::Scan { .. } => PyValueError::new_err(message(err)),
         _ => pfslam_error(err),
     }
 }

@@ -13,7 +13,7 @@ use pfslam::filter::slam::SlamEvent;
 use pfslam::geometry::{Pose2, Rigid3, StampedPose2};
 use pfslam::pipeline::PipelineOptions;
 use pfslam::sensors::LidarGeometry;
-use pfslam::{Config, OnlineError, ScanInput, SensorSetup, Slam};
+use pfslam::{Config, OnlineError, ScanInput, SensorSetup, Slam, check_imu_yaw, check_odometry};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
@@ -35,6 +35,8 @@ pub struct PySlam {
     finished: bool,
     /// The odometry pushed before the first scan.
     early_odometry: Vec<StampedPose2>,
+    /// The IMU yaw pushed before the first scan.
+    early_imu: Vec<(i64, f64)>,
     /// The pose reported after each scan handled.
     poses: Vec<StampedPose2>,
 }
@@ -59,6 +61,7 @@ impl PySlam {
             slam: None,
             finished: false,
             early_odometry: Vec::new(),
+            early_imu: Vec::new(),
             poses: Vec::new(),
         })
     }
@@ -90,7 +93,7 @@ impl PySlam {
         let Some(slam) = self.slam.as_mut() else {
             // checked as the filter would, before it exists
             let last_ns = self.early_odometry.last().map(|p| p.stamp_ns);
-            check_early_odometry(stamp_ns, &pose, last_ns)?;
+            check_odometry(stamp_ns, &pose, last_ns).map_err(|e| online_error(&e))?;
             self.early_odometry.push(StampedPose2 { stamp_ns, pose });
             return Ok(None);
         };
@@ -98,8 +101,31 @@ impl PySlam {
         let before = poses.len();
         py.detach(|| slam.push_odometry_observed(stamp_ns, pose, &mut collect(poses)))
             .map_err(|e| online_error(&e))?;
-        let latest = (poses.len() > before).then(|| poses.last()).flatten();
-        latest.map(|p| pose_tuple(py, p)).transpose()
+        latest_since(py, poses, before)
+    }
+
+    /// The IMU's absolute yaw (rad) at `t` seconds, for the motion model that takes the turn
+    /// from it (`[filter.odometry_model] model = "ese650"`); once any is given, a scan also
+    /// waits for the IMU to reach its stamp. Returns like `add_odometry`.
+    fn add_imu_yaw<'py>(
+        &mut self,
+        py: Python<'py>,
+        t: f64,
+        yaw: f64,
+    ) -> PyResult<Option<Bound<'py, PyTuple>>> {
+        self.check_running()?;
+        let stamp_ns = nanoseconds(t)?;
+        let Some(slam) = self.slam.as_mut() else {
+            let last_ns = self.early_imu.last().map(|s| s.0);
+            check_imu_yaw(stamp_ns, yaw, last_ns).map_err(|e| online_error(&e))?;
+            self.early_imu.push((stamp_ns, yaw));
+            return Ok(None);
+        };
+        let poses = &mut self.poses;
+        let before = poses.len();
+        py.detach(|| slam.push_imu_yaw_observed(stamp_ns, yaw, &mut collect(poses)))
+            .map_err(|e| online_error(&e))?;
+        latest_since(py, poses, before)
     }
 
     /// A scan at `t` seconds: `ranges` (m, one per beam; 0, NaN or beyond the limits: no
@@ -266,9 +292,23 @@ impl PySlam {
             slam.push_odometry(p.stamp_ns, p.pose)
                 .map_err(|e| online_error(&e))?;
         }
+        for (stamp_ns, yaw_rad) in self.early_imu.drain(..) {
+            slam.push_imu_yaw(stamp_ns, yaw_rad)
+                .map_err(|e| online_error(&e))?;
+        }
         self.slam = Some(slam);
         Ok(())
     }
+}
+
+/// The latest of the poses after the first `before`, when a push added any.
+fn latest_since<'py>(
+    py: Python<'py>,
+    poses: &[StampedPose2],
+    before: usize,
+) -> PyResult<Option<Bound<'py, PyTuple>>> {
+    let latest = poses.get(before..).and_then(|new| new.last());
+    latest.map(|p| pose_tuple(py, p)).transpose()
 }
 
 /// An observer keeping the pose of each scan handled.
@@ -278,26 +318,6 @@ fn collect(poses: &mut Vec<StampedPose2>) -> impl FnMut(SlamEvent<'_>) + '_ {
             poses.push(p);
         }
     }
-}
-
-/// Refuses odometry before the filter exists as the filter would.
-fn check_early_odometry(stamp_ns: i64, pose: &Pose2, last_ns: Option<i64>) -> PyResult<()> {
-    let (x, y, yaw) = (pose.x_m, pose.y_m, pose.yaw_rad);
-    let e = if !(x.is_finite() && y.is_finite() && yaw.is_finite()) {
-        OnlineError::Odometry {
-            stamp_ns,
-            message: format!("x, y and yaw must be finite, not {x}, {y}, {yaw}"),
-        }
-    } else if let Some(last_ns) = last_ns.filter(|&l| stamp_ns <= l) {
-        OnlineError::OutOfOrder {
-            what: "odometry",
-            stamp_ns,
-            last_ns,
-        }
-    } else {
-        return Ok(());
-    };
-    Err(online_error(&e))
 }
 
 /// The ranges as float32: a float32 array without a copy through Python, else any sequence

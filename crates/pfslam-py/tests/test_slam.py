@@ -139,3 +139,18 @@ def test_a_bad_mount_is_refused():
         pfslam.Slam(body_from_lidar=np.eye(3))
     with pytest.raises(ValueError, match="body_from_lidar"):
         pfslam.Slam(body_from_lidar="front")
+
+
+def test_a_scan_waits_for_the_imu_once_it_is_given():
+    slam = pfslam.Slam()
+    slam.add_imu_yaw(0.0, 0.0)
+    slam.add_odometry(0.0, 0.0, 0.0, 0.0)
+    slam.add_odometry(1.0, 0.5, 0.0, 0.0)
+    beams = dict(angle_min=-1.5, angle_increment=0.01, range_min=0.0, range_max=30.0)
+    assert slam.add_scan(0.5, [3.0] * 301, **beams) is None, "the IMU does not reach it yet"
+    pose = slam.add_imu_yaw(0.6, 0.01)
+    assert pose is not None and pose[0] == 0.5
+    with pytest.raises(ValueError, match="IMU yaw at 400000000 ns comes before the previous one"):
+        slam.add_imu_yaw(0.4, 0.0)
+    with pytest.raises(ValueError, match="IMU yaw at 700000000 ns: yaw must be finite"):
+        slam.add_imu_yaw(0.7, float("inf"))

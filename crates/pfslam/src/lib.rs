@@ -60,5 +60,5 @@ pub mod stereo;
 pub mod viz;
 
 pub use config::Config;
-pub use online::{OnlineError, ScanInput, SensorSetup, Slam};
+pub use online::{OnlineError, ScanInput, SensorSetup, Slam, check_imu_yaw, check_odometry};
 pub use run_file::{FileRun, RunFileError, run_file};

@@ -109,6 +109,14 @@ pub enum OnlineError {
         /// What is wrong.
         message: String,
     },
+    /// An IMU sample that cannot be used.
+    #[error("IMU yaw at {stamp_ns} ns: {message}")]
+    Imu {
+        /// Its stamp.
+        stamp_ns: i64,
+        /// What is wrong.
+        message: String,
+    },
     /// A sensor setup that cannot be used.
     #[error("sensor setup: {0}")]
     Setup(String),
@@ -126,6 +134,40 @@ pub enum OnlineError {
     /// The back end failed.
     #[error(transparent)]
     Pipeline(#[from] PipelineError),
+}
+
+/// Why an odometry `pose` at `stamp_ns`, after one at `last_ns`, cannot be pushed.
+pub fn check_odometry(
+    stamp_ns: i64,
+    pose: &Pose2,
+    last_ns: Option<i64>,
+) -> Result<(), OnlineError> {
+    let (x, y, yaw) = (pose.x_m, pose.y_m, pose.yaw_rad);
+    if !(x.is_finite() && y.is_finite() && yaw.is_finite()) {
+        let message = format!("x, y and yaw must be finite, not {x}, {y}, {yaw}");
+        return Err(OnlineError::Odometry { stamp_ns, message });
+    }
+    check_order("odometry", stamp_ns, last_ns)
+}
+
+/// Why an IMU `yaw_rad` at `stamp_ns`, after one at `last_ns`, cannot be pushed.
+pub fn check_imu_yaw(stamp_ns: i64, yaw_rad: f64, last_ns: Option<i64>) -> Result<(), OnlineError> {
+    if !yaw_rad.is_finite() {
+        let message = format!("yaw must be finite, not {yaw_rad}");
+        return Err(OnlineError::Imu { stamp_ns, message });
+    }
+    check_order("IMU yaw", stamp_ns, last_ns)
+}
+
+fn check_order(what: &'static str, stamp_ns: i64, last_ns: Option<i64>) -> Result<(), OnlineError> {
+    match last_ns {
+        Some(last_ns) if stamp_ns <= last_ns => Err(OnlineError::OutOfOrder {
+            what,
+            stamp_ns,
+            last_ns,
+        }),
+        _ => Ok(()),
+    }
 }
 
 /// The filter fed as the data arrives (see the module docs).
@@ -223,24 +265,33 @@ impl Slam {
         pose: Pose2,
         observer: &mut dyn FnMut(SlamEvent<'_>),
     ) -> Result<Option<StampedPose2>, OnlineError> {
-        if !(pose.x_m.is_finite() && pose.y_m.is_finite() && pose.yaw_rad.is_finite()) {
-            let (x, y, yaw) = (pose.x_m, pose.y_m, pose.yaw_rad);
-            return Err(OnlineError::Odometry {
-                stamp_ns,
-                message: format!("x, y and yaw must be finite, not {x}, {y}, {yaw}"),
-            });
-        }
         let poses = &mut self.recording.odometry.poses;
-        if let Some(last) = poses.last()
-            && stamp_ns <= last.stamp_ns
-        {
-            return Err(OnlineError::OutOfOrder {
-                what: "odometry",
-                stamp_ns,
-                last_ns: last.stamp_ns,
-            });
-        }
+        check_odometry(stamp_ns, &pose, poses.last().map(|p| p.stamp_ns))?;
         poses.push(StampedPose2 { stamp_ns, pose });
+        self.handle_ready(observer)
+    }
+
+    /// The IMU's absolute yaw (rad) at `stamp_ns`, for the motion models that take the turn
+    /// from it (`[filter.odometry_model] model = "ese650"`). Once any is pushed, a scan also
+    /// waits for the IMU to reach its stamp; push it from the start of the run.
+    pub fn push_imu_yaw(
+        &mut self,
+        stamp_ns: i64,
+        yaw_rad: f64,
+    ) -> Result<Option<StampedPose2>, OnlineError> {
+        self.push_imu_yaw_observed(stamp_ns, yaw_rad, &mut |_| {})
+    }
+
+    /// [`Self::push_imu_yaw`], reporting the filter's events to `observer`.
+    pub fn push_imu_yaw_observed(
+        &mut self,
+        stamp_ns: i64,
+        yaw_rad: f64,
+        observer: &mut dyn FnMut(SlamEvent<'_>),
+    ) -> Result<Option<StampedPose2>, OnlineError> {
+        let series = self.recording.imu_yaw.get_or_insert_with(Vec::new);
+        check_imu_yaw(stamp_ns, yaw_rad, series.last().map(|s| s.0))?;
+        series.push((stamp_ns, yaw_rad));
         self.handle_ready(observer)
     }
 
@@ -398,6 +449,11 @@ impl Slam {
             match rec.odometry.poses.last() {
                 Some(last) if last.stamp_ns >= stamp_ns => {}
                 _ => break,
+            }
+            if let Some(imu) = &rec.imu_yaw
+                && imu.last().is_none_or(|&(last_ns, _)| last_ns < stamp_ns)
+            {
+                break;
             }
             if self.running.is_none() {
                 let Some(cursor) = OdometryCursor::new(&rec.odometry, stamp_ns) else {

@@ -207,3 +207,68 @@ fn bad_input_is_refused_with_its_reason() {
     let setup = Slam::new(Config::default(), no_beams, 1).err().unwrap();
     assert!(setup.to_string().contains("no ranges"), "{setup}");
 }
+
+/// A humanoid: odometry, IMU yaw and scans with the head's mount, merged by stamp.
+#[test]
+fn a_humanoid_fed_its_imu_yaw_and_head_mounts_gives_the_batch_run() {
+    use pfslam::filter::prediction::PredictionModel;
+    use pfslam::motion::odometry_model::OdometryModelOptions;
+    use pfslam::sim::{SimOptions, Vehicle, World, simulate_humanoid};
+    let opts = SimOptions {
+        vehicle: Vehicle::Humanoid,
+        duration_s: 30.0,
+        ..SimOptions::default()
+    };
+    let sim = simulate_humanoid(&World::builtin("office").unwrap(), &opts).unwrap();
+    let rec = sim.recording();
+    let imu = rec.imu_yaw.clone().expect("the humanoid has an IMU");
+    assert!(rec.body_from_lidar_per_scan.is_some());
+    let mut config = Config::default();
+    // the seed's filter, whose prediction takes the turn from the IMU
+    config.filter.mode = FilterMode::Seed;
+    config.filter.motion_model = PredictionModel::Odometry;
+    config.filter.odometry_model = OdometryModelOptions::ese650();
+    config.filter.particles = 20;
+    let reference = batch(&rec, &config, 1);
+    let without_imu = Recording {
+        imu_yaw: None,
+        ..rec.clone()
+    };
+    assert_ne!(
+        batch(&without_imu, &config, 1).front_end,
+        reference.front_end,
+        "the IMU makes no difference: the test would prove nothing"
+    );
+    // (stamp, kind, index): odometry 0, IMU 1, scan 2
+    let mut messages: Vec<(i64, u8, usize)> = Vec::new();
+    messages.extend(
+        rec.odometry
+            .poses
+            .iter()
+            .enumerate()
+            .map(|(i, p)| (p.stamp_ns, 0, i)),
+    );
+    messages.extend(imu.iter().enumerate().map(|(i, s)| (s.0, 1, i)));
+    messages.extend((0..rec.scans.len()).map(|i| (rec.scans.stamps_ns[i], 2, i)));
+    messages.sort();
+    let mut slam = Slam::new(config, SensorSetup::of(&rec), 1).unwrap();
+    for (_, kind, i) in messages {
+        match kind {
+            0 => slam.push_odometry(rec.odometry.poses[i].stamp_ns, rec.odometry.poses[i].pose),
+            1 => slam.push_imu_yaw(imu[i].0, imu[i].1),
+            _ => slam.push_scan_with(scan_input(&rec, i)),
+        }
+        .unwrap();
+    }
+    assert_same(&slam.finish().unwrap(), &reference);
+    let late = Slam::new(Config::default(), SensorSetup::of(&rec), 1)
+        .and_then(|mut s| {
+            s.push_imu_yaw(10, 0.0)?;
+            s.push_imu_yaw(5, 0.0)
+        })
+        .unwrap_err();
+    assert!(
+        late.to_string().contains("IMU yaw at 5 ns comes before"),
+        "{late}"
+    );
+}

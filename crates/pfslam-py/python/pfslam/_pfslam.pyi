@@ -107,6 +107,10 @@ class Slam:
         handle, else None. Raises ValueError when ``t`` is not after the previous odometry."""
     def add_odometry_ns(self, stamp_ns: int, x: float, y: float, yaw: float) -> Optional[Pose]:
         """:meth:`add_odometry` with the stamp in integer nanoseconds."""
+    def add_imu_yaw(self, t: float, yaw: float) -> Optional[Pose]:
+        """The IMU's absolute yaw (rad) at ``t`` (s), for the motion model that takes the turn
+        from it (``[filter.odometry_model] model = "ese650"``); once any is given, a scan also
+        waits for the IMU to reach its stamp. Returns like :meth:`add_odometry`."""
     def add_scan(
         self,
         t: float,

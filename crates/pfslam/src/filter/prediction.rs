@@ -102,6 +102,13 @@ impl MotionModel for OdometryMotion {
         };
         sample_odometry_motion(&self.options, pose, &from.pose, &to.pose, imu_dyaw, rng)
     }
+
+    fn observe_imu_yaw(&mut self, series: &[(i64, f64)]) {
+        let known = self.imu_yaw.get_or_insert_with(Vec::new);
+        if let Some(new) = series.get(known.len()..) {
+            known.extend_from_slice(new);
+        }
+    }
 }
 
 #[cfg(test)]

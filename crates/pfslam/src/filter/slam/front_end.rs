@@ -353,6 +353,9 @@ impl<P: MapPolicy> FrontEnd for MatchFrontEnd<P> {
         observer: &mut dyn FnMut(SlamEvent<'_>),
     ) -> Result<(), SlamError> {
         let t = Instant::now();
+        if let Some(series) = &recording.imu_yaw {
+            self.motion.observe_imu_yaw(series);
+        }
         self.stats.odometry_steps += steps.len();
         if !steps.is_empty() {
             match self.mode {

@@ -62,6 +62,10 @@ pub trait MotionModel: Send + Sync {
         to: &StampedPose2,
         rng: &mut Xoshiro256PlusPlus,
     ) -> Pose2;
+
+    /// The recording's IMU yaw `(stamp_ns, yaw_rad)` so far, for a model that uses it: the
+    /// series only grows (live input), so a model keeps what it has and takes the rest.
+    fn observe_imu_yaw(&mut self, _series: &[(i64, f64)]) {}
 }
 
 /// After scan `done` of `total`: reports progress about every 0.5 % (and at the end) to
