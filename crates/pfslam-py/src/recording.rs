@@ -5,8 +5,7 @@ use crate::convert::{geometry_dict, poses_array, rigid_array, to_python};
 use crate::errors::pfslam_error;
 use numpy::ndarray::Array2;
 use numpy::{PyArray1, PyArray2, PyUntypedArrayMethods};
-use pfslam::io::recording::open_recording;
-use pfslam::run_file::LoadError;
+use pfslam::run_file::load_file;
 use pfslam::sensors::ScanSet;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
@@ -51,7 +50,8 @@ impl PyRecording {
     }
 }
 
-/// Reads a recording file (CARMEN log, ROS 1 bag, MCAP, rosbag2 directory).
+/// Reads a dataset as `pfslam run` reads it: a recording file (CARMEN log, ROS 1 bag, MCAP),
+/// a rosbag2 directory, or a directory of the car's or the humanoid's layout.
 ///
 /// `config` (None, TOML text or a dict) selects topics and the span through `[input]`.
 #[pyfunction]
@@ -61,14 +61,10 @@ pub fn read_recording(
     path: PathBuf,
     config: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<PyRecording> {
-    let options = config_from(config)?.input;
-    let opened = py.detach(|| {
-        if !path.exists() {
-            return Err(LoadError::Missing { path: path.clone() });
-        }
-        Ok(open_recording(&path, &options)?)
-    });
-    let opened = opened.map_err(|e| pfslam_error(&e))?;
+    let config = config_from(config)?;
+    let opened = py
+        .detach(|| load_file(&path, &config))
+        .map_err(|e| pfslam_error(&e))?;
     let rec = &opened.recording;
     let stamps: &[i64] = &rec.scans.stamps_ns;
     let odometry = &rec.odometry.poses;

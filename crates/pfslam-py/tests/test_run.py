@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import pfslam
-from conftest import cli_trajectory_tum, data_dir
+from conftest import cli, cli_trajectory_tum, data_dir
 from tum import tum_body, tum_lines
 
 
@@ -99,3 +99,12 @@ def test_run_on_mit_csail_gives_the_cli_trajectory(tmp_path: Path):
     result = pfslam.run(path)
     assert_same_as_cli(result, cli_tum)
     assert math.isfinite(result.summary["stats"]["neff_mean"])
+
+
+def test_a_car_dataset_directory_runs_as_the_cli_runs_it(tmp_path):
+    sim = tmp_path / "car"
+    cli("simulate", "--duration-s", "20", "--seed", "2", "--out", str(sim))
+    result = pfslam.run(sim)
+    assert result.trajectory_tum == cli_trajectory_tum(sim, tmp_path / "out")
+    rec = pfslam.read_recording(sim)
+    assert 100 < len(result.trajectory) <= len(rec.scan_stamps_ns)

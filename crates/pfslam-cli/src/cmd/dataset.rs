@@ -1,20 +1,14 @@
-//! Loading a dataset from a path, whatever its format: the one place that knows layouts.
-//!
-//! - a directory with `sensor_data/` + `param/`: the seed car's layout (the simulator writes it
-//!   too, with `ground_truth.tum` and `true_map.yaml` (+ `true_map_visible.yaml`) beside,
-//!   which are picked up);
-//! - a directory with `calibration.txt` + `odometry.csv`: the humanoid layout;
-//! - a file: CARMEN log (`.clf`, `.log`, gzipped or not), ROS 1 bag, ROS 2 MCAP, detected by
-//!   [`pfslam::io::recording::read_recording`].
+//! Loading a dataset from a path, whatever its format: the library's
+//! [`pfslam::run_file::load_path`] (a recording file, a rosbag2 directory, the car's or the
+//! humanoid's layout), and beside a simulator output its `true_map.yaml` (+
+//! `true_map_visible.yaml`), which the CLI compares maps with.
 
 use pfslam::config::Config;
 use pfslam::geometry::Pose2;
 use pfslam::io::account::InputAccount;
 use pfslam::io::map_files::read_map_server;
-use pfslam::io::recording::Opened;
-use pfslam::io::tum::read_tum;
-use pfslam::io::ucsd::{ReadOptions, TimestampPolicy, read_car_dataset};
 use pfslam::map::{BinaryMap, MapComparison, compare_maps_aligned, compare_maps_visible_aligned};
+use pfslam::run_file::{Loaded, load_path};
 use pfslam::sensors::{CarDataset, Recording};
 use std::path::Path;
 
@@ -31,110 +25,25 @@ pub struct Dataset {
     pub account: InputAccount,
 }
 
-/// The layouts a directory is looked up as, for the error when it is none of them.
-pub const DIRECTORY_LAYOUTS: &str = "the car's layout (sensor_data/{encoder,fog,lidar}.csv + \
-     param/), the humanoid's layout (calibration.txt + odometry.csv), a rosbag2 directory \
-     (metadata.yaml + one .mcap)";
-
-/// Loads `path` as a [`Dataset`].
+/// Loads `path` as a [`Dataset`] ([`pfslam::run_file::load_path`], and a simulator output's
+/// true map beside it).
 pub fn load_dataset(
     path: &Path,
     config: &Config,
     sort_timestamps: bool,
 ) -> anyhow::Result<Dataset> {
-    let name = path
-        .file_stem()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "dataset".into());
-    if !path.exists() {
-        anyhow::bail!("{}: no such file or directory", path.display());
-    }
-    if path.is_dir() && !path.join("metadata.yaml").is_file() {
-        let humanoid = path.join(pfslam::io::humanoid::CALIBRATION_FILE).is_file()
-            && path.join(pfslam::io::humanoid::ODOMETRY_CSV).is_file();
-        let car_layout = path.join("sensor_data").is_dir() || path.join("param").is_dir();
-        if !humanoid && !car_layout {
-            anyhow::bail!(
-                "{}: a directory of no known layout; looked for {DIRECTORY_LAYOUTS}",
-                path.display()
-            );
-        }
-        let (mut recording, car) = if humanoid {
-            let ds = pfslam::io::humanoid::read_humanoid_dataset(path)?;
-            (pfslam::io::humanoid::humanoid_recording(&ds, &name), None)
-        } else {
-            let opts = ReadOptions {
-                timestamp_policy: if sort_timestamps {
-                    TimestampPolicy::SortWithWarning
-                } else {
-                    TimestampPolicy::Reject
-                },
-                ..ReadOptions::default()
-            };
-            let mut ds = read_car_dataset(path, &opts)?;
-            // The scans move into the recording (`car.lidar` is left empty): no second copy.
-            let rec = pfslam::motion::car_recording_taking_scans(&mut ds, &config.motion, &name)?;
-            (rec, Some(ds))
-        };
-        let gt_path = path.join("ground_truth.tum");
-        if gt_path.is_file() {
-            recording.ground_truth = Some(read_tum(&gt_path)?.poses);
-        }
-        let map_path = path.join("true_map.yaml");
-        let true_map = if map_path.is_file() {
-            Some(TrueMaps::read(&map_path)?)
-        } else {
-            None
-        };
-        let account = directory_account(path, &recording, car.as_ref());
-        let mut opened = Opened { recording, account };
-        opened.keep_span(config.input.start_s, config.input.end_s);
-        return Ok(Dataset {
-            recording: opened.recording,
-            true_map,
-            car,
-            account: opened.account,
-        });
-    }
-    let Opened { recording, account } = pfslam::run_file::load_file(path, config)?;
-    Ok(Dataset {
-        recording,
-        true_map: None,
-        car: None,
-        account,
-    })
-}
-
-/// The account of a car or humanoid directory: their readers refuse bad rows, so every row
-/// read is kept.
-fn directory_account(path: &Path, rec: &Recording, car: Option<&CarDataset>) -> InputAccount {
-    let (format, rows, source, mount) = match car {
-        Some(c) => (
-            "ucsd_car",
-            c.encoder.len() + c.fog.len() + rec.scans.len(),
-            "wheel encoders and FOG (dead reckoning)",
-            "param/Vehicle2Lidar.txt",
-        ),
-        None => (
-            "humanoid",
-            rec.odometry.len() + rec.scans.len(),
-            "odometry.csv",
-            "calibration.txt and the head joints",
-        ),
+    let Loaded { opened, car } = load_path(path, config, sort_timestamps)?;
+    let map_path = path.join("true_map.yaml");
+    let true_map = match path.is_dir() && map_path.is_file() {
+        true => Some(TrueMaps::read(&map_path)?),
+        false => None,
     };
-    let mut a = InputAccount::new(format, path, "rows");
-    a.records_read = rows;
-    a.scans_read = rec.scans.len();
-    a.scans_kept = rec.scans.len();
-    a.odometry_read = rec.odometry.len();
-    a.odometry_kept = rec.odometry.len();
-    a.odometry_source = source.into();
-    a.clock = "the files' stamps".into();
-    a.mount_source = mount.into();
-    for i in 0..rec.scans.len() {
-        a.add_layout(rec.lidar_at(i));
-    }
-    a
+    Ok(Dataset {
+        recording: opened.recording,
+        true_map,
+        car,
+        account: opened.account,
+    })
 }
 
 /// A true map (map_server yaml) and, when a `<stem>_visible.yaml` lies beside it (the

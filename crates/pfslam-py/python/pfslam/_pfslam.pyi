@@ -73,12 +73,15 @@ class Recording:
     """What the reader read, kept, dropped and repaired, and why."""
 
 def read_recording(path: Union[str, os.PathLike[str]], config: Config = None) -> Recording:
-    """Reads a CARMEN log (``.clf``/``.log``, gzipped or not), ROS 1 bag, MCAP file or rosbag2
-    directory. ``config``'s ``[input]`` section picks topics, frames and the span. Raises
+    """Reads a dataset as ``pfslam run`` reads it: a CARMEN log (``.clf``/``.log``, gzipped or
+    not), ROS 1 bag, MCAP file, rosbag2 directory, or a directory of the UCSD car's or the
+    humanoid's layout (with a simulator's ``ground_truth.tum``). ``config``'s ``[input]``
+    section picks topics, frames and the span. Raises
     :class:`PfslamError` naming the file (and line) on a missing or malformed file."""
 
 def run(path: Union[str, os.PathLike[str]], config: Config = None, seed: int = 1) -> Result:
-    """SLAM on a recording file exactly as ``pfslam run FILE --out DIR [--config C] --seed SEED``:
+    """SLAM on a dataset (any :func:`read_recording` reads) exactly as ``pfslam run PATH --out DIR
+    [--config C] --seed SEED``:
     the filter, the loop-closure back end and the map rebuilt along its trajectory. The
     trajectory equals the CLI's ``trajectory.tum`` bit for bit. Releases the GIL while it runs."""
 
