@@ -380,7 +380,38 @@ impl RecordingBuilder {
         }
         acc.scans_read = self.scans.len() + self.dropped_empty;
         acc.drop_many("scans", "without any range", self.dropped_empty);
-        let (odometry_src, source) = if !self.odom.is_empty() {
+        let (odometry_src, source) = self.take_odometry(topics, options, &mut acc);
+        let geometry = self.geometries(options);
+        let body_from_lidar = self.body_from_lidar(options, &mut acc);
+        let (scans, geometry) =
+            sort_scans_with_geometry(self.scans, &geometry, self.dropped_empty, &mut acc);
+        let odometry = kept_odometry(&odometry_src, source, topics, &mut self.imu, &mut acc)?;
+        acc.scans_kept = scans.len();
+        acc.clock = "header stamps".into();
+        let uniform = geometry.windows(2).all(|w| w[0] == w[1]);
+        let rec = Recording {
+            name,
+            odometry,
+            imu_yaw: None,
+            lidar: geometry[0],
+            lidar_per_scan: (!uniform).then_some(geometry),
+            scans,
+            body_from_lidar,
+            body_from_lidar_per_scan: None,
+            ground_truth: None,
+        };
+        Ok((rec, acc))
+    }
+
+    /// The odometry poses (the odometry topic's, else the `/tf` ones, else none with a
+    /// warning) and a description of where they come from.
+    fn take_odometry(
+        &mut self,
+        topics: &ChosenTopics,
+        options: &ReaderOptions,
+        acc: &mut InputAccount,
+    ) -> (Vec<StampedPose2>, String) {
+        if !self.odom.is_empty() {
             let t = topics.odom.as_deref().unwrap_or("?");
             (
                 std::mem::take(&mut self.odom),
@@ -397,15 +428,19 @@ impl RecordingBuilder {
                 options.odom_frame.as_deref().unwrap_or("odom")
             ));
             (Vec::new(), "none in the recording".to_string())
-        };
-        let geometry = self.geometries(options);
+        }
+    }
+
+    /// The laser mount in the body frame (identity, with a warning, when no transform chain
+    /// leads from the scan frame to the body frame); its source goes to the account.
+    fn body_from_lidar(&self, options: &ReaderOptions, acc: &mut InputAccount) -> Rigid3 {
         let body = options
             .base_frame
             .clone()
             .or(self.odom_child.clone())
             .or(self.tf_base.clone())
             .unwrap_or_default();
-        let body_from_lidar = match self.mount(&body) {
+        match self.mount(&body) {
             Some((m, src)) => {
                 acc.mount_source = format!("{src}: {body} -> {}", self.scan_frame);
                 m
@@ -418,58 +453,7 @@ impl RecordingBuilder {
                 ));
                 Rigid3::IDENTITY
             }
-        };
-        let (scans, order, moved) = sort_scans(self.scans);
-        let geometry: Vec<LidarGeometry> = order.iter().map(|&i| geometry[i]).collect();
-        acc.repair(
-            "scans",
-            "stamp not above the previous one: sorted into place",
-            moved,
-        );
-        acc.drop_many(
-            "scans",
-            "stamp repeats another scan's",
-            acc.scans_read - self.dropped_empty - scans.len(),
-        );
-        for g in &geometry {
-            acc.add_layout(g);
         }
-        let stamps: Vec<i64> = odometry_src.iter().map(|p| p.stamp_ns).collect();
-        let keep = longest_increasing(&stamps);
-        acc.odometry_read = odometry_src.len();
-        acc.odometry_kept = keep.len();
-        let mut odometry = Trajectory::new(keep.iter().map(|&i| odometry_src[i]).collect());
-        if let Some(topic) = &topics.imu {
-            self.imu.sort_by_key(|s| s.0);
-            let series = crate::motion::imu_yaw::yaw_series(&self.imu);
-            if series.is_empty() {
-                return Err(format!("no IMU message on {topic}"));
-            }
-            odometry = crate::motion::imu_yaw::fuse_odometry_with_imu_yaw(&odometry, &series);
-            acc.odometry_source = format!("{source}, turning from {topic} (sensor_msgs/Imu)");
-        } else {
-            acc.odometry_source = source;
-        }
-        acc.drop_many(
-            "odometry",
-            "stamp out of order or repeated",
-            odometry_src.len() - keep.len(),
-        );
-        acc.scans_kept = scans.len();
-        acc.clock = "header stamps".into();
-        let uniform = geometry.windows(2).all(|w| w[0] == w[1]);
-        let rec = Recording {
-            name,
-            odometry,
-            imu_yaw: None,
-            lidar: geometry[0],
-            lidar_per_scan: (!uniform).then_some(geometry),
-            scans,
-            body_from_lidar,
-            body_from_lidar_per_scan: None,
-            ground_truth: None,
-        };
-        Ok((rec, acc))
     }
 
     /// Each scan's geometry by [`BeamGeometry`].
@@ -508,6 +492,65 @@ impl RecordingBuilder {
             })
             .collect()
     }
+}
+
+/// The scans sorted by stamp (repeats dropped) with their geometries in the same order;
+/// the repairs and drops go to the account.
+fn sort_scans_with_geometry(
+    scans: ScanSet,
+    geometry: &[LidarGeometry],
+    dropped_empty: usize,
+    acc: &mut InputAccount,
+) -> (ScanSet, Vec<LidarGeometry>) {
+    let (scans, order, moved) = sort_scans(scans);
+    let geometry: Vec<LidarGeometry> = order.iter().map(|&i| geometry[i]).collect();
+    acc.repair(
+        "scans",
+        "stamp not above the previous one: sorted into place",
+        moved,
+    );
+    acc.drop_many(
+        "scans",
+        "stamp repeats another scan's",
+        acc.scans_read - dropped_empty - scans.len(),
+    );
+    for g in &geometry {
+        acc.add_layout(g);
+    }
+    (scans, geometry)
+}
+
+/// The odometry's longest strictly increasing run by stamp, turned by the IMU yaw when an
+/// IMU topic is chosen; `Err` when that topic has no message.
+fn kept_odometry(
+    odometry_src: &[StampedPose2],
+    source: String,
+    topics: &ChosenTopics,
+    imu: &mut [crate::motion::imu_yaw::ImuSample],
+    acc: &mut InputAccount,
+) -> Result<Trajectory, String> {
+    let stamps: Vec<i64> = odometry_src.iter().map(|p| p.stamp_ns).collect();
+    let keep = longest_increasing(&stamps);
+    acc.odometry_read = odometry_src.len();
+    acc.odometry_kept = keep.len();
+    let mut odometry = Trajectory::new(keep.iter().map(|&i| odometry_src[i]).collect());
+    if let Some(topic) = &topics.imu {
+        imu.sort_by_key(|s| s.0);
+        let series = crate::motion::imu_yaw::yaw_series(imu);
+        if series.is_empty() {
+            return Err(format!("no IMU message on {topic}"));
+        }
+        odometry = crate::motion::imu_yaw::fuse_odometry_with_imu_yaw(&odometry, &series);
+        acc.odometry_source = format!("{source}, turning from {topic} (sensor_msgs/Imu)");
+    } else {
+        acc.odometry_source = source;
+    }
+    acc.drop_many(
+        "odometry",
+        "stamp out of order or repeated",
+        odometry_src.len() - keep.len(),
+    );
+    Ok(odometry)
 }
 
 /// A scan converted from a CARMEN log: 180/181/360/361 beams over 180 deg from -90 deg.

@@ -56,109 +56,167 @@ fn angle_of(v: [f64; 2]) -> f64 {
     v[1].atan2(v[0])
 }
 
+/// Leg `i` of a closed route (waypoint `i` to `i + 1`): unit direction and length (m).
+type Leg = ([f64; 2], f64);
+
+/// The legs of the closed route; `Err` when two consecutive waypoints coincide.
+fn route_legs(route: &[[f64; 2]]) -> Result<Vec<Leg>, SimError> {
+    let n = route.len();
+    let mut legs = Vec::with_capacity(n);
+    for i in 0..n {
+        let a = route[i];
+        let b = route[(i + 1) % n];
+        let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+        if len < 1e-6 {
+            return Err(SimError::BadRoute(format!(
+                "waypoints {i} and {} coincide",
+                (i + 1) % n
+            )));
+        }
+        legs.push(([(b[0] - a[0]) / len, (b[1] - a[1]) / len], len));
+    }
+    Ok(legs)
+}
+
+/// Turn angle (rad) of the corner at waypoint `i + 1`, between leg `i` and leg `i + 1`;
+/// `Err` on a U-turn, which no arc can drive.
+fn corner_turns_rad(legs: &[Leg]) -> Result<Vec<f64>, SimError> {
+    let n = legs.len();
+    let mut turn = vec![0.0; n];
+    for i in 0..n {
+        let (u, _) = legs[i];
+        let (v, _) = legs[(i + 1) % n];
+        let phi = crate::geometry::wrap_angle(angle_of(v) - angle_of(u));
+        if phi.abs() > PI - 1e-3 {
+            return Err(SimError::BadRoute(format!(
+                "U-turn at waypoint {} (not drivable)",
+                (i + 1) % n
+            )));
+        }
+        turn[i] = phi;
+    }
+    Ok(turn)
+}
+
+/// Tangent length and arc radius (m) of each corner: `corner_radius_m`, smaller where the
+/// adjacent legs are short; both 0 at a straight corner.
+fn corner_fillets_m(legs: &[Leg], turn: &[f64], corner_radius_m: f64) -> (Vec<f64>, Vec<f64>) {
+    let n = legs.len();
+    let mut tangent = vec![0.0; n];
+    let mut radius = vec![0.0; n];
+    for i in 0..n {
+        let phi = turn[i].abs();
+        if phi < 1e-9 {
+            continue;
+        }
+        // each corner may use at most half of each adjacent leg
+        let room = 0.5 * legs[i].1.min(legs[(i + 1) % n].1);
+        let half_tan = (0.5 * phi).tan();
+        let r = corner_radius_m.min(room / half_tan);
+        radius[i] = r;
+        tangent[i] = r * half_tan;
+    }
+    (tangent, radius)
+}
+
+/// The rounded corners, indexed like the legs (corner `i` at waypoint `i + 1`).
+struct Corners<'a> {
+    turn_rad: &'a [f64],
+    tangent_m: &'a [f64],
+    radius_m: &'a [f64],
+}
+
+/// The lines and arcs of one lap, with the lap length (m) and the unwrapped heading at its
+/// end (rad).
+fn lay_out_elements(
+    route: &[[f64; 2]],
+    legs: &[Leg],
+    corners: &Corners,
+) -> (Vec<Element>, f64, f64) {
+    let n = legs.len();
+    let (turn, tangent, radius) = (corners.turn_rad, corners.tangent_m, corners.radius_m);
+    let mut elements = Vec::new();
+    let mut s = 0.0;
+    let mut yaw = angle_of(legs[0].0);
+    for i in 0..n {
+        let (u, len) = legs[i];
+        let start_cut = tangent[(i + n - 1) % n];
+        let end_cut = tangent[i];
+        let a = route[i];
+        let start = [a[0] + u[0] * start_cut, a[1] + u[1] * start_cut];
+        let line_len = len - start_cut - end_cut;
+        if line_len > 1e-9 {
+            elements.push(Element {
+                piece: Piece::Line {
+                    start,
+                    heading: yaw,
+                },
+                s0: s,
+                len: line_len,
+                yaw0: yaw,
+            });
+            s += line_len;
+        }
+        if radius[i] > 0.0 {
+            let arc = corner_arc(route[(i + 1) % n], u, end_cut, turn[i], radius[i], s, yaw);
+            s += arc.len;
+            elements.push(arc);
+        }
+        yaw += turn[i];
+    }
+    (elements, s, yaw)
+}
+
+/// The arc of a corner at waypoint `b`, entered along `u` at `end_cut` (m) before `b`,
+/// starting at arc length `s0` (m) and heading `yaw0` (rad).
+fn corner_arc(
+    b: [f64; 2],
+    u: [f64; 2],
+    end_cut: f64,
+    turn_rad: f64,
+    radius: f64,
+    s0: f64,
+    yaw0: f64,
+) -> Element {
+    let sign = turn_rad.signum();
+    let p = [b[0] - u[0] * end_cut, b[1] - u[1] * end_cut];
+    let center = [p[0] - sign * u[1] * radius, p[1] + sign * u[0] * radius];
+    let len = radius * turn_rad.abs();
+    Element {
+        piece: Piece::Arc {
+            center,
+            radius,
+            heading0: yaw0,
+            sign,
+        },
+        s0,
+        len,
+        yaw0,
+    }
+}
+
 impl Path {
     /// Rounds the corners of the closed route with arcs of radius `corner_radius_m` (smaller
     /// where the legs are short). Starts on the first leg, heading to the second waypoint.
     pub fn from_route(route: &[[f64; 2]], corner_radius_m: f64) -> Result<Path, SimError> {
-        let n = route.len();
-        if n < 2 {
+        if route.len() < 2 {
             return Err(SimError::BadRoute(
                 "a route needs at least 2 waypoints".into(),
             ));
         }
-        let mut legs = Vec::with_capacity(n);
-        for i in 0..n {
-            let a = route[i];
-            let b = route[(i + 1) % n];
-            let len = (b[0] - a[0]).hypot(b[1] - a[1]);
-            if len < 1e-6 {
-                return Err(SimError::BadRoute(format!(
-                    "waypoints {i} and {} coincide",
-                    (i + 1) % n
-                )));
-            }
-            legs.push(([(b[0] - a[0]) / len, (b[1] - a[1]) / len], len));
-        }
-        // Corner at waypoint i+1 between leg i and leg i+1: turn angle and tangent length.
-        let mut turn = vec![0.0; n];
-        let mut tangent = vec![0.0; n];
-        let mut radius = vec![0.0; n];
-        for i in 0..n {
-            let (u, _) = legs[i];
-            let (v, _) = legs[(i + 1) % n];
-            let phi = crate::geometry::wrap_angle(angle_of(v) - angle_of(u));
-            if phi.abs() > PI - 1e-3 {
-                return Err(SimError::BadRoute(format!(
-                    "U-turn at waypoint {} (not drivable)",
-                    (i + 1) % n
-                )));
-            }
-            turn[i] = phi;
-        }
-        for i in 0..n {
-            let phi = turn[i].abs();
-            if phi < 1e-9 {
-                continue;
-            }
-            // each corner may use at most half of each adjacent leg
-            let room = 0.5 * legs[i].1.min(legs[(i + 1) % n].1);
-            let half_tan = (0.5 * phi).tan();
-            let r = corner_radius_m.min(room / half_tan);
-            radius[i] = r;
-            tangent[i] = r * half_tan;
-        }
-        let mut elements = Vec::new();
-        let mut s = 0.0;
-        let mut yaw = angle_of(legs[0].0);
-        for i in 0..n {
-            let (u, len) = legs[i];
-            let start_cut = tangent[(i + n - 1) % n];
-            let end_cut = tangent[i];
-            let a = route[i];
-            let start = [a[0] + u[0] * start_cut, a[1] + u[1] * start_cut];
-            let line_len = len - start_cut - end_cut;
-            if line_len > 1e-9 {
-                elements.push(Element {
-                    piece: Piece::Line {
-                        start,
-                        heading: yaw,
-                    },
-                    s0: s,
-                    len: line_len,
-                    yaw0: yaw,
-                });
-                s += line_len;
-            }
-            if radius[i] > 0.0 {
-                let sign = turn[i].signum();
-                let b = route[(i + 1) % n];
-                let p = [b[0] - u[0] * end_cut, b[1] - u[1] * end_cut];
-                let center = [
-                    p[0] - sign * u[1] * radius[i],
-                    p[1] + sign * u[0] * radius[i],
-                ];
-                let len = radius[i] * turn[i].abs();
-                elements.push(Element {
-                    piece: Piece::Arc {
-                        center,
-                        radius: radius[i],
-                        heading0: yaw,
-                        sign,
-                    },
-                    s0: s,
-                    len,
-                    yaw0: yaw,
-                });
-                s += len;
-                yaw += turn[i];
-            } else {
-                yaw += turn[i];
-            }
-        }
+        let legs = route_legs(route)?;
+        let turn = corner_turns_rad(&legs)?;
+        let (tangent, radius) = corner_fillets_m(&legs, &turn, corner_radius_m);
+        let corners = Corners {
+            turn_rad: &turn,
+            tangent_m: &tangent,
+            radius_m: &radius,
+        };
+        let (elements, lap_m, yaw) = lay_out_elements(route, &legs, &corners);
         let lap_yaw_rad = yaw - angle_of(legs[0].0);
         Ok(Path {
             elements,
-            lap_m: s,
+            lap_m,
             lap_yaw_rad,
         })
     }

@@ -90,33 +90,24 @@ pub fn plot_trajectories(path: &Path, series: &[Series<'_>], title: &str) -> Res
     Ok(())
 }
 
+/// A series as drawn: label, points (m) and colour.
+type Drawn<'s> = (&'s str, Vec<(f64, f64)>, RGBColor);
+
+/// The chart on the in-memory bitmap, in metres.
+type MetricChart<'a, 'b> = ChartContext<
+    'a,
+    BitMapBackend<'b>,
+    Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+>;
+
 /// Renders the plot of [`plot_trajectories`] into PNG bytes.
 pub fn render_trajectories_png(series: &[Series<'_>], title: &str) -> Result<Vec<u8>, PlotError> {
     ensure_font();
-    type Drawn<'s> = (&'s str, Vec<(f64, f64)>, RGBColor);
     let paths: Vec<Drawn<'_>> = series
         .iter()
         .map(|(l, p, c)| (*l, p.points(), RGBColor(c[0], c[1], c[2])))
         .collect();
-    let all = paths.iter().flat_map(|(_, p, _)| p.iter());
-    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
-    let mut any = false;
-    for &(x, y) in all {
-        if x.is_finite() && y.is_finite() {
-            any = true;
-            x0 = x0.min(x);
-            x1 = x1.max(x);
-            y0 = y0.min(y);
-            y1 = y1.max(y);
-        }
-    }
-    if !any {
-        return Err(PlotError::Empty);
-    }
-    // A margin of 5 % (at least 1 m) around the data.
-    let pad = (0.05 * (x1 - x0).max(y1 - y0)).max(1.0);
-    let (x0, x1, y0, y1) = (x0 - pad, x1 + pad, y0 - pad, y1 + pad);
-
+    let (x0, x1, y0, y1) = padded_bounds_m(&paths)?;
     let mut buf = vec![255u8; (WIDTH * HEIGHT * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut buf, (WIDTH, HEIGHT)).into_drawing_area();
@@ -135,49 +126,9 @@ pub fn render_trajectories_png(series: &[Series<'_>], title: &str) -> Result<Vec
             chart.plotting_area().dim_in_pixel()
         };
         root.fill(&WHITE).map_err(draw_err)?;
-        let m_per_px = ((x1 - x0) / f64::from(pw.max(1))).max((y1 - y0) / f64::from(ph.max(1)));
-        let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
-        let hw = 0.5 * m_per_px * f64::from(pw);
-        let hh = 0.5 * m_per_px * f64::from(ph);
-        let mut chart = build((cx - hw, cx + hw), (cy - hh, cy + hh)).map_err(draw_err)?;
-        chart
-            .configure_mesh()
-            .x_desc("x (m)")
-            .y_desc("y (m)")
-            .label_style((FONT_FAMILY, 16))
-            .axis_desc_style((FONT_FAMILY, 18))
-            .light_line_style(RGBColor(235, 235, 235))
-            .draw()
-            .map_err(draw_err)?;
-        for (label, pts, color) in &paths {
-            if pts.is_empty() {
-                continue;
-            }
-            let c = *color;
-            chart
-                .draw_series(LineSeries::new(pts.iter().copied(), c.stroke_width(2)))
-                .map_err(draw_err)?
-                .label(*label)
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(3))
-                });
-            let start = pts[0];
-            let end = pts[pts.len() - 1];
-            chart
-                .draw_series(std::iter::once(Circle::new(start, 7, c.filled())))
-                .map_err(draw_err)?;
-            chart
-                .draw_series(std::iter::once(TriangleMarker::new(end, 9, c.filled())))
-                .map_err(draw_err)?;
-        }
-        chart
-            .configure_series_labels()
-            .label_font((FONT_FAMILY, 16))
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .position(SeriesLabelPosition::UpperRight)
-            .draw()
-            .map_err(draw_err)?;
+        let (xr, yr) = equal_aspect_ranges_m((x0, x1, y0, y1), (pw, ph));
+        let mut chart = build(xr, yr).map_err(draw_err)?;
+        draw_chart(&mut chart, &paths)?;
         // Marker key under the title.
         root.draw(&Text::new(
             "start: circle, end: triangle",
@@ -187,6 +138,91 @@ pub fn render_trajectories_png(series: &[Series<'_>], title: &str) -> Result<Vec
         .map_err(draw_err)?;
         root.present().map_err(draw_err)?;
     }
+    encode_png(buf)
+}
+
+/// The bounds `(x0, x1, y0, y1)` (m) of the finite points with a margin of 5 % (at least
+/// 1 m); `Err` when no point is finite.
+fn padded_bounds_m(paths: &[Drawn<'_>]) -> Result<(f64, f64, f64, f64), PlotError> {
+    let all = paths.iter().flat_map(|(_, p, _)| p.iter());
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    let mut any = false;
+    for &(x, y) in all {
+        if x.is_finite() && y.is_finite() {
+            any = true;
+            x0 = x0.min(x);
+            x1 = x1.max(x);
+            y0 = y0.min(y);
+            y1 = y1.max(y);
+        }
+    }
+    if !any {
+        return Err(PlotError::Empty);
+    }
+    let pad = (0.05 * (x1 - x0).max(y1 - y0)).max(1.0);
+    Ok((x0 - pad, x1 + pad, y0 - pad, y1 + pad))
+}
+
+/// The x and y ranges (m) around the centre of `bounds_m` that give equal metres per pixel
+/// on a plotting area of `(pw, ph)` pixels.
+fn equal_aspect_ranges_m(
+    bounds_m: (f64, f64, f64, f64),
+    (pw, ph): (u32, u32),
+) -> ((f64, f64), (f64, f64)) {
+    let (x0, x1, y0, y1) = bounds_m;
+    let m_per_px = ((x1 - x0) / f64::from(pw.max(1))).max((y1 - y0) / f64::from(ph.max(1)));
+    let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
+    let hw = 0.5 * m_per_px * f64::from(pw);
+    let hh = 0.5 * m_per_px * f64::from(ph);
+    ((cx - hw, cx + hw), (cy - hh, cy + hh))
+}
+
+/// The mesh, each path with its start and end markers, and the legend.
+fn draw_chart<'a, 'b: 'a>(
+    chart: &mut MetricChart<'a, 'b>,
+    paths: &[Drawn<'_>],
+) -> Result<(), PlotError> {
+    chart
+        .configure_mesh()
+        .x_desc("x (m)")
+        .y_desc("y (m)")
+        .label_style((FONT_FAMILY, 16))
+        .axis_desc_style((FONT_FAMILY, 18))
+        .light_line_style(RGBColor(235, 235, 235))
+        .draw()
+        .map_err(draw_err)?;
+    for (label, pts, color) in paths {
+        if pts.is_empty() {
+            continue;
+        }
+        let c = *color;
+        chart
+            .draw_series(LineSeries::new(pts.iter().copied(), c.stroke_width(2)))
+            .map_err(draw_err)?
+            .label(*label)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(3)));
+        let start = pts[0];
+        let end = pts[pts.len() - 1];
+        chart
+            .draw_series(std::iter::once(Circle::new(start, 7, c.filled())))
+            .map_err(draw_err)?;
+        chart
+            .draw_series(std::iter::once(TriangleMarker::new(end, 9, c.filled())))
+            .map_err(draw_err)?;
+    }
+    chart
+        .configure_series_labels()
+        .label_font((FONT_FAMILY, 16))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::UpperRight)
+        .draw()
+        .map_err(draw_err)?;
+    Ok(())
+}
+
+/// The RGB pixel buffer as PNG bytes.
+fn encode_png(buf: Vec<u8>) -> Result<Vec<u8>, PlotError> {
     let img = image::RgbImage::from_raw(WIDTH, HEIGHT, buf)
         .ok_or_else(|| PlotError::Draw("pixel buffer has the wrong size".to_string()))?;
     let mut png = Vec::new();

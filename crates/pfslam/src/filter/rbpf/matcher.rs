@@ -56,11 +56,36 @@ pub fn match_in_own_map(
     start: &Pose2,
     search: &SearchParams,
 ) -> (Pose2, f64) {
-    let prior = search.prior;
-    // The objective `ll - penalty` (`ll` alone without a prior: `x - 0.0` is `x`). Given
-    // the value to beat, the likelihood may stop early; the result then does not beat it.
-    let eval = |p: &Pose2, bar: Option<f64>| {
-        let penalty = match prior {
+    let objective = Objective {
+        grid,
+        model,
+        points,
+        start,
+        prior: search.prior,
+    };
+    let mut best = Best::at_start(&objective);
+    best.coarse_search(&objective, search);
+    best.hill_climb(&objective, search);
+    best.into_wrapped(&objective)
+}
+
+/// The matcher's objective: the scan's log-likelihood at a pose minus the prior's penalty
+/// on the deviation from `start`.
+struct Objective<'a> {
+    grid: &'a OccupancyGrid,
+    model: &'a ObservationModel,
+    points: &'a [[f64; 2]],
+    start: &'a Pose2,
+    prior: Option<MatchPrior>,
+}
+
+impl Objective<'_> {
+    /// `(ll - penalty, ll)` at `p` (`ll` alone without a prior: `x - 0.0` is `x`). Given
+    /// the value to beat, the likelihood may stop early; the result then does not beat it.
+    #[inline]
+    fn eval(&self, p: &Pose2, bar: Option<f64>) -> (f64, f64) {
+        let start = self.start;
+        let penalty = match self.prior {
             Some(pr) => {
                 let (dx, dy) = (p.x_m - start.x_m, p.y_m - start.y_m);
                 let da = wrap_angle(p.yaw_rad - start.yaw_rad);
@@ -69,51 +94,105 @@ pub fn match_in_own_map(
             None => 0.0,
         };
         let bar = bar.map(|bar| Bar { penalty, bar });
-        let ll = scan_log_likelihood_above(grid, model, points, p, bar);
-        let objective = match prior {
+        let ll = scan_log_likelihood_above(self.grid, self.model, self.points, p, bar);
+        let objective = match self.prior {
             Some(_) => ll - penalty,
             None => ll,
         };
         (objective, ll)
-    };
-    // Every pose evaluated so far has an objective <= the current value to beat (which
-    // only rises: a candidate either lost against it or raised it), so a candidate equal
-    // to one of them bit for bit cannot win and is not evaluated again.
-    let bits = |p: &Pose2| [p.x_m, p.y_m, p.yaw_rad].map(f64::to_bits);
-    let mut seen: Vec<[u64; 3]> = Vec::with_capacity(64);
-    let mut best = *start;
-    // `best_raw`: the best pose's log-likelihood without the prior (always a full sum: a
-    // winner never stopped early).
-    let (mut best_ll, mut best_raw) = eval(&best, None);
-    seen.push(bits(&best));
-    let r = search.xy_cells;
-    for &dyaw in &search.yaw_offsets_rad {
-        for oy in -r..=r {
-            for ox in -r..=r {
-                if dyaw == 0.0 && ox == 0 && oy == 0 {
-                    continue;
-                }
-                let cand = Pose2::new(
-                    start.x_m + f64::from(ox) * search.resolution_m,
-                    start.y_m + f64::from(oy) * search.resolution_m,
-                    start.yaw_rad + dyaw,
-                );
-                let (ll, raw) = eval(&cand, Some(best_ll));
-                seen.push(bits(&cand));
-                if ll > best_ll {
-                    best_ll = ll;
-                    best_raw = raw;
-                    best = cand;
+    }
+}
+
+/// A pose's exact bits, to recognise a candidate already evaluated.
+#[inline]
+fn pose_bits(p: &Pose2) -> [u64; 3] {
+    [p.x_m, p.y_m, p.yaw_rad].map(f64::to_bits)
+}
+
+/// The best pose so far and every pose evaluated on the way to it.
+struct Best {
+    pose: Pose2,
+    /// The best pose's objective.
+    objective: f64,
+    /// The best pose's log-likelihood without the prior (always a full sum: a winner
+    /// never stopped early).
+    raw_ll: f64,
+    /// Every pose evaluated so far has an objective <= the current value to beat (which
+    /// only rises: a candidate either lost against it or raised it), so a candidate equal
+    /// to one of them bit for bit cannot win and is not evaluated again.
+    seen: Vec<[u64; 3]>,
+}
+
+impl Best {
+    /// The start pose, evaluated in full.
+    fn at_start(f: &Objective) -> Self {
+        let pose = *f.start;
+        let (objective, raw_ll) = f.eval(&pose, None);
+        let mut seen: Vec<[u64; 3]> = Vec::with_capacity(64);
+        seen.push(pose_bits(&pose));
+        Best {
+            pose,
+            objective,
+            raw_ll,
+            seen,
+        }
+    }
+
+    /// Coarse search over the yaw offsets and x/y cells around `start`.
+    fn coarse_search(&mut self, f: &Objective, search: &SearchParams) {
+        let start = f.start;
+        let r = search.xy_cells;
+        for &dyaw in &search.yaw_offsets_rad {
+            for oy in -r..=r {
+                for ox in -r..=r {
+                    if dyaw == 0.0 && ox == 0 && oy == 0 {
+                        continue;
+                    }
+                    let cand = Pose2::new(
+                        start.x_m + f64::from(ox) * search.resolution_m,
+                        start.y_m + f64::from(oy) * search.resolution_m,
+                        start.yaw_rad + dyaw,
+                    );
+                    let (ll, raw) = f.eval(&cand, Some(self.objective));
+                    self.seen.push(pose_bits(&cand));
+                    if ll > self.objective {
+                        self.objective = ll;
+                        self.raw_ll = raw;
+                        self.pose = cand;
+                    }
                 }
             }
         }
     }
-    let (mut sxy, mut syaw) = (search.step_xy_m, search.step_yaw_rad);
-    let mut level = 0;
-    let mut iterations = 0;
-    // (Not `scanmatch::pattern_search`: this climb wraps the yaw at every step.)
-    while level < search.refine_levels && iterations < 200 {
-        iterations += 1;
+
+    /// Hill climb from the best pose: six moves, steps halved when none improves.
+    /// (Not `scanmatch::pattern_search`: this climb wraps the yaw at every step.)
+    fn hill_climb(&mut self, f: &Objective, search: &SearchParams) {
+        let (mut sxy, mut syaw) = (search.step_xy_m, search.step_yaw_rad);
+        let mut level = 0;
+        let mut iterations = 0;
+        while level < search.refine_levels && iterations < 200 {
+            iterations += 1;
+            match self.best_move(f, sxy, syaw) {
+                Some((p, ll, raw)) => {
+                    self.pose = p;
+                    self.objective = ll;
+                    self.raw_ll = raw;
+                }
+                None => {
+                    sxy *= 0.5;
+                    syaw *= 0.5;
+                    level += 1;
+                }
+            }
+        }
+    }
+
+    /// The best of the six moves of `sxy` (m) / `syaw` (rad) that beats the current
+    /// objective, as `(pose, objective, raw_ll)`; moves to poses already seen are skipped.
+    #[inline]
+    fn best_move(&mut self, f: &Objective, sxy: f64, syaw: f64) -> Option<(Pose2, f64, f64)> {
+        let best = self.pose;
         let mut moved: Option<(Pose2, f64, f64)> = None;
         for (ex, ey, ea) in [
             (sxy, 0.0, 0.0),
@@ -124,48 +203,42 @@ pub fn match_in_own_map(
             (0.0, 0.0, -syaw),
         ] {
             let cand = Pose2::new(best.x_m + ex, best.y_m + ey, best.yaw_rad + ea);
-            let key = bits(&cand);
-            if seen.contains(&key) {
+            let key = pose_bits(&cand);
+            if self.seen.contains(&key) {
                 continue;
             }
-            seen.push(key);
-            let to_beat = moved.map_or(best_ll, |m| m.1);
-            let (ll, raw) = eval(&cand, Some(to_beat));
+            self.seen.push(key);
+            let to_beat = moved.map_or(self.objective, |m| m.1);
+            let (ll, raw) = f.eval(&cand, Some(to_beat));
             if ll > to_beat {
                 moved = Some((cand, ll, raw));
             }
         }
-        match moved {
-            Some((p, ll, raw)) => {
-                best = p;
-                best_ll = ll;
-                best_raw = raw;
-            }
-            None => {
-                sxy *= 0.5;
-                syaw *= 0.5;
-                level += 1;
-            }
-        }
+        moved
     }
-    let wrapped = wrap_angle(best.yaw_rad);
-    // The weight is the observation's likelihood, without the prior: the one computed for
-    // this pose, unless wrapping the yaw changed the pose (then recomputed, with a prior).
-    let ll = if prior.is_none() || wrapped.to_bits() == best.yaw_rad.to_bits() {
-        best_raw
-    } else {
-        scan_log_likelihood(
-            grid,
-            model,
-            points,
-            &Pose2 {
-                yaw_rad: wrapped,
-                ..best
-            },
-        )
-    };
-    best.yaw_rad = wrapped;
-    (best, ll)
+
+    /// The best pose with its yaw wrapped, and its log-likelihood without the prior: the
+    /// one computed for this pose, unless wrapping the yaw changed the pose (then
+    /// recomputed, with a prior).
+    fn into_wrapped(self, f: &Objective) -> (Pose2, f64) {
+        let mut best = self.pose;
+        let wrapped = wrap_angle(best.yaw_rad);
+        let ll = if f.prior.is_none() || wrapped.to_bits() == best.yaw_rad.to_bits() {
+            self.raw_ll
+        } else {
+            scan_log_likelihood(
+                f.grid,
+                f.model,
+                f.points,
+                &Pose2 {
+                    yaw_rad: wrapped,
+                    ..best
+                },
+            )
+        };
+        best.yaw_rad = wrapped;
+        (best, ll)
+    }
 }
 
 /// Gaussian prior of the matcher on the deviation from the sampled pose.
