@@ -14,9 +14,9 @@
 //! ## The pipeline (data flows one way)
 //!
 //! ```text
-//!  io ──► sensors ──► motion ──► filter ◄──► map ──► eval, viz
-//!  (files)  (typed      (odometry   (particles,  (grid,     (metrics, images,
-//!           streams)     models)     weights)     rays)      plots)
+//!  io ──► sensors ──► motion ──► filter ◄──► map ──► eval
+//!  (files)  (typed      (odometry   (particles,  (grid,     (metrics)
+//!           streams)     models)     weights)     rays)
 //!  sim: produces datasets with ground truth        stereo: image pairs -> ground colour
 //! ```
 //!
@@ -30,11 +30,13 @@
 //!   insertion.
 //! - [`filter`] is the particle filter (prediction, map correlation, weights, resampling).
 //! - [`eval`] measures accuracy (ATE, RPE, the Kümmerle relations metric).
-//! - [`viz`] draws maps and trajectories.
 //! - [`sim`] simulates the seed car and the humanoid in built-in or user worlds.
 //! - [`stereo`] demosaics, rectifies and matches stereo pairs to colour the ground.
 //!
 //! [`config::Config`] gathers one options struct per component; each is one TOML section.
+//!
+//! Pictures of the results (map images, trajectory plots, MCAP run records) are the
+//! `pfslam-viz` crate's, on top of this one.
 //!
 //! Conventions: frames in names (`world_from_body`), units in names (`range_m`, `yaw_rad`),
 //! time as `i64` nanoseconds (`stamp_ns`), angles in radians, z up, yaw counter-clockwise.
@@ -57,7 +59,6 @@ pub mod sensors;
 pub mod session;
 pub mod sim;
 pub mod stereo;
-pub mod viz;
 
 pub use config::Config;
 pub use online::{OnlineError, ScanInput, SensorSetup, Slam, check_imu_yaw, check_odometry};

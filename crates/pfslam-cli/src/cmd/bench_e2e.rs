@@ -17,7 +17,7 @@ use pfslam::io::map_files::write_map_server;
 use pfslam::io::tum::write_tum;
 use pfslam::pipeline::{PipelineOptions, process_cpu_s, run_pipeline};
 use pfslam::sim::{SimOptions, World};
-use pfslam::viz::map_image::{MapImageOptions, TrajectoryOverlay, write_binary_png, write_map_png};
+use pfslam_viz::map_image::{MapImageOptions, TrajectoryOverlay, write_binary_png, write_map_png};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 

@@ -10,7 +10,7 @@ use pfslam::geometry::StampedPose2;
 use pfslam::io::tum::{format_stamp_s, write_tum, write_tum_line};
 use pfslam::io::{write_atomic, write_bytes_atomic};
 use pfslam::sensors::sync::poses_at_stamps;
-use pfslam::viz::plot::{PALETTE, PathRef, render_trajectories_png};
+use pfslam_viz::plot::{PALETTE, PathRef, render_trajectories_png};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 

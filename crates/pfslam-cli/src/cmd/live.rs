@@ -12,8 +12,8 @@ use pfslam::config::Config;
 use pfslam::filter::slam::SlamEvent;
 use pfslam::geometry::StampedPose2;
 use pfslam::io::carmen::{CarmenLive, LiveMessage, LiveScan};
-use pfslam::viz::map_image::{MapImageOptions, TrajectoryOverlay, write_map_png};
 use pfslam::{ScanInput, SensorSetup, Slam};
+use pfslam_viz::map_image::{MapImageOptions, TrajectoryOverlay, write_map_png};
 use std::path::Path;
 use std::time::{Duration, Instant};
 

@@ -9,7 +9,7 @@ use pfslam::geometry::{Pose2, StampedPose2};
 use pfslam::io::map_files::read_map_server;
 use pfslam::io::tum::{format_stamp_s, write_tum};
 use pfslam::localize::{LocalizeQuality, LocalizeResult, localize};
-use pfslam::viz::map_image::{MapImageOptions, TrajectoryOverlay, write_map_png};
+use pfslam_viz::map_image::{MapImageOptions, TrajectoryOverlay, write_map_png};
 use std::path::PathBuf;
 use std::time::Instant;
 

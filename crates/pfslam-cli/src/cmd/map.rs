@@ -17,7 +17,7 @@ use pfslam::map::{
     CellRect, LogOddsPreset, MapComparison, MappingStats, OccupancyGrid, PlanarScan, map_with_poses,
 };
 use pfslam::sensors::Recording;
-use pfslam::viz::map_image::{MapImageOptions, TrajectoryOverlay, render_map, write_binary_png};
+use pfslam_viz::map_image::{MapImageOptions, TrajectoryOverlay, render_map, write_binary_png};
 use std::path::{Path, PathBuf};
 
 /// Log-odds presets selectable on the command line.

@@ -4,7 +4,7 @@
 
 use pfslam::filter::slam::SlamEvent;
 use pfslam::geometry::Pose2;
-use pfslam::viz::map_image::{MapImageOptions, TrajectoryOverlay, write_map_png};
+use pfslam_viz::map_image::{MapImageOptions, TrajectoryOverlay, write_map_png};
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::time::Instant;

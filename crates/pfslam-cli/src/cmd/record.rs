@@ -1,13 +1,13 @@
 //! `run --record FILE`: the run as an MCAP file that Foxglove opens (the map over time, each
 //! scan in the world, the particle cloud, the trajectories, the loop closures; see
-//! [`pfslam::viz::record`]). It is written beside `FILE` and renamed into place at the end,
+//! [`pfslam_viz::record`]). It is written beside `FILE` and renamed into place at the end,
 //! so a failed run leaves no half-written record.
 
 use anyhow::Context;
 use pfslam::filter::slam::SlamEvent;
 use pfslam::geometry::{Pose2, StampedPose2};
 use pfslam::sensors::Recording;
-use pfslam::viz::record::{RunRecord, Topic};
+use pfslam_viz::record::{RunRecord, Topic};
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 

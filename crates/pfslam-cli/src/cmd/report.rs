@@ -46,7 +46,7 @@ fn write_report(
             "<figure><img alt=\"{c}\" src=\"data:image/png;base64,{b}\">\
              <figcaption>{c}</figcaption></figure>",
             c = escape(caption),
-            b = pfslam::viz::base64(&bytes)
+            b = pfslam_viz::base64(&bytes)
         );
     }
     for (heading, key) in [

@@ -8,7 +8,7 @@ use pfslam::geometry::Pose2;
 use pfslam::io::map_files::write_map_server;
 use pfslam::io::tum::write_tum;
 use pfslam::session::{ResumeResult, SessionState, resume};
-use pfslam::viz::map_image::{MapImageOptions, TrajectoryOverlay, write_binary_png, write_map_png};
+use pfslam_viz::map_image::{MapImageOptions, TrajectoryOverlay, write_binary_png, write_map_png};
 use std::path::Path;
 use std::time::Instant;
 

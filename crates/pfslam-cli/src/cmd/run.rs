@@ -18,7 +18,7 @@ use pfslam::pipeline::{BackEndInput, PipelineOptions, PipelineResult};
 use pfslam::quality::Quality;
 use pfslam::sensors::Recording;
 use pfslam::session::SessionState;
-use pfslam::viz::map_image::{MapImageOptions, TrajectoryOverlay, write_binary_png, write_map_png};
+use pfslam_viz::map_image::{MapImageOptions, TrajectoryOverlay, write_binary_png, write_map_png};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 

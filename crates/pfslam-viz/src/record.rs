@@ -9,9 +9,9 @@
 //! | `/trajectory`, `/front_end` | `foxglove.PosesInFrame` | the final and the filter's paths |
 //! | `/loop_closures` | `foxglove.SceneUpdate` | a line between the two ends of each closure |
 
-use crate::geometry::{Pose2, StampedPose2};
-use crate::map::{Cell, OccupancyGrid};
-use crate::sensors::LidarGeometry;
+use pfslam::geometry::{Pose2, StampedPose2};
+use pfslam::map::{Cell, OccupancyGrid};
+use pfslam::sensors::LidarGeometry;
 use serde_json::{Value, json};
 use std::collections::BTreeMap;
 use std::io::{Seek, Write};
@@ -306,7 +306,7 @@ fn schema_json(name: &str) -> Value {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::map::{LogOddsParams, MapLimits};
+    use pfslam::map::{LogOddsParams, MapLimits};
 
     /// Every topic written once, read back with the `mcap` crate (Foxglove's reader).
     #[test]
@@ -319,7 +319,7 @@ mod tests {
         grid.update_free(Cell::new(0, 0)).unwrap();
         let t = 1_500_000_000_250_000_000;
         rec.map(t, &grid).unwrap();
-        let g = crate::io::carmen::carmen_geometry(3, 50.0);
+        let g = pfslam::io::carmen::carmen_geometry(3, 50.0);
         rec.scan(t, &Pose2::new(1.0, 2.0, 0.5), &g, &[1.0, f32::NAN, 60.0])
             .unwrap();
         let p = [Pose2::new(0.0, 0.0, 0.0), Pose2::new(1.0, 0.0, 0.1)];
@@ -361,10 +361,7 @@ mod tests {
             255,
             pct(Cell::new(2, 1)),
         ];
-        assert_eq!(
-            grid_msg["data"].as_str().unwrap(),
-            crate::viz::base64(&expected)
-        );
+        assert_eq!(grid_msg["data"].as_str().unwrap(), crate::base64(&expected));
         assert!(expected[0] < 50 && expected[5] > 50, "{expected:?}");
         let scan = &seen[1].2;
         assert_eq!(scan["ranges"], json!([1.0, 0.0, 0.0]));

@@ -1,12 +1,20 @@
-//! Images and plots: occupancy maps, trajectories, reports.
+//! # pfslam-viz — what a pfslam run looks like
+//!
+//! Pictures and records of the SLAM core's results, kept out of the core so it builds
+//! without a plotting or image-encoding stack:
+//! - [`map_image`]: occupancy maps as PNG (with trajectories, scans, the binary map);
+//! - [`plot`]: trajectories plotted against each other (dead reckoning, SLAM, truth);
+//! - [`record`]: a run as MCAP with Foxglove schemas (the map over time, scans, poses,
+//!   particles), for Foxglove Studio or any MCAP reader.
 //!
 //! Text is drawn with the DejaVu Sans font committed under `assets/`, registered once with
 //! plotters' `ab_glyph` backend by [`ensure_font`], so pictures look the same everywhere.
+#![deny(missing_docs)]
 
 pub mod map_image;
 
 /// The committed DejaVu Sans font.
-pub static FONT_TTF: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
+pub static FONT_TTF: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
 
 /// The family name under which [`FONT_TTF`] is registered with plotters.
 pub const FONT_FAMILY: &str = "sans-serif";

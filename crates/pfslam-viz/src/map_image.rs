@@ -7,9 +7,9 @@
 //! are enlarged by an integer factor so that legend and scale bar stay legible.
 
 use super::{FONT_FAMILY, ensure_font};
-use crate::geometry::Pose2;
-use crate::io::{IoError, write_bytes_atomic};
-use crate::map::{Cell, CellRect, CellState, OccupancyGrid, PlanarScan};
+use pfslam::geometry::Pose2;
+use pfslam::io::{IoError, write_bytes_atomic};
+use pfslam::map::{Cell, CellRect, CellState, OccupancyGrid, PlanarScan};
 use plotters::prelude::*;
 use rayon::prelude::*;
 use std::path::Path;
@@ -484,7 +484,7 @@ pub fn write_binary_png(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::map::{InsertScratch, LogOddsParams, MapLimits, ScanPoint};
+    use pfslam::map::{InsertScratch, LogOddsParams, MapLimits, ScanPoint};
 
     fn room() -> (OccupancyGrid, PlanarScan) {
         let mut g =
