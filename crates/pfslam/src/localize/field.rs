@@ -16,6 +16,8 @@ pub struct LikelihoodField {
     tables: [Vec<f32>; 2],
     /// The log-likelihood off the raster (the uniform floor alone).
     floor: f32,
+    /// The log-likelihood at distance 0 (on a wall).
+    peak: f32,
 }
 
 /// Which table to read.
@@ -70,6 +72,7 @@ impl LikelihoodField {
             distance_m,
             tables,
             floor: floor_p.ln() as f32,
+            peak: (model.z_hit + floor_p).ln() as f32,
         }
     }
 
@@ -80,6 +83,36 @@ impl LikelihoodField {
     pub fn log_likelihood(&self, sharpness: Sharpness, x_m: f64, y_m: f64) -> f32 {
         let (cx, cy) = self.limits.cell_coords(x_m, y_m);
         self.log_likelihood_at_centres(sharpness, cx - 0.5, cy - 0.5)
+    }
+
+    /// The tracking log-likelihood at `(x_m, y_m)` as [`Self::log_likelihood`] gives it, with
+    /// its gradient (per metre) inside the raster; off it, the floor and a zero gradient.
+    pub fn tracking_with_gradient(&self, x_m: f64, y_m: f64) -> (f32, [f32; 2]) {
+        let (cx, cy) = self.limits.cell_coords(x_m, y_m);
+        let (u, v) = (cx - 0.5, cy - 0.5);
+        let (i0, j0) = (u.floor(), v.floor());
+        let (w, h) = (self.width as f64, self.height as f64);
+        if !(i0 >= 0.0 && j0 >= 0.0 && i0 + 1.0 < w && j0 + 1.0 < h) {
+            return (
+                self.log_likelihood_at_centres(Sharpness::Tracking, u, v),
+                [0.0; 2],
+            );
+        }
+        let table = &self.tables[Sharpness::Tracking as usize];
+        let (fx, fy) = ((u - i0) as f32, (v - j0) as f32);
+        let k = j0 as usize * self.width + i0 as usize;
+        let (a, b) = (table[k], table[k + 1]);
+        let (c, d) = (table[k + self.width], table[k + self.width + 1]);
+        let low = a + fx * (b - a);
+        let high = c + fx * (d - c);
+        let inv = self.limits.inv_resolution() as f32;
+        let d_du = (b - a) + fy * ((d - c) - (b - a));
+        (low + fy * (high - low), [d_du * inv, (high - low) * inv])
+    }
+
+    /// The highest log-likelihood of a return (on a wall).
+    pub fn peak(&self) -> f32 {
+        self.peak
     }
 
     /// The map from world to the coordinates [`Self::log_likelihood_at_centres`] takes:
@@ -281,5 +314,31 @@ mod tests {
         let mid = at(Sharpness::Tracking, 0.15);
         assert!((mid - 0.5 * (c0 + c1)).abs() < 1e-5, "{c0} {mid} {c1}");
         assert!(f.floor < at(Sharpness::Tracking, 0.3));
+    }
+
+    /// The gradient is the bilinear field's slope: central differences inside a cell agree,
+    /// the value is `log_likelihood`'s, and off the raster the slope is 0.
+    #[test]
+    fn tracking_gradient_is_the_fields_slope() {
+        let m = map_with(&[(10, 10)], 30, 30);
+        let model = FieldModel {
+            sigma_hit_m: [0.1, 0.3],
+            z_hit: 0.9,
+            max_distance_m: 1.0,
+            range_max_m: 30.0,
+        };
+        let f = LikelihoodField::new(&m, &model);
+        let h = 1e-4;
+        for (x, y) in [(1.13, 1.01), (0.91, 1.17), (1.32, 0.84)] {
+            let (v, [gx, gy]) = f.tracking_with_gradient(x, y);
+            assert_eq!(v, f.log_likelihood(Sharpness::Tracking, x, y));
+            let ll = |x, y| f64::from(f.log_likelihood(Sharpness::Tracking, x, y));
+            let dx = (ll(x + h, y) - ll(x - h, y)) / (2.0 * h);
+            let dy = (ll(x, y + h) - ll(x, y - h)) / (2.0 * h);
+            assert!((f64::from(gx) - dx).abs() < 0.02 * dx.abs().max(1.0), "{gx} {dx}");
+            assert!((f64::from(gy) - dy).abs() < 0.02 * dy.abs().max(1.0), "{gy} {dy}");
+        }
+        assert_eq!(f.tracking_with_gradient(-5.0, 1.0), (f.floor, [0.0, 0.0]));
+        assert!(f.peak() >= f.log_likelihood(Sharpness::Tracking, 1.05, 1.05));
     }
 }

@@ -37,7 +37,8 @@ pub struct LocalizeOptions {
     pub initial_sigma: [f64; 2],
     /// Once converged, match every return of the update's scan in the field from the
     /// estimate (a local hill climb) and move the estimate and every particle by the
-    /// correction (not taken beyond 0.25 m or 5 deg).
+    /// correction (not taken beyond 0.25 m or 5 deg); between updates, match every scan
+    /// the same way from the odometry's pose for the output alone.
     pub refine_estimate: bool,
     /// The observation model.
     pub likelihood: LikelihoodOptions,

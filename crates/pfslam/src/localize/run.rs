@@ -133,7 +133,8 @@ pub fn localize(
             out.scans_outside_odometry += 1;
             continue;
         };
-        if state.wants_update(&odom) {
+        let update = state.wants_update(&odom);
+        if update {
             io.projector.aim(recording, i);
             io.projector.to_body(scans.ranges(i), &mut io.body)?;
             io.select(options.likelihood.max_beams);
@@ -151,10 +152,11 @@ pub fn localize(
                 out.updates.push(record);
             }
         }
-        out.trajectory.push(StampedPose2 {
-            stamp_ns,
-            pose: state.pose_at(&odom),
-        });
+        let mut pose = state.pose_at(&odom);
+        if !update && state.converged && options.refine_estimate {
+            pose = io.refined(recording, i, &field, &pose)?;
+        }
+        out.trajectory.push(StampedPose2 { stamp_ns, pose });
     }
     out.scans_outside_odometry += first;
     Ok(out.finish())
@@ -168,6 +170,27 @@ struct ScanIo {
 }
 
 impl ScanIo {
+    /// `pose` of scan `i` between updates refined by matching every return in the field
+    /// (the particles stay): the odometry composed since the last update drifts, most
+    /// while turning.
+    fn refined(
+        &mut self,
+        recording: &Recording,
+        i: usize,
+        field: &LikelihoodField,
+        pose: &Pose2,
+    ) -> Result<Pose2, LocalizeError> {
+        self.projector.aim(recording, i);
+        self.projector
+            .to_body(recording.scans.ranges(i), &mut self.body)?;
+        self.all_hits();
+        Ok(if self.points.is_empty() {
+            *pose
+        } else {
+            super::refine::track_pose(field, &self.points, pose)
+        })
+    }
+
     /// Every return of the body scan.
     fn all_hits(&mut self) {
         self.points.clear();
