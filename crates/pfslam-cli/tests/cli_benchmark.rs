@@ -4,7 +4,7 @@ use super::pfslam;
 
 #[test]
 fn benchmark_scores_mit_csail_against_its_relations() {
-    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
         eprintln!("SKIP benchmark_scores_mit_csail_against_its_relations: no real data");
         return;
     };

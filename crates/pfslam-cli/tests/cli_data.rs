@@ -2,8 +2,8 @@
 //! written.
 
 use super::pfslam;
-use pfslam::io::ucsd::write_car_dataset;
 use pfslam::sensors::{CarCalibration, CarDataset, EncoderSample, FogSample, ScanSet};
+use pfslam_io::ucsd::write_car_dataset;
 use std::path::Path;
 
 /// A 20 s drive on a circle: 100 Hz encoder, 1 kHz FOG consistent with the wheels, 10 Hz
@@ -88,7 +88,7 @@ fn dead_reckon_writes_outputs() {
         stdout.contains("distance:") && stdout.contains("final pose"),
         "{stdout}"
     );
-    let tum = pfslam::io::tum::read_tum(&out.join("trajectory.tum")).unwrap();
+    let tum = pfslam_io::tum::read_tum(&out.join("trajectory.tum")).unwrap();
     assert_eq!(tum.len(), 200, "one pose per LiDAR scan");
     let csv = std::fs::read_to_string(out.join("trajectory.csv")).unwrap();
     assert_eq!(csv.lines().count(), 201);
@@ -197,7 +197,7 @@ fn bad_config_exits_2() {
 
 #[test]
 fn dead_reckon_takes_the_odometry_of_a_carmen_log() {
-    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
         eprintln!("SKIP dead_reckon_takes_the_odometry_of_a_carmen_log: no real data");
         return;
     };
@@ -210,7 +210,7 @@ fn dead_reckon_takes_the_odometry_of_a_carmen_log() {
             .arg("--out")
             .arg(&out),
     );
-    let traj = pfslam::io::tum::read_tum(&out.join("trajectory.tum")).unwrap();
+    let traj = pfslam_io::tum::read_tum(&out.join("trajectory.tum")).unwrap();
     // one pose per scan (the data README's table: 1,988 scans), moving: the log's odometry, not zeros
     assert_eq!(traj.len(), 1988);
     assert!(traj.path_length_m() > 100.0, "{}", traj.path_length_m());
@@ -218,7 +218,7 @@ fn dead_reckon_takes_the_odometry_of_a_carmen_log() {
 
 #[test]
 fn run_maps_a_log_without_usable_stamps_and_accounts_for_every_scan() {
-    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
         eprintln!(
             "SKIP run_maps_a_log_without_usable_stamps_and_accounts_for_every_scan: no real data"
         );
@@ -245,7 +245,7 @@ fn run_maps_a_log_without_usable_stamps_and_accounts_for_every_scan() {
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(summary["input"]["scans_kept"], 237);
     assert_eq!(summary["input"]["format"], "carmen");
-    let traj = pfslam::io::tum::read_tum(&out.join("trajectory.tum")).unwrap();
+    let traj = pfslam_io::tum::read_tum(&out.join("trajectory.tum")).unwrap();
     assert_eq!(traj.len(), 237);
     assert!(traj.path_length_m() > 150.0, "{}", traj.path_length_m());
 }
@@ -264,7 +264,7 @@ fn info_describes_a_bag_and_names_the_layouts_looked_for() {
         e.contains("no known layout") && e.contains("metadata.yaml"),
         "{e}"
     );
-    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
         eprintln!("SKIP info_describes_a_bag_and_names_the_layouts_looked_for: no real data");
         return;
     };
@@ -314,7 +314,7 @@ fn info_describes_a_bag_and_names_the_layouts_looked_for() {
 
 #[test]
 fn a_span_of_the_recording_and_a_rosbag2_directory() {
-    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
         eprintln!("SKIP a_span_of_the_recording_and_a_rosbag2_directory: no real data");
         return;
     };
@@ -330,7 +330,7 @@ fn a_span_of_the_recording_and_a_rosbag2_directory() {
     );
     let s = String::from_utf8_lossy(&o.stdout);
     assert!(s.contains("outside the span asked for"), "{s}");
-    let whole = pfslam::io::carmen::read_carmen(&clf, &Default::default()).unwrap();
+    let whole = pfslam_io::carmen::read_carmen(&clf, &Default::default()).unwrap();
     let t0 = whole.recording.scans.stamps_ns[0];
     let inside = whole
         .recording
@@ -339,7 +339,7 @@ fn a_span_of_the_recording_and_a_rosbag2_directory() {
         .iter()
         .filter(|&&t| t >= t0 + 100_000_000_000 && t <= t0 + 200_000_000_000)
         .count();
-    let traj = pfslam::io::tum::read_tum(&out.join("trajectory.tum")).unwrap();
+    let traj = pfslam_io::tum::read_tum(&out.join("trajectory.tum")).unwrap();
     assert_eq!(traj.len(), inside);
     assert!(inside > 100 && inside < 1988, "{inside}");
     for p in &traj.poses {
@@ -353,9 +353,8 @@ fn a_span_of_the_recording_and_a_rosbag2_directory() {
         "rosbag2_bagfile_information:\n  version: 5\n",
     )
     .unwrap();
-    let opts = pfslam::io::options::ReaderOptions::default();
-    pfslam::io::mcap::write_mcap(&bag2.join("rosbag2_run_0.mcap"), &whole.recording, &opts)
-        .unwrap();
+    let opts = pfslam_io::options::ReaderOptions::default();
+    pfslam_io::mcap::write_mcap(&bag2.join("rosbag2_run_0.mcap"), &whole.recording, &opts).unwrap();
     let o = super::run_ok(super::pfslam().arg("info").arg(&bag2));
     let s = String::from_utf8_lossy(&o.stdout);
     assert!(
@@ -366,13 +365,13 @@ fn a_span_of_the_recording_and_a_rosbag2_directory() {
 
 #[test]
 fn perturb_writes_a_degraded_log_and_its_reference() {
-    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
         eprintln!("SKIP perturb_writes_a_degraded_log_and_its_reference: no real data");
         return;
     };
     let dir = tempfile::tempdir().unwrap();
     let src = data.join("carmen/seattle-corrected.log.gz");
-    let original = pfslam::io::carmen::read_carmen(&src, &Default::default()).unwrap();
+    let original = pfslam_io::carmen::read_carmen(&src, &Default::default()).unwrap();
     let mut ates = Vec::new();
     for level in ["0", "1", "2"] {
         let out = dir.path().join(format!("Seattle-L{level}.log"));
@@ -386,10 +385,10 @@ fn perturb_writes_a_degraded_log_and_its_reference() {
         let s = String::from_utf8_lossy(&o.stdout);
         assert!(s.contains("241 scans"), "{s}");
         // every scan, with the original ranges and stamps; the reference beside it
-        let back = pfslam::io::carmen::read_carmen(&out, &Default::default()).unwrap();
+        let back = pfslam_io::carmen::read_carmen(&out, &Default::default()).unwrap();
         assert_eq!(back.recording.scans, original.recording.scans);
         let reference = dir.path().join(format!("Seattle-L{level}.reference.tum"));
-        let r = pfslam::io::tum::read_tum(&reference).unwrap();
+        let r = pfslam_io::tum::read_tum(&reference).unwrap();
         assert_eq!(r.len(), 241);
         // the log is its own ground truth: its FLASER poses are the reference
         let o = super::run_ok(
@@ -421,7 +420,7 @@ fn perturb_writes_a_degraded_log_and_its_reference() {
 /// corrected poses far better than its degraded odometry.
 #[test]
 fn map_reports_how_consistent_the_poses_are() {
-    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
         eprintln!("SKIP map_reports_how_consistent_the_poses_are: no real data");
         return;
     };
@@ -473,13 +472,13 @@ fn map_reports_how_consistent_the_poses_are() {
 /// each kept scan unchanged, the reference thinned alike.
 #[test]
 fn perturb_thins_a_recording_to_keyframes() {
-    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
         eprintln!("SKIP perturb_thins_a_recording_to_keyframes: no real data");
         return;
     };
     let dir = tempfile::tempdir().unwrap();
     let src = data.join("freiburg/mit-csail/mit-csail.clf");
-    let original = pfslam::io::carmen::read_carmen(&src, &Default::default()).unwrap();
+    let original = pfslam_io::carmen::read_carmen(&src, &Default::default()).unwrap();
     let out = dir.path().join("kf.log");
     let o = super::run_ok(
         super::pfslam()
@@ -488,7 +487,7 @@ fn perturb_thins_a_recording_to_keyframes() {
             .args(["--level", "0", "--keyframes-m", "1", "--out"])
             .arg(&out),
     );
-    let kf = pfslam::io::carmen::read_carmen(&out, &Default::default()).unwrap();
+    let kf = pfslam_io::carmen::read_carmen(&out, &Default::default()).unwrap();
     let (n, n0) = (kf.recording.scans.len(), original.recording.scans.len());
     assert!(n > 20 && 2 * n < n0, "{n} of {n0}");
     // the thinning is reported
@@ -497,7 +496,7 @@ fn perturb_thins_a_recording_to_keyframes() {
         text.contains(&format!("keyframes: {n} of {n0} scans")),
         "{text}"
     );
-    let reference = pfslam::io::tum::read_tum(&dir.path().join("kf.reference.tum")).unwrap();
+    let reference = pfslam_io::tum::read_tum(&dir.path().join("kf.reference.tum")).unwrap();
     assert_eq!(reference.len(), n);
     let o = &original.recording.scans;
     let mut j = 0;
@@ -530,7 +529,7 @@ fn staging_dirs(dir: &std::path::Path) -> Vec<String> {
 
 #[test]
 fn outputs_are_one_unit_and_checked_before_work() {
-    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
         eprintln!("SKIP outputs_are_one_unit_and_checked_before_work: no real data");
         return;
     };
@@ -649,7 +648,7 @@ fn outputs_are_one_unit_and_checked_before_work() {
 
 #[test]
 fn benchmark_corpus_scores_logs_against_their_reference() {
-    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
         eprintln!("SKIP benchmark_corpus_scores_logs_against_their_reference: no real data");
         return;
     };
@@ -715,7 +714,7 @@ fn localize_in_corrected_map(data: &Path, name: &str) -> (f64, serde_json::Value
             .arg("--out")
             .arg(&map_dir),
     );
-    let truth = pfslam::io::tum::read_tum(&reference).unwrap();
+    let truth = pfslam_io::tum::read_tum(&reference).unwrap();
     let start = truth.poses[0].pose;
     let out_dir = dir.path().join("localized");
     let o = super::run_ok(
@@ -738,7 +737,7 @@ fn localize_in_corrected_map(data: &Path, name: &str) -> (f64, serde_json::Value
     for f in ["trajectory.tum", "map.png", "updates.csv", "summary.json"] {
         assert!(out_dir.join(f).is_file(), "{f} missing");
     }
-    let estimate = pfslam::io::tum::read_tum(&out_dir.join("trajectory.tum")).unwrap();
+    let estimate = pfslam_io::tum::read_tum(&out_dir.join("trajectory.tum")).unwrap();
     let ate =
         pfslam::eval::ate::ate(&estimate, &truth, pfslam::eval::Association::default()).unwrap();
     assert_eq!(ate.pairs, truth.len());
@@ -757,7 +756,7 @@ fn localize_in_corrected_map(data: &Path, name: &str) -> (f64, serde_json::Value
 
 #[test]
 fn localize_follows_the_corrected_poses_in_a_map_made_from_them() {
-    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
         eprintln!(
             "SKIP localize_follows_the_corrected_poses_in_a_map_made_from_them: no real data"
         );
@@ -811,7 +810,7 @@ fn localize_rejects_a_bad_pose_and_a_missing_map() {
 /// outputs in one frame, the merged state saved; a file that is not a state exits 2.
 #[test]
 fn a_second_session_continues_a_saved_map() {
-    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
         eprintln!("SKIP a_second_session_continues_a_saved_map: no real data");
         return;
     };
@@ -854,17 +853,19 @@ fn a_second_session_continues_a_saved_map() {
             .unwrap();
     assert_eq!(summary["sessions"].as_array().map(Vec::len), Some(2));
     // both sessions together against the corrected poses (measured 0.100 m; one run: 0.04 m)
-    let mut poses = pfslam::io::tum::read_tum(&first.join("trajectory.tum"))
+    let mut poses = pfslam_io::tum::read_tum(&first.join("trajectory.tum"))
         .unwrap()
         .poses;
     poses.extend(
-        pfslam::io::tum::read_tum(&second.join("trajectory.tum"))
+        pfslam_io::tum::read_tum(&second.join("trajectory.tum"))
             .unwrap()
             .poses,
     );
     poses.sort_by_key(|p| p.stamp_ns);
-    let options = pfslam::io::recording::ReaderOptions::default().carmen();
-    let truth = pfslam::io::carmen::read_carmen(&log, &options)
+    let options = pfslam_io::carmen::CarmenOptions::from_reader(
+        &pfslam_io::recording::ReaderOptions::default(),
+    );
+    let truth = pfslam_io::carmen::read_carmen(&log, &options)
         .unwrap()
         .laser_poses;
     let est = pfslam::geometry::Trajectory::new(poses);

@@ -2,7 +2,7 @@
 
 use super::{assert_ok, pfslam};
 use pfslam::geometry::{Pose2, StampedPose2};
-use pfslam::io::tum::{format_stamp_s, write_tum};
+use pfslam_io::tum::{format_stamp_s, write_tum};
 use std::ffi::OsStr;
 
 /// Runs `pfslam eval ARGS...`.
@@ -142,15 +142,16 @@ fn eval_bad_input_exits_2_with_position() {
 
 #[test]
 fn eval_relations_of_raw_odometry_on_real_data() {
-    use pfslam::eval::relations::{RelationsOptions, evaluate_relations, read_relations};
-    let Some(root) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+    use pfslam::eval::relations::{RelationsOptions, evaluate_relations};
+    use pfslam_io::relations::read_relations;
+    let Some(root) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
         eprintln!("SKIP eval_relations_of_raw_odometry_on_real_data: real data not found");
         return;
     };
     let dir = root.join("freiburg/aces");
-    let rec = pfslam::io::recording::read_recording(
+    let rec = pfslam_io::recording::read_recording(
         &dir.join("aces.bag"),
-        &pfslam::io::recording::ReaderOptions::default(),
+        &pfslam_io::recording::ReaderOptions::default(),
     )
     .unwrap();
     let traj = pfslam::geometry::Trajectory::new(

@@ -44,11 +44,11 @@ fn map_with_ground_truth_writes_all_files() {
     ] {
         assert!(out_dir.join(f).is_file(), "{f} missing");
     }
-    let m = pfslam::io::map_files::read_map_server(&out_dir.join("map.yaml")).unwrap();
+    let m = pfslam_io::map_files::read_map_server(&out_dir.join("map.yaml")).unwrap();
     assert_eq!(m.limits.resolution_m(), 0.2);
     let (occ, free, _) = m.counts();
     assert!(occ > 50 && free > 1000, "{occ} {free}");
-    let (shape, _) = pfslam::io::map_files::read_npy_f32(&out_dir.join("logodds.npy")).unwrap();
+    let (shape, _) = pfslam_io::map_files::read_npy_f32(&out_dir.join("logodds.npy")).unwrap();
     assert_eq!(shape, vec![m.height, m.width]);
     let stats: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out_dir.join("map_stats.json")).unwrap())

@@ -53,7 +53,7 @@ fn a_simulated_run_is_recorded() {
     );
     let (topics, scans) = read_back(&record, "/scan");
     let count = |t: &str| topics.get(t).map_or(0, |(_, n)| *n);
-    let traj = pfslam::io::tum::read_tum(&out.join("trajectory.tum")).unwrap();
+    let traj = pfslam_io::tum::read_tum(&out.join("trajectory.tum")).unwrap();
     assert_eq!(count("/scan"), traj.len(), "{topics:?}");
     assert!(
         count("/map") >= 2 && count("/particles") >= 10,
@@ -102,7 +102,7 @@ fn a_record_where_nothing_can_be_written_fails_before_any_work() {
 
 #[test]
 fn a_real_log_is_recorded_with_its_loop_closures() {
-    let Some(data) = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")) else {
+    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
         eprintln!("SKIP a_real_log_is_recorded_with_its_loop_closures: no real data");
         return;
     };

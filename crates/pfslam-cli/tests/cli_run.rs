@@ -37,7 +37,7 @@ fn run_on_a_short_simulated_drive() {
     }
     let snaps = std::fs::read_dir(res.join("snapshots")).unwrap().count();
     assert!(snaps >= 2, "{snaps} snapshots");
-    let traj = pfslam::io::tum::read_tum(&res.join("trajectory.tum")).unwrap();
+    let traj = pfslam_io::tum::read_tum(&res.join("trajectory.tum")).unwrap();
     let scans = std::fs::read_to_string(data.join("sensor_data/lidar.csv"))
         .unwrap()
         .lines()

@@ -4,12 +4,12 @@
 use super::pfslam;
 use nalgebra::Vector3;
 use pfslam::geometry::{Pose2, Rigid3};
-use pfslam::io::tum::read_tum;
-use pfslam::io::ucsd::read_stereo_stamps;
 use pfslam::map::{Cell, MapLimits};
 use pfslam::sensors::StereoCalibration;
 use pfslam::sim::world::World;
 use pfslam::stereo::render::WorldScene;
+use pfslam_io::tum::read_tum;
+use pfslam_io::ucsd::read_stereo_stamps;
 use std::path::Path;
 
 /// A float32 `.npy` file: (shape, data).

@@ -25,7 +25,7 @@ fn simulate_car_writes_dataset_and_ground_truth() {
     ] {
         assert!(out.join(f).is_file(), "{f} missing");
     }
-    let ds = pfslam::io::ucsd::read_car_dataset(&out, &Default::default()).unwrap();
+    let ds = pfslam_io::ucsd::read_car_dataset(&out, &Default::default()).unwrap();
     assert_eq!(ds.encoder.len(), 301);
     // info on the car's layout: its rows, the LMS511's layout, the filter it would run
     let o = run_ok(pfslam().arg("info").arg(&out));
@@ -72,7 +72,7 @@ fn simulate_humanoid_writes_its_layout() {
             ])
             .arg(dir.path()),
     );
-    let ds = pfslam::io::humanoid::read_humanoid_dataset(dir.path()).unwrap();
+    let ds = pfslam_io::humanoid::read_humanoid_dataset(dir.path()).unwrap();
     assert_eq!(ds.lidar.beam_count, 1081);
     let o = run_ok(pfslam().arg("info").arg(dir.path()));
     let s = String::from_utf8_lossy(&o.stdout);

@@ -135,12 +135,12 @@ fn texture_without_poses_file_exits_2() {
 
 #[test]
 fn texture_over_the_lidar_map_of_a_simulated_drive() {
-    use pfslam::io::tum::write_tum;
-    use pfslam::io::ucsd::write_car_dataset;
     use pfslam::sim::SimOptions;
     use pfslam::sim::car::simulate_car;
     use pfslam::sim::world::World;
     use pfslam::stereo::render::WorldScene;
+    use pfslam_io::tum::write_tum;
+    use pfslam_io::ucsd::write_car_dataset;
     // A 6 s drive on the campus: the car's files (with LiDAR), two rendered stereo pairs.
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();

@@ -13,7 +13,7 @@ mod slam;
 use crate::config::config_from;
 use crate::errors::{ConfigError, PfslamError, config_error, pfslam_error};
 use crate::result::{RunContext, RunResult, run_result};
-use pfslam::run_file::{RunFileError, run_file};
+use pfslam_io::run_file::{RunFileError, run_file};
 use pyo3::prelude::*;
 use std::path::PathBuf;
 

@@ -5,10 +5,10 @@ use crate::errors::pfslam_error;
 use crate::occupancy::occupancy;
 use numpy::{PyArray1, PyArray2, PyUntypedArrayMethods};
 use pfslam::Config;
-use pfslam::io::account::InputAccount;
-use pfslam::io::tum::write_tum_to;
 use pfslam::pipeline::PipelineResult;
 use pfslam::sensors::Recording;
+use pfslam_io::account::InputAccount;
+use pfslam_io::tum::write_tum_to;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 

@@ -1,4 +1,4 @@
-"""TUM text as `pfslam::io::tum::write_tum` prints it, to compare arrays with the CLI's files."""
+"""TUM text as `pfslam_io::tum::write_tum` prints it, to compare arrays with the CLI's files."""
 
 import math
 from typing import List

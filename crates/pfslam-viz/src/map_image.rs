@@ -7,8 +7,8 @@
 //! are enlarged by an integer factor so that legend and scale bar stay legible.
 
 use super::{FONT_FAMILY, ensure_font};
+use pfslam::files::{IoError, write_bytes_atomic};
 use pfslam::geometry::Pose2;
-use pfslam::io::{IoError, write_bytes_atomic};
 use pfslam::map::{Cell, CellRect, CellState, OccupancyGrid, PlanarScan};
 use plotters::prelude::*;
 use rayon::prelude::*;

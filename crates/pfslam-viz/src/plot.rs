@@ -3,8 +3,8 @@
 //! written as PNG atomically.
 
 use super::{FONT_FAMILY, ensure_font};
+use pfslam::files::{IoError, write_bytes_atomic};
 use pfslam::geometry::{Pose2, StampedPose2, Trajectory};
-use pfslam::io::{IoError, write_bytes_atomic};
 use plotters::prelude::*;
 use std::path::Path;
 

@@ -319,7 +319,7 @@ mod tests {
         grid.update_free(Cell::new(0, 0)).unwrap();
         let t = 1_500_000_000_250_000_000;
         rec.map(t, &grid).unwrap();
-        let g = pfslam::io::carmen::carmen_geometry(3, 50.0);
+        let g = pfslam_io::carmen::carmen_geometry(3, 50.0);
         rec.scan(t, &Pose2::new(1.0, 2.0, 0.5), &g, &[1.0, f32::NAN, 60.0])
             .unwrap();
         let p = [Pose2::new(0.0, 0.0, 0.0), Pose2::new(1.0, 0.0, 0.1)];

@@ -12,8 +12,8 @@ mod cpu_time;
 use cpu_time::ThreadCpuTime;
 use criterion::measurement::Measurement;
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use pfslam::io::ucsd::{ReadOptions, read_fog_csv, read_lidar_csv, write_fog_csv, write_lidar_csv};
 use pfslam::sensors::{FogSample, ScanSet};
+use pfslam_io::ucsd::{ReadOptions, read_fog_csv, read_lidar_csv, write_fog_csv, write_lidar_csv};
 
 fn xorshift(state: &mut u64) -> u64 {
     *state ^= *state << 13;

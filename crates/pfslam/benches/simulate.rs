@@ -5,7 +5,8 @@
 //! scans, 1.16M FOG rows, 116k encoder rows), simulated and written (10 samples: minutes).
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use pfslam::sim::{SimOptions, World, simulate_car, write_car_sim};
+use pfslam::sim::{SimOptions, World, simulate_car};
+use pfslam_io::sim::write_car_sim;
 use std::hint::black_box;
 use std::time::Duration;
 

@@ -10,10 +10,10 @@
 
 use pfslam::config::Config;
 use pfslam::graph::{BackEndInput, optimize_trajectory};
-use pfslam::io::tum::{read_tum, write_tum};
-use pfslam::io::ucsd::{ReadOptions, read_car_dataset};
 use pfslam::motion::calibration::fit_odometry_calibration;
 use pfslam::pipeline::process_cpu_s;
+use pfslam_io::tum::{read_tum, write_tum};
+use pfslam_io::ucsd::{ReadOptions, read_car_dataset};
 use std::hash::{Hash, Hasher};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -31,7 +31,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     };
     // A file is a recording (CARMEN log, ROS 1 bag, MCAP: Freiburg), a directory the car.
     let recording = if data.is_file() {
-        pfslam::io::recording::read_recording(&data, &Default::default())?
+        pfslam_io::recording::read_recording(&data, &Default::default())?
     } else {
         let mut ds = read_car_dataset(&data, &ReadOptions::default())?;
         pfslam::motion::car_recording_taking_scans(&mut ds, &config.motion, "d")?

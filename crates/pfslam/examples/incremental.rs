@@ -5,8 +5,8 @@
 //!
 //! `cargo run --release -p pfslam --example incremental -- RECORDING [SEED] > poses.tum`
 
-use pfslam::io::recording::read_recording;
 use pfslam::{Config, ScanInput, SensorSetup, Slam};
+use pfslam_io::recording::read_recording;
 use std::io::Write;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

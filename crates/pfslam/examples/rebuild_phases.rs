@@ -7,9 +7,9 @@
 //! (`OccupancyGrid::apply_updates`), and a hash of the grid's cells and bins.
 
 use pfslam::config::Config;
-use pfslam::io::tum::read_tum;
-use pfslam::io::ucsd::{ReadOptions, read_car_dataset};
 use pfslam::map::{Cell, MAP_BATCH_SCANS, OccupancyGrid, ScanInserter, ScanProjector, ScanUpdates};
+use pfslam_io::tum::read_tum;
+use pfslam_io::ucsd::{ReadOptions, read_car_dataset};
 use std::hash::{Hash, Hasher};
 use std::path::PathBuf;
 

@@ -8,9 +8,9 @@
 
 use pfslam::config::Config;
 use pfslam::geometry::Trajectory;
-use pfslam::io::ucsd::{ReadOptions, read_car_dataset};
 use pfslam::map::InsertScratch;
 use pfslam::map::{DensifyRays, OccupancyGrid, PlanarScan, ScanProjector, ScanUpdates, to_world};
+use pfslam_io::ucsd::{ReadOptions, read_car_dataset};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -45,7 +45,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let rec = pfslam::motion::car_recording_taking_scans(&mut ds, &config.motion, "d")?;
     drop(ds);
     let truth = Trajectory::new(
-        pfslam::io::tum::read_tum(&PathBuf::from(&args[1]).join("ground_truth.tum"))?.poses,
+        pfslam_io::tum::read_tum(&PathBuf::from(&args[1]).join("ground_truth.tum"))?.poses,
     );
     let mut planar_opts = config.map.clone();
     planar_opts.height.enabled = false;

@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 #[serde(default, deny_unknown_fields)]
 pub struct Config {
     /// Recording readers: topics, frames, beam geometry, strictness, span (`[input]`).
-    pub input: crate::io::recording::ReaderOptions,
+    pub input: crate::sensors::reader_options::ReaderOptions,
     /// Motion models and their noise (`[motion]`).
     pub motion: crate::motion::MotionOptions,
     /// Occupancy grid (`[map]`).

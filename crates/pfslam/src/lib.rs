@@ -14,16 +14,18 @@
 //! ## The pipeline (data flows one way)
 //!
 //! ```text
-//!  io ──► sensors ──► motion ──► filter ◄──► map ──► eval
-//!  (files)  (typed      (odometry   (particles,  (grid,     (metrics)
-//!           streams)     models)     weights)     rays)
-//!  sim: produces datasets with ground truth        stereo: image pairs -> ground colour
+//!  sensors ──► motion ──► filter ◄──► map ──► eval
+//!  (typed       (odometry   (particles,  (grid,     (metrics)
+//!   streams)     models)     weights)     rays)
+//!  sim: simulated recordings with ground truth      stereo: image pairs -> ground colour
 //! ```
 //!
-//! - [`io`] reads and writes every file format (the car's CSV layout, calibration files,
-//!   TUM trajectories, CARMEN logs, ROS bags, MCAP, map files), atomically on write.
 //! - [`sensors`] holds typed, timestamped measurements ([`sensors::CarDataset`],
-//!   [`sensors::Recording`]) independent of any format.
+//!   [`sensors::Recording`], the humanoid's [`sensors::humanoid::HumanoidDataset`])
+//!   independent of any format, and the readers' `[input]` options
+//!   ([`sensors::reader_options::ReaderOptions`]).
+//! - [`files`] is what every reader and writer shares whatever the format: [`files::IoError`]
+//!   naming file and line, atomic writes, number fields.
 //! - [`motion`] turns wheel ticks and gyro increments (or odometry poses) into motion, with
 //!   the noise models the particle filter samples from.
 //! - [`map`] is the occupancy grid: [`map::MapLimits`] for world <-> cell, log-odds, ray
@@ -35,8 +37,13 @@
 //!
 //! [`config::Config`] gathers one options struct per component; each is one TOML section.
 //!
-//! Pictures of the results (map images, trajectory plots, MCAP run records) are the
-//! `pfslam-viz` crate's, on top of this one.
+//! The recording and dataset formats (the car's CSV layout, calibration files, TUM
+//! trajectories, CARMEN logs, ROS bags, MCAP, map files, relations files), opening a path as a
+//! dataset and running it (`pfslam_io::run_file`) and writing simulated datasets are the
+//! `pfslam-io` crate's; pictures of the results (map images, trajectory plots, MCAP run
+//! records) are the `pfslam-viz` crate's. Both sit on top of this one, which reads only its
+//! own files: the configuration, saved sessions ([`session`]), world files ([`sim`]) and
+//! stereo images ([`stereo`]).
 //!
 //! Conventions: frames in names (`world_from_body`), units in names (`range_m`, `yaw_rad`),
 //! time as `i64` nanoseconds (`stamp_ns`), angles in radians, z up, yaw counter-clockwise.
@@ -44,17 +51,16 @@
 
 pub mod config;
 pub mod eval;
+pub mod files;
 pub mod filter;
 pub mod geometry;
 pub mod graph;
-pub mod io;
 pub mod localize;
 pub mod map;
 pub mod motion;
 pub mod online;
 pub mod pipeline;
 pub mod quality;
-pub mod run_file;
 pub mod sensors;
 pub mod session;
 pub mod sim;
@@ -62,4 +68,3 @@ pub mod stereo;
 
 pub use config::Config;
 pub use online::{OnlineError, ScanInput, SensorSetup, Slam, check_imu_yaw, check_odometry};
-pub use run_file::{FileRun, RunFileError, run_file};

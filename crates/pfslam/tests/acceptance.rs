@@ -5,10 +5,11 @@
 use pfslam::config::Config;
 use pfslam::eval::Association;
 use pfslam::eval::ate::ate;
-use pfslam::eval::relations::{RelationsOptions, evaluate_relations, read_relations};
+use pfslam::eval::relations::{RelationsOptions, evaluate_relations};
 use pfslam::geometry::Trajectory;
 use pfslam::motion::perturb::{OdometryErrors, perturb_odometry};
 use pfslam::pipeline::{PipelineOptions, run_pipeline};
+use pfslam_io::relations::read_relations;
 
 fn options() -> PipelineOptions {
     PipelineOptions {
@@ -28,11 +29,9 @@ fn freiburg_run(name: &str, seed: u64) -> Option<(f64, bool)> {
     let dir = crate::common::data_dir(&format!("acceptance_freiburg_{name}"))?
         .join("freiburg")
         .join(name);
-    let rec = pfslam::io::recording::read_recording(
-        &dir.join(format!("{name}.bag")),
-        &Default::default(),
-    )
-    .unwrap();
+    let rec =
+        pfslam_io::recording::read_recording(&dir.join(format!("{name}.bag")), &Default::default())
+            .unwrap();
     let relations = read_relations(&dir.join(format!("{name}.relations"))).unwrap();
     let out = run_pipeline(&rec, &Config::default(), seed, &options(), &mut |_| {}).unwrap();
     let retried = out.quality.signals.back_end_retried;
@@ -81,7 +80,7 @@ fn freiburg_bags_stay_within_their_recorded_errors() {
 fn radish_ate_m(name: &str, level: u8) -> Option<f64> {
     let dir = crate::common::data_dir(&format!("acceptance_radish_{name}"))?.join("carmen");
     let path = dir.join(format!("{name}-corrected.log.gz"));
-    let log = pfslam::io::carmen::read_carmen(&path, &Default::default()).unwrap();
+    let log = pfslam_io::carmen::read_carmen(&path, &Default::default()).unwrap();
     let mut rec = log.recording;
     rec.odometry = perturb_odometry(&rec.odometry, &OdometryErrors::level(level).unwrap(), 1);
     let out = run_pipeline(&rec, &Config::default(), 1, &options(), &mut |_| {}).unwrap();

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 /// `None` after printing a skip notice naming the test.
 #[allow(dead_code)]
 pub fn data_dir(test: &str) -> Option<PathBuf> {
-    let d = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR"));
+    let d = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR"));
     if d.is_none() {
         eprintln!("SKIP {test}: real data not found (set PFSLAM_DATA or provide ../shared/data)");
     }

@@ -4,11 +4,10 @@
 use crate::common::data_dir;
 use pfslam::eval::Association;
 use pfslam::eval::ate::ate;
-use pfslam::eval::relations::{
-    Relation, RelationsOptions, evaluate_relations, read_relations, relation_errors,
-};
+use pfslam::eval::relations::{Relation, RelationsOptions, evaluate_relations, relation_errors};
 use pfslam::eval::rpe::{RpeDelta, rpe};
 use pfslam::geometry::{Pose2, StampedPose2, Trajectory};
+use pfslam_io::relations::read_relations;
 
 fn wiggly(n: usize) -> Trajectory {
     let mut p = Pose2::IDENTITY;
@@ -137,8 +136,8 @@ fn relations_file_errors_name_line() {
 /// with the relations metric.
 #[test]
 fn raw_odometry_relations_baseline() {
-    use pfslam::io::options::ReaderOptions;
-    use pfslam::io::ros1::read_ros1_bag;
+    use pfslam_io::options::ReaderOptions;
+    use pfslam_io::ros1::read_ros1_bag;
     let Some(root) = data_dir("raw_odometry_relations_baseline") else {
         return;
     };
@@ -188,9 +187,9 @@ fn raw_odometry_relations_baseline() {
     }
     // the original CARMEN log of MIT-CSAIL gives the same figures as its bag
     let dir = root.join("freiburg/mit-csail");
-    let log = pfslam::io::carmen::read_carmen(
+    let log = pfslam_io::carmen::read_carmen(
         &dir.join("mit-csail.clf"),
-        &pfslam::io::carmen::CarmenOptions::default(),
+        &pfslam_io::carmen::CarmenOptions::default(),
     )
     .unwrap();
     let traj = pfslam::geometry::Trajectory::new(

@@ -710,7 +710,7 @@ fn explore_sim() {
     };
     let r = sim_car_slam(env("PF_DUR", 20.0), &config, env("PF_SEEDNUM", 1.0) as u64);
     if let Ok(path) = std::env::var("PF_DUMP") {
-        pfslam::io::tum::write_tum(std::path::Path::new(&path), &r.result.trajectory).unwrap();
+        pfslam_io::tum::write_tum(std::path::Path::new(&path), &r.result.trajectory).unwrap();
     }
     eprintln!(
         "EXPLORE ate slam {:.3} dr {:.3} precision {:.3} recall {:.3} neff_mean {:.1} resamples {} score {:.0} t {:.1}s",

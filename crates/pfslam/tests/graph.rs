@@ -340,9 +340,10 @@ fn mit_csail_back_end_beats_the_front_end() {
         );
         return;
     }
-    use pfslam::eval::relations::{RelationsOptions, evaluate_relations, read_relations};
+    use pfslam::eval::relations::{RelationsOptions, evaluate_relations};
     use pfslam::geometry::Trajectory;
-    let recording = pfslam::io::recording::read_recording(&bag, &Default::default()).unwrap();
+    use pfslam_io::relations::read_relations;
+    let recording = pfslam_io::recording::read_recording(&bag, &Default::default()).unwrap();
     let relations = read_relations(&dir.join("mit-csail.relations")).unwrap();
     let mut config = pfslam::config::Config::default();
     // A poor front end on purpose (`scan_match`, tuned for the car: 1.66 m here), so the test

@@ -15,7 +15,11 @@ fn log_and_map(test: &str, name: &str) -> Option<(Recording, Trajectory, BinaryM
     let data = crate::common::data_dir(test)?;
     let config = Config::default();
     let path = data.join(format!("carmen/{name}-corrected.log.gz"));
-    let log = pfslam::io::carmen::read_carmen(&path, &config.input.carmen()).unwrap();
+    let log = pfslam_io::carmen::read_carmen(
+        &path,
+        &pfslam_io::carmen::CarmenOptions::from_reader(&config.input),
+    )
+    .unwrap();
     let mut recording = log.recording;
     let errors = OdometryErrors::level(2).unwrap();
     recording.odometry = perturb_odometry(&recording.odometry, &errors, 1);
@@ -186,7 +190,7 @@ fn a_freiburg_bag_is_localised_in_its_own_slam_map() {
     };
     let config = Config::default();
     let path = data.join("freiburg/mit-csail/mit-csail.bag");
-    let rec = pfslam::io::recording::read_recording(&path, &config.input).unwrap();
+    let rec = pfslam_io::recording::read_recording(&path, &config.input).unwrap();
     let options = pfslam::pipeline::PipelineOptions::default();
     let slam = pfslam::pipeline::run_pipeline(&rec, &config, 1, &options, &mut |_| {}).unwrap();
     let map = slam.result.map.to_binary_map(None);

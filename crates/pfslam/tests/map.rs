@@ -2,12 +2,12 @@
 //! ground-truth poses, and the map files.
 
 use pfslam::geometry::{Pose2, Rigid3, StampedPose2, Trajectory};
-use pfslam::io::map_files::{read_map_server, read_npy_f32, write_logodds_npy, write_map_server};
 use pfslam::map::{
     BinaryMap, Cell, CellState, InsertScratch, MapLimits, MapOptions, OccupancyGrid, ScanOptions,
     ScanProjector, compare_maps, map_with_poses, to_world,
 };
 use pfslam::sensors::{LidarGeometry, Recording, ScanSet};
+use pfslam_io::map_files::{read_map_server, read_npy_f32, write_logodds_npy, write_map_server};
 
 /// Distance from `(x, y)` along `(dx, dy)` to the walls of the axis-aligned box
 /// `[0, 20] x [0, 10]` seen from inside, and to a 1 m pillar at (14..15, 4..5).
@@ -250,7 +250,7 @@ fn campus_leg(z_window_m: [f64; 2], band_m: [f64; 2]) -> (OccupancyGrid, BinaryM
     let dir = tempfile::tempdir().unwrap();
     let read = |band: [f64; 2], stem: &str| {
         let t = TrueMap::rasterize(&world, sim_opts.truth_map_resolution_m, band, 20.0);
-        t.write(dir.path(), stem).unwrap();
+        pfslam_io::sim::write_true_map(&t, dir.path(), stem).unwrap();
         read_map_server(&dir.path().join(format!("{stem}.yaml"))).unwrap()
     };
     let matched = read(band_m, "true_map_band");

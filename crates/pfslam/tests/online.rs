@@ -142,7 +142,7 @@ fn incremental_run_of_mit_csail_equals_the_batch_run() {
         return;
     };
     let path = data.join("freiburg/mit-csail/mit-csail.clf");
-    let rec = pfslam::io::recording::read_recording(&path, &Default::default()).unwrap();
+    let rec = pfslam_io::recording::read_recording(&path, &Default::default()).unwrap();
     let config = Config::default();
     let reference = batch(&rec, &config, 1);
     assert!(reference.graph.is_some());

@@ -1,8 +1,9 @@
 //! Readers of real recordings: CARMEN logs, ROS 1 bags, MCAP; malformed input.
 
 use crate::common::data_dir;
-use pfslam::eval::relations::{pose_for_stamp, read_relations};
-use pfslam::io::carmen::{CarmenOptions, read_carmen};
+use pfslam::eval::relations::pose_for_stamp;
+use pfslam_io::carmen::{CarmenOptions, read_carmen};
+use pfslam_io::relations::read_relations;
 use std::path::Path;
 
 fn write(dir: &Path, name: &str, text: &str) -> std::path::PathBuf {
@@ -305,8 +306,8 @@ fn relation_stamps_found(rec: &pfslam::sensors::Recording, relations: &Path) -> 
 
 #[test]
 fn ros1_bags_counts_geometry_and_relation_stamps() {
-    use pfslam::io::ros1::{read_ros1_bag, read_ros1_bag_with_account};
-    use pfslam::io::{options::ReaderOptions, ros_assemble::BeamGeometry};
+    use pfslam_io::ros1::{read_ros1_bag, read_ros1_bag_with_account};
+    use pfslam_io::{options::ReaderOptions, ros_assemble::BeamGeometry};
     let Some(root) = data_dir("ros1_bags_counts_geometry_and_relation_stamps") else {
         return;
     };
@@ -375,10 +376,10 @@ fn ros1_bags_counts_geometry_and_relation_stamps() {
 #[test]
 fn mcap_from_bag_slice_roundtrip() {
     use pfslam::geometry::Trajectory;
-    use pfslam::io::mcap::{read_mcap, write_mcap};
-    use pfslam::io::ros1::read_ros1_bag;
-    use pfslam::io::{options::ReaderOptions, ros_assemble::BeamGeometry};
     use pfslam::sensors::ScanSet;
+    use pfslam_io::mcap::{read_mcap, write_mcap};
+    use pfslam_io::ros1::read_ros1_bag;
+    use pfslam_io::{options::ReaderOptions, ros_assemble::BeamGeometry};
     let Some(root) = data_dir("mcap_from_bag_slice_roundtrip") else {
         return;
     };
@@ -461,8 +462,8 @@ fn mcap_from_bag_slice_roundtrip() {
 
 #[test]
 fn ros1_malformed_bags_name_positions() {
-    use pfslam::io::options::ReaderOptions;
-    use pfslam::io::ros1::read_ros1_bag;
+    use pfslam_io::options::ReaderOptions;
+    use pfslam_io::ros1::read_ros1_bag;
     let dir = tempfile::tempdir().unwrap();
     let p = write(dir.path(), "text.bag", "hello\n");
     let e = read_ros1_bag(&p, &ReaderOptions::default())
@@ -504,7 +505,7 @@ fn ros1_malformed_bags_name_positions() {
 
 #[test]
 fn carmen_robotlaser_rlaser_param() {
-    use pfslam::io::carmen::CarmenLaser;
+    use pfslam_io::carmen::CarmenLaser;
     let dir = tempfile::tempdir().unwrap();
     // ROBOTLASER1: 3 readings from -0.5 rad in 0.5 rad steps, 1 remission, laser 0.3 m ahead
     let rl = |stamp: &str, x: f64| {
@@ -623,8 +624,8 @@ proptest::proptest! {
     // a corrupted MCAP file is read or refused, never a panic
     #[test]
     fn mcap_corruption_never_panics(at in 0.0f64..1.0, xor in 1u8..=255, len in 1usize..16) {
-        use pfslam::io::mcap::{read_mcap, write_mcap};
-        use pfslam::io::options::ReaderOptions;
+        use pfslam_io::mcap::{read_mcap, write_mcap};
+        use pfslam_io::options::ReaderOptions;
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("s.mcap");
         write_mcap(&p, &synthetic_recording(), &ReaderOptions::default()).unwrap();
@@ -643,13 +644,13 @@ proptest::proptest! {
 
 #[test]
 fn mcap_synthetic_roundtrip_without_data() {
-    use pfslam::io::mcap::write_mcap;
-    use pfslam::io::options::ReaderOptions;
+    use pfslam_io::mcap::write_mcap;
+    use pfslam_io::options::ReaderOptions;
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("s.mcap");
     let rec = synthetic_recording();
     write_mcap(&p, &rec, &ReaderOptions::default()).unwrap();
-    let back = pfslam::io::recording::read_recording(&p, &Default::default()).unwrap();
+    let back = pfslam_io::recording::read_recording(&p, &Default::default()).unwrap();
     assert_eq!(back.scans, rec.scans);
     assert_eq!(back.odometry.len(), 20);
     assert_eq!(back.lidar.angle_increment_rad, 0.5);
@@ -658,8 +659,8 @@ fn mcap_synthetic_roundtrip_without_data() {
 
 /// Scans `0..n` of the Intel bag and its odometry over their span.
 fn intel_slice(root: &Path, n: usize) -> pfslam::sensors::Recording {
-    use pfslam::io::options::ReaderOptions;
-    let rec = pfslam::io::ros1::read_ros1_bag(
+    use pfslam_io::options::ReaderOptions;
+    let rec = pfslam_io::ros1::read_ros1_bag(
         &root.join("freiburg/intel/intel.bag"),
         &ReaderOptions::default(),
     )
@@ -699,9 +700,9 @@ fn body_points(rec: &pfslam::sensors::Recording, i: usize) -> Vec<(f64, f64)> {
 
 #[test]
 fn mixed_beam_layouts_renamed_topics_and_tf_odometry() {
-    use pfslam::io::mcap::{McapTopics, write_mcap_with};
-    use pfslam::io::recording::{ReaderOptions, open_recording};
     use pfslam::sensors::{LidarGeometry, ScanSet};
+    use pfslam_io::mcap::{McapTopics, write_mcap_with};
+    use pfslam_io::recording::{ReaderOptions, open_recording};
     let Some(root) = data_dir("mixed_beam_layouts_renamed_topics_and_tf_odometry") else {
         return;
     };
@@ -861,15 +862,15 @@ fn dense_scanner_of_3600_beams_runs() {
 #[test]
 fn a_recording_without_odometry_runs_lidar_only() {
     use pfslam::eval::relations::{RelationsOptions, evaluate_relations};
-    use pfslam::io::mcap::{McapTopics, write_mcap_with};
-    use pfslam::io::recording::{ReaderOptions, open_recording};
+    use pfslam_io::mcap::{McapTopics, write_mcap_with};
+    use pfslam_io::recording::{ReaderOptions, open_recording};
     let Some(root) = data_dir("a_recording_without_odometry_runs_lidar_only") else {
         return;
     };
     let dir = root.join("freiburg/mit-csail");
-    let bag = pfslam::io::ros1::read_ros1_bag(
+    let bag = pfslam_io::ros1::read_ros1_bag(
         &dir.join("mit-csail.bag"),
-        &pfslam::io::options::ReaderOptions::default(),
+        &pfslam_io::options::ReaderOptions::default(),
     )
     .unwrap();
     let bare = pfslam::sensors::Recording {
@@ -914,8 +915,8 @@ fn a_recording_without_odometry_runs_lidar_only() {
 #[test]
 fn imu_yaw_replaces_the_odometry_turning() {
     use pfslam::geometry::{Pose2, StampedPose2, Trajectory};
-    use pfslam::io::mcap::{McapTopics, write_mcap_with};
-    use pfslam::io::recording::{ReaderOptions, open_recording};
+    use pfslam_io::mcap::{McapTopics, write_mcap_with};
+    use pfslam_io::recording::{ReaderOptions, open_recording};
     let Some(root) = data_dir("imu_yaw_replaces_the_odometry_turning") else {
         return;
     };

@@ -2,7 +2,7 @@
 //! gives: the same stamps, odometry poses, layouts and account.
 
 use crate::common::data_dir;
-use pfslam::io::carmen::{CarmenLaser, CarmenOptions, ScanPose, read_carmen, stream_scan_poses};
+use pfslam_io::carmen::{CarmenLaser, CarmenOptions, ScanPose, read_carmen, stream_scan_poses};
 use std::path::Path;
 
 /// Streams `path`; `None` when the log must be read whole.
@@ -106,7 +106,7 @@ fn a_sink_error_stops_the_stream() {
     let mut calls = 0;
     let e = stream_scan_poses(&p, &CarmenOptions::default(), |_| {
         calls += 1;
-        Err(pfslam::io::IoError::parse(
+        Err(pfslam_io::IoError::parse(
             Path::new("out.tum"),
             1,
             "disk full",

@@ -3,12 +3,13 @@
 //! and a recording driven twice, whose saved map may not grow much the second time.
 
 use pfslam::config::Config;
-use pfslam::eval::relations::{RelationsOptions, evaluate_relations, read_relations};
+use pfslam::eval::relations::{RelationsOptions, evaluate_relations};
 use pfslam::geometry::{StampedPose2, Trajectory};
-use pfslam::io::recording::{ReaderOptions, read_recording};
 use pfslam::pipeline::{PipelineOptions, run_pipeline};
 use pfslam::sensors::Recording;
 use pfslam::session::{SessionState, resume};
+use pfslam_io::recording::{ReaderOptions, read_recording};
+use pfslam_io::relations::read_relations;
 use std::path::PathBuf;
 
 fn bag(test: &str, name: &str) -> Option<PathBuf> {

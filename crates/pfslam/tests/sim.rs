@@ -2,14 +2,14 @@
 //! truth consistency, determinism, the humanoid layout round trip.
 
 use pfslam::geometry::{Pose2, StampedPose2, Trajectory};
-use pfslam::io::humanoid::read_humanoid_dataset;
 use pfslam::motion::{MotionOptions, dead_reckon};
 use pfslam::sensors::CarCalibration;
-use pfslam::sim::humanoid::{BEAM_FLOOR, BEAM_OBSTACLE, read_beam_labels};
+use pfslam::sim::humanoid::{BEAM_FLOOR, BEAM_OBSTACLE};
 use pfslam::sim::{
-    HitKind, Prism, RayCaster, SimOptions, TrueMap, Vehicle, World, simulate_car,
-    simulate_humanoid, write_car_sim, write_humanoid_sim,
+    HitKind, Prism, RayCaster, SimOptions, TrueMap, Vehicle, World, simulate_car, simulate_humanoid,
 };
+use pfslam_io::humanoid::read_humanoid_dataset;
+use pfslam_io::sim::{read_beam_labels, write_car_sim, write_humanoid_sim};
 use std::path::Path;
 
 fn wall_world(wall_x_m: f64, height_m: f64) -> World {

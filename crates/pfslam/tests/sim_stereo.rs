@@ -1,9 +1,10 @@
 //! The simulated car's stereo pairs: written in the car's layout, deterministic, and
 //! switching them on leaves every other stream unchanged.
 
-use pfslam::io::ucsd::{STEREO_LEFT_DIR, STEREO_RIGHT_DIR, read_stereo_stamps};
-use pfslam::sim::{SimOptions, World, simulate_car, write_car_sim};
+use pfslam::sim::{SimOptions, World, simulate_car};
 use pfslam::stereo::image::load_gray_png;
+use pfslam_io::sim::write_car_sim;
+use pfslam_io::ucsd::{STEREO_LEFT_DIR, STEREO_RIGHT_DIR, read_stereo_stamps};
 
 #[test]
 fn stereo_pairs_are_written_deterministically_and_leave_the_rest_unchanged() {

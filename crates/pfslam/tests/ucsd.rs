@@ -1,12 +1,12 @@
 //! The car's dataset layout: real calibration files, write -> read round trip, bad input.
 
 use crate::common;
-use pfslam::io::IoError;
-use pfslam::io::ucsd::{
-    ReadOptions, TimestampPolicy, read_car_calibration, read_car_dataset, write_car_dataset,
-};
 use pfslam::sensors::{
     CarCalibration, CarDataset, EncoderSample, FogSample, ScanSet, StereoCalibration,
+};
+use pfslam_io::IoError;
+use pfslam_io::ucsd::{
+    ReadOptions, TimestampPolicy, read_car_calibration, read_car_dataset, write_car_dataset,
 };
 use std::path::Path;
 
@@ -352,10 +352,10 @@ fn bad_camera_yaml() {
 }
 
 mod roundtrip_props {
-    use pfslam::io::ucsd::{
+    use pfslam::sensors::{FogSample, ScanSet};
+    use pfslam_io::ucsd::{
         ReadOptions, read_fog_csv, read_lidar_csv, write_fog_csv, write_lidar_csv,
     };
-    use pfslam::sensors::{FogSample, ScanSet};
     use proptest::prelude::*;
 
     proptest! {

@@ -2,8 +2,8 @@
 //! ROS 1 bag or CARMEN log (see `fuzz/scripts/seeds.sh`), as CDR messages.
 //! Usage: `mcap_seed IN OUT.mcap`.
 
-use pfslam::io::options::ReaderOptions;
-use pfslam::io::recording::read_recording;
+use pfslam_io::options::ReaderOptions;
+use pfslam_io::recording::read_recording;
 use std::path::PathBuf;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -12,6 +12,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         return Err("usage: mcap_seed IN OUT.mcap".into());
     };
     let rec = read_recording(&PathBuf::from(input), &ReaderOptions::default())?;
-    pfslam::io::mcap::write_mcap(&PathBuf::from(out), &rec, &ReaderOptions::default())?;
+    pfslam_io::mcap::write_mcap(&PathBuf::from(out), &rec, &ReaderOptions::default())?;
     Ok(())
 }

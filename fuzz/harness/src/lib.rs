@@ -8,8 +8,8 @@
 //! Inputs of multi-file layouts (map_server, humanoid) are split on NUL bytes, which none of
 //! their text files holds.
 
-use pfslam::io::IoError;
-use pfslam::io::options::ReaderOptions;
+use pfslam_io::IoError;
+use pfslam_io::options::ReaderOptions;
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -151,7 +151,7 @@ fn scratch_file(name: &str, bytes: &[u8]) -> PathBuf {
 
 /// CARMEN log (plain or gzip), lenient and strict.
 pub fn carmen(data: &[u8]) {
-    use pfslam::io::carmen::{CarmenOptions, read_carmen_from};
+    use pfslam_io::carmen::{CarmenOptions, read_carmen_from};
     for strict in [false, true] {
         let options = CarmenOptions {
             strict,
@@ -164,18 +164,18 @@ pub fn carmen(data: &[u8]) {
 /// ROS 1 bag: topics from the index, then the whole recording.
 pub fn ros1_bag(data: &[u8]) {
     let path = scratch_file("in.bag", data);
-    let _ = pfslam::io::ros1::read_ros1_bag(&path, &ReaderOptions::default());
+    let _ = pfslam_io::ros1::read_ros1_bag(&path, &ReaderOptions::default());
 }
 
 /// MCAP (ROS 2, CDR).
 pub fn mcap(data: &[u8]) {
     let path = Path::new("in.mcap");
-    let _ = pfslam::io::mcap::read_mcap_from_bytes(data, path, &ReaderOptions::default());
+    let _ = pfslam_io::mcap::read_mcap_from_bytes(data, path, &ReaderOptions::default());
 }
 
 /// The UCSD car's options: both timestamp policies are reachable from the CLI.
-fn ucsd_options() -> [pfslam::io::ucsd::ReadOptions; 2] {
-    use pfslam::io::ucsd::{ReadOptions, TimestampPolicy};
+fn ucsd_options() -> [pfslam_io::ucsd::ReadOptions; 2] {
+    use pfslam_io::ucsd::{ReadOptions, TimestampPolicy};
     [TimestampPolicy::Reject, TimestampPolicy::SortWithWarning].map(|timestamp_policy| {
         ReadOptions {
             timestamp_policy,
@@ -186,7 +186,8 @@ fn ucsd_options() -> [pfslam::io::ucsd::ReadOptions; 2] {
 
 /// The UCSD car's `encoder.csv`, with its real wheel calibration.
 pub fn ucsd_encoder(data: &[u8]) {
-    use pfslam::{io::ucsd::read_encoder_csv_from, sensors::EncoderParams};
+    use pfslam::sensors::EncoderParams;
+    use pfslam_io::ucsd::read_encoder_csv_from;
     let params = EncoderParams::default();
     for opts in ucsd_options() {
         let _ = read_encoder_csv_from(data, Path::new("encoder.csv"), &params, &opts);
@@ -196,7 +197,7 @@ pub fn ucsd_encoder(data: &[u8]) {
 /// The UCSD car's `fog.csv`.
 pub fn ucsd_fog(data: &[u8]) {
     for opts in ucsd_options() {
-        let _ = pfslam::io::ucsd::read_fog_csv_from(data, Path::new("fog.csv"), &opts);
+        let _ = pfslam_io::ucsd::read_fog_csv_from(data, Path::new("fog.csv"), &opts);
     }
 }
 
@@ -208,13 +209,13 @@ pub fn ucsd_lidar(data: &[u8]) {
     let beam_count = [286, 1, 4, usize::from(first)][usize::from(first % 4)];
     for opts in ucsd_options() {
         let path = Path::new("lidar.csv");
-        let _ = pfslam::io::ucsd::read_lidar_csv_from(rest, path, beam_count, &opts);
+        let _ = pfslam_io::ucsd::read_lidar_csv_from(rest, path, beam_count, &opts);
     }
 }
 
 /// The UCSD car's calibration text files: every parser on the same bytes.
 pub fn ucsd_calib(data: &[u8]) {
-    use pfslam::io::ucsd::calib::{
+    use pfslam_io::ucsd::calib::{
         parse_encoder_params, parse_extrinsic, parse_lidar_params, parse_stereo_baseline_m,
     };
     // The files are read as UTF-8 text; other bytes are refused before any parser.
@@ -233,12 +234,12 @@ pub fn opencv_yaml(data: &[u8]) {
     let Ok(text) = std::str::from_utf8(data) else {
         return;
     };
-    let _ = pfslam::io::opencv_yaml::parse_camera_yaml(Path::new("camera.yaml"), text);
+    let _ = pfslam_io::opencv_yaml::parse_camera_yaml(Path::new("camera.yaml"), text);
 }
 
 /// The humanoid layout: calibration, odometry, IMU, joints and LiDAR files, NUL-separated.
 pub fn humanoid(data: &[u8]) {
-    use pfslam::io::humanoid::{
+    use pfslam_io::humanoid::{
         CALIBRATION_FILE, IMU_CSV, JOINTS_CSV, LIDAR_CSV, ODOMETRY_CSV, read_humanoid_dataset_with,
     };
     let names = [
@@ -268,7 +269,7 @@ pub fn humanoid(data: &[u8]) {
 
 /// TUM trajectory.
 pub fn tum(data: &[u8]) {
-    let _ = pfslam::io::tum::read_tum_from(data, Path::new("poses.tum"));
+    let _ = pfslam_io::tum::read_tum_from(data, Path::new("poses.tum"));
 }
 
 /// map_server pair: the yaml, a NUL, then the pgm (written as `map.pgm`, the seeds' image).
@@ -279,7 +280,7 @@ pub fn map_server(data: &[u8]) {
     };
     let pgm = parts.next();
     let yaml_path = Path::new("map.yaml");
-    let _ = pfslam::io::map_files::parse_map_server(yaml, yaml_path, |image| match pgm {
+    let _ = pfslam_io::map_files::parse_map_server(yaml, yaml_path, |image| match pgm {
         Some(p) if image == Path::new("map.pgm") => Ok(p.to_vec()),
         _ => Err(std::io::ErrorKind::NotFound.into()),
     });
@@ -287,12 +288,12 @@ pub fn map_server(data: &[u8]) {
 
 /// NPY `<f4` array (the log-odds maps).
 pub fn npy(data: &[u8]) {
-    let _ = pfslam::io::map_files::parse_npy_f32(data, Path::new("map.npy"));
+    let _ = pfslam_io::map_files::parse_npy_f32(data, Path::new("map.npy"));
 }
 
 /// Freiburg `.relations` file.
 pub fn relations(data: &[u8]) {
-    let _ = pfslam::eval::relations::read_relations_from(data, Path::new("in.relations"));
+    let _ = pfslam_io::relations::read_relations_from(data, Path::new("in.relations"));
 }
 
 /// A saved session's state (`run --save-state`), decoded from the bytes directly.

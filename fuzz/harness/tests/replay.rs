@@ -6,10 +6,10 @@
 //! - the inputs that once made a reader allocate gigabytes, rebuilt from a real recording
 //!   with the corrupt length written in, each also checked for the reader's error.
 
-use pfslam::io::options::ReaderOptions;
 use pfslam_fuzz_harness::{
     CappedAlloc, TARGETS, remove_scratch_dir, scratch_dir, set_input_len, target,
 };
+use pfslam_io::options::ReaderOptions;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -85,10 +85,10 @@ fn gunzip(path: &Path) -> Vec<u8> {
 /// A small MCAP written by the library from the first scans of a CARMEN log.
 fn small_mcap(data: &Path, out: &Path) -> Vec<u8> {
     let log = data.join("carmen/seattle-corrected.log.gz");
-    let mut rec = pfslam::io::recording::read_recording(&log, &ReaderOptions::default())
+    let mut rec = pfslam_io::recording::read_recording(&log, &ReaderOptions::default())
         .expect("read the seattle log");
     rec.keep_scans(&(0..20).collect::<Vec<_>>());
-    pfslam::io::mcap::write_mcap(out, &rec, &ReaderOptions::default()).expect("write an MCAP");
+    pfslam_io::mcap::write_mcap(out, &rec, &ReaderOptions::default()).expect("write an MCAP");
     std::fs::read(out).expect("read the MCAP back")
 }
 
@@ -222,7 +222,7 @@ fn reader_error(input: &Input, scratch: &Path) -> String {
     let path = scratch.join(format!("regression.{ext}"));
     std::fs::write(&path, &input.bytes).expect("write a regression input");
     set_input_len(input.bytes.len());
-    let result = pfslam::io::recording::read_recording(&path, &ReaderOptions::default());
+    let result = pfslam_io::recording::read_recording(&path, &ReaderOptions::default());
     set_input_len(usize::MAX / 2);
     match result {
         Ok(_) => panic!("{}: read without an error", input.label),
@@ -236,7 +236,7 @@ fn replay_seeds_and_regressions() {
     let fuzz_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let scratch = scratch_dir();
     let mut inputs = committed_inputs(&fuzz_dir);
-    let data = pfslam::io::data_root(env!("CARGO_MANIFEST_DIR"));
+    let data = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR"));
     let mut checks = Vec::new();
     match &data {
         Some(data) => {

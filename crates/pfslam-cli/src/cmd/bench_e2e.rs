@@ -13,10 +13,10 @@ use anyhow::Context;
 use pfslam::config::Config;
 use pfslam::filter::slam::{SlamResult, StageTimings, anchor_odometry_to_ground_truth};
 use pfslam::geometry::Pose2;
-use pfslam::io::map_files::write_map_server;
-use pfslam::io::tum::write_tum;
 use pfslam::pipeline::{PipelineOptions, process_cpu_s, run_pipeline};
 use pfslam::sim::{SimOptions, World};
+use pfslam_io::map_files::write_map_server;
+use pfslam_io::tum::write_tum;
 use pfslam_viz::map_image::{MapImageOptions, TrajectoryOverlay, write_binary_png, write_map_png};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -234,7 +234,7 @@ fn bench(args: &Args, config: &Config, work: &Path) -> anyhow::Result<()> {
     print_medians(&timed, config, input_mb, &summary);
     if let Some(p) = &args.json {
         let text = serde_json::to_string_pretty(&summary)?;
-        pfslam::io::write_bytes_atomic(p, text.as_bytes())?;
+        pfslam_io::write_bytes_atomic(p, text.as_bytes())?;
     }
     Ok(())
 }
@@ -251,7 +251,8 @@ fn simulate(args: &Args, config: &Config, work: &Path) -> anyhow::Result<PathBuf
     let dir = work.join("dataset");
     let t = Instant::now();
     let out = pfslam::sim::simulate_car(&world, &opts)?;
-    pfslam::sim::write_car_sim(&dir, &out).with_context(|| format!("writing {}", dir.display()))?;
+    pfslam_io::sim::write_car_sim(&dir, &out)
+        .with_context(|| format!("writing {}", dir.display()))?;
     say!(
         "simulated {:.1} s ({} scans, {} FOG rows) into {} in {:.1} s (not timed below)",
         opts.duration_s,
@@ -273,7 +274,7 @@ fn timed_runs(args: &Args, config: &Config, dataset: &Path, work: &Path) -> anyh
         let r = one_run(dataset, config, args.seed, &out)?;
         if k == 0 {
             // Scan count and recording length, for rates (from the trajectory written).
-            let traj = pfslam::io::tum::read_tum(&out.join("trajectory.tum"))?;
+            let traj = pfslam_io::tum::read_tum(&out.join("trajectory.tum"))?;
             scans = traj.poses.len();
             if let (Some(a), Some(b)) = (traj.poses.first(), traj.poses.last()) {
                 span_s = (b.stamp_ns - a.stamp_ns) as f64 * 1e-9;

@@ -7,9 +7,10 @@
 
 use anyhow::Context;
 use pfslam::config::Config;
-use pfslam::eval::relations::{RelationsOptions, evaluate_relations, read_relations};
+use pfslam::eval::relations::{RelationsOptions, evaluate_relations};
 use pfslam::geometry::Trajectory;
 use pfslam::pipeline::{BackEndInput, PipelineOptions, PipelineResult, run_pipeline};
+use pfslam_io::relations::read_relations;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -108,7 +109,7 @@ pub struct Row {
 }
 
 fn default_data_dir() -> Option<PathBuf> {
-    pfslam::io::data_root(env!("CARGO_MANIFEST_DIR")).or_else(|| {
+    pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")).or_else(|| {
         let p = PathBuf::from("../shared/data");
         p.is_dir().then_some(p)
     })
@@ -157,9 +158,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let table = render_table(&rows);
     print!("{table}");
     if let Some(out) = &args.out {
-        pfslam::io::write_bytes_atomic(&out.join("benchmark.md"), table.as_bytes())?;
+        pfslam_io::write_bytes_atomic(&out.join("benchmark.md"), table.as_bytes())?;
         let json = serde_json::to_string_pretty(&rows)?;
-        pfslam::io::write_bytes_atomic(&out.join("benchmark.json"), json.as_bytes())?;
+        pfslam_io::write_bytes_atomic(&out.join("benchmark.json"), json.as_bytes())?;
     }
     Ok(())
 }
@@ -215,7 +216,7 @@ fn bench_recording(
     (name, rec_path, rel_path): &(String, PathBuf, PathBuf),
 ) -> anyhow::Result<Row> {
     let relations = read_relations(rel_path)?;
-    let recording = pfslam::io::recording::read_recording(rec_path, &Default::default())
+    let recording = pfslam_io::recording::read_recording(rec_path, &Default::default())
         .with_context(|| rec_path.display().to_string())?;
     let t = Instant::now();
     let options = PipelineOptions {
@@ -243,7 +244,7 @@ fn bench_recording(
         _ => 0.0,
     };
     if let Some(out) = &args.out {
-        pfslam::io::tum::write_tum(&out.join(format!("{name}.tum")), &result.trajectory)?;
+        pfslam_io::tum::write_tum(&out.join(format!("{name}.tum")), &result.trajectory)?;
     }
     Ok(Row {
         name: name.clone(),

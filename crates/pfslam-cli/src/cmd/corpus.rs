@@ -102,7 +102,10 @@ pub fn run_corpus(
     );
     say!("|---|---|---|---|---|---|---|---|---|");
     for path in logs_in(dir)? {
-        let log = pfslam::io::carmen::read_carmen(&path, &config.input.carmen())?;
+        let log = pfslam_io::carmen::read_carmen(
+            &path,
+            &pfslam_io::carmen::CarmenOptions::from_reader(&config.input),
+        )?;
         let mut rec = log.recording;
         let original = rec.odometry.clone();
         for &(level, e) in &errors {
@@ -129,7 +132,7 @@ pub fn run_corpus(
     if let Some(out) = out {
         let text =
             serde_json::to_string_pretty(&serde_json::json!({ "seeds": seeds, "rows": rows }))?;
-        pfslam::io::write_bytes_atomic(&out.join("corpus.json"), text.as_bytes())?;
+        pfslam_io::write_bytes_atomic(&out.join("corpus.json"), text.as_bytes())?;
     }
     Ok(rows)
 }

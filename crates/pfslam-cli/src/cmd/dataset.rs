@@ -1,15 +1,15 @@
 //! Loading a dataset from a path, whatever its format: the library's
-//! [`pfslam::run_file::load_path`] (a recording file, a rosbag2 directory, the car's or the
+//! [`pfslam_io::run_file::load_path`] (a recording file, a rosbag2 directory, the car's or the
 //! humanoid's layout), and beside a simulator output its `true_map.yaml` (+
 //! `true_map_visible.yaml`), which the CLI compares maps with.
 
 use pfslam::config::Config;
 use pfslam::geometry::Pose2;
-use pfslam::io::account::InputAccount;
-use pfslam::io::map_files::read_map_server;
 use pfslam::map::{BinaryMap, MapComparison, compare_maps_aligned, compare_maps_visible_aligned};
-use pfslam::run_file::{Loaded, load_path};
 use pfslam::sensors::{CarDataset, Recording};
+use pfslam_io::account::InputAccount;
+use pfslam_io::map_files::read_map_server;
+use pfslam_io::run_file::{Loaded, load_path};
 use std::path::Path;
 
 /// A loaded dataset: the recording and, for simulator output, the true map.
@@ -25,7 +25,7 @@ pub struct Dataset {
     pub account: InputAccount,
 }
 
-/// Loads `path` as a [`Dataset`] ([`pfslam::run_file::load_path`], and a simulator output's
+/// Loads `path` as a [`Dataset`] ([`pfslam_io::run_file::load_path`], and a simulator output's
 /// true map beside it).
 pub fn load_dataset(
     path: &Path,

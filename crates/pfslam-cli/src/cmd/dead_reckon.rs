@@ -3,13 +3,13 @@
 //! `trajectory.csv` (one pose per LiDAR scan) and `trajectory.png`.
 //!
 //! A CARMEN log whose laser lines carry their poses and clean stamps is streamed
-//! ([`pfslam::io::carmen::stream_scan_poses`]): memory does not grow with its length.
+//! ([`pfslam_io::carmen::stream_scan_poses`]): memory does not grow with its length.
 
 use anyhow::Context;
 use pfslam::geometry::StampedPose2;
-use pfslam::io::tum::{format_stamp_s, write_tum, write_tum_line};
-use pfslam::io::{write_atomic, write_bytes_atomic};
 use pfslam::sensors::sync::poses_at_stamps;
+use pfslam_io::tum::{format_stamp_s, write_tum, write_tum_line};
+use pfslam_io::{write_atomic, write_bytes_atomic};
 use pfslam_viz::plot::{PALETTE, PathRef, render_trajectories_png};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -173,8 +173,8 @@ fn streamed_carmen(
     config: &pfslam::config::Config,
     out: &Path,
 ) -> anyhow::Result<Option<Summary>> {
-    use pfslam::io::IoError;
-    use pfslam::io::recording::{RecordingFormat, detect_format};
+    use pfslam_io::IoError;
+    use pfslam_io::recording::{RecordingFormat, detect_format};
     let input = &config.input;
     if !args.dataset.is_file()
         || input.start_s.is_some()
@@ -197,22 +197,26 @@ fn streamed_carmen(
         step: 1,
         seen: 0,
     };
-    let account = pfslam::io::carmen::stream_scan_poses(&args.dataset, &input.carmen(), |s| {
-        let p = StampedPose2 {
-            stamp_ns: s.stamp_ns,
-            pose: s.odom,
-        };
-        write_tum_line(&mut tum, &p).map_err(|e| IoError::io(&tum_path, e))?;
-        write_csv_line(&mut csv, &p).map_err(|e| IoError::io(&csv_path, e))?;
-        if let Some(last) = summary.last {
-            summary.distance_m += last.pose.between(&p.pose).translation_norm_m();
-        }
-        summary.first_stamp_ns.get_or_insert(p.stamp_ns);
-        summary.last = Some(p);
-        summary.poses_at_scans += 1;
-        plot.push(p);
-        Ok(())
-    })?;
+    let account = pfslam_io::carmen::stream_scan_poses(
+        &args.dataset,
+        &pfslam_io::carmen::CarmenOptions::from_reader(input),
+        |s| {
+            let p = StampedPose2 {
+                stamp_ns: s.stamp_ns,
+                pose: s.odom,
+            };
+            write_tum_line(&mut tum, &p).map_err(|e| IoError::io(&tum_path, e))?;
+            write_csv_line(&mut csv, &p).map_err(|e| IoError::io(&csv_path, e))?;
+            if let Some(last) = summary.last {
+                summary.distance_m += last.pose.between(&p.pose).translation_norm_m();
+            }
+            summary.first_stamp_ns.get_or_insert(p.stamp_ns);
+            summary.last = Some(p);
+            summary.poses_at_scans += 1;
+            plot.push(p);
+            Ok(())
+        },
+    )?;
     let Some(account) = account else {
         return Ok(None);
     };

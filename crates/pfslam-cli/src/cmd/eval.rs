@@ -3,15 +3,14 @@
 
 use anyhow::Context;
 use pfslam::eval::ate::{AteResult, ate_of_pairs};
-use pfslam::eval::relations::{
-    RelationsOptions, RelationsResult, evaluate_relations, read_relations,
-};
+use pfslam::eval::relations::{RelationsOptions, RelationsResult, evaluate_relations};
 use pfslam::eval::rpe::{RpeDelta, RpeResult, rpe_of_pairs};
 use pfslam::eval::{Association, ErrorStats, associate};
 use pfslam::geometry::Trajectory;
-use pfslam::io::recording::{ReaderOptions, detect_format, read_recording};
-use pfslam::io::tum::read_tum;
 use pfslam::sensors::sync::poses_at_stamps;
+use pfslam_io::recording::{ReaderOptions, detect_format, read_recording};
+use pfslam_io::relations::read_relations;
+use pfslam_io::tum::read_tum;
 use std::path::{Path, PathBuf};
 
 /// Arguments of `eval`.
@@ -52,9 +51,9 @@ pub struct Args {
 
 /// A reference trajectory: a TUM file, or the laser poses of a CARMEN log.
 fn read_reference(path: &std::path::Path) -> anyhow::Result<pfslam::geometry::Trajectory> {
-    if detect_format(path)? == Some(pfslam::io::recording::RecordingFormat::Carmen) {
-        let opts = ReaderOptions::default().carmen();
-        return Ok(pfslam::io::carmen::read_carmen(path, &opts)?.laser_poses);
+    if detect_format(path)? == Some(pfslam_io::recording::RecordingFormat::Carmen) {
+        let opts = pfslam_io::carmen::CarmenOptions::from_reader(&ReaderOptions::default());
+        return Ok(pfslam_io::carmen::read_carmen(path, &opts)?.laser_poses);
     }
     Ok(read_tum(path)?)
 }

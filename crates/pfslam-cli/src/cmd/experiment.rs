@@ -132,7 +132,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             r["slam_time_s"].as_f64().unwrap_or(f64::NAN)
         );
     }
-    pfslam::io::write_bytes_atomic(&args.out.join("seeds_table.md"), md.as_bytes())?;
+    pfslam_io::write_bytes_atomic(&args.out.join("seeds_table.md"), md.as_bytes())?;
     let json = serde_json::json!({
         "world": sim.world_name(),
         "duration_s": sim.duration_s,
@@ -143,7 +143,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "config": config,
         "rows": rows,
     });
-    pfslam::io::write_bytes_atomic(
+    pfslam_io::write_bytes_atomic(
         &args.out.join("seeds_table.json"),
         serde_json::to_string_pretty(&json)?.as_bytes(),
     )?;

@@ -1,10 +1,10 @@
 //! `pfslam info PATH`: what a recording holds and what `run` would use, like `rosbag info`
 //! for every supported format.
 
-use pfslam::io::account::InputAccount;
-use pfslam::io::recording::{RecordingFormat, detect_format, resolve_rosbag2};
-use pfslam::io::ros_assemble::TopicInfo;
 use pfslam::sensors::Recording;
+use pfslam_io::account::InputAccount;
+use pfslam_io::recording::{RecordingFormat, detect_format, resolve_rosbag2};
+use pfslam_io::ros_assemble::TopicInfo;
 use std::path::{Path, PathBuf};
 
 /// Arguments of `info`.
@@ -59,11 +59,11 @@ fn topics_of(path: &Path) -> anyhow::Result<Option<(Vec<TopicInfo>, f64)>> {
     let span_s = |s: Option<(i64, i64)>| s.map_or(0.0, |(a, b)| (b - a) as f64 * 1e-9);
     Ok(match detect_format(path)? {
         Some(RecordingFormat::Ros1Bag) => {
-            let t = pfslam::io::ros1::ros1_topics(path)?;
+            let t = pfslam_io::ros1::ros1_topics(path)?;
             Some((t.topics, span_s(t.span_ns)))
         }
         Some(RecordingFormat::Mcap) => {
-            let t = pfslam::io::mcap::mcap_topics(path)?;
+            let t = pfslam_io::mcap::mcap_topics(path)?;
             Some((t.topics, span_s(t.span_ns)))
         }
         _ => None,

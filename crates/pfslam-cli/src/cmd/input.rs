@@ -1,8 +1,8 @@
 //! The input flags shared by the commands that read a recording, and the account they print.
 
 use pfslam::config::Config;
-use pfslam::io::account::InputAccount;
-use pfslam::io::recording::ReaderOptions;
+use pfslam_io::account::InputAccount;
+use pfslam_io::recording::ReaderOptions;
 
 /// Topic, frame, strictness and span flags (over `[input]` of the configuration).
 #[derive(Debug, Default, Clone, clap::Args)]

@@ -3,7 +3,7 @@
 //! `--poses-out` at once, the map so far to `live_map.png` every `--snapshot-every-s`; at the
 //! end of the input the back end and the outputs of a batch run follow. On a log with
 //! increasing stamps the result is the batch run's bit for bit (see
-//! [`pfslam::io::carmen::CarmenLive`] for where the live reader's rules differ).
+//! [`pfslam_io::carmen::CarmenLive`] for where the live reader's rules differ).
 
 use super::observer::RunObserver;
 use super::run::{Args, LiveFormat, Slammed};
@@ -11,8 +11,8 @@ use anyhow::Context;
 use pfslam::config::Config;
 use pfslam::filter::slam::SlamEvent;
 use pfslam::geometry::StampedPose2;
-use pfslam::io::carmen::{CarmenLive, LiveMessage, LiveScan};
 use pfslam::{ScanInput, SensorSetup, Slam};
+use pfslam_io::carmen::{CarmenLive, LiveMessage, LiveScan};
 use pfslam_viz::map_image::{MapImageOptions, TrajectoryOverlay, write_map_png};
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -64,7 +64,11 @@ pub(super) fn read_and_slam(
 ) -> anyhow::Result<Slammed> {
     let name = Path::new("<stdin>");
     let stdin = std::io::stdin().lock();
-    let mut reader = CarmenLive::new(stdin, name, &config.input.carmen())?;
+    let mut reader = CarmenLive::new(
+        stdin,
+        name,
+        &pfslam_io::carmen::CarmenOptions::from_reader(&config.input),
+    )?;
     let mut run = LiveRun {
         args,
         config,

@@ -6,9 +6,9 @@
 
 use anyhow::Context;
 use pfslam::geometry::{Pose2, StampedPose2};
-use pfslam::io::map_files::read_map_server;
-use pfslam::io::tum::{format_stamp_s, write_tum};
 use pfslam::localize::{LocalizeQuality, LocalizeResult, localize};
+use pfslam_io::map_files::read_map_server;
+use pfslam_io::tum::{format_stamp_s, write_tum};
 use pfslam_viz::map_image::{MapImageOptions, TrajectoryOverlay, write_map_png};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -100,7 +100,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut summary = summary(&args, &config, &result, &quality, [load_s, localize_s]);
     summary["input"] = serde_json::to_value(&dataset.account)?;
     let text = serde_json::to_string_pretty(&summary)?;
-    pfslam::io::write_bytes_atomic(&out.join("summary.json"), text.as_bytes())?;
+    pfslam_io::write_bytes_atomic(&out.join("summary.json"), text.as_bytes())?;
     staging.commit()?;
     report(&recording.name, &result, &summary, localize_s);
     for reason in &quality.reasons {
@@ -124,7 +124,7 @@ fn write_updates(path: &std::path::Path, result: &LocalizeResult) -> anyhow::Res
             u.off_wall_share
         ));
     }
-    pfslam::io::write_bytes_atomic(path, text.as_bytes())?;
+    pfslam_io::write_bytes_atomic(path, text.as_bytes())?;
     Ok(())
 }
 

@@ -9,14 +9,14 @@
 use anyhow::{Context, bail};
 use pfslam::config::Config;
 use pfslam::geometry::{Pose2, Trajectory};
-use pfslam::io::account::InputAccount;
-use pfslam::io::map_files::{write_logodds_npy, write_map_server};
-use pfslam::io::tum::read_tum;
-use pfslam::io::write_bytes_atomic;
 use pfslam::map::{
     CellRect, LogOddsPreset, MapComparison, MappingStats, OccupancyGrid, PlanarScan, map_with_poses,
 };
 use pfslam::sensors::Recording;
+use pfslam_io::account::InputAccount;
+use pfslam_io::map_files::{write_logodds_npy, write_map_server};
+use pfslam_io::tum::read_tum;
+use pfslam_io::write_bytes_atomic;
 use pfslam_viz::map_image::{MapImageOptions, TrajectoryOverlay, render_map, write_binary_png};
 use std::path::{Path, PathBuf};
 

@@ -121,7 +121,7 @@ impl RunObserver {
         let Some(out) = self.poses_out.as_mut() else {
             return;
         };
-        let res = pfslam::io::tum::write_tum_line(out.as_mut(), p).and_then(|()| out.flush());
+        let res = pfslam_io::tum::write_tum_line(out.as_mut(), p).and_then(|()| out.flush());
         if let Err(e) = res {
             self.poses_out = None;
             if self.write_error.is_none() {

@@ -4,10 +4,10 @@
 //! came from beside it (`FILE.reference.tum`), to check that SLAM recovers the path.
 //! `--keyframes-m` thins the scans to keyframes first.
 
-use pfslam::io::carmen::write_carmen;
-use pfslam::io::tum::write_tum;
 use pfslam::motion::perturb::{OdometryErrors, perturb_odometry};
 use pfslam::sensors::sync::poses_at_stamps;
+use pfslam_io::carmen::write_carmen;
+use pfslam_io::tum::write_tum;
 use std::path::PathBuf;
 
 /// Arguments of `perturb`.

@@ -15,7 +15,7 @@ pub fn write_summary_and_report(
     map_caption: &str,
 ) -> anyhow::Result<()> {
     let text = serde_json::to_string_pretty(summary)?;
-    pfslam::io::write_bytes_atomic(&out.join("summary.json"), text.as_bytes())?;
+    pfslam_io::write_bytes_atomic(&out.join("summary.json"), text.as_bytes())?;
     let images = [(map_caption, "map.png"), ("binary map", "binary_map.png")];
     write_report(out, summary, config, &images)
 }
@@ -71,7 +71,7 @@ fn write_report(
     }
     config_section(&mut html, config);
     html.push_str("</body></html>\n");
-    pfslam::io::write_bytes_atomic(&out.join("report.html"), html.as_bytes())?;
+    pfslam_io::write_bytes_atomic(&out.join("report.html"), html.as_bytes())?;
     Ok(())
 }
 

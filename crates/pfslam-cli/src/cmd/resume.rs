@@ -5,9 +5,9 @@ use super::run::Args;
 use anyhow::Context;
 use pfslam::config::Config;
 use pfslam::geometry::Pose2;
-use pfslam::io::map_files::write_map_server;
-use pfslam::io::tum::write_tum;
 use pfslam::session::{ResumeResult, SessionState, resume};
+use pfslam_io::map_files::write_map_server;
+use pfslam_io::tum::write_tum;
 use pfslam_viz::map_image::{MapImageOptions, TrajectoryOverlay, write_binary_png, write_map_png};
 use std::path::Path;
 use std::time::Instant;
@@ -15,7 +15,7 @@ use std::time::Instant;
 /// Writes `state` to `path` in one step.
 pub fn save_state(path: &Path, state: &SessionState) -> anyhow::Result<()> {
     let bytes = state.to_bytes()?;
-    pfslam::io::write_bytes_atomic(path, &bytes)
+    pfslam_io::write_bytes_atomic(path, &bytes)
         .with_context(|| format!("writing {}", path.display()))?;
     say!(
         "saved {} keyframes of {} session(s) to {}",

@@ -79,7 +79,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Vehicle::Car => {
             let out = pfslam::sim::simulate_car(&world, &opts)?;
             let t_sim = t0.elapsed().as_secs_f64();
-            pfslam::sim::write_car_sim(&args.out, &out)
+            pfslam_io::sim::write_car_sim(&args.out, &out)
                 .with_context(|| format!("writing {}", args.out.display()))?;
             let t_all = t0.elapsed().as_secs_f64();
             let ds = &out.dataset;
@@ -106,7 +106,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Vehicle::Humanoid => {
             let out = pfslam::sim::simulate_humanoid(&world, &opts)?;
             let t_sim = t0.elapsed().as_secs_f64();
-            pfslam::sim::write_humanoid_sim(&args.out, &out)
+            pfslam_io::sim::write_humanoid_sim(&args.out, &out)
                 .with_context(|| format!("writing {}", args.out.display()))?;
             let t_all = t0.elapsed().as_secs_f64();
             say!(

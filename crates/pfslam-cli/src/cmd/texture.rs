@@ -10,14 +10,15 @@
 use anyhow::Context;
 use pfslam::config::Config;
 use pfslam::geometry::{StampedPose2, Trajectory};
-use pfslam::io::map_files::write_npy_f32;
-use pfslam::io::tum::read_tum;
-use pfslam::io::ucsd::{PARAM_DIR, STEREO_LEFT_DIR, read_car_calibration, read_stereo_stamps};
-use pfslam::io::{write_atomic, write_bytes_atomic};
 use pfslam::map::{CellRect, CellState, OccupancyGrid, map_with_poses};
 use pfslam::sensors::StereoCalibration;
+use pfslam::stereo::TextureMap;
 use pfslam::stereo::image::{RgbImage, encode_rgb_png};
-use pfslam::stereo::{TextureMap, TextureStats, texture_dataset};
+use pfslam_io::map_files::write_npy_f32;
+use pfslam_io::stereo_dataset::{TextureStats, texture_dataset};
+use pfslam_io::tum::read_tum;
+use pfslam_io::ucsd::{PARAM_DIR, STEREO_LEFT_DIR, read_car_calibration, read_stereo_stamps};
+use pfslam_io::{write_atomic, write_bytes_atomic};
 use std::path::{Path, PathBuf};
 
 /// Longest side of `texture.png` (px); larger rasters are reduced by an integer factor.
@@ -208,7 +209,7 @@ fn grey_map(
     poses: &pfslam::geometry::Trajectory,
     config: &Config,
 ) -> Option<OccupancyGrid> {
-    if !dataset.join(pfslam::io::ucsd::LIDAR_CSV).is_file() {
+    if !dataset.join(pfslam_io::ucsd::LIDAR_CSV).is_file() {
         tracing::info!("no LiDAR data: texture.png has a plain grey background");
         return None;
     }

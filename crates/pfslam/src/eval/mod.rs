@@ -8,8 +8,8 @@ pub mod ate;
 pub mod relations;
 pub mod rpe;
 
+use crate::files::IoError;
 use crate::geometry::{Pose2, Trajectory};
-use crate::io::IoError;
 use serde::{Deserialize, Serialize};
 
 /// Errors of the metrics.

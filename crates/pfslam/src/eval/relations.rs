@@ -14,11 +14,7 @@
 
 use super::{EvalError, nearest_index};
 use crate::geometry::{Pose2, Trajectory, wrap_angle};
-use crate::io::IoError;
-use crate::io::tum::parse_stamp_ns;
 use serde::{Deserialize, Serialize};
-use std::io::BufRead;
-use std::path::Path;
 
 /// One ground-truth relation.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -94,67 +90,6 @@ pub struct RelationsResult {
     pub rot_deg: AbsSquared,
 }
 
-fn decimals_tolerance_ns(text: &str) -> i64 {
-    let d = text
-        .split_once('.')
-        .map(|(_, f)| f.bytes().take_while(|b| b.is_ascii_digit()).count())
-        .unwrap_or(0)
-        .min(9);
-    // half a unit of the last printed decimal
-    5 * 10i64.pow(8 - d.min(8) as u32) / if d == 9 { 10 } else { 1 }
-}
-
-/// Reads a `.relations` file: `t1 t2 x y z roll pitch yaw` per line (`#` comments allowed).
-pub fn read_relations(path: &Path) -> Result<Vec<Relation>, IoError> {
-    let file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
-    read_relations_from(std::io::BufReader::new(file), path)
-}
-
-/// [`read_relations`] from any reader; `path` names the source in errors.
-pub fn read_relations_from(reader: impl BufRead, path: &Path) -> Result<Vec<Relation>, IoError> {
-    let mut out = Vec::new();
-    for (idx, line) in reader.lines().enumerate() {
-        let line_no = idx + 1;
-        let line = line.map_err(|e| IoError::parse(path, line_no, format!("read failed: {e}")))?;
-        let t = line.trim();
-        if t.is_empty() || t.starts_with('#') {
-            continue;
-        }
-        let f: Vec<&str> = t.split_whitespace().collect();
-        if f.len() != 8 {
-            return Err(IoError::parse(
-                path,
-                line_no,
-                format!(
-                    "expected 8 fields (t1 t2 x y z roll pitch yaw), found {}",
-                    f.len()
-                ),
-            ));
-        }
-        let stamp = |k: usize, name: &str| {
-            parse_stamp_ns(f[k]).ok_or_else(|| {
-                IoError::parse(path, line_no, format!("{name}: not a time: {:?}", f[k]))
-            })
-        };
-        let t1_ns = stamp(0, "t1")?;
-        let t2_ns = stamp(1, "t2")?;
-        let x = crate::io::parse_finite_f64(path, line_no, "x", f[2])?;
-        let y = crate::io::parse_finite_f64(path, line_no, "y", f[3])?;
-        for (k, name) in [(4, "z"), (5, "roll"), (6, "pitch")] {
-            crate::io::parse_finite_f64(path, line_no, name, f[k])?;
-        }
-        let yaw = crate::io::parse_finite_f64(path, line_no, "yaw", f[7])?;
-        out.push(Relation {
-            t1_ns,
-            t2_ns,
-            t1_tolerance_ns: decimals_tolerance_ns(f[0]),
-            t2_tolerance_ns: decimals_tolerance_ns(f[1]),
-            t1_from_t2: Pose2::new(x, y, yaw),
-        });
-    }
-    Ok(out)
-}
-
 /// The trajectory pose matching a relation stamp (see the module docs), if any.
 pub fn pose_for_stamp(trajectory: &Trajectory, stamp_ns: i64, tolerance_ns: i64) -> Option<Pose2> {
     nearest_index(trajectory, stamp_ns)
@@ -215,17 +150,4 @@ pub fn evaluate_relations(
             squared: MeanStd::of(&sq(&r)),
         },
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn tolerance_from_decimals() {
-        assert_eq!(decimals_tolerance_ns("976052905.167303"), 500);
-        assert_eq!(decimals_tolerance_ns("1134864645.90321"), 5_000);
-        assert_eq!(decimals_tolerance_ns("12"), 500_000_000);
-        assert_eq!(decimals_tolerance_ns("1.123456789"), 0);
-    }
 }

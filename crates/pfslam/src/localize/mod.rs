@@ -1,6 +1,6 @@
 //! Monte Carlo localisation in a fixed map (`pfslam localize`): the particle filter's other
 //! classic use. The map is any occupancy raster ([`crate::map::BinaryMap`], e.g. a ROS
-//! map_server pair read by [`crate::io::map_files::read_map_server`]), so maps made by other
+//! map_server pair read by `pfslam_io::map_files::read_map_server`), so maps made by other
 //! tools work as well as pfslam's own.
 //!
 //! - [`field`]: the likelihood field (distance to the nearest wall per cell).

@@ -1,13 +1,15 @@
 //! Typed, timestamped sensor measurements and calibrations, independent of any file format.
 //!
-//! Readers in [`crate::io`] produce these; everything downstream (motion, filter, map) consumes
-//! them. Two shapes exist:
+//! Readers in the `pfslam-io` crate produce these; everything downstream (motion, filter, map)
+//! consumes them. Two shapes exist:
 //! - [`CarDataset`]: the seed car's raw streams (encoder counts, FOG increments, LiDAR ranges)
 //!   with its calibration, as recorded;
 //! - [`Recording`]: the common input of mapping and SLAM: odometry poses, LiDAR scans with their
 //!   geometry and mount, optional ground truth. Every source (car, humanoid, CARMEN, ROS bags,
 //!   MCAP) is turned into a `Recording`.
 
+pub mod humanoid;
+pub mod reader_options;
 pub mod sync;
 
 use crate::geometry::{Rigid3, StampedPose2, Trajectory};

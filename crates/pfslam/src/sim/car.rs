@@ -16,15 +16,12 @@ use super::raycast::{BeamErrors, RayCaster, ScanBeams, beam_directions, cast_sca
 use super::scan_truth::ScanSurfaceTruth;
 use super::truth::TrueMap;
 use super::world::World;
-use super::{
-    SimError, SimOptions, jumped_stream_vec, jumped_streams, normal, sample_times, write_truth,
-};
+use super::{SimError, SimOptions, jumped_stream_vec, jumped_streams, normal, sample_times};
 use crate::geometry::{Rigid3, StampedPose2};
 use crate::sensors::{CarCalibration, CarDataset, EncoderSample, FogSample, ScanSet};
 use rand::{RngExt, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use rayon::prelude::*;
-use std::path::Path;
 
 /// Scans per parallel block (each block has its own jumped random stream).
 const SCAN_BLOCK: usize = 256;
@@ -48,8 +45,8 @@ pub struct CarSimOutput {
     /// Distance driven (m).
     pub distance_m: f64,
     /// True pose of each stereo pair, keyed by its recorded stamp (empty when
-    /// `car.stereo_rate_hz` is 0). The pairs are rendered by [`write_car_sim`], not kept in
-    /// memory (a pair is 1.4 MB).
+    /// `car.stereo_rate_hz` is 0). The pairs are rendered by `pfslam_io::sim::write_car_sim`,
+    /// not kept in memory (a pair is 1.4 MB).
     pub stereo_poses: Vec<StampedPose2>,
     /// The world, for rendering the stereo pairs.
     pub world: World,
@@ -293,84 +290,4 @@ fn cast_scans(
             }
         });
     ranges
-}
-
-/// Writes a simulated car recording into `dir`: the dataset in the car's layout, plus
-/// `ground_truth.tum`, the scan-surface truth `true_map.{png,pgm,yaml}` +
-/// `true_map_visible.{pgm,yaml}`, the fixed-band `true_map_band.{png,pgm,yaml}`,
-/// `world.world` and `sim.toml`; and the stereo
-/// pairs, rendered here (see [`write_stereo_pairs`]).
-pub fn write_car_sim(dir: &Path, out: &CarSimOutput) -> Result<(), SimError> {
-    std::fs::create_dir_all(dir).map_err(|e| crate::io::IoError::io(dir, e))?;
-    crate::io::ucsd::write_car_dataset(dir, &out.dataset)?;
-    write_stereo_pairs(dir, out)?;
-    write_truth(
-        dir,
-        &out.ground_truth,
-        &out.true_map,
-        "true_map_band",
-        &out.world_text,
-        &out.options,
-    )?;
-    out.scan_truth.write(dir, "true_map")?;
-    Ok(())
-}
-
-/// Renders the stereo pair at each of `out.stereo_poses` (the rig of the dataset's calibration,
-/// the built-in one when absent) and writes them as raw Bayer BG PNGs into
-/// `dir/stereo_images/stereo_{left,right}/<stamp_ns>.png`. Earlier `<stamp_ns>.png` files in
-/// those folders are removed first (even with stereo off), so the folder always matches this
-/// recording. Each frame is rendered in parallel over rows, pixel by pixel, so the output
-/// does not depend on the thread count.
-pub fn write_stereo_pairs(dir: &Path, out: &CarSimOutput) -> Result<(), SimError> {
-    use crate::io::ucsd::{STEREO_LEFT_DIR, STEREO_RIGHT_DIR};
-    use crate::stereo::image::{BayerPattern, encode_gray_png};
-    use crate::stereo::render::WorldScene;
-    for sub in [STEREO_LEFT_DIR, STEREO_RIGHT_DIR] {
-        remove_stamp_pngs(&dir.join(sub))?;
-    }
-    if out.stereo_poses.is_empty() {
-        return Ok(());
-    }
-    let calib = out
-        .dataset
-        .calibration
-        .stereo
-        .clone()
-        .unwrap_or_else(crate::sensors::StereoCalibration::ucsd);
-    let (left_dir, right_dir) = (dir.join(STEREO_LEFT_DIR), dir.join(STEREO_RIGHT_DIR));
-    for d in [&left_dir, &right_dir] {
-        std::fs::create_dir_all(d).map_err(|e| crate::io::IoError::io(d, e))?;
-    }
-    // Sky beyond 200 m: nothing in a campus-scale world is farther and still worth a ray.
-    let scene = WorldScene::new(&out.world, 200.0);
-    let supersample = out.options.car.stereo_supersample;
-    for p in &out.stereo_poses {
-        let (left, right) = scene.render_pair(&calib, &p.pose, supersample, BayerPattern::UCSD)?;
-        let name = format!("{}.png", p.stamp_ns);
-        crate::io::write_bytes_atomic(&left_dir.join(&name), &encode_gray_png(&left)?)?;
-        crate::io::write_bytes_atomic(&right_dir.join(&name), &encode_gray_png(&right)?)?;
-    }
-    Ok(())
-}
-
-/// Removes the `<digits>.png` files of `dir` (a missing folder is fine).
-fn remove_stamp_pngs(dir: &Path) -> Result<(), SimError> {
-    let entries = match std::fs::read_dir(dir) {
-        Ok(e) => e,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
-        Err(e) => return Err(crate::io::IoError::io(dir, e).into()),
-    };
-    for entry in entries {
-        let path = entry.map_err(|e| crate::io::IoError::io(dir, e))?.path();
-        let is_stamp_png = path.extension().and_then(|e| e.to_str()) == Some("png")
-            && path
-                .file_stem()
-                .and_then(|s| s.to_str())
-                .is_some_and(|s| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit()));
-        if is_stamp_png {
-            std::fs::remove_file(&path).map_err(|e| crate::io::IoError::io(&path, e))?;
-        }
-    }
-    Ok(())
 }

@@ -1,9 +1,10 @@
 //! The humanoid (THOR-like): walks the world's route with a gait sway, turns and pitches its
 //! head (so some beams hit the floor), and records drifting odometry poses, IMU attitude,
 //! joint angles and a Hokuyo UTM-30LX on the head, in the layout of
-//! [`crate::io::humanoid`].
+//! `pfslam_io::humanoid`.
 //!
-//! Ground truth: `ground_truth.tum` (true pose at every LiDAR stamp) and `beam_labels.csv`
+//! Ground truth (written by `pfslam_io::sim::write_humanoid_sim`): `ground_truth.tum` (true
+//! pose at every LiDAR stamp) and `beam_labels.csv`
 //! (header `timestamp_ns,labels`; per scan one string of N digits, one per beam:
 //! `0` no return, `1` obstacle, `2` floor) — the floor hits are what a z filter must remove.
 
@@ -11,26 +12,18 @@ use super::path::{DriveProfile, Motion};
 use super::raycast::{BeamErrors, RayCaster, ScanBeams, beam_directions, cast_scan};
 use super::truth::TrueMap;
 use super::world::World;
-use super::{
-    SimError, SimOptions, jumped_stream_vec, jumped_streams, normal, sample_times, write_truth,
-};
+use super::{SimError, SimOptions, jumped_stream_vec, jumped_streams, normal, sample_times};
 use crate::geometry::{Pose2, Rigid3, StampedPose2};
-use crate::io::IoError;
-use crate::io::humanoid::{
+use crate::sensors::humanoid::{
     HumanoidCalibration, HumanoidDataset, ImuSample, JointSample, humanoid_recording,
-    write_humanoid_dataset,
 };
 use crate::sensors::{Recording, ScanSet};
 use rand::SeedableRng;
 use rand_xoshiro::Xoshiro256PlusPlus;
 use rayon::prelude::*;
 use std::f64::consts::PI;
-use std::path::Path;
 
 pub use super::raycast::{BEAM_FLOOR, BEAM_NONE, BEAM_OBSTACLE};
-
-/// Ground-truth beam label file name.
-pub const BEAM_LABELS_CSV: &str = "beam_labels.csv";
 
 const SCAN_BLOCK: usize = 64;
 
@@ -283,61 +276,4 @@ fn cast_scans(
             }
         });
     (ranges, labels)
-}
-
-/// Writes the humanoid dataset plus `ground_truth.tum`, `beam_labels.csv`,
-/// `true_map.{png,pgm,yaml}`, `world.world` and `sim.toml` into `dir`.
-pub fn write_humanoid_sim(dir: &Path, out: &HumanoidSimOutput) -> Result<(), SimError> {
-    write_humanoid_dataset(dir, &out.dataset)?;
-    write_truth(
-        dir,
-        &out.ground_truth,
-        &out.true_map,
-        "true_map",
-        &out.world_text,
-        &out.options,
-    )?;
-    let nb = out.dataset.lidar.beam_count;
-    crate::io::write_atomic(&dir.join(BEAM_LABELS_CSV), |w| {
-        writeln!(w, "timestamp_ns,labels")?;
-        let mut line = Vec::with_capacity(nb + 1);
-        for (i, stamp) in out.dataset.lidar.stamps_ns.iter().enumerate() {
-            line.clear();
-            line.extend(
-                out.beam_labels[i * nb..(i + 1) * nb]
-                    .iter()
-                    .map(|&l| b'0' + l),
-            );
-            line.push(b'\n');
-            write!(w, "{stamp},")?;
-            w.write_all(&line)?;
-        }
-        Ok(())
-    })?;
-    Ok(())
-}
-
-/// Reads `beam_labels.csv`: the stamps and the flat labels (`beam_count` per scan).
-pub fn read_beam_labels(path: &Path, beam_count: usize) -> Result<(Vec<i64>, Vec<u8>), SimError> {
-    let text = std::fs::read_to_string(path).map_err(|e| IoError::io(path, e))?;
-    let mut lines = text.lines().enumerate();
-    if lines.next().map(|(_, l)| l.trim()) != Some("timestamp_ns,labels") {
-        return Err(IoError::parse(path, 1, "expected the header \"timestamp_ns,labels\"").into());
-    }
-    let (mut stamps, mut labels) = (Vec::new(), Vec::new());
-    for (idx, line) in lines {
-        let ln = idx + 1;
-        let (t, l) = line
-            .trim()
-            .split_once(',')
-            .ok_or_else(|| IoError::parse(path, ln, "expected timestamp_ns,labels"))?;
-        stamps.push(crate::io::parse_i64(path, ln, "timestamp_ns", t)?);
-        if l.len() != beam_count || !l.bytes().all(|b| (b'0'..=b'2').contains(&b)) {
-            return Err(
-                IoError::parse(path, ln, format!("expected {beam_count} labels in 0..=2")).into(),
-            );
-        }
-        labels.extend(l.bytes().map(|b| b - b'0'));
-    }
-    Ok((stamps, labels))
 }

@@ -5,10 +5,11 @@
 //!   route; built-in `campus` (car) and `office` (humanoid) worlds or a world file (format in
 //!   [`world`]).
 //! - [`RayCaster`]: 3-D ray casting against the world and the ground plane.
-//! - [`simulate_car`] / [`write_car_sim`]: the seed car with its real calibration
+//! - [`simulate_car`]: the seed car with its real calibration
 //!   ([`crate::sensors::CarCalibration::ucsd`]): encoders, FOG, the tilted LiDAR, and the
 //!   configurable errors of [`CarSimErrors`], and optionally the stereo camera's raw pairs
-//!   (`stereo_rate_hz`, rendered by [`crate::stereo::render::WorldScene`]).
+//!   (`stereo_rate_hz`, rendered by [`crate::stereo::render::WorldScene`]); written as a
+//!   dataset by `pfslam_io::sim::write_car_sim`.
 //! - [`TrueMap`]: the world rasterised by the rule documented in [`truth`].
 //!
 //! Same options (including `seed`) -> identical output, whatever the number of threads.
@@ -21,8 +22,8 @@ pub mod scan_truth;
 pub mod truth;
 pub mod world;
 
-pub use car::{CarSimOutput, simulate_car, write_car_sim};
-pub use humanoid::{HumanoidSimOutput, simulate_humanoid, write_humanoid_sim};
+pub use car::{CarSimOutput, simulate_car};
+pub use humanoid::{HumanoidSimOutput, simulate_humanoid};
 pub use raycast::{Hit, HitKind, RayCaster};
 pub use scan_truth::{ScanSurfaceTruth, ScanTruthOptions, TruthRays};
 pub use truth::TrueMap;
@@ -35,7 +36,7 @@ use serde::{Deserialize, Serialize};
 pub enum SimError {
     /// Reading a world file or writing output failed.
     #[error(transparent)]
-    Io(#[from] crate::io::IoError),
+    Io(#[from] crate::files::IoError),
     /// No built-in world has this name.
     #[error("{0:?} is neither a built-in world (campus, office) nor an existing world file")]
     UnknownWorld(String),
@@ -615,23 +616,6 @@ pub(crate) fn jumped_stream_vec(
             out
         })
         .collect()
-}
-
-/// Writes what every simulated recording has: `ground_truth.tum`, the band true map as
-/// `<true_map_stem>.{png,pgm,yaml}`, `world.world` and `sim.toml`.
-pub(crate) fn write_truth(
-    dir: &std::path::Path,
-    ground_truth: &[crate::geometry::StampedPose2],
-    true_map: &TrueMap,
-    true_map_stem: &str,
-    world_text: &str,
-    options: &SimOptions,
-) -> Result<(), SimError> {
-    crate::io::tum::write_tum(&dir.join("ground_truth.tum"), ground_truth)?;
-    true_map.write(dir, true_map_stem)?;
-    crate::io::write_bytes_atomic(&dir.join("world.world"), world_text.as_bytes())?;
-    crate::io::write_bytes_atomic(&dir.join("sim.toml"), sim_toml(options)?.as_bytes())?;
-    Ok(())
 }
 
 /// A standard normal sample.

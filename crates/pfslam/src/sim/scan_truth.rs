@@ -54,8 +54,6 @@ use super::truth::for_each_footprint_cell;
 use super::world::World;
 use super::{SimError, SimOptions};
 use crate::geometry::{Pose2, Rigid3};
-use crate::io::IoError;
-use crate::io::map_files::write_map_server;
 use crate::map::{
     BinaryMap, CellState, MapComparison, MapLimits, compare_maps_visible,
     compare_maps_visible_aligned,
@@ -64,7 +62,6 @@ use crate::sensors::LidarGeometry;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
-use std::path::Path;
 
 /// Options of the scan-surface truth (`[sim.scan_truth]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -357,40 +354,6 @@ impl ScanSurfaceTruth {
             tolerance_cells,
             truth_from_estimate,
         )
-    }
-
-    /// Writes `<stem>.png` (occupancy: black occupied, white free, grey unknown),
-    /// `<stem>.pgm` + `<stem>.yaml` (occupancy) and `<stem>_visible.pgm` + `.yaml` into `dir`.
-    pub fn write(&self, dir: &Path, stem: &str) -> Result<(), IoError> {
-        write_map_server(&self.occupancy, &dir.join(format!("{stem}.yaml")))?;
-        write_map_server(&self.visible, &dir.join(format!("{stem}_visible.yaml")))?;
-        let m = &self.occupancy;
-        let mut px = Vec::with_capacity(m.width * m.height);
-        for j in (0..m.height).rev() {
-            px.extend(
-                m.cells[j * m.width..(j + 1) * m.width]
-                    .iter()
-                    .map(|s| match s {
-                        CellState::Occupied => 0u8,
-                        CellState::Free => 254,
-                        CellState::Unknown => 205,
-                    }),
-            );
-        }
-        let png_path = dir.join(format!("{stem}.png"));
-        let mut png = Vec::new();
-        {
-            use image::ImageEncoder;
-            image::codecs::png::PngEncoder::new(&mut png)
-                .write_image(
-                    &px,
-                    m.width as u32,
-                    m.height as u32,
-                    image::ExtendedColorType::L8,
-                )
-                .map_err(|e| IoError::io(&png_path, std::io::Error::other(e.to_string())))?;
-        }
-        crate::io::write_bytes_atomic(&png_path, &png)
     }
 }
 

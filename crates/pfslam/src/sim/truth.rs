@@ -1,5 +1,5 @@
-//! The true map: the world's obstacles rasterised into an occupancy raster, written as PNG
-//! and as a map_server pair (`.pgm` + `.yaml`).
+//! The true map: the world's obstacles rasterised into an occupancy raster (written as PNG and
+//! as a map_server pair by `pfslam_io::sim::write_true_map`).
 //!
 //! Rule: a cell is occupied when it lies inside (cell centre) or on the outline of the
 //! footprint of an obstacle whose vertical extent `[z_min, z_max]` intersects the LiDAR's
@@ -12,10 +12,7 @@
 //! boundaries (or "occupied cells near a true occupied cell"), not interiors.
 
 use super::world::{World, point_in_polygon};
-use crate::io::map_files::write_map_server;
-use crate::io::{IoError, write_bytes_atomic};
 use crate::map::{BinaryMap, CellState, MapLimits};
-use std::path::Path;
 
 /// An occupancy raster of the world (true = occupied).
 #[derive(Debug, Clone, PartialEq)]
@@ -81,28 +78,6 @@ impl TrueMap {
             px.extend(row.iter().map(|&o| if o { 0u8 } else { 254u8 }));
         }
         px
-    }
-
-    /// Writes `<stem>.png`, and `<stem>.pgm` + `<stem>.yaml` (map_server pair, via
-    /// [`crate::io::map_files::write_map_server`]) into `dir`.
-    pub fn write(&self, dir: &Path, stem: &str) -> Result<(), IoError> {
-        let px = self.image_rows();
-        let png_path = dir.join(format!("{stem}.png"));
-        let mut png = Vec::new();
-        {
-            use image::ImageEncoder;
-            let enc = image::codecs::png::PngEncoder::new(&mut png);
-            enc.write_image(
-                &px,
-                self.width as u32,
-                self.height as u32,
-                image::ExtendedColorType::L8,
-            )
-            .map_err(|e| IoError::io(&png_path, std::io::Error::other(e.to_string())))?;
-        }
-        write_bytes_atomic(&png_path, &png)?;
-        write_map_server(&self.to_binary_map(), &dir.join(format!("{stem}.yaml")))?;
-        Ok(())
     }
 
     /// The map as the map component's raster (occupied / free; nothing unknown), e.g. for
@@ -211,12 +186,5 @@ mod tests {
         // 2 m x 2 m = 400 cells (+ outline cells on the far edges) + pole
         let n = m.occupied_count();
         assert!((400..=450).contains(&n), "{n}");
-        let dir = tempfile::tempdir().unwrap();
-        m.write(dir.path(), "true_map").unwrap();
-        let back =
-            crate::io::map_files::read_map_server(&dir.path().join("true_map.yaml")).unwrap();
-        assert_eq!(back.width, m.width);
-        assert_eq!(back.cells, m.to_binary_map().cells);
-        assert_eq!(back.state_at(5.0, 5.0), CellState::Occupied);
     }
 }

@@ -7,7 +7,6 @@
 //! world frame with the pose at the image's stamp -> ground points coloured into a
 //! [`texture::TextureMap`].
 
-pub mod dataset;
 pub mod disparity;
 pub mod ground;
 pub mod image;
@@ -18,7 +17,6 @@ pub mod texture;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
-pub use dataset::{TextureStats, texture_dataset};
 pub use disparity::{DisparityMap, DisparityWorkspace, INVALID_DISPARITY, MatcherOptions};
 pub use ground::{ColouredPoint, PlaneFit, RgbdCamera, fit_plane_ransac};
 pub use image::{BayerPattern, Demosaic, GrayImage, RgbImage};
@@ -50,7 +48,7 @@ pub enum StereoError {
     Options(String),
     /// Writing an output failed.
     #[error(transparent)]
-    Io(#[from] crate::io::IoError),
+    Io(#[from] crate::files::IoError),
 }
 
 /// Options of the stereo component (`[stereo]` in the configuration).

@@ -84,7 +84,7 @@ impl World {
     /// Reads a world file (format in the module documentation).
     pub fn from_file(path: &Path) -> Result<World, SimError> {
         let text = std::fs::read_to_string(path)
-            .map_err(|e| SimError::Io(crate::io::IoError::io(path, e)))?;
+            .map_err(|e| SimError::Io(crate::files::IoError::io(path, e)))?;
         let stem = path
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())

@@ -117,7 +117,7 @@ struct Line<'a> {
 impl Line<'_> {
     /// A parse error at this line.
     fn err(&self, msg: String) -> SimError {
-        SimError::Io(crate::io::IoError::parse(self.path, self.line_no, msg))
+        SimError::Io(crate::files::IoError::parse(self.path, self.line_no, msg))
     }
 
     /// Token `i` as a finite number; `what` names it in errors.
@@ -126,7 +126,7 @@ impl Line<'_> {
             .toks
             .get(i)
             .ok_or_else(|| self.err(format!("{}: missing {what}", self.toks[0])))?;
-        crate::io::parse_finite_f64(self.path, self.line_no, what, t).map_err(SimError::Io)
+        crate::files::parse_finite_f64(self.path, self.line_no, what, t).map_err(SimError::Io)
     }
 
     /// Tokens `i..i + 3` as an RGB colour.

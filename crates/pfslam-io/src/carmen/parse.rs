@@ -1,8 +1,8 @@
 //! One CARMEN line into a typed message; errors are plain messages that the reader turns
 //! into a counted drop or, with `strict`, an error naming the file and line.
 
-use crate::geometry::Pose2;
-use crate::io::tum::parse_stamp_ns;
+use crate::tum::parse_stamp_ns;
+use pfslam::geometry::Pose2;
 
 /// Which laser a laser line belongs to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

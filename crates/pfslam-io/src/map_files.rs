@@ -11,7 +11,7 @@
 //! the same pixel layout as the pgm, so the yaml's origin and resolution apply to both.
 
 use super::{IoError, write_atomic, write_bytes_atomic};
-use crate::map::{BinaryMap, Cell, CellRect, CellState, MapLimits, OccupancyGrid};
+use pfslam::map::{BinaryMap, Cell, CellRect, CellState, MapLimits, OccupancyGrid};
 use std::path::{Path, PathBuf};
 
 /// Pixel value of occupied cells in the pgm.
@@ -391,7 +391,7 @@ pub fn parse_npy_f32(bytes: &[u8], path: &Path) -> Result<(Vec<usize>, Vec<f32>)
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::map::LogOddsParams;
+    use pfslam::map::LogOddsParams;
 
     #[test]
     fn map_server_roundtrip() {

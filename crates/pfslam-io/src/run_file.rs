@@ -7,19 +7,19 @@
 //! directory (as its `.mcap` file), or a directory of the car's or the humanoid's layout
 //! (with the simulator's `ground_truth.tum` when it lies beside).
 
-use crate::config::{Config, OptionError};
-use crate::filter::slam::anchor_odometry_to_ground_truth;
-use crate::io::IoError;
-use crate::io::account::InputAccount;
-use crate::io::recording::{Opened, ReadError, open_recording};
-use crate::io::tum::read_tum;
-use crate::io::ucsd::{ReadOptions, TimestampPolicy, read_car_dataset};
-use crate::map::MapError;
-use crate::motion::MotionError;
-use crate::online::{OnlineError, Slam};
-use crate::pipeline::{PipelineOptions, PipelineResult, ensure_odometry};
-use crate::sensors::CarDataset;
-use crate::sensors::Recording;
+use crate::IoError;
+use crate::account::InputAccount;
+use crate::recording::{Opened, ReadError, open_recording};
+use crate::tum::read_tum;
+use crate::ucsd::{ReadOptions, TimestampPolicy, read_car_dataset};
+use pfslam::config::{Config, OptionError};
+use pfslam::filter::slam::anchor_odometry_to_ground_truth;
+use pfslam::map::MapError;
+use pfslam::motion::MotionError;
+use pfslam::online::{OnlineError, Slam};
+use pfslam::pipeline::{PipelineOptions, PipelineResult, ensure_odometry};
+use pfslam::sensors::CarDataset;
+use pfslam::sensors::Recording;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -136,12 +136,12 @@ fn load_directory(
     let name = path
         .file_stem()
         .map_or_else(|| "dataset".into(), |n| n.to_string_lossy().into_owned());
-    let humanoid = path.join(crate::io::humanoid::CALIBRATION_FILE).is_file()
-        && path.join(crate::io::humanoid::ODOMETRY_CSV).is_file();
+    let humanoid = path.join(crate::humanoid::CALIBRATION_FILE).is_file()
+        && path.join(crate::humanoid::ODOMETRY_CSV).is_file();
     let car_layout = path.join("sensor_data").is_dir() || path.join("param").is_dir();
     let (mut recording, car) = if humanoid {
-        let ds = crate::io::humanoid::read_humanoid_dataset(path)?;
-        (crate::io::humanoid::humanoid_recording(&ds, &name), None)
+        let ds = crate::humanoid::read_humanoid_dataset(path)?;
+        (crate::humanoid::humanoid_recording(&ds, &name), None)
     } else if car_layout {
         let timestamp_policy = match sort_timestamps {
             true => TimestampPolicy::SortWithWarning,
@@ -153,7 +153,7 @@ fn load_directory(
         };
         let mut ds = read_car_dataset(path, &opts)?;
         // The scans move into the recording (`car.lidar` is left empty): no second copy.
-        let rec = crate::motion::car_recording_taking_scans(&mut ds, &config.motion, &name)?;
+        let rec = pfslam::motion::car_recording_taking_scans(&mut ds, &config.motion, &name)?;
         (rec, Some(ds))
     } else {
         return Err(LoadError::Layout {

@@ -2,10 +2,10 @@
 //! headers, `key: value` lines, `RPY:`/`R:`/`T:` lines, a stereo baseline in millimetres with
 //! a CRLF line end), and written back in the same layout.
 
-use crate::geometry::Rigid3;
-use crate::io::opencv_yaml::{read_camera_yaml, write_camera_yaml};
-use crate::io::{IoError, parse_finite_f64, write_atomic};
-use crate::sensors::{CarCalibration, EncoderParams, LidarGeometry, StereoCalibration};
+use crate::opencv_yaml::{read_camera_yaml, write_camera_yaml};
+use crate::{IoError, parse_finite_f64, write_atomic};
+use pfslam::geometry::Rigid3;
+use pfslam::sensors::{CarCalibration, EncoderParams, LidarGeometry, StereoCalibration};
 use std::path::{Path, PathBuf};
 
 /// `param/EncoderParameter.txt`.

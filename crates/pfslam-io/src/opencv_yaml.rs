@@ -6,7 +6,7 @@
 //! with 17 significant digits (`%.16e`, as OpenCV does), so a round trip is exact.
 
 use super::{IoError, parse_finite_f64, write_atomic};
-use crate::sensors::CameraInfo;
+use pfslam::sensors::CameraInfo;
 use std::io::Write;
 use std::path::Path;
 
@@ -368,7 +368,7 @@ pub fn write_camera_yaml(path: &Path, camera_name: &str, cam: &CameraInfo) -> Re
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sensors::StereoCalibration;
+    use pfslam::sensors::StereoCalibration;
 
     #[test]
     #[allow(clippy::excessive_precision)]

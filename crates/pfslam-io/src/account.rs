@@ -4,7 +4,7 @@
 //! [`InputAccount::one_line`] and `summary.json` stores it under `"input"`. A share of dropped
 //! scans above [`DROPPED_SCANS_WARNING_SHARE`] is a warning.
 
-use crate::sensors::LidarGeometry;
+use pfslam::sensors::LidarGeometry;
 use serde::{Deserialize, Serialize};
 
 /// Dropping more than this share of the scans read is a warning.

@@ -10,7 +10,7 @@ use super::account::InputAccount;
 use super::options::ReaderOptions;
 use super::ros_assemble::{RecordingBuilder, TopicInfo, TopicTable, choose_topics};
 use super::ros_msgs::{Decoder, OdomMsg, RosError, ScanMsg, encode};
-use crate::sensors::Recording;
+use pfslam::sensors::Recording;
 use std::collections::BTreeMap;
 use std::path::Path;
 

@@ -28,22 +28,10 @@ use super::ros_msgs::{
     Decoder, OdomMsg, ScanMsg, TfMsg, decode_imu, decode_multi_echo_scan, decode_odometry,
     decode_scan, decode_tf,
 };
-use crate::geometry::{Rigid3, StampedPose2, Trajectory};
-use crate::sensors::{LidarGeometry, Recording, ScanSet};
+use pfslam::geometry::{Rigid3, StampedPose2, Trajectory};
+pub use pfslam::sensors::reader_options::BeamGeometry;
+use pfslam::sensors::{LidarGeometry, Recording, ScanSet};
 use serde::{Deserialize, Serialize};
-
-/// Which beam angles the scans get (see the module docs).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum BeamGeometry {
-    /// CARMEN geometry for scans converted from CARMEN logs, else as recorded.
-    #[default]
-    Auto,
-    /// As recorded in each message.
-    AsRecorded,
-    /// Always the CARMEN convention (-90 deg + i * 1 deg or 0.5 deg).
-    Carmen,
-}
 
 /// One topic of a recording.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -238,7 +226,7 @@ pub struct RecordingBuilder {
     tf_base: Option<String>,
     tf_static: Vec<TfMsg>,
     tf_first: Vec<TfMsg>,
-    imu: Vec<crate::motion::imu_yaw::ImuSample>,
+    imu: Vec<pfslam::motion::imu_yaw::ImuSample>,
     dropped_empty: usize,
 }
 
@@ -526,7 +514,7 @@ fn kept_odometry(
     odometry_src: &[StampedPose2],
     source: String,
     topics: &ChosenTopics,
-    imu: &mut [crate::motion::imu_yaw::ImuSample],
+    imu: &mut [pfslam::motion::imu_yaw::ImuSample],
     acc: &mut InputAccount,
 ) -> Result<Trajectory, String> {
     let stamps: Vec<i64> = odometry_src.iter().map(|p| p.stamp_ns).collect();
@@ -536,11 +524,11 @@ fn kept_odometry(
     let mut odometry = Trajectory::new(keep.iter().map(|&i| odometry_src[i]).collect());
     if let Some(topic) = &topics.imu {
         imu.sort_by_key(|s| s.0);
-        let series = crate::motion::imu_yaw::yaw_series(imu);
+        let series = pfslam::motion::imu_yaw::yaw_series(imu);
         if series.is_empty() {
             return Err(format!("no IMU message on {topic}"));
         }
-        odometry = crate::motion::imu_yaw::fuse_odometry_with_imu_yaw(&odometry, &series);
+        odometry = pfslam::motion::imu_yaw::fuse_odometry_with_imu_yaw(&odometry, &series);
         acc.odometry_source = format!("{source}, turning from {topic} (sensor_msgs/Imu)");
     } else {
         acc.odometry_source = source;
@@ -574,7 +562,7 @@ fn scan_range_min(range_min: f32, range_max_m: f32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::Pose2;
+    use pfslam::geometry::Pose2;
 
     fn scan(stamp_ns: i64, frame: &str, n: usize, angle_min: f32) -> ScanMsg {
         ScanMsg {

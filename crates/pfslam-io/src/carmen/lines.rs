@@ -4,8 +4,8 @@
 
 use super::CarmenOptions;
 use super::parse::{Message, parse_line};
-use crate::io::IoError;
-use crate::io::account::InputAccount;
+use crate::IoError;
+use crate::account::InputAccount;
 use std::io::{BufRead, Read};
 use std::path::Path;
 

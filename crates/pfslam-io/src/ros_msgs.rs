@@ -3,7 +3,7 @@
 //! serialisation or ROS 2 CDR (little endian). [`super::ros_assemble`] turns the decoded
 //! messages into a recording.
 
-use crate::geometry::{Pose2, Rigid3};
+use pfslam::geometry::{Pose2, Rigid3};
 
 /// Errors of the binary readers (ROS 1 bags, MCAP).
 #[derive(Debug, thiserror::Error)]
@@ -426,7 +426,7 @@ pub mod encode {
             self.string(frame);
         }
         /// A planar pose as `geometry_msgs/Pose` (position, then the yaw's quaternion).
-        fn planar_pose(&mut self, pose: &crate::geometry::Pose2) {
+        fn planar_pose(&mut self, pose: &pfslam::geometry::Pose2) {
             let half = 0.5 * pose.yaw_rad;
             for v in [pose.x_m, pose.y_m, 0.0, 0.0, 0.0, half.sin(), half.cos()] {
                 self.f64(v);

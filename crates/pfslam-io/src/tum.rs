@@ -4,7 +4,7 @@
 //! with nanosecond precision (9 decimals), so `stamp_ns` survives a round trip exactly.
 
 use super::{IoError, parse_finite_f64, write_atomic};
-use crate::geometry::{Pose2, StampedPose2, Trajectory};
+use pfslam::geometry::{Pose2, StampedPose2, Trajectory};
 use std::io::{BufRead, Write};
 use std::path::Path;
 
@@ -191,7 +191,7 @@ mod tests {
         for (a, b) in poses.iter().zip(&back.poses) {
             assert_eq!(a.stamp_ns, b.stamp_ns);
             assert!((a.pose.x_m - b.pose.x_m).abs() < 1e-8);
-            assert!(crate::geometry::wrap_angle(a.pose.yaw_rad - b.pose.yaw_rad).abs() < 1e-9);
+            assert!(pfslam::geometry::wrap_angle(a.pose.yaw_rad - b.pose.yaw_rad).abs() < 1e-9);
         }
     }
 

@@ -53,30 +53,20 @@ mod stream;
 mod write;
 
 pub use live::{CarmenLive, LiveMessage, LiveScan};
+pub use pfslam::sensors::reader_options::CarmenLaser;
 pub use stream::{ScanPose, stream_scan_poses};
 pub use write::write_carmen;
 
 use super::account::InputAccount;
 use super::clock::{RepairedClock, place_between, repair_in_file_order};
 use super::{IoError, clock::SYNTHETIC_PERIOD_NS};
-use crate::geometry::{Pose2, Rigid3, StampedPose2, Trajectory};
-use crate::sensors::{LidarGeometry, Recording, ScanSet};
 use lines::{for_each_message, maybe_gz};
 use parse::{LaserKind, LaserLine, Message};
+use pfslam::geometry::{Pose2, Rigid3, StampedPose2, Trajectory};
+use pfslam::sensors::{LidarGeometry, Recording, ScanSet};
 use serde::{Deserialize, Serialize};
 use std::io::{BufRead, Read};
 use std::path::Path;
-
-/// Which laser of the log becomes the recording's scans.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum CarmenLaser {
-    /// `FLASER` lines, or `ROBOTLASER1` lines when the log has no `FLASER`.
-    #[default]
-    Front,
-    /// `RLASER` lines (mounted facing backwards: yaw pi in the body frame).
-    Rear,
-}
 
 /// Options of the CARMEN reader.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

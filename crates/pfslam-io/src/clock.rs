@@ -5,7 +5,7 @@
 //! in file order (when it holds at least half of them) and places every other record between
 //! its trusted neighbours, so no record is lost and the order of the file is kept.
 
-use crate::sensors::ScanSet;
+use pfslam::sensors::ScanSet;
 
 /// Stamps made from a clock without trusted stamps: one per second.
 pub const SYNTHETIC_PERIOD_NS: i64 = 1_000_000_000;

@@ -14,10 +14,10 @@ use super::{
     CarmenOptions, KINDS, account_laser, account_laser_clock, account_pose_odometry, candidates,
     kind_index, line_geometry,
 };
-use crate::geometry::Pose2;
-use crate::io::IoError;
-use crate::io::account::InputAccount;
-use crate::sensors::LidarGeometry;
+use crate::IoError;
+use crate::account::InputAccount;
+use pfslam::geometry::Pose2;
+use pfslam::sensors::LidarGeometry;
 use std::path::Path;
 
 /// One scan of a streamed log.

@@ -1,23 +1,8 @@
-//! Readers and writers: dataset layouts, calibration files, trajectories, maps.
-//!
-//! Every reader reports malformed input as an [`IoError`] naming the file, the line (1-based)
-//! and the problem; every writer writes to a temporary file in the target directory and renames
-//! it into place ([`write_atomic`]), so a failed or interrupted run leaves no half-written file.
-
-pub mod account;
-pub mod carmen;
-pub mod clock;
-pub mod humanoid;
-pub mod map_files;
-pub mod mcap;
-pub mod opencv_yaml;
-pub mod options;
-pub mod recording;
-pub mod ros1;
-pub mod ros_assemble;
-pub mod ros_msgs;
-pub mod tum;
-pub mod ucsd;
+//! What every file reader and writer shares, independent of any format: [`IoError`] naming the
+//! file, the line (1-based) and the problem; atomic writes ([`write_atomic`]: a temporary file
+//! in the target directory renamed into place, so a failed or interrupted write leaves no
+//! half-written file); number fields parsed with precise errors; and where the real recordings
+//! live ([`data_root`]). The formats themselves are the `pfslam-io` crate's.
 
 use std::fmt;
 use std::io::Write;

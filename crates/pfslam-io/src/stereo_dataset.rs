@@ -1,12 +1,12 @@
 //! Texture mapping of a whole car dataset: every stereo pair of
 //! `stereo_images/stereo_{left,right}/<stamp_ns>.png`, placed with a trajectory.
 
-use super::image::load_gray_png;
-use super::{StereoError, StereoOptions, StereoPipeline, TextureMap};
-use crate::geometry::Trajectory;
-use crate::io::ucsd::{STEREO_LEFT_DIR, STEREO_RIGHT_DIR, read_stereo_stamps};
-use crate::map::MapLimits;
-use crate::sensors::StereoCalibration;
+use crate::ucsd::{STEREO_LEFT_DIR, STEREO_RIGHT_DIR, read_stereo_stamps};
+use pfslam::geometry::Trajectory;
+use pfslam::map::MapLimits;
+use pfslam::sensors::StereoCalibration;
+use pfslam::stereo::image::load_gray_png;
+use pfslam::stereo::{StereoError, StereoOptions, StereoPipeline, TextureMap};
 use serde::Serialize;
 use std::path::Path;
 

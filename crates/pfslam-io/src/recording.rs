@@ -4,12 +4,12 @@
 
 use super::IoError;
 use super::account::InputAccount;
-use super::carmen::read_carmen;
+use super::carmen::{CarmenOptions, read_carmen};
 use super::mcap::read_mcap_with_account;
 pub use super::options::ReaderOptions;
 use super::ros_msgs::RosError;
 use super::ros1::read_ros1_bag_with_account;
-use crate::sensors::Recording;
+use pfslam::sensors::Recording;
 use serde::{Deserialize, Serialize};
 use std::io::Read;
 use std::path::{Path, PathBuf};
@@ -99,7 +99,7 @@ pub fn open_recording(path: &Path, options: &ReaderOptions) -> Result<Opened, Re
     let path = file.as_deref().unwrap_or(path);
     let (recording, account) = match detect_format(path)? {
         Some(RecordingFormat::Carmen) => {
-            let log = read_carmen(path, &options.carmen())?;
+            let log = read_carmen(path, &CarmenOptions::from_reader(options))?;
             (log.recording, log.account)
         }
         Some(RecordingFormat::Ros1Bag) => read_ros1_bag_with_account(path, options)?,
@@ -145,7 +145,7 @@ impl Opened {
             .min(p.len().saturating_sub(1));
         let kept: Vec<_> = p.get(first..=last).map(<[_]>::to_vec).unwrap_or_default();
         self.account.odometry_kept = kept.len();
-        rec.odometry = crate::geometry::Trajectory::new(kept);
+        rec.odometry = pfslam::geometry::Trajectory::new(kept);
         if let Some(gt) = &mut rec.ground_truth {
             gt.retain(|q| (lo..=hi).contains(&q.stamp_ns));
         }

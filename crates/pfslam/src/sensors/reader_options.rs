@@ -1,7 +1,6 @@
-//! The options of every recording reader: the `[input]` section of the configuration.
+//! The options of every recording reader: the `[input]` section of the configuration. The
+//! readers themselves are the `pfslam-io` crate's.
 
-use super::carmen::{CarmenLaser, CarmenOptions};
-use super::ros_assemble::BeamGeometry;
 use serde::{Deserialize, Serialize};
 
 /// Options of all recording readers (`[input]`).
@@ -38,17 +37,6 @@ pub struct ReaderOptions {
 }
 
 impl ReaderOptions {
-    /// The CARMEN reader's options.
-    pub fn carmen(&self) -> CarmenOptions {
-        CarmenOptions {
-            laser: self.carmen_laser,
-            range_max_m: self
-                .range_max_m
-                .unwrap_or(CarmenOptions::default().range_max_m),
-            strict: self.strict,
-        }
-    }
-
     /// Checks the values; the message names the key.
     pub fn validate(&self) -> Result<(), String> {
         if self
@@ -69,4 +57,28 @@ impl ReaderOptions {
         }
         Ok(())
     }
+}
+
+/// Which beam angles the scans get (see `pfslam_io::ros_assemble`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BeamGeometry {
+    /// CARMEN geometry for scans converted from CARMEN logs, else as recorded.
+    #[default]
+    Auto,
+    /// As recorded in each message.
+    AsRecorded,
+    /// Always the CARMEN convention (-90 deg + i * 1 deg or 0.5 deg).
+    Carmen,
+}
+
+/// Which laser of the log becomes the recording's scans.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CarmenLaser {
+    /// `FLASER` lines, or `ROBOTLASER1` lines when the log has no `FLASER`.
+    #[default]
+    Front,
+    /// `RLASER` lines (mounted facing backwards: yaw pi in the body frame).
+    Rear,
 }

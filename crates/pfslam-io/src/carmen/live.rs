@@ -1,5 +1,5 @@
 //! A CARMEN log read as it arrives (standard input, a pipe): each line's odometry or scan is
-//! handed on as soon as the line is whole, for the incremental API ([`crate::Slam`]).
+//! handed on as soon as the line is whole, for the incremental API ([`pfslam::Slam`]).
 //!
 //! The whole-file reader ([`super::read_carmen`]) chooses the laser and the clock from every
 //! line at once; a live reader cannot look ahead, so its rules differ where a log needs it:
@@ -20,10 +20,10 @@ use super::{
     CarmenOptions, KINDS, candidates, kind_index, laser_mount, line_geometry, pose_to_rigid,
     set_offset,
 };
-use crate::geometry::{Pose2, Rigid3, StampedPose2};
-use crate::io::IoError;
-use crate::io::account::InputAccount;
-use crate::sensors::LidarGeometry;
+use crate::IoError;
+use crate::account::InputAccount;
+use pfslam::geometry::{Pose2, Rigid3, StampedPose2};
+use pfslam::sensors::LidarGeometry;
 use std::collections::VecDeque;
 use std::io::Read;
 use std::path::{Path, PathBuf};
@@ -267,7 +267,7 @@ const ODOM_UNUSED: &str = "lines (the laser lines carry the odometry)";
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::io::carmen::read_carmen_from;
+    use crate::carmen::read_carmen_from;
 
     const LOG: &str = "# a log\n\
         PARAM robot_frontlaser_offset 0.2 host 0\n\
@@ -329,7 +329,7 @@ mod tests {
             (acc.scans_read, acc.scans_kept, acc.scans_dropped()),
             (4, 3, 1)
         );
-        let count = |v: &[crate::io::account::Tally], what: &str| {
+        let count = |v: &[crate::account::Tally], what: &str| {
             v.iter()
                 .filter(|t| t.what.contains(what) || t.reason.contains(what))
                 .map(|t| t.count)

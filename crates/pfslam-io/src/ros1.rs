@@ -13,7 +13,7 @@ use super::account::InputAccount;
 use super::options::ReaderOptions;
 use super::ros_assemble::{RecordingBuilder, TopicInfo, TopicTable, choose_topics};
 use super::ros_msgs::{Decoder, RosError};
-use crate::sensors::Recording;
+use pfslam::sensors::Recording;
 use rosbag::{ChunkRecord, IndexRecord, MessageRecord, RosBag};
 use std::collections::HashMap;
 use std::path::Path;

@@ -33,7 +33,7 @@ pub use write::*;
 use ranges::small_decimal_f32;
 
 use super::{IoError, write_atomic};
-use crate::sensors::{CarDataset, EncoderParams, EncoderSample, FogSample, ScanSet};
+use pfslam::sensors::{CarDataset, EncoderParams, EncoderSample, FogSample, ScanSet};
 use serde::{Deserialize, Serialize};
 use std::io::Read;
 use std::path::{Path, PathBuf};

@@ -6,10 +6,10 @@
 //! are written as the scan's maximum range.
 
 use super::carmen_geometry;
-use crate::geometry::{Pose2, Trajectory};
-use crate::io::IoError;
-use crate::io::tum::format_stamp_s;
-use crate::sensors::{LidarGeometry, Recording};
+use crate::IoError;
+use crate::tum::format_stamp_s;
+use pfslam::geometry::{Pose2, Trajectory};
+use pfslam::sensors::{LidarGeometry, Recording};
 use std::io::Write;
 use std::path::Path;
 
@@ -24,7 +24,7 @@ pub fn write_carmen(
 ) -> Result<usize, IoError> {
     let mount = recording.body_from_lidar.to_pose2();
     let mut written = 0;
-    crate::io::write_atomic(path, |w| {
+    crate::write_atomic(path, |w| {
         writeln!(w, "# written by pfslam: one laser line per scan")?;
         writeln!(w, "PARAM robot_frontlaser_offset {} pfslam 0", mount.x_m)?;
         writeln!(
