@@ -1,6 +1,6 @@
-//! Counts what map insertion traces on a car-layout dataset, per scan, for each
-//! `[map.scan] densify_rays` setting: returns, joining points of the densification, rays
-//! cleared only part of the way, cells walked (every ray's free cells plus its end cell) and
+//! Counts what map insertion traces on a car-layout dataset, per scan, for each way of
+//! inserting the joining returns (`ScanOptions::densify_rays`: whole rays or end cells):
+//! returns, joining points of the densification, rays cleared only part of the way, cells walked (every ray's free cells plus its end cell) and
 //! cells touched (unique per scan), on the filter's planar grid and on the rebuild's grid
 //! with height bins, plus the single-thread tracing time of each.
 //! `cargo run --release -p pfslam --example trace_counts -- DATASET [EVERY_NTH_SCAN]`

@@ -335,8 +335,14 @@ mod tests {
             let ll = |x, y| f64::from(f.log_likelihood(Sharpness::Tracking, x, y));
             let dx = (ll(x + h, y) - ll(x - h, y)) / (2.0 * h);
             let dy = (ll(x, y + h) - ll(x, y - h)) / (2.0 * h);
-            assert!((f64::from(gx) - dx).abs() < 0.02 * dx.abs().max(1.0), "{gx} {dx}");
-            assert!((f64::from(gy) - dy).abs() < 0.02 * dy.abs().max(1.0), "{gy} {dy}");
+            assert!(
+                (f64::from(gx) - dx).abs() < 0.02 * dx.abs().max(1.0),
+                "{gx} {dx}"
+            );
+            assert!(
+                (f64::from(gy) - dy).abs() < 0.02 * dy.abs().max(1.0),
+                "{gy} {dy}"
+            );
         }
         assert_eq!(f.tracking_with_gradient(-5.0, 1.0), (f.floor, [0.0, 0.0]));
         assert!(f.peak() >= f.log_likelihood(Sharpness::Tracking, 1.05, 1.05));

@@ -31,8 +31,7 @@ pub enum NoReturnPolicy {
 
 /// How a joining point of the densification ([`ScanOptions::densify_max_gap_m`]) is
 /// inserted into the map. Scan matching sees the joining points whatever this says.
-/// The defaults differ by map: see [`ScanOptions::densify_rays`] and
-/// [`ScanOptions::filter_densify_rays`].
+/// It differs by map: see [`ScanOptions::densify_rays`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum DensifyRays {
@@ -74,15 +73,13 @@ pub struct ScanOptions {
     pub densify_max_gap_m: Option<f64>,
     /// Spacing of the joining returns (m).
     pub densify_step_m: f64,
-    /// How the joining returns are inserted into maps built along known poses (`pfslam
-    /// map`, the rebuild along the back end's trajectory): `hit_only` (the default: a
-    /// joining return is not a measured beam, so its end cell only; the rebuild ~4x cheaper
-    /// than `full`, the same trajectories) or `full` (each one a whole ray).
+    /// How the joining returns are inserted: end cells only in maps built along known poses
+    /// (`pfslam map`, the rebuild along the back end's trajectory: a joining return is not a
+    /// measured beam, and the rebuild costs a quarter), whole rays in the SLAM filter's map
+    /// ([`Self::for_filter`]: its matching needs that clearing). Not a configuration key:
     /// `docs/decisions/0016-joining-returns-in-maps.md` has the measurements.
+    #[serde(skip)]
     pub densify_rays: DensifyRays,
-    /// How the joining returns are inserted into the SLAM filter's map (the map it matches
-    /// against): `full` (the default: its matching needs that clearing) or `hit_only`.
-    pub filter_densify_rays: DensifyRays,
     /// A beam clears free space only up to where it climbs above this height (m, body
     /// frame); a large value = the whole ray (the seeds). The car's forward beams rise 37 deg: past
     /// a few metres they fly over parked vans and low buildings, and clearing their whole
@@ -103,7 +100,6 @@ impl Default for ScanOptions {
             densify_max_gap_m: Some(1.0),
             densify_step_m: 0.1,
             densify_rays: DensifyRays::HitOnly,
-            filter_densify_rays: DensifyRays::Full,
             free_z_max_m: Some(2.5),
         }
     }
@@ -149,10 +145,10 @@ impl ScanOptions {
         Ok(())
     }
 
-    /// These options for the SLAM filter's map: `densify_rays` = `filter_densify_rays`.
+    /// These options for the SLAM filter's map: the joining returns as whole rays.
     pub fn for_filter(&self) -> ScanOptions {
         ScanOptions {
-            densify_rays: self.filter_densify_rays,
+            densify_rays: DensifyRays::Full,
             ..*self
         }
     }
@@ -531,31 +527,17 @@ mod tests {
     }
 
     #[test]
-    fn densify_rays_option_parses_and_sets_the_joining_points_clearing() {
-        let o: ScanOptions = toml::from_str("densify_rays = \"hit_only\"").unwrap();
-        assert_eq!(o.densify_rays, DensifyRays::HitOnly);
+    fn joining_points_are_end_cells_in_maps_and_whole_rays_in_the_filters_map() {
         assert_eq!(ScanOptions::default().densify_rays, DensifyRays::HitOnly);
-        assert_eq!(
-            ScanOptions::default().filter_densify_rays,
-            DensifyRays::Full
-        );
-        let o: ScanOptions = toml::from_str("densify_rays = \"full\"").unwrap();
-        assert_eq!(o.densify_rays, DensifyRays::Full);
-        assert!(toml::from_str::<ScanOptions>("densify_rays = \"half\"").is_err());
-        assert!(toml::from_str::<ScanOptions>("densify_rays = \"interpolated\"").is_err());
-        let o: ScanOptions =
-            toml::from_str("densify_rays = \"full\"\nfilter_densify_rays = \"hit_only\"").unwrap();
-        assert_eq!(o.for_filter().densify_rays, DensifyRays::HitOnly);
-        assert_eq!(o.densify_rays, DensifyRays::Full);
-        let back: ScanOptions = toml::from_str(
-            &toml::to_string(&ScanOptions {
-                densify_rays: DensifyRays::HitOnly,
-                ..ScanOptions::default()
-            })
-            .unwrap(),
-        )
-        .unwrap();
-        assert_eq!(back.densify_rays, DensifyRays::HitOnly);
+        let o: ScanOptions = toml::from_str("densify_step_m = 0.2").unwrap();
+        assert_eq!(o.densify_rays, DensifyRays::HitOnly);
+        assert_eq!(o.for_filter().densify_rays, DensifyRays::Full);
+        assert!(toml::from_str::<ScanOptions>("densify_rays = \"full\"").is_err());
+        assert!(toml::from_str::<ScanOptions>("filter_densify_rays = \"full\"").is_err());
+        let back: ScanOptions =
+            toml::from_str(&toml::to_string(&ScanOptions::default().for_filter()).unwrap())
+                .unwrap();
+        assert_eq!(back, ScanOptions::default());
         // Level: the returns are cleared all the way; the joining points by the setting.
         for (rays, want) in [(DensifyRays::Full, 1.0), (DensifyRays::HitOnly, 0.0)] {
             let s = wall_pair(0.0, rays);

@@ -36,7 +36,7 @@ impl SearchParams {
         }
         SearchParams {
             yaw_offsets_rad,
-            xy_cells: o.coarse_xy_cells as i32,
+            xy_cells: 0,
             resolution_m,
             step_xy_m: o.step_xy_m,
             step_yaw_rad: o.step_yaw_deg.to_radians(),

@@ -82,20 +82,16 @@ pub struct RbpfSearch {
     pub coarse_yaw_deg: f64,
     /// Step of the coarse yaw search (deg).
     pub coarse_yaw_step_deg: f64,
-    /// Half-width of the coarse x/y search (cells of the particles' maps).
-    pub coarse_xy_cells: u32,
     /// Initial x/y step of the hill climb (m; GMapping `lstep`).
     pub step_xy_m: f64,
     /// Initial yaw step of the hill climb (deg; GMapping `astep` = 0.05 rad).
     pub step_yaw_deg: f64,
     /// Step halvings of the hill climb (GMapping `iterations`).
     pub refine_levels: u32,
-    /// The matcher's prior on the deviation from each particle's noise-free predicted pose
-    /// (decision 0005): a Gaussian with the motion model's
-    /// sigmas (`odometry_noise`) for this update times this factor (0 = no prior, the match
-    /// may go anywhere the search reaches). Keeps matches from sliding along corridors.
-    pub prior_scale: f64,
-    /// Smallest x/y sigma of that prior (m).
+    /// Smallest x/y sigma of the matcher's prior (m). The prior is a Gaussian on the
+    /// deviation from each particle's noise-free predicted pose (decision 0005) with the
+    /// motion model's sigmas (`odometry_noise`) for the update: it keeps matches from
+    /// sliding along corridors.
     pub prior_min_xy_m: f64,
     /// Smallest yaw sigma of that prior (deg).
     pub prior_min_yaw_deg: f64,
@@ -167,11 +163,9 @@ impl Default for RbpfSearch {
         RbpfSearch {
             coarse_yaw_deg: 3.0,
             coarse_yaw_step_deg: 1.0,
-            coarse_xy_cells: 0,
             step_xy_m: 0.05,
             step_yaw_deg: 2.865,
             refine_levels: 4,
-            prior_scale: 1.0,
             prior_min_xy_m: 0.02,
             prior_min_yaw_deg: 1.0,
             jitter_xy_m: 0.01,
@@ -215,7 +209,6 @@ impl RbpfOptions {
             ("search.coarse_yaw_deg", search.coarse_yaw_deg),
             ("search.step_xy_m", search.step_xy_m),
             ("search.step_yaw_deg", search.step_yaw_deg),
-            ("search.prior_scale", search.prior_scale),
             ("search.jitter_xy_m", search.jitter_xy_m),
             ("search.jitter_yaw_deg", search.jitter_yaw_deg),
         ] {
@@ -242,9 +235,6 @@ impl RbpfOptions {
         }
         if lik.kernel_cells > 8 {
             return Err("filter.rbpf.likelihood.kernel_cells must be at most 8".into());
-        }
-        if search.coarse_xy_cells > 16 {
-            return Err("filter.rbpf.search.coarse_xy_cells must be at most 16".into());
         }
         if search.coarse_yaw_deg > 45.0
             || search.coarse_yaw_deg / search.coarse_yaw_step_deg > 200.0

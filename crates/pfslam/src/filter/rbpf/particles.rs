@@ -221,19 +221,17 @@ impl Rbpf {
     }
 
     /// The matcher's prior for an update after the odometry moved by `delta`: the motion
-    /// model's sigmas for it, scaled and floored (`[filter.rbpf.search]`).
+    /// model's sigmas for it, floored (`[filter.rbpf.search]`).
     fn set_prior(&mut self, delta: &Pose2) {
         let noise = self.options.noise();
         let o = &self.options.search;
-        self.search.prior = (o.prior_scale > 0.0).then(|| {
-            let [srr, str_, srt, stt] = noise;
-            let (d, a) = (delta.translation_norm_m(), delta.yaw_rad.abs());
-            let sxy = (o.prior_scale * (srr * d + str_ * a)).max(o.prior_min_xy_m);
-            let syaw = (o.prior_scale * (stt * a + srt * d)).max(o.prior_min_yaw_deg.to_radians());
-            MatchPrior {
-                inv_var_xy: 1.0 / (sxy * sxy),
-                inv_var_yaw: 1.0 / (syaw * syaw),
-            }
+        let [srr, str_, srt, stt] = noise;
+        let (d, a) = (delta.translation_norm_m(), delta.yaw_rad.abs());
+        let sxy = (srr * d + str_ * a).max(o.prior_min_xy_m);
+        let syaw = (stt * a + srt * d).max(o.prior_min_yaw_deg.to_radians());
+        self.search.prior = Some(MatchPrior {
+            inv_var_xy: 1.0 / (sxy * sxy),
+            inv_var_yaw: 1.0 / (syaw * syaw),
         });
     }
 
