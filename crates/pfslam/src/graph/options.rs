@@ -37,10 +37,6 @@ pub struct GraphOptions {
     pub min_points: usize,
     /// Yaw step of the searches (deg; the sub-cell refinement goes below it).
     pub yaw_step_deg: f64,
-    /// When no loop closure survives, return the front end's trajectory unchanged: without
-    /// a closure the back end only re-matches scans. (On the simulated car with sequential
-    /// matching on, that re-matching drifted to 6.7 m: see `sequential.matching`.)
-    pub keep_front_end_without_closures: bool,
     /// The back end's trajectory replaces the front end's only when the share of scan
     /// returns that land in cells its own map calls free is at most this multiple of the
     /// front end's, or at most 2 points above it (0 = always replaces). A wrong closure
@@ -340,7 +336,6 @@ impl Default for GraphOptions {
             max_points: 200,
             min_points: 50,
             yaw_step_deg: 0.3,
-            keep_front_end_without_closures: true,
             max_free_share_ratio: 1.5,
             sequential: SequentialOptions::default(),
             loops: LoopOptions::default(),
