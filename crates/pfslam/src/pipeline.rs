@@ -1,8 +1,9 @@
 //! The default SLAM pipeline in one step: the filter ([`run_slam`]), then the `[graph]` back
-//! end when enabled, then the map rebuilt along the corrected trajectory. `pfslam run`,
-//! `pfslam benchmark` and `pfslam bench-e2e` all call [`run_pipeline`], so the benchmarks
-//! time exactly what `run` does; [`crate::Slam::finish`] runs the same stages after its
-//! filter (`after_filter`).
+//! end when enabled, then the map rebuilt along the corrected trajectory, for a recording
+//! already read. [`crate::Slam::finish`] runs the same stages after its filter
+//! (`after_filter`), and both hand each scan to the same per-scan step, so `pfslam run` and
+//! `pfslam benchmark` (through `Slam`) and `pfslam bench-e2e` (through [`run_pipeline`], for
+//! its per-stage CPU seconds) compute the same result.
 
 use crate::config::Config;
 use crate::filter::slam::{SlamError, SlamEvent, SlamResult, run_slam};

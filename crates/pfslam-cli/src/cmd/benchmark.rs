@@ -6,10 +6,11 @@
 //! or `--config`): no per-dataset tuning.
 
 use anyhow::Context;
+use pfslam::Slam;
 use pfslam::config::Config;
 use pfslam::eval::relations::{RelationsOptions, evaluate_relations};
 use pfslam::geometry::Trajectory;
-use pfslam::pipeline::{BackEndInput, PipelineOptions, PipelineResult, run_pipeline};
+use pfslam::pipeline::{BackEndInput, PipelineOptions, PipelineResult};
 use pfslam_io::relations::read_relations;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -229,7 +230,9 @@ fn bench_recording(
         front_end,
         graph,
         ..
-    } = run_pipeline(&recording, config, args.seed, &options, &mut |_| {})
+    } = Slam::with_recording(config.clone(), recording.clone(), args.seed)
+        .and_then(|slam| slam.finish_observed(&options, &mut |_| {}))
+        .map(|(result, _)| result)
         .with_context(|| format!("SLAM on {}", rec_path.display()))?;
     let wall_s = t.elapsed().as_secs_f64();
     let opts = RelationsOptions::default();

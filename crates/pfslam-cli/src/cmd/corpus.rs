@@ -5,11 +5,12 @@
 //! not tuned on.
 
 use anyhow::Context;
+use pfslam::Slam;
 use pfslam::config::Config;
 use pfslam::eval::{Association, ate::ate};
 use pfslam::geometry::Trajectory;
 use pfslam::motion::perturb::{OdometryErrors, perturb_odometry};
-use pfslam::pipeline::{PipelineOptions, run_pipeline};
+use pfslam::pipeline::PipelineOptions;
 use pfslam::sensors::Recording;
 use pfslam::sensors::sync::poses_at_stamps;
 use std::path::{Path, PathBuf};
@@ -151,7 +152,9 @@ fn corpus_row(
         rebuild_map: false,
         ..PipelineOptions::default()
     };
-    let result = run_pipeline(rec, config, seed, &options, &mut |_| {})?;
+    // The recording handed to the incremental API, as `pfslam run` does.
+    let slam = Slam::with_recording(config.clone(), rec.clone(), seed)?;
+    let (result, _) = slam.finish_observed(&options, &mut |_| {})?;
     let wall_s = t.elapsed().as_secs_f64();
     Ok(CorpusRow {
         name: rec.name.clone(),
