@@ -116,6 +116,8 @@ pub struct FieldDoc {
     pub type_name: String,
     /// Its doc comment, one entry per line.
     pub doc: Vec<String>,
+    /// Marked `#[serde(skip)]`: not a key of the configuration file.
+    pub skipped: bool,
 }
 
 /// The doc comments of every `pub` field of every `pub struct` in the library's source
@@ -124,6 +126,7 @@ pub fn field_docs() -> Vec<FieldDoc> {
     let mut out = Vec::new();
     for src in sources::SOURCES {
         let mut pending: Vec<String> = Vec::new();
+        let mut skipped = false;
         let mut current: Option<String> = None;
         for line in src.lines() {
             let t = line.trim();
@@ -132,6 +135,7 @@ pub fn field_docs() -> Vec<FieldDoc> {
                 continue;
             }
             if t.starts_with("#[") {
+                skipped |= t == "#[serde(skip)]";
                 continue;
             }
             if let Some(rest) = t.strip_prefix("pub struct ") {
@@ -153,9 +157,11 @@ pub fn field_docs() -> Vec<FieldDoc> {
                     field: field.trim().to_string(),
                     type_name: type_name.to_string(),
                     doc: std::mem::take(&mut pending),
+                    skipped,
                 });
             }
             pending.clear();
+            skipped = false;
         }
     }
     out
@@ -188,7 +194,7 @@ pub fn annotate_toml(toml: &str) -> String {
         let Some(t) = table else { return };
         for d in docs
             .iter()
-            .filter(|d| d.struct_name == t && d.type_name == "Option")
+            .filter(|d| d.struct_name == t && d.type_name == "Option" && !d.skipped)
         {
             if !printed.contains(&d.field) {
                 push_doc(out, Some(d));
@@ -308,21 +314,24 @@ mod tests {
         assert_eq!(c.sim.car.errors.wheel_slip_std, 0.0);
     }
 
-    /// A bad value in a nested back-end table is reported with its whole path.
+    /// A bad value in a nested back-end table is reported with its whole path; the
+    /// method's constants are not keys.
     #[test]
     fn nested_graph_keys_are_checked_by_path() {
-        let c: Config = toml::from_str("[graph.loops.local]\nwindow_m = 5.0").unwrap();
+        let c: Config = toml::from_str("[graph.loops]\nsigma_m = -1.0").unwrap();
         let err = c.validate().unwrap_err().to_string();
         assert!(
-            err.contains("loops.local.window_m <= loops.window_m"),
+            err.contains("graph.loops.sigma_m must be positive"),
             "{err}"
         );
-        let c: Config = toml::from_str("[graph.optimize]\nchi2 = -1.0").unwrap();
-        let err = c.validate().unwrap_err().to_string();
-        assert!(
-            err.contains("graph.optimize.chi2 must be positive"),
-            "{err}"
-        );
+        for (text, key) in [
+            ("[graph.loops.local]\nwindow_m = 5.0", "window_m"),
+            ("[graph.optimize]\nchi2 = 1.0", "optimize"),
+            ("[graph.sequential]\nprior_sigma_m = 1.0", "prior_sigma_m"),
+        ] {
+            let err = toml::from_str::<Config>(text).unwrap_err().to_string();
+            assert!(err.contains(&format!("unknown field `{key}`")), "{err}");
+        }
     }
 
     /// A bad value in a nested table of the filter or the simulator is reported with its
@@ -331,16 +340,12 @@ mod tests {
     fn nested_filter_and_sim_keys_are_checked_by_path() {
         for (text, want) in [
             (
-                "[filter.rbpf.search]\njitter_xy_m = -1.0",
-                "filter.rbpf.search.jitter_xy_m must be finite and >= 0",
+                "[filter.rbpf.search]\nstep_xy_m = -1.0",
+                "filter.rbpf.search.step_xy_m must be finite and >= 0",
             ),
             (
-                "[filter.rbpf.final_refine]\nsigma_yaw_deg = 0.0",
-                "filter.rbpf.final_refine.sigma_yaw_deg must be positive",
-            ),
-            (
-                "[filter.rbpf.likelihood]\nkernel_cells = 9",
-                "filter.rbpf.likelihood.kernel_cells must be at most 8",
+                "[filter.rbpf.search]\nrefine_levels = 13",
+                "filter.rbpf.search.refine_levels must be at most 12",
             ),
             (
                 "[filter.rbpf.odometry_noise]\nstt = -0.1",
@@ -351,10 +356,6 @@ mod tests {
                 "sim.car.errors.lidar_dropout_prob must be in [0, 1]",
             ),
             (
-                "[sim.humanoid.head]\npitch_period_s = 0.0",
-                "sim.humanoid.head.pitch_period_s must be positive",
-            ),
-            (
                 "[sim.humanoid.errors]\nstamp_jitter_std_ns = -1.0",
                 "sim.humanoid.errors.stamp_jitter_std_ns must be >= 0",
             ),
@@ -362,6 +363,13 @@ mod tests {
             let c: Config = toml::from_str(text).unwrap();
             let err = c.validate().unwrap_err().to_string();
             assert!(err.contains(want), "{text}: {err}");
+        }
+        for text in [
+            "[filter.rbpf.search]\njitter_xy_m = 0.0",
+            "[filter.rbpf.likelihood]\nkernel_cells = 2",
+            "[sim.humanoid.head]\npitch_period_s = 1.0",
+        ] {
+            assert!(toml::from_str::<Config>(text).is_err(), "{text}");
         }
     }
 

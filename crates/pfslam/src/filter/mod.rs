@@ -97,6 +97,8 @@ pub struct FilterOptions {
     pub update_every_scans: usize,
     /// Also insert the scans between updates into the map, at the output pose (the last
     /// estimate moved by odometry). The seeds map only at updates (false).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub map_between_updates: bool,
     /// Half-width of the x/y correlation search in cells (4 = the seeds' 9x9 grid).
     pub xy_search_radius_cells: u32,
@@ -104,13 +106,19 @@ pub struct FilterOptions {
     pub yaw_offsets_deg: Vec<f64>,
     /// Hits an x/y search offset must gain per squared cell of offset to be preferred over the
     /// particle's own pose (0 = the seeds' plain maximum).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub offset_penalty_hits_per_cell2: f64,
     /// A scan point counts as a hit when an occupied cell lies within this many cells of it
     /// (0 = the seeds: its own cell).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub dilation_cells: u32,
     /// Move each particle to its best search offset (true: the particle takes the offset's
     /// pose) or only score it with the best offset's correlation (false: the seeds'
     /// `mapCorrelation` maximum as the weight, the pose stays).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub move_to_best_offset: bool,
     /// Divisor of the correlations in the softmax (1 = UCSD seed, 10 = ESE650 seed).
     pub temperature: f64,

@@ -23,19 +23,31 @@ pub struct GraphOptions {
     /// ... or after this much rotation (deg).
     pub keyframe_angle_deg: f64,
     /// Cell size of the matching fields (m).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub resolution_m: f64,
     /// Standard deviation of the likelihood field around submap points (m).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub field_sigma_m: f64,
     /// Returns closer than this to the sensor are not matched (m).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub range_min_m: f64,
     /// Returns farther than this are not matched (m).
     pub range_max_m: f64,
     /// At most this many points of a scan are matched (evenly subsampled).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub max_points: usize,
     /// A scan needs at least this many matching points to be matched at all (sequential
     /// edge, closure, refinement); fewer points fit anywhere.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub min_points: usize,
     /// Yaw step of the searches (deg; the sub-cell refinement goes below it).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub yaw_step_deg: f64,
     /// The back end's trajectory replaces the front end's only when the share of scan
     /// returns that land in cells its own map calls free is at most this multiple of the
@@ -43,12 +55,16 @@ pub struct GraphOptions {
     /// lays corridors over each other and raises that share. A back end that fails it and
     /// matched consecutive keyframes itself runs again without (`sequential.matching`
     /// off), guarded alike; see `docs/decisions/0006-self-check-and-back-end-guard.md`.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub max_free_share_ratio: f64,
     /// Edges between consecutive keyframes.
     pub sequential: SequentialOptions,
     /// Loop closures.
     pub loops: LoopOptions,
     /// The optimisations.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub optimize: OptimizeSchedule,
     /// The scans between keyframes re-matched after the optimisation.
     pub refine: ScanRefineOptions,
@@ -70,38 +86,64 @@ pub struct SequentialOptions {
     /// `sequential.front_end_*` uncertainty below.
     pub matching: Switch,
     /// Keyframes before the new one that form the submap of a sequential edge.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub submap_keyframes: usize,
     /// Half-width of the sequential search in x and y (m).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub window_m: f64,
     /// Half-width of the sequential search in yaw (deg).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub window_deg: f64,
     /// Prior on the deviation from the front end's relative motion: x/y (m).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub prior_sigma_m: f64,
     /// Prior on the deviation from the front end's relative motion: yaw (deg).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub prior_sigma_deg: f64,
     /// Smallest standard deviation of a matched sequential edge in x and y (m): its
     /// information is the curvature of the match objective, capped at this.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub sigma_m: f64,
     /// Smallest standard deviation of a matched sequential edge in yaw (deg).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub sigma_deg: f64,
     /// A sequential match scoring below this (mean field value, 0..1) is replaced by the
     /// front end's relative motion with the `sequential.fallback_sigma_*` uncertainty.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub min_score: f64,
     /// Standard deviation of the front-end edge (the front end's relative motion) beside
     /// every match, and alone where the match failed, in x and y (m).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub fallback_sigma_m: f64,
     /// Standard deviation of the front-end edge in yaw (deg).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub fallback_sigma_deg: f64,
     /// Without sequential matching: standard deviation of the front end's relative motion
     /// in x and y per square root of the distance travelled (m per sqrt(m)); a random walk,
     /// so over `L` m it is `this * sqrt(L)`.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub front_end_sigma_m_per_sqrt_m: f64,
     /// ... and in yaw (deg per sqrt(m)).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub front_end_sigma_deg_per_sqrt_m: f64,
     /// Without sequential matching: consecutive keyframes are also tied by the recording's
     /// odometry yaw (the car's FOG: 0.09 deg off after 1.4 km), with this random-walk
     /// uncertainty (deg per sqrt(m); 0 = no such edge), so the front end's local heading
     /// errors do not survive the optimisation.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub odometry_yaw_sigma_deg_per_sqrt_m: f64,
     /// Whether those odometry-yaw edges are added (only ever without sequential matching):
     /// `auto` = for a LiDAR fixed on the body (the car, whose odometry yaw is its FOG), not
@@ -120,31 +162,49 @@ pub struct LoopOptions {
     /// ... and at least this far back along the path (m).
     pub min_path_m: f64,
     /// At most this many candidates are tried per keyframe (the nearest first).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub max_candidates: usize,
     /// Loop closures are searched from every k-th keyframe (no gaps after closures:
     /// `docs/decisions/0021-loop-closure-search.md`).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub every_keyframes: usize,
     /// Keyframes on each side of the candidate that form its submap.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub submap_keyframes: usize,
     /// Half-width of the loop-closure search in x and y (m).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub window_m: f64,
     /// Half-width of the loop-closure search in yaw (deg).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub window_deg: f64,
     /// Minimum mean field value (0..1) of an accepted closure.
     pub min_score: f64,
     /// A closure is ambiguous (rejected) if a pose farther than `loops.ambiguity_radius_m`
     /// from the best scores at least this fraction of the best.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub ambiguity_ratio: f64,
     /// See `loops.ambiguity_ratio` (m).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub ambiguity_radius_m: f64,
     /// Standard deviation of a loop-closure edge in x and y (m).
     pub sigma_m: f64,
     /// Standard deviation of a loop-closure edge in yaw (deg).
     pub sigma_deg: f64,
     /// Width of the Cauchy kernel of loop edges (whitened error units; 0 = no kernel).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub kernel_width: f64,
     /// After the final optimisation, loop edges with a whitened squared error above this
     /// are removed and the graph optimised again.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub outlier_chi2: f64,
     /// Local searches where the relative pose is already known.
     pub local: LocalLoopOptions,
@@ -168,22 +228,32 @@ pub struct LocalLoopOptions {
     /// `off`.
     pub search: Switch,
     /// Half-width of the local loop-closure search in x and y (m).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub window_m: f64,
     /// Half-width of the local loop-closure search in yaw (deg).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub window_deg: f64,
     /// The local search's ambiguity radius (m): a pose at least this far from the best that
     /// scores `loops.ambiguity_ratio` of it makes the closure ambiguous. Smaller than
     /// `loops.ambiguity_radius_m` in proportion to the window, so the test still sees a
     /// street along which the scan slides (at 0.15 m a point's field value falls to a tenth,
     /// at 0.5 m to nothing: the two tests ask about as many points to pin the slide down).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub ambiguity_radius_m: f64,
     /// See `loops.local.search` (m).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub vouch_path_m: f64,
     /// Local searches only once the last optimisation left at least this many consistent
     /// loop edges: they accept fewer closures than the full window (the smaller ambiguity
     /// radius rejects broad match peaks), which a route closed again and again does not
     /// miss (the full-size car: 0.051 -> 0.049 m ATE) but a back end with few closures does
     /// (the default drive, 59 closures: local searches kept 18 and cost 1 % ATE).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub min_closures: usize,
 }
 
@@ -192,11 +262,17 @@ pub struct LocalLoopOptions {
 #[serde(default, deny_unknown_fields)]
 pub struct OptimizeSchedule {
     /// Optimise after accepted closures at most every this many keyframes ...
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub every_keyframes: usize,
     /// ... or at once when a new closure disagrees with the current estimates by more than
     /// this whitened squared error (a loop closing after drift).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub chi2: f64,
     /// Levenberg-Marquardt iterations per optimisation.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub max_iterations: usize,
     /// A periodic optimisation (`optimize.every_keyframes`) stops when an iteration lowers
     /// the cost by less than this fraction: every new closure agreed with the estimates
@@ -204,6 +280,8 @@ pub struct OptimizeSchedule {
     /// the next loop searches corrected estimates. Urgent and final optimisations stop at
     /// 1e-6. The full-size car: 375 -> 245 iterations in all; the default drive's
     /// closures and ATE unchanged (one iteration at most instead: 1 % worse there).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub periodic_relative_tolerance: f64,
     /// A periodic optimisation moves only the keyframes from this many before the last
     /// optimisation on (the others held where they are; 0 = the whole graph): every new
@@ -211,6 +289,8 @@ pub struct OptimizeSchedule {
     /// already closed, at a cost that does not grow with the graph (the full-size car's
     /// 25,000 keyframes: ~400 instead). Urgent (a loop closing after drift) and final
     /// optimisations move the whole graph.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub periodic_free_keyframes: usize,
 }
 
@@ -227,8 +307,12 @@ pub struct ScanRefineOptions {
     /// (`docs/decisions/0022-car-back-end-on-calibrated-odometry.md`).
     pub scans: Switch,
     /// Half-width of that refinement search in x and y (m).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub window_m: f64,
     /// Half-width of that refinement search in yaw (deg).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub window_deg: f64,
 }
 

@@ -17,8 +17,12 @@ pub struct LocalizeOptions {
     /// KLD sampling: the bound on the error between the sample and the true posterior.
     pub kld_error: f64,
     /// KLD sampling: the upper standard normal quantile of the bound's confidence (2.33: 99 %).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub kld_z: f64,
     /// KLD sampling: the histogram's cell side (m) and yaw bin (deg).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub kld_bin: [f64; 2],
     /// The filter updates once the odometry moved this far (m) or turned this much (deg)
     /// since its last update; a robot at rest is not updated (AMCL's rule, which keeps
@@ -29,8 +33,12 @@ pub struct LocalizeOptions {
     /// (m²/rad²).
     pub motion_alphas: [f64; 4],
     /// The filter has converged when the heaviest cluster holds this share of the weight.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub converged_mass: f64,
     /// A cluster's extent about its centre: distance (m) and yaw (deg).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub cluster_radius: [f64; 2],
     /// With `--initial-pose`: the standard deviations of the initial particles about it
     /// (m, deg).
@@ -54,11 +62,15 @@ pub struct LikelihoodOptions {
     pub sigma_hit_m: f64,
     /// The same while the filter has not converged (m): broad, so that particles near but
     /// not at the true pose still stand out during global localisation and recovery.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub global_sigma_hit_m: f64,
     /// While the filter has not converged (or holds random particles just injected), the
     /// likelihood is tempered so that this share of the particles stays effective after
     /// weighing: the evidence of several updates decides between candidate places, not one
     /// scan's noise.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub global_neff_share: f64,
     /// Weight of the hit model; the rest is a uniform floor over the range, which keeps
     /// returns off the map (people, furniture moved) from vetoing a pose.
@@ -81,10 +93,14 @@ pub struct RecoveryOptions {
     /// ratio of 1 injects at every dip of the fit (a crowd, a fast turn), and a random
     /// particle that happens to fit a sharp likelihood better than a briefly disturbed
     /// cluster wins the estimate.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub fit_ratio: f64,
     /// Half of the random particles are drawn about the last converged estimate that fitted
     /// well, with this standard deviation (m) plus the odometry's travel since, and any
     /// heading; the other half over the whole free space.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub local_sigma_m: f64,
 }
 

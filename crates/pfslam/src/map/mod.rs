@@ -111,6 +111,8 @@ pub struct MapOptions {
     /// update from that ray. Rays that graze a wall cross the wall's cells just before their
     /// end point; without a margin they erase the wall behind the vehicle between passes, so
     /// only the latest scan's hit spots stay occupied (0 = the seeds).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub free_margin_m: f64,
     /// Height-aware insertion for tilted mounts (`[map.height]`).
     pub height: HeightOptions,
@@ -135,6 +137,8 @@ pub struct HeightOptions {
     pub enabled: bool,
     /// Number of height bins per cell (2-16). Storage is 16 bytes per visited cell whatever
     /// the count (one fixed column per cell; see `pfslam::map::grid`).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub bins: usize,
     /// Lower edge of the binned window (m, world z): the bins split `[z_min_m, z_max_m)`
     /// evenly; the first also takes everything below, the last everything above. Default
@@ -148,6 +152,8 @@ pub struct HeightOptions {
     /// Default 0.7 = one net hit: a bin sees only the beams at its height, so its evidence is
     /// sparse (a parked car's roof is hit by one or two scans of the dipping edge beams) and
     /// no longer diluted by passes at other heights.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub occupied_prob: Option<f64>,
 }
 

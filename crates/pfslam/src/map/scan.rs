@@ -70,8 +70,12 @@ pub struct ScanOptions {
     /// every `densify_step_m`: a wall sampled by beams a few decimetres apart becomes a line,
     /// in the map and in scan matching, so matching has no ripple that favours repeating the
     /// previous scan's beam pattern. 0 = off (the seeds).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub densify_max_gap_m: Option<f64>,
     /// Spacing of the joining returns (m).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub densify_step_m: f64,
     /// How the joining returns are inserted: end cells only in maps built along known poses
     /// (`pfslam map`, the rebuild along the back end's trajectory: a joining return is not a
@@ -84,6 +88,8 @@ pub struct ScanOptions {
     /// frame); a large value = the whole ray (the seeds). The car's forward beams rise 37 deg: past
     /// a few metres they fly over parked vans and low buildings, and clearing their whole
     /// ray would erase those obstacles from the 2-D map.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub free_z_max_m: Option<f64>,
 }
 
@@ -529,7 +535,7 @@ mod tests {
     #[test]
     fn joining_points_are_end_cells_in_maps_and_whole_rays_in_the_filters_map() {
         assert_eq!(ScanOptions::default().densify_rays, DensifyRays::HitOnly);
-        let o: ScanOptions = toml::from_str("densify_step_m = 0.2").unwrap();
+        let o: ScanOptions = toml::from_str("ground_clearance_m = 0.2").unwrap();
         assert_eq!(o.densify_rays, DensifyRays::HitOnly);
         assert_eq!(o.for_filter().densify_rays, DensifyRays::Full);
         assert!(toml::from_str::<ScanOptions>("densify_rays = \"full\"").is_err());

@@ -26,9 +26,13 @@ pub struct CalibrationOptions {
     /// Fit the yaw-rate bias too (false: scale only, `b = 0`).
     pub fit_yaw_rate_bias: bool,
     /// The motions are compared over increments of at least this much odometry travel (m).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub increment_m: f64,
     /// A fitted scale farther than this from 1 is refused (the odometry or the reference is
     /// broken; relative, e.g. 0.1 = +-10 %).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub max_scale_error: f64,
 }
 

@@ -77,19 +77,29 @@ pub struct SimOptions {
     /// Length of the recording (s). The real car recording is ~1160 s.
     pub duration_s: f64,
     /// Time of the first sample (ns since the epoch).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub start_stamp_ns: i64,
     /// Cell size of the true map (m).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub truth_map_resolution_m: f64,
     /// Lower end of the height band whose obstacles the car's true map shows (m); the
     /// humanoid's band is in [`HumanoidSimOptions`]. The default 1.7 m is just below the
     /// car's LiDAR (1.76 m): its beams run level sideways and rise forwards, so obstacles
     /// lower than the LiDAR (parked cars) are never hit, only overflown (the two edge beams
     /// that dip 3 deg reach the ground ~33 m to the sides).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub truth_band_min_m: f64,
     /// Upper end of that band (m).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub truth_band_max_m: f64,
     /// The car's scan-surface truth (`[sim.scan_truth]`, rule in [`scan_truth`]): written as
     /// `true_map.*` and `true_map_visible.*`; the fixed-band map above is `true_map_band.*`.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub scan_truth: ScanTruthOptions,
     /// The car (`[sim.car]`).
     pub car: CarSimOptions,
@@ -168,16 +178,26 @@ pub struct CarSimOptions {
     /// LiDAR rate (Hz); the real one is ~100 Hz.
     pub lidar_rate_hz: f64,
     /// Seconds standing still before driving off.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub initial_standstill_s: f64,
     /// Cruise speed (m/s); it varies +-10 % along the route.
     pub cruise_speed_mps: f64,
     /// Longitudinal acceleration limit (m/s^2).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub max_accel_mps2: f64,
     /// Braking limit (m/s^2).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub max_decel_mps2: f64,
     /// Lateral acceleration limit in corners (m/s^2).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub max_lateral_accel_mps2: f64,
     /// Corner radius of the rounded route (m).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub corner_radius_m: f64,
     /// Stereo pair rate (Hz; 0 = no stereo images). Pairs are ray-cast renderings of the
     /// world (textured ground, coloured obstacles) through the real rig
@@ -385,18 +405,32 @@ pub struct HumanoidSimOptions {
     /// Walking speed (m/s).
     pub walk_speed_mps: f64,
     /// Acceleration limit (m/s^2).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub max_accel_mps2: f64,
     /// Lateral acceleration limit in turns (m/s^2).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub max_lateral_accel_mps2: f64,
     /// Corner radius of the rounded route (m).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub corner_radius_m: f64,
     /// Gait sway amplitude in roll and pitch of the body (rad).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub sway_amplitude_rad: f64,
     /// Step frequency (Hz) of the sway.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub step_frequency_hz: f64,
     /// Lower end of the height band of the humanoid's true map (m).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub truth_band_min_m: f64,
     /// Upper end of that band (m).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub truth_band_max_m: f64,
     /// The head's motion on the neck, which carries the LiDAR.
     pub head: HumanoidSimHead,
@@ -412,12 +446,18 @@ pub struct HumanoidSimHead {
     /// Neck yaw amplitude (rad): the head looks left and right sinusoidally.
     pub neck_yaw_amplitude_rad: f64,
     /// Neck yaw period (s).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub neck_yaw_period_s: f64,
     /// Head pitch varies sinusoidally between this (rad, positive = down) ...
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub pitch_min_rad: f64,
     /// ... and this (rad): far enough down that some beams hit the floor.
     pub pitch_max_rad: f64,
     /// Head pitch period (s).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub pitch_period_s: f64,
 }
 

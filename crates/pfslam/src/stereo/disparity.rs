@@ -27,18 +27,28 @@ pub struct MatcherOptions {
     /// Number of disparities searched: `0 ..= num_disparities - 1` px.
     pub num_disparities: usize,
     /// Half-size of the square aggregation window (px): the window is `2 r + 1` wide.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub window_radius: usize,
     /// Reject a match whose best cost is not at least this fraction below the best cost at a
     /// disparity more than 1 px away (0 disables).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub uniqueness_ratio: f32,
     /// Largest allowed difference (px) between the left and the right disparity of a match.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub lr_max_diff_px: u16,
     /// Cost aggregation: the window alone, or semi-global matching over the window's costs.
     pub aggregation: Aggregation,
     /// SGM penalty for a 1 px disparity change between neighbours, in cost units of the
     /// window (the defaults were tuned with `window_radius = 2`).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub sgm_p1: u16,
     /// SGM penalty for a larger disparity change.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub sgm_p2: u16,
 }
 

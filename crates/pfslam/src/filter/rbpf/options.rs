@@ -25,6 +25,8 @@ pub struct RbpfOptions {
     pub range_min_m: f64,
     /// Keep `[map.scan]`'s densification of walls (joining returns); off matches and maps
     /// the real beams only.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub densify: bool,
     /// Divisor of the match log-likelihood in the log-weight update (GMapping: `ogain` times
     /// the particle count).
@@ -65,10 +67,16 @@ pub struct RbpfLikelihood {
     /// occupied cell centre scores `-d^2 / (2 sigma^2)` (m).
     pub sigma_m: f64,
     /// Occupied cells are looked for within this many cells of a point (Chebyshev).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub kernel_cells: u32,
     /// Log-likelihood of a point with no occupied cell within the kernel (a floor; negative).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub no_hit_log_likelihood: f64,
     /// A cell counts as occupied for matching above this log-odds (0 = p > 0.5, one hit).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub occupied_logodds: f64,
 }
 
@@ -79,8 +87,12 @@ pub struct RbpfLikelihood {
 #[serde(default, deny_unknown_fields)]
 pub struct RbpfSearch {
     /// Half-width of the coarse yaw search around each particle's sampled pose (deg).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub coarse_yaw_deg: f64,
     /// Step of the coarse yaw search (deg).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub coarse_yaw_step_deg: f64,
     /// Initial x/y step of the hill climb (m; GMapping `lstep`).
     pub step_xy_m: f64,
@@ -92,14 +104,22 @@ pub struct RbpfSearch {
     /// deviation from each particle's noise-free predicted pose (decision 0005) with the
     /// motion model's sigmas (`odometry_noise`) for the update: it keeps matches from
     /// sliding along corridors.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub prior_min_xy_m: f64,
     /// Smallest yaw sigma of that prior (deg).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub prior_min_yaw_deg: f64,
     /// x/y sigma of the sample around the match (m): each particle is matched from its
     /// noise-free prediction, then sampled around its match
     /// (`docs/decisions/0005-proposal-from-prediction.md`).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub jitter_xy_m: f64,
     /// Yaw sigma of the sample around the match (deg).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub jitter_yaw_deg: f64,
 }
 
@@ -111,8 +131,12 @@ pub struct RbpfFinalRefine {
     /// (hill climb from the path's pose): corrects the odometry composed between updates.
     pub enabled: bool,
     /// x/y sigma of that re-match's prior around the path's pose (m).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub sigma_xy_m: f64,
     /// Yaw sigma of that re-match's prior (deg).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub sigma_yaw_deg: f64,
 }
 

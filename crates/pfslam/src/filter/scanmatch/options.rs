@@ -19,31 +19,47 @@ pub struct ScanMatchOptions {
     /// yaw (`docs/decisions/0019-scan-match-refinement.md`).
     pub yaw_search_deg: f64,
     /// Step of the coarse yaw search (deg).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub yaw_step_deg: f64,
     /// Standard deviation of the prior on the x/y deviation from the predicted pose (m).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub prior_sigma_xy_m: f64,
     /// Standard deviation of the prior on the yaw deviation from the predicted pose (deg).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub prior_sigma_yaw_deg: f64,
     /// Field value (0..1) of never-observed cells: a point that lands there neither fits nor
     /// contradicts the map. Matters at the frontier: the far end of a wall seen by the
     /// previous scan ends just short of this scan's, and scoring the unknown beyond it as
     /// empty would pull every match back along the street.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub unknown_value: f64,
     /// Log-likelihood of one scan point lying exactly on an occupied cell (field value 1).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub point_gain: f64,
     /// Divisor of the match objective in the log-weight update.
     pub weight_temperature: f64,
     /// Resample when Neff < this fraction of the particle count (selective resampling).
     pub resample_threshold: f64,
     /// Halvings of the step in the sub-cell refinement (0 = coarse search only).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub refine_levels: u32,
     /// Particles are sampled around their match with this standard deviation in x and y
     /// (m); the prediction itself composes the odometry without noise (the match is the
     /// proposal). Small: each change of best particle is a jump of this order, which the
     /// car's odometry calibration reads as travel
     /// (`docs/decisions/0022-car-back-end-on-calibrated-odometry.md`).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub proposal_sigma_xy_m: f64,
     /// Standard deviation of the yaw sampled around the match (deg).
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
     pub proposal_sigma_yaw_deg: f64,
 }
 
