@@ -3,9 +3,8 @@
 //! Arguments are parsed by clap and validated into a configuration before any work starts.
 //! Exit codes: 0 success, 2 any error (bad input, bad arguments, failed output).
 
-mod cmd;
-
 use clap::{Parser, Subcommand};
+use pfslam_cli::cmd;
 use std::process::ExitCode;
 
 /// Particle-filter SLAM for 2-D LiDAR: dead reckoning, occupancy mapping, SLAM, evaluation.
@@ -37,8 +36,6 @@ pub enum Command {
     Map(cmd::map::Args),
     /// Simulate the car (or the humanoid) in a world: dataset + ground truth.
     Simulate(cmd::simulate::Args),
-    /// Reproduce an experiment table (`seeds`: particles x Table 1 noise on the simulator).
-    Experiment(cmd::experiment::Args),
     /// Particle-filter SLAM on a dataset: trajectory, maps, summary.
     Run(cmd::run::Args),
     /// Monte Carlo localisation in a saved map (map_server pgm + yaml from any tool):
@@ -46,9 +43,6 @@ pub enum Command {
     Localize(cmd::localize::Args),
     /// SLAM on every Freiburg recording with relations: one accuracy table.
     Benchmark(cmd::benchmark::Args),
-    /// End-to-end speed: simulate the full-size car recording once, then time read -> SLAM
-    /// -> write maps (median of N runs, CPU time, peak memory).
-    BenchE2e(cmd::bench_e2e::Args),
     /// Colour the ground from the car's stereo pairs along a trajectory: texture.png/.npy.
     Texture(cmd::texture::Args),
     /// Print the full default configuration as TOML.
@@ -59,7 +53,7 @@ pub enum Command {
 
 /// Runs the CLI on already-parsed arguments.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
-    init_logging(&cli.log);
+    pfslam_cli::init_logging(&cli.log);
     match cli.command {
         None => cmd::demo::run(cmd::demo::Args::default()),
         Some(Command::Demo(a)) => cmd::demo::run(a),
@@ -69,35 +63,16 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::PrintConfig(a)) => cmd::print_config::run(a),
         Some(Command::Run(a)) => cmd::run::run(a),
         Some(Command::Localize(a)) => cmd::localize::run(a),
-        Some(Command::Experiment(a)) => cmd::experiment::run(a),
         Some(Command::Eval(a)) => cmd::eval::run(a),
         Some(Command::Simulate(a)) => cmd::simulate::run(a),
         Some(Command::Map(a)) => cmd::map::run(a),
         Some(Command::Texture(a)) => cmd::texture::run(a),
         Some(Command::Benchmark(a)) => cmd::benchmark::run(a),
-        Some(Command::BenchE2e(a)) => cmd::bench_e2e::run(a),
     }
-}
-
-fn init_logging(level: &str) {
-    let filter = tracing_subscriber::EnvFilter::try_new(level)
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .with_target(false)
-        .try_init();
 }
 
 fn main() -> ExitCode {
     cmd::interrupt::install();
     let cli = Cli::parse();
-    match run(cli) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e:#}");
-            ExitCode::from(2)
-        }
-    }
+    pfslam_cli::exit_code(run(cli))
 }

@@ -8,6 +8,11 @@ fn pfslam() -> Command {
     Command::new(env!("CARGO_BIN_EXE_pfslam"))
 }
 
+/// The developers' tool (`bench-e2e`, `experiment`).
+fn pfslam_dev() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_pfslam-dev"))
+}
+
 /// Asserts that a run succeeded, showing its stderr otherwise.
 fn assert_ok(out: &std::process::Output) {
     assert!(

@@ -1,7 +1,7 @@
-//! `pfslam bench-e2e` end to end on a short drive: it simulates, runs twice, reports medians
+//! `pfslam-dev bench-e2e` end to end on a short drive: it simulates, runs twice, reports medians
 //! and the same trajectory as `pfslam run` (no timing is asserted).
 
-use super::{pfslam, run_ok};
+use super::{pfslam, pfslam_dev, run_ok};
 
 #[test]
 fn bench_e2e_times_a_short_drive_and_matches_run() {
@@ -9,7 +9,7 @@ fn bench_e2e_times_a_short_drive_and_matches_run() {
     let work = dir.path().join("work");
     let json = dir.path().join("bench.json");
     let out = run_ok(
-        pfslam()
+        pfslam_dev()
             .args([
                 "--log",
                 "warn",
@@ -49,4 +49,14 @@ fn bench_e2e_times_a_short_drive_and_matches_run() {
     );
     assert_eq!(a, std::fs::read(run_out.join("trajectory.tum")).unwrap());
     assert!(work.join("out_0/map.png").is_file() && work.join("out_0/map.yaml").is_file());
+}
+
+#[test]
+fn developer_commands_are_not_in_the_users_tool() {
+    for cmd in ["bench-e2e", "experiment"] {
+        let out = pfslam().arg(cmd).output().unwrap();
+        assert_eq!(out.status.code(), Some(2), "{cmd}");
+        let out = pfslam_dev().args([cmd, "--help"]).output().unwrap();
+        assert!(out.status.success(), "{cmd}");
+    }
 }
