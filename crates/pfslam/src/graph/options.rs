@@ -509,8 +509,8 @@ impl Default for ScanRefineOptions {
     fn default() -> Self {
         ScanRefineOptions {
             scans: Switch::Auto,
-            window_m: 0.05,
-            window_deg: 1.0,
+            window_m: 0.1,
+            window_deg: 2.0,
         }
     }
 }
