@@ -104,7 +104,7 @@ fn a_session_starts_where_the_last_one_ended() {
 }
 
 /// The Intel bag's first half driven again as a second session: at most 1.3x the keyframes
-/// of one pass (measured 726 -> 731), and the second pass, in the known map, no worse.
+/// of one pass (measured 726 -> 732), and the second pass, in the known map, no worse.
 #[test]
 fn a_place_driven_twice_keeps_the_map_of_one_pass() {
     let Some(dir) = bag("session_twice_intel", "intel") else {
