@@ -1,7 +1,7 @@
 //! Stamps of real recordings: which to trust, how to repair the others, how to sort.
 //!
 //! Real logs carry zero, repeated, rounded and wild stamps while their file order is the order
-//! of events. [`repair_in_file_order`] keeps the longest run of plausible stamps that increase
+//! of events. `repair_in_file_order` keeps the longest run of plausible stamps that increase
 //! in file order (when it holds at least half of them) and places every other record between
 //! its trusted neighbours, so no record is lost and the order of the file is kept.
 
