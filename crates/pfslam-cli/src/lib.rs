@@ -3,6 +3,14 @@
 
 pub mod cmd;
 
+/// The options both binaries take before or after their subcommand.
+#[derive(Debug, clap::Args)]
+pub struct GlobalArgs {
+    /// Log verbosity (error, warn, info, debug, trace).
+    #[arg(long, global = true, default_value = "info")]
+    pub log: String,
+}
+
 /// Logs to standard error at `level` (`info` when it does not parse).
 pub fn init_logging(level: &str) {
     let filter = tracing_subscriber::EnvFilter::try_new(level)

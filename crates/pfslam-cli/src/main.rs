@@ -14,9 +14,9 @@ pub struct Cli {
     /// What to do; with no subcommand, runs the built-in demo on the simulator.
     #[command(subcommand)]
     pub command: Option<Command>,
-    /// Log verbosity (error, warn, info, debug, trace).
-    #[arg(long, global = true, default_value = "info")]
-    pub log: String,
+    /// Options of every command.
+    #[command(flatten)]
+    pub global: pfslam_cli::GlobalArgs,
 }
 
 /// The subcommands.
@@ -53,7 +53,7 @@ pub enum Command {
 
 /// Runs the CLI on already-parsed arguments.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
-    pfslam_cli::init_logging(&cli.log);
+    pfslam_cli::init_logging(&cli.global.log);
     match cli.command {
         None => cmd::demo::run(cmd::demo::Args::default()),
         Some(Command::Demo(a)) => cmd::demo::run(a),

@@ -14,9 +14,9 @@ pub struct Cli {
     /// What to measure.
     #[command(subcommand)]
     pub command: Command,
-    /// Log verbosity (error, warn, info, debug, trace).
-    #[arg(long, global = true, default_value = "info")]
-    pub log: String,
+    /// Options of every command.
+    #[command(flatten)]
+    pub global: pfslam_cli::GlobalArgs,
 }
 
 /// The subcommands.
@@ -32,7 +32,7 @@ pub enum Command {
 fn main() -> ExitCode {
     cmd::interrupt::install();
     let cli = Cli::parse();
-    pfslam_cli::init_logging(&cli.log);
+    pfslam_cli::init_logging(&cli.global.log);
     pfslam_cli::exit_code(match cli.command {
         Command::BenchE2e(a) => cmd::bench_e2e::run(a),
         Command::Experiment(a) => cmd::experiment::run(a),
