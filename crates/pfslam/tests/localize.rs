@@ -179,17 +179,14 @@ fn recovers_when_the_odometry_jumps_by_metres() {
     }
 }
 
-/// MIT-CSAIL in the map of its own seed-1 SLAM run, against that run's trajectory: from the
-/// true start within 0.05 m (measured 0.036-0.037 m, seeds 1-3), and without a start pose
-/// converged within a minute and then within 0.10 m (13 s, then 0.037-0.040 m).
-#[test]
-fn a_freiburg_bag_is_localised_in_its_own_slam_map() {
-    let Some(data) = crate::common::data_dir("a_freiburg_bag_is_localised_in_its_own_slam_map")
-    else {
-        return;
-    };
+/// A Freiburg bag localised (seed 1) in the map of its own seed-1 SLAM run, against that
+/// run's trajectory: from the true start within 0.05 m; with `global`, also without a start
+/// pose, converged for good (the filter may first settle on a look-alike place and leave it
+/// again) within a minute and then within 0.10 m.
+fn localised_in_its_own_slam_map(test: &str, name: &str, global: bool) -> Option<LocalizeResult> {
+    let data = crate::common::data_dir(test)?;
     let config = Config::default();
-    let path = data.join("freiburg/mit-csail/mit-csail.bag");
+    let path = data.join(format!("freiburg/{name}/{name}.bag"));
     let rec = pfslam_io::recording::read_recording(&path, &config.input).unwrap();
     let options = pfslam::pipeline::PipelineOptions::default();
     let slam = pfslam::pipeline::run_pipeline(&rec, &config, 1, &options, &mut |_| {}).unwrap();
@@ -198,11 +195,49 @@ fn a_freiburg_bag_is_localised_in_its_own_slam_map() {
     let start = reference.poses[0].pose;
     let tracked = run(&rec, &map, Some(start), 1);
     let e = rms(&errors_m(&tracked, &reference, i64::MIN));
-    assert!(e < 0.05, "from the start pose: {e} m");
-    let global = run(&rec, &map, None, 1);
-    let from = global.first_converged_ns().expect("never converged");
-    let after_s = (from - global.trajectory[0].stamp_ns) as f64 * 1e-9;
-    assert!(after_s <= 60.0, "converged after {after_s} s");
-    let e = rms(&errors_m(&global, &reference, from));
-    assert!(e < 0.10, "{e} m after converging at {after_s} s");
+    assert!(e < 0.05, "{name} from the start pose: {e} m");
+    if global {
+        let found = run(&rec, &map, None, 1);
+        let from = found.converged_from_ns().expect("not converged at the end");
+        let after_s = (from - found.trajectory[0].stamp_ns) as f64 * 1e-9;
+        assert!(after_s <= 60.0, "{name} converged after {after_s} s");
+        let e = rms(&errors_m(&found, &reference, from));
+        assert!(e < 0.10, "{name}: {e} m after converging at {after_s} s");
+    }
+    Some(tracked)
+}
+
+/// MIT-CSAIL: measured 0.035 m from the start pose (seeds 1-3); globally converged after
+/// 13 s, then 0.037-0.040 m.
+#[test]
+fn mit_csail_is_localised_in_its_own_slam_map() {
+    localised_in_its_own_slam_map(
+        "mit_csail_is_localised_in_its_own_slam_map",
+        "mit-csail",
+        true,
+    );
+}
+
+/// ACES: measured 0.047 m from the start pose (seeds 1-3); globally converged for good
+/// after 20-42 s, then 0.048-0.053 m (seed 1 first settles 23 m off at 20 s, in a corridor
+/// that looks alike, and leaves it for the right place at 41 s).
+#[test]
+fn aces_is_localised_in_its_own_slam_map() {
+    localised_in_its_own_slam_map("aces_is_localised_in_its_own_slam_map", "aces", true);
+}
+
+/// Intel, whose bag holds scans delivered again seconds later under a new stamp: they are
+/// left out (about a hundred), and the rest tracks within 0.05 m (measured 0.046 m, seeds
+/// 1-3). Global localisation is not asserted here: its convergence takes 59 s to half an
+/// hour depending on the seed.
+#[test]
+fn intel_with_stale_scans_is_localised_in_its_own_slam_map() {
+    let test = "intel_with_stale_scans_is_localised_in_its_own_slam_map";
+    if let Some(tracked) = localised_in_its_own_slam_map(test, "intel", false) {
+        assert!(
+            (50..500).contains(&tracked.scans_stale),
+            "stale scans: {}",
+            tracked.scans_stale
+        );
+    }
 }

@@ -163,6 +163,7 @@ fn summary(
         "scans": traj.len(),
         "scans_outside_odometry": result.scans_outside_odometry,
         "scans_without_returns": result.scans_without_returns,
+        "scans_stale": result.scans_stale,
         "updates": result.updates.len(),
         "first_converged_at_s": result.first_converged_ns().map(|t| since_start_s(traj, t)),
         "converged_at_s": result.converged_from_ns().map(|t| since_start_s(traj, t)),
@@ -200,4 +201,14 @@ fn report(name: &str, result: &LocalizeResult, summary: &serde_json::Value, loca
         summary["realtime_factor"].as_f64().unwrap_or(0.0),
         100.0 * result.off_wall_share
     );
+    let skipped = [
+        (
+            result.scans_stale,
+            "stale (repeating a scan of the last seconds)",
+        ),
+        (result.scans_outside_odometry, "outside the odometry's span"),
+    ];
+    for (count, why) in skipped.into_iter().filter(|s| s.0 > 0) {
+        say!("{count} scans left out: {why}");
+    }
 }

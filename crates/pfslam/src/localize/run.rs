@@ -11,6 +11,7 @@ use crate::geometry::{Pose2, StampedPose2, wrap_angle};
 use crate::map::{BinaryMap, PlanarScan, ScanOptions, ScanProjector};
 use crate::motion::odometry_model::{OdometryModel, OdometryModelOptions};
 use crate::sensors::Recording;
+use crate::sensors::stale::StaleScans;
 use serde::Serialize;
 
 /// One filter update.
@@ -46,6 +47,8 @@ pub struct LocalizeResult {
     pub scans_outside_odometry: usize,
     /// Scans without a return after preprocessing (pose carried by the odometry).
     pub scans_without_returns: usize,
+    /// Stale scans left out (no pose; [`crate::sensors::stale`]).
+    pub scans_stale: usize,
     /// Share of the returns at the update poses farther than three `sigma_hit_m` from the
     /// nearest occupied cell: returns the map does not explain (a wrong pose, or things not
     /// in the map). Unlike the share in free cells, it does not count the returns a
@@ -122,6 +125,7 @@ pub fn localize(
     )?;
     let mut state = State::new(options, &free, initial_pose, seed);
     let mut out = Outputs::default();
+    let mut stale = StaleScans::default();
     let mut io = ScanIo {
         projector,
         body: PlanarScan::default(),
@@ -133,6 +137,10 @@ pub fn localize(
             out.scans_outside_odometry += 1;
             continue;
         };
+        if stale.check(stamp_ns, scans.ranges(i), recording.lidar_at(i), &odom) {
+            out.scans_stale += 1;
+            continue;
+        }
         let update = state.wants_update(&odom);
         if update {
             io.projector.aim(recording, i);
@@ -215,6 +223,7 @@ struct Outputs {
     updates: Vec<UpdateRecord>,
     scans_outside_odometry: usize,
     scans_without_returns: usize,
+    scans_stale: usize,
     returns: usize,
     returns_off_wall: usize,
 }
@@ -246,6 +255,7 @@ impl Outputs {
             updates: self.updates,
             scans_outside_odometry: self.scans_outside_odometry,
             scans_without_returns: self.scans_without_returns,
+            scans_stale: self.scans_stale,
             off_wall_share: self.returns_off_wall as f64 / self.returns.max(1) as f64,
         }
     }

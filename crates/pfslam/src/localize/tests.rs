@@ -138,8 +138,9 @@ fn errors_m(result: &LocalizeResult, truth: &[StampedPose2]) -> Vec<(i64, f64)> 
     result
         .trajectory
         .iter()
-        .zip(truth)
-        .map(|(e, t)| {
+        .map(|e| {
+            let k = truth.partition_point(|t| t.stamp_ns < e.stamp_ns);
+            let t = &truth[k];
             assert_eq!(e.stamp_ns, t.stamp_ns);
             (
                 e.stamp_ns,
@@ -161,7 +162,10 @@ fn tracks_from_the_given_start_despite_drifting_odometry() {
     let start = truth[0].pose;
     let opts = LocalizeOptions::default();
     let r = localize(&rec, &map, &opts, &ScanOptions::default(), Some(start), 1).unwrap();
-    assert_eq!(r.trajectory.len(), truth.len());
+    // The path crosses two walls: the scans from inside a wall (every beam ends at once)
+    // are alike there and then, so the second crossing's are stale and have no pose.
+    assert_eq!(r.trajectory.len() + r.scans_stale, truth.len());
+    assert!(r.scans_stale <= 2, "{} stale scans", r.scans_stale);
     let e = errors_m(&r, &truth);
     let rmse = rms(e.iter().map(|x| x.1));
     let worst = e.iter().map(|x| x.1).fold(0.0, f64::max);

@@ -10,6 +10,7 @@
 
 pub mod humanoid;
 pub mod reader_options;
+pub mod stale;
 pub mod sync;
 
 use crate::geometry::{Rigid3, StampedPose2, Trajectory};
