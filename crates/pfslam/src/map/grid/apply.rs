@@ -1,6 +1,7 @@
 //! Applying a traced scan: the per-tile runs of marks merged into the log-odds and bins.
 
 use super::*;
+use crate::kernels::heights::BinUpdater;
 
 /// Counts of what one insertion did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
