@@ -11,13 +11,13 @@
 //! (docs/decisions/0011-vector-kernels-with-portable-twins.md).
 //!
 //! The families:
-//! - [`likelihood`] and [`nearest`]: the `rbpf` observation model (a scan's log-likelihood
+//! - `likelihood` and `nearest`: the `rbpf` observation model (a scan's log-likelihood
 //!   in a particle's grid, the 3x3 nearest occupied cell);
-//! - [`coarse`]: the scan-matching coarse search (window indices, block sums);
-//! - [`rotation`] and [`rotation_f32`]: the scan-matching refinement's field sums;
-//! - [`cell_sum`] and [`field_score`]: the back end's point field (exact cell sums, the
+//! - `coarse`: the scan-matching coarse search (window indices, block sums);
+//! - `rotation` and `rotation_f32`: the scan-matching refinement's field sums;
+//! - `cell_sum` and `field_score`: the back end's point field (exact cell sums, the
 //!   interpolated score);
-//! - [`heights`] and [`mask`]: the grid's height bins and ray walk.
+//! - `heights` and `mask`: the grid's height bins and ray walk.
 
 use std::sync::OnceLock;
 

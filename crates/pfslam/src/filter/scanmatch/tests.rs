@@ -441,61 +441,59 @@ fn vector_kernels_equal_the_portable_ones_bit_for_bit() {
         eprintln!("SKIP: no AVX2 on this CPU");
         return;
     }
-    {
-        let (field, _) = room_field(0.0);
-        let limits = field.limits.unwrap();
-        assert!(field.vector_ok());
-        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(11);
-        let mut rot = Rotation::default();
-        let (mut want, mut got) = (Vec::new(), Vec::new());
-        for case in 0..300 {
-            let n = if case % 10 == 0 {
-                700
-            } else {
-                rng.random_range(0..40)
+    let (field, _) = room_field(0.0);
+    let limits = field.limits.unwrap();
+    assert!(field.vector_ok());
+    let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(11);
+    let mut rot = Rotation::default();
+    let (mut want, mut got) = (Vec::new(), Vec::new());
+    for case in 0..300 {
+        let n = if case % 10 == 0 {
+            700
+        } else {
+            rng.random_range(0..40)
+        };
+        let pts = kernel_points(&mut rng, n);
+        let pose = Pose2::new(
+            rng.random_range(-0.5..0.5),
+            rng.random_range(-0.5..0.5),
+            rng.random_range(-0.3..0.3),
+        );
+        let (s, c) = pose.yaw_rad.sin_cos();
+        rot.fill(&pts, s, c);
+        let portable = rot.sum_portable(&field, &limits, pose.x_m, pose.y_m);
+        let [vector] = Rotation::sums([&rot], [[pose.x_m, pose.y_m]], &field, &limits);
+        assert_eq!(vector.to_bits(), portable.to_bits(), "case {case}");
+        let r = rng.random_range(0..5);
+        want.clear();
+        let coarse = CoarseYaw {
+            field: &field,
+            limits: &limits,
+            predicted: &pose,
+            sin_cos: (s, c),
+            r,
+        };
+        coarse.bases_portable(&pts, &mut want);
+        coarse.bases(&pts, &mut got);
+        assert_eq!(got, want, "case {case}");
+        let w = field.w;
+        macro_rules! sums {
+            ($side:literal) => {
+                if 2 * r + 1 == $side {
+                    let mut plain = vec![0u32; $side * $side];
+                    let mut swar = plain.clone();
+                    let mut vector = plain.clone();
+                    coarse_sums::<$side>(&field.values, w, &want, &mut plain);
+                    coarse_sums_swar::<$side>(&field.values, w, &want, &mut swar);
+                    coarse_sums_fast::<$side>(&field.values, w, &want, &mut vector);
+                    assert_eq!(swar, plain, "case {case}");
+                    assert_eq!(vector, plain, "case {case}");
+                }
             };
-            let pts = kernel_points(&mut rng, n);
-            let pose = Pose2::new(
-                rng.random_range(-0.5..0.5),
-                rng.random_range(-0.5..0.5),
-                rng.random_range(-0.3..0.3),
-            );
-            let (s, c) = pose.yaw_rad.sin_cos();
-            rot.fill(&pts, s, c);
-            let portable = rot.sum_portable(&field, &limits, pose.x_m, pose.y_m);
-            let [vector] = Rotation::sums([&rot], [[pose.x_m, pose.y_m]], &field, &limits);
-            assert_eq!(vector.to_bits(), portable.to_bits(), "case {case}");
-            let r = rng.random_range(0..5);
-            want.clear();
-            let coarse = CoarseYaw {
-                field: &field,
-                limits: &limits,
-                predicted: &pose,
-                sin_cos: (s, c),
-                r,
-            };
-            coarse.bases_portable(&pts, &mut want);
-            coarse.bases(&pts, &mut got);
-            assert_eq!(got, want, "case {case}");
-            let w = field.w;
-            macro_rules! sums {
-                ($side:literal) => {
-                    if 2 * r + 1 == $side {
-                        let mut plain = vec![0u32; $side * $side];
-                        let mut swar = plain.clone();
-                        let mut vector = plain.clone();
-                        coarse_sums::<$side>(&field.values, w, &want, &mut plain);
-                        coarse_sums_swar::<$side>(&field.values, w, &want, &mut swar);
-                        coarse_sums_fast::<$side>(&field.values, w, &want, &mut vector);
-                        assert_eq!(swar, plain, "case {case}");
-                        assert_eq!(vector, plain, "case {case}");
-                    }
-                };
-            }
-            sums!(3);
-            sums!(5);
-            sums!(7);
         }
+        sums!(3);
+        sums!(5);
+        sums!(7);
     }
 }
 

@@ -3,7 +3,7 @@
 use super::CoarseYaw;
 use crate::filter::scanmatch::LANES;
 
-/// [`coarse_sums`] for sides up to 8 in AVX2: each row of the block is one 8-byte load
+/// [`super::coarse_sums`] for sides up to 8 in AVX2: each row of the block is one 8-byte load
 /// widened to eight u16 lanes and added to that row's accumulator (u16 lanes cannot
 /// overflow within blocks of 257 points; lanes beyond `S` are ignored). Integer sums: the
 /// same values as the other kernels.

@@ -39,7 +39,7 @@ pub fn portable<const K: usize>(
     })
 }
 
-/// The body of [`scores_rotated`], with `lanes` the interpolation of four points.
+/// The body of [`scores`] and [`portable`], with `lanes` the interpolation of four points.
 #[inline(always)]
 pub(super) fn scores_with<const K: usize>(
     field: &PointField,

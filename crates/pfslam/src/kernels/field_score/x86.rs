@@ -5,7 +5,7 @@ use crate::filter::scanmatch::LANES;
 use crate::geometry::Pose2;
 use crate::graph::matcher::PointField;
 
-/// [`scores_rotated`] with the four lanes' interpolation in AVX2
+/// [`super::scores`] with the four lanes' interpolation in AVX2
 /// ([`bilinear_lanes_avx2`]); the same bits.
 #[target_feature(enable = "avx2")]
 pub(super) fn scores_avx2<const K: usize>(
@@ -20,7 +20,7 @@ pub(super) fn scores_avx2<const K: usize>(
     })
 }
 
-/// [`bilinear_lanes`] in AVX2: the floors and fractions in vector registers, the
+/// [`super::bilinear_lanes`] in AVX2: the floors and fractions in vector registers, the
 /// two corner pairs of each point gathered (one 8-byte load per row) where its 2x2 block
 /// lies inside the field, the mix lane by lane in the scalar order (no fused
 /// multiply-add): the same bits. Points near or beyond the edges take

@@ -34,7 +34,7 @@ pub(super) fn fill_bits_sse2(layer: &HeightLayer, z0: f32, dz: f32, out: &mut [u
     whole
 }
 
-/// [`BinUpdater::run`] with AVX-512 (one function: the per-cell update inlines).
+/// [`super::BinUpdater::run`] with AVX-512 (one function: the per-cell update inlines).
 #[target_feature(enable = "avx512bw,avx512vl")]
 pub(super) fn update_bin_run_avx512(
     bins: &mut [[i8; MAX_BINS]],
@@ -50,7 +50,7 @@ pub(super) fn update_bin_run_avx512(
     }
 }
 
-/// [`update_bins`] as one 16-lane vector operation (see [`BinUpdater`]).
+/// [`super::update_bins`] as one 16-lane vector operation (see [`super::BinUpdater`]).
 // `update_bins_avx512` loads and stores a column as one 16-byte vector.
 const _: () = assert!(MAX_BINS == 16);
 
@@ -72,7 +72,7 @@ pub(super) fn update_bins_avx512(bins: &mut [i8; MAX_BINS], marks: u32, model: &
     unsafe { _mm_storeu_si128(bins.as_mut_ptr().cast::<__m128i>(), v) };
 }
 
-/// [`BinUpdater::run`] with SSE4.1 (one function: the per-cell update inlines).
+/// [`super::BinUpdater::run`] with SSE4.1 (one function: the per-cell update inlines).
 #[target_feature(enable = "sse4.1")]
 pub(super) fn update_bin_run_sse41(
     bins: &mut [[i8; MAX_BINS]],
@@ -88,7 +88,8 @@ pub(super) fn update_bin_run_sse41(
     }
 }
 
-/// [`update_bins`] as one 16-byte vector operation with SSE4.1 (see [`BinUpdater`]): each
+/// [`super::update_bins`] as one 16-byte vector operation with SSE4.1 (see
+/// [`super::BinUpdater`]): each
 /// 16-bit mask expanded to one byte per bin (bits 0-7 to lanes 0-7, 8-15 to lanes 8-15).
 #[target_feature(enable = "sse4.1")]
 #[inline]

@@ -9,7 +9,7 @@ use crate::map::TILE_SIZE;
 use crate::map::grid::TILE_SHIFT;
 use crate::map::limits::{MapLimits, floor_to_i32};
 
-/// [`scan_log_likelihood_above`] for the 3x3 kernel in AVX2, four points at a time:
+/// [`super::scan_log_likelihood_above`] for the 3x3 kernel in AVX2, four points at a time:
 /// projected ([`project4_avx2`]), their kernel rows gathered ([`gather4_avx2`]), their
 /// minima taken across lanes ([`nearest4_avx2`]); then the sum in point order, the bar
 /// tested after each point. The same bits. (Issuing the next four's gathers before this
@@ -236,7 +236,7 @@ fn gather4_avx2<'a>(
     }
 }
 
-/// The 3x3 kernel's minimum ([`nearest_3x3`]) of four gathered points at once: per row a
+/// The 3x3 kernel's minimum ([`nearest_3x3`](crate::kernels::nearest::nearest_3x3)) of four gathered points at once: per row a
 /// compare, and per cell a select and a minimum across the four lanes. The candidates are
 /// the scalar rule's (`du^2 + dv^2` from the same products), and the minimum of finite
 /// values does not depend on their order: the same bits. Points marked scalar take

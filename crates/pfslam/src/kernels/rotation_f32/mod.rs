@@ -15,7 +15,7 @@ pub const LANES32: usize = 8;
 /// takes (`LikelihoodField::f32_ok`).
 pub const F32_LIM: f32 = 8_388_608.0;
 
-/// The points of [`Rotation`] for the f32 kernel: per point its offset from the pose in
+/// The points of [`Rotation`](crate::kernels::rotation::Rotation) for the f32 kernel: per point its offset from the pose in
 /// cells, `((c x - s y) / res, (s x + c y) / res)` rounded to f32, in blocks of
 /// [`LANES32`] lane-wise; the last block padded with copies of its last point (masked out
 /// of the sums).
@@ -80,7 +80,7 @@ impl RotationF32 {
         }
     }
 
-    /// Whole blocks every rotation of a batch has (see [`Rotation::common_blocks`]).
+    /// Whole blocks every rotation of a batch has (see [`Rotation::common_blocks`](crate::kernels::rotation::Rotation::common_blocks)).
     pub fn common_blocks(rots: &[&RotationF32]) -> usize {
         debug_assert!(rots.iter().all(|r| {
             r.blocks.len() == rots[0].blocks.len() && r.last_valid == rots[0].last_valid
@@ -88,11 +88,11 @@ impl RotationF32 {
         rots.iter().map(|r| r.blocks.len()).min().unwrap_or(0)
     }
 
-    /// The f32 twin of [`Rotation::sums`]: `at[k]` is candidate `k`'s position in the
+    /// The f32 twin of [`Rotation::sums`](crate::kernels::rotation::Rotation::sums): `at[k]` is candidate `k`'s position in the
     /// window's cell frame, less half a cell (see [`LikelihoodField::f32_origin`]); per
     /// point `at + offset` and [`LikelihoodField::bilinear_f32`], summed per lane in f32
     /// (lane `l` holds the points `l`, `l + 8`, ...), the 8 lanes added in f64 at the end.
-    /// Not the bits of the f64 kernel (see [`KernelPrecision`]); the portable and the AVX2
+    /// Not the bits of the f64 kernel (see [`KernelPrecision`](crate::filter::scanmatch::KernelPrecision)); the portable and the AVX2
     /// versions give the same bits.
     pub fn sums<const K: usize>(
         rots: [&RotationF32; K],
