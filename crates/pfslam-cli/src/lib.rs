@@ -1,5 +1,6 @@
 //! The commands of the pfslam tools, one module per subcommand: `pfslam` (the user's tool,
 //! `src/main.rs`) and `pfslam-dev` (the developers' measurements, `src/bin/pfslam-dev.rs`).
+#![forbid(unsafe_code)]
 
 pub mod cmd;
 

@@ -2,6 +2,7 @@
 //!
 //! Arguments are parsed by clap and validated into a configuration before any work starts.
 //! Exit codes: 0 success, 2 any error (bad input, bad arguments, failed output).
+#![forbid(unsafe_code)]
 
 use clap::{Parser, Subcommand};
 use pfslam_cli::cmd;

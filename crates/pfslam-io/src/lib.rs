@@ -24,11 +24,16 @@
 //! it into place ([`write_atomic`]), so a failed or interrupted run leaves no half-written file.
 //! Those shared helpers are the core's (`pfslam::files`), re-exported here.
 #![deny(missing_docs)]
+// `unsafe` only in `kernels` (allowed there), each block with a `// SAFETY:` comment.
+#![deny(unsafe_code)]
+#![warn(clippy::undocumented_unsafe_blocks)]
 
 pub mod account;
 pub mod carmen;
 pub mod clock;
 pub mod humanoid;
+#[allow(unsafe_code)]
+mod kernels;
 pub mod map_files;
 pub mod mcap;
 pub mod opencv_yaml;

@@ -269,9 +269,7 @@ pub fn read_mcap(path: &Path, options: &ReaderOptions) -> Result<Recording, RosE
 /// Maps an MCAP file after checking its chunks (see [`check_chunk_sizes`]).
 fn map_checked(path: &Path) -> Result<memmap2::Mmap, RosError> {
     let file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
-    // SAFETY: the file is opened read-only; as with any memory map, another process
-    // truncating it while we read is outside what we can guard against.
-    let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|e| IoError::io(path, e))?;
+    let map = crate::kernels::memory_map::map_read_only(&file).map_err(|e| IoError::io(path, e))?;
     check_chunk_sizes(&map, path)?;
     Ok(map)
 }

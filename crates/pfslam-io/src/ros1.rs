@@ -94,9 +94,7 @@ const MAX_COMPRESSION_RATIO: u64 = 256;
 /// 4 GiB for a few bytes of input. Records running past the index are errors too.
 fn check_chunk_sizes(path: &Path, start: u64, index_pos: u64) -> Result<(), RosError> {
     let file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
-    // SAFETY: the file is opened read-only; as with any memory map, another process
-    // truncating it while we read is outside what we can guard against.
-    let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|e| IoError::io(path, e))?;
+    let map = crate::kernels::memory_map::map_read_only(&file).map_err(|e| IoError::io(path, e))?;
     let end = usize::try_from(index_pos)
         .unwrap_or(usize::MAX)
         .min(map.len());

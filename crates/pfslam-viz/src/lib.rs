@@ -10,6 +10,7 @@
 //! Text is drawn with the DejaVu Sans font committed under `assets/`, registered once with
 //! plotters' `ab_glyph` backend by [`ensure_font`], so pictures look the same everywhere.
 #![deny(missing_docs)]
+#![forbid(unsafe_code)]
 
 pub mod map_image;
 

@@ -48,6 +48,9 @@
 //! Conventions: frames in names (`world_from_body`), units in names (`range_m`, `yaw_rad`),
 //! time as `i64` nanoseconds (`stamp_ns`), angles in radians, z up, yaw counter-clockwise.
 #![deny(missing_docs)]
+// `unsafe` only in `kernels` (allowed there), each block with a `// SAFETY:` comment.
+#![deny(unsafe_code)]
+#![warn(clippy::undocumented_unsafe_blocks)]
 
 pub mod config;
 pub mod eval;
@@ -55,6 +58,8 @@ pub mod files;
 pub mod filter;
 pub mod geometry;
 pub mod graph;
+#[allow(unsafe_code)]
+pub mod kernels;
 pub mod localize;
 pub mod map;
 pub mod motion;

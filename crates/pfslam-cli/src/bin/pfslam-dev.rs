@@ -2,6 +2,7 @@
 //! speed on the full-size simulated car and the seed report's experiment tables.
 //!
 //! Exit codes: 0 success, 2 any error.
+#![forbid(unsafe_code)]
 
 use clap::{Parser, Subcommand};
 use pfslam_cli::cmd;

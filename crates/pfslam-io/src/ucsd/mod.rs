@@ -19,7 +19,6 @@ pub mod calib;
 mod lidar;
 mod lines;
 mod odometry;
-mod ranges;
 #[cfg(test)]
 mod tests;
 mod write;
@@ -30,6 +29,7 @@ use lines::*;
 pub use odometry::*;
 pub use write::*;
 
+use crate::kernels::ranges;
 use ranges::small_decimal_f32;
 
 use super::{IoError, write_atomic};

@@ -24,7 +24,6 @@
 
 mod likelihood;
 mod matcher;
-mod nearest;
 mod options;
 mod particles;
 mod path;

@@ -155,7 +155,8 @@ fn optimised_likelihood_equals_the_plain_rule_bit_for_bit() {
                     let plain = scan_log_likelihood_plain(&grid, &model, &body, &pose);
                     assert_eq!(fast.to_bits(), plain.to_bits(), "{trial} {kernel} {pose:?}");
                     // The path taken without AVX2, whatever this machine has.
-                    let scalar = likelihood_scalar(&grid, &model, &body, &pose, None);
+                    let scalar =
+                        crate::kernels::likelihood::portable(&grid, &model, &body, &pose, None);
                     assert_eq!(
                         scalar.to_bits(),
                         plain.to_bits(),

@@ -3,6 +3,7 @@
 
 use super::*;
 use crate::filter::field_cache::FieldCache;
+use crate::kernels::rotation_f32::F32_LIM;
 use crate::map::limits::floor_to_i32;
 use crate::map::{Cell, CellRect, MapLimits, OccupancyGrid};
 use rayon::prelude::*;
@@ -17,11 +18,11 @@ pub(super) const FIELD_PAD: usize = 8;
 #[derive(Debug, Clone, Default)]
 pub struct LikelihoodField {
     pub(super) limits: Option<MapLimits>,
-    pub(super) i0: i32,
-    pub(super) j0: i32,
-    pub(super) w: usize,
-    pub(super) h: usize,
-    pub(super) values: Vec<u8>,
+    pub(crate) i0: i32,
+    pub(crate) j0: i32,
+    pub(crate) w: usize,
+    pub(crate) h: usize,
+    pub(crate) values: Vec<u8>,
     kernel: Vec<(i32, i32, u8)>,
     kernel_radius: i32,
     /// Occupied cells reaching each band of rows (pass 1 of the build).
@@ -167,7 +168,7 @@ impl LikelihoodField {
 
     /// The vector kernel's preconditions: cell indices fit in i32 and the spare bytes are
     /// there.
-    pub(super) fn vector_ok(&self) -> bool {
+    pub(crate) fn vector_ok(&self) -> bool {
         self.w
             .checked_mul(self.h)
             .is_some_and(|n| n < i32::MAX as usize / 2 && self.values.len() >= n + FIELD_PAD)
@@ -187,7 +188,7 @@ impl LikelihoodField {
     /// (cell `(i, j)` spans `[i, i+1) x [j, j+1)`), in field units (0..=255).
     /// Always inlined: it is the refinement's inner loop (a call per point cost ~10 %).
     #[inline(always)]
-    pub(super) fn bilinear(&self, u: f64, v: f64) -> f64 {
+    pub(crate) fn bilinear(&self, u: f64, v: f64) -> f64 {
         let (x, y) = (u - 0.5, v - 0.5);
         // `floor` is a libm call on baseline x86-64; the integer floor gives the same value
         // (and, after the subtraction below, the same fraction) inside the i32 range, which
@@ -208,7 +209,7 @@ impl LikelihoodField {
     /// bits), written lane-wise so that the arithmetic vectorises; only the four byte loads
     /// per point stay scalar. A lane outside the fast path's range takes [`Self::bilinear`].
     #[inline(always)]
-    pub(super) fn bilinear_lanes(&self, u: &[f64; LANES], v: &[f64; LANES]) -> [f64; LANES] {
+    pub(crate) fn bilinear_lanes(&self, u: &[f64; LANES], v: &[f64; LANES]) -> [f64; LANES] {
         const LIM: f64 = 1e9;
         let mut x = [0.0; LANES];
         let mut y = [0.0; LANES];
@@ -236,7 +237,7 @@ impl LikelihoodField {
     /// The field values at cells `(i, j)`, `(i+1, j)`, `(i, j+1)`, `(i+1, j+1)`: one bounds
     /// check when all four lie inside the window (nearly always).
     #[inline(always)]
-    pub(super) fn corners(&self, i: i32, j: i32) -> [f64; 4] {
+    pub(crate) fn corners(&self, i: i32, j: i32) -> [f64; 4] {
         let (li, lj) = (i - self.i0, j - self.j0);
         if li >= 0 && lj >= 0 && (li as usize) + 1 < self.w && (lj as usize) + 1 < self.h {
             let k = lj as usize * self.w + li as usize;
@@ -275,7 +276,7 @@ impl LikelihoodField {
     /// operations, cells outside the window 0; beyond [`F32_LIM`] (outside any window
     /// `f32_ok` admits) 0, NaN for NaN. The f32 kernel's reference per lane.
     #[inline(always)]
-    pub(super) fn bilinear_f32(&self, x: f32, y: f32) -> f32 {
+    pub(crate) fn bilinear_f32(&self, x: f32, y: f32) -> f32 {
         if !(x.abs() < F32_LIM && y.abs() < F32_LIM) {
             return if x.is_nan() || y.is_nan() {
                 f32::NAN

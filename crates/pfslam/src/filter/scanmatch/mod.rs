@@ -15,18 +15,14 @@
 //! - [`match_particles`]: every particle matched in full (see
 //!   `docs/decisions/0019-scan-match-refinement.md`).
 
-mod coarse;
 mod field;
 mod options;
 mod rotation;
-mod rotation_f32;
 mod search;
 #[cfg(test)]
 mod tests;
 
-use coarse::*;
 pub use field::*;
 pub use options::*;
 pub(crate) use rotation::*;
-use rotation_f32::*;
 pub use search::*;

@@ -2,6 +2,7 @@
 
 use super::*;
 use crate::geometry::Pose2;
+use crate::kernels::coarse::{CoarseYaw, coarse_sums, coarse_sums_any, coarse_sums_fast};
 use crate::map::MapLimits;
 use rayon::prelude::*;
 

@@ -1,5 +1,8 @@
 use super::*;
 use crate::geometry::Pose2;
+use crate::kernels::coarse::{CoarseYaw, coarse_sums, coarse_sums_fast, coarse_sums_swar};
+use crate::kernels::rotation::Rotation;
+use crate::kernels::rotation_f32::{LANES32, RotationF32};
 use crate::map::{CellRect, OccupancyGrid};
 use crate::map::{MapOptions, PlanarScan, ScanPoint, to_world};
 
@@ -434,71 +437,63 @@ fn rotated_f32_points_equal_the_scalar_fill_bit_for_bit() {
 #[test]
 fn vector_kernels_equal_the_portable_ones_bit_for_bit() {
     use rand::{RngExt, SeedableRng};
-    #[cfg(target_arch = "x86_64")]
-    if !std::arch::is_x86_feature_detected!("avx2") {
+    if !crate::kernels::cpu().avx2() {
         eprintln!("SKIP: no AVX2 on this CPU");
         return;
     }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        eprintln!("SKIP: not x86-64");
-        return;
-    }
-    #[cfg(target_arch = "x86_64")]
-    {
-        let (field, _) = room_field(0.0);
-        let limits = field.limits.unwrap();
-        assert!(field.vector_ok());
-        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(11);
-        let mut rot = Rotation::default();
-        let (mut want, mut got) = (Vec::new(), Vec::new());
-        for case in 0..300 {
-            let n = if case % 10 == 0 {
-                700
-            } else {
-                rng.random_range(0..40)
+    let (field, _) = room_field(0.0);
+    let limits = field.limits.unwrap();
+    assert!(field.vector_ok());
+    let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(11);
+    let mut rot = Rotation::default();
+    let (mut want, mut got) = (Vec::new(), Vec::new());
+    for case in 0..300 {
+        let n = if case % 10 == 0 {
+            700
+        } else {
+            rng.random_range(0..40)
+        };
+        let pts = kernel_points(&mut rng, n);
+        let pose = Pose2::new(
+            rng.random_range(-0.5..0.5),
+            rng.random_range(-0.5..0.5),
+            rng.random_range(-0.3..0.3),
+        );
+        let (s, c) = pose.yaw_rad.sin_cos();
+        rot.fill(&pts, s, c);
+        let portable = rot.sum_portable(&field, &limits, pose.x_m, pose.y_m);
+        let [vector] = Rotation::sums([&rot], [[pose.x_m, pose.y_m]], &field, &limits);
+        assert_eq!(vector.to_bits(), portable.to_bits(), "case {case}");
+        let r = rng.random_range(0..5);
+        want.clear();
+        let coarse = CoarseYaw {
+            field: &field,
+            limits: &limits,
+            predicted: &pose,
+            sin_cos: (s, c),
+            r,
+        };
+        coarse.bases_portable(&pts, &mut want);
+        coarse.bases(&pts, &mut got);
+        assert_eq!(got, want, "case {case}");
+        let w = field.w;
+        macro_rules! sums {
+            ($side:literal) => {
+                if 2 * r + 1 == $side {
+                    let mut plain = vec![0u32; $side * $side];
+                    let mut swar = plain.clone();
+                    let mut vector = plain.clone();
+                    coarse_sums::<$side>(&field.values, w, &want, &mut plain);
+                    coarse_sums_swar::<$side>(&field.values, w, &want, &mut swar);
+                    coarse_sums_fast::<$side>(&field.values, w, &want, &mut vector);
+                    assert_eq!(swar, plain, "case {case}");
+                    assert_eq!(vector, plain, "case {case}");
+                }
             };
-            let pts = kernel_points(&mut rng, n);
-            let pose = Pose2::new(
-                rng.random_range(-0.5..0.5),
-                rng.random_range(-0.5..0.5),
-                rng.random_range(-0.3..0.3),
-            );
-            let (s, c) = pose.yaw_rad.sin_cos();
-            rot.fill(&pts, s, c);
-            let portable = rot.sum_portable(&field, &limits, pose.x_m, pose.y_m);
-            // SAFETY: AVX2 is present (checked above).
-            let vector = unsafe { rot.sum_avx2(&field, &limits, pose.x_m, pose.y_m) };
-            assert_eq!(vector.to_bits(), portable.to_bits(), "case {case}");
-            let r = rng.random_range(0..5);
-            want.clear();
-            let coarse = CoarseYaw {
-                field: &field,
-                limits: &limits,
-                predicted: &pose,
-                sin_cos: (s, c),
-                r,
-            };
-            coarse.bases_portable(&pts, &mut want);
-            coarse.bases(&pts, &mut got);
-            assert_eq!(got, want, "case {case}");
-            let w = field.w;
-            macro_rules! sums {
-                ($side:literal) => {
-                    if 2 * r + 1 == $side {
-                        let mut plain = vec![0u32; $side * $side];
-                        let mut vector = plain.clone();
-                        coarse_sums::<$side>(&field.values, w, &want, &mut plain);
-                        // SAFETY: AVX2 is present (checked above).
-                        unsafe { coarse_sums_avx2::<$side>(&field.values, w, &want, &mut vector) };
-                        assert_eq!(vector, plain, "case {case}");
-                    }
-                };
-            }
-            sums!(3);
-            sums!(5);
-            sums!(7);
         }
+        sums!(3);
+        sums!(5);
+        sums!(7);
     }
 }
 
@@ -525,10 +520,7 @@ fn batched_field_sums_equal_the_single_candidate_ones_bit_for_bit() {
     use rand::{RngExt, SeedableRng};
     let (field, _) = room_field(0.0);
     let limits = field.limits.unwrap();
-    #[cfg(target_arch = "x86_64")]
-    let avx2 = field.vector_ok() && std::arch::is_x86_feature_detected!("avx2");
-    #[cfg(not(target_arch = "x86_64"))]
-    let avx2 = false;
+    let avx2 = field.vector_ok() && crate::kernels::cpu().avx2();
     if !avx2 {
         eprintln!("SKIP (AVX2 part only): no AVX2 on this CPU");
     }
@@ -571,12 +563,7 @@ fn batched_field_sums_equal_the_single_candidate_ones_bit_for_bit() {
                     let a: [[f64; 2]; $k] = std::array::from_fn(|i| at[i]);
                     let got = Rotation::sums_portable(r, a, &field, &limits);
                     assert_eq!(got.map(f64::to_bits).to_vec(), want, "case {case}");
-                    #[cfg(target_arch = "x86_64")]
-                    if avx2 {
-                        // SAFETY: AVX2 is present (checked above).
-                        let got = unsafe { Rotation::sums_avx2(r, a, &field, &limits) };
-                        assert_eq!(got.map(f64::to_bits).to_vec(), want, "case {case}");
-                    }
+                    // The AVX2 kernel where the CPU has it.
                     let got = Rotation::sums(r, a, &field, &limits);
                     assert_eq!(got.map(f64::to_bits).to_vec(), want, "case {case}");
                 }
@@ -626,10 +613,7 @@ fn f32_kernel_agrees_with_the_f64_one_and_its_avx2_version_with_the_portable_bit
     let (field, _) = room_field(0.0);
     let limits = field.limits.unwrap();
     assert!(field.f32_ok());
-    #[cfg(target_arch = "x86_64")]
-    let avx2 = field.vector_ok() && std::arch::is_x86_feature_detected!("avx2");
-    #[cfg(not(target_arch = "x86_64"))]
-    let avx2 = false;
+    let avx2 = field.vector_ok() && crate::kernels::cpu().avx2();
     if !avx2 {
         eprintln!("SKIP (AVX2 part only): no AVX2 on this CPU");
     }
@@ -677,10 +661,8 @@ fn f32_kernel_agrees_with_the_f64_one_and_its_avx2_version_with_the_portable_bit
                     let r: [&RotationF32; $k] = std::array::from_fn(|i| &rot32[pick[i]]);
                     let a: [[f32; 2]; $k] = std::array::from_fn(|i| at[i]);
                     let portable = RotationF32::sums_portable(r, a, &field);
-                    #[cfg(target_arch = "x86_64")]
                     if avx2 {
-                        // SAFETY: AVX2 is present (checked above).
-                        let got = unsafe { RotationF32::sums_avx2(r, a, &field) };
+                        let got = RotationF32::sums(r, a, &field);
                         assert_eq!(
                             got.map(f64::to_bits),
                             portable.map(f64::to_bits),

@@ -1,5 +1,6 @@
 //! The cells of a scan's points at one heading and their exact sums over a level of a
-//! [`PointField`] (portable and AVX2, the same bits): the scores of the grid searches.
+//! [`PointField`] (the kernels in `crate::kernels::cell_sum`): the scores of the grid
+//! searches.
 
 use super::{PointField, SearchWindow, floor_to_i64};
 use crate::geometry::Pose2;
@@ -56,116 +57,6 @@ impl PointField {
     /// 2^22 of them is a multiple of 2^-30 below 2^22, which `f64` holds exactly, and so
     /// is every partial sum. With AVX2, eight points at a time (gathered).
     pub(super) fn cell_sum(&self, cells: &PointCells, level: usize, dx: i64, dy: i64) -> f64 {
-        #[cfg(target_arch = "x86_64")]
-        if cells.x.len() <= 1 << 22 && std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: AVX2 is present (checked above).
-            return unsafe { self.cell_sum_avx2(cells, level, dx, dy) };
-        }
-        self.cell_sum_scalar((&cells.x, &cells.y), level, dx, dy)
-    }
-
-    /// [`Self::cell_sum`] a point at a time, in point order, over the columns `(x, y)`.
-    pub(super) fn cell_sum_scalar(
-        &self,
-        (xs, ys): (&[i32], &[i32]),
-        level: usize,
-        dx: i64,
-        dy: i64,
-    ) -> f64 {
-        let lv = &self.levels[level].cells[..];
-        let (w, h) = (self.w as u64, self.h as u64);
-        // A pooled cell `c` covers `c ..= c + span`: one left of or below the window still
-        // covers window cells up to `span` away, whose maximum cell 0 of that row or column
-        // bounds (its block holds them). Level 0: `span` = 0, the plain lookup.
-        let span = (1i64 << level) - 1;
-        let (ws, hs) = (w + span as u64, h + span as u64);
-        xs.iter()
-            .zip(ys)
-            .map(|(&i, &j)| {
-                let (x, y) = (i64::from(i) + dx, i64::from(j) + dy);
-                // One unsigned comparison per axis also rejects what lies beyond the reach.
-                if ((x + span) as u64) < ws && ((y + span) as u64) < hs {
-                    let (x, y) = (x.max(0) as u64, y.max(0) as u64);
-                    f64::from(lv.get((y * w + x) as usize).copied().unwrap_or(0.0))
-                } else {
-                    0.0
-                }
-            })
-            .sum()
-    }
-
-    /// [`Self::cell_sum`] eight points at a time: the offsets, the window test and the
-    /// index in `i32` lanes, the values gathered where inside (the others not read), summed
-    /// in two `f64` accumulators; the last points as [`Self::cell_sum_scalar`].
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn cell_sum_avx2(&self, cells: &PointCells, level: usize, dx: i64, dy: i64) -> f64 {
-        use std::arch::x86_64::*;
-        let lv = &self.levels[level].cells[..];
-        let span = (1i64 << level) - 1;
-        let n = cells.x.len().min(cells.y.len());
-        // Offsets beyond any window (2^14 cells) and clamped cells (2^30) stay apart in i32:
-        // such offsets go the scalar way.
-        let small = |d: i64| d.abs() <= 1 << 20;
-        // (No points: the scalar sum's -0.0.)
-        if n == 0 || !(small(dx) && small(dy) && span < 1 << 20 && lv.len() >= self.w * self.h) {
-            return self.cell_sum_scalar((&cells.x, &cells.y), level, dx, dy);
-        }
-        let (xs, ys) = (
-            cells.x[..n].as_chunks::<8>().0,
-            cells.y[..n].as_chunks::<8>().0,
-        );
-        let shift_x = _mm256_set1_epi32((dx + span) as i32);
-        let shift_y = _mm256_set1_epi32((dy + span) as i32);
-        let span_v = _mm256_set1_epi32(span as i32);
-        // `ws`, `hs` of the scalar test: `0 <= x + span < w + span`, likewise y.
-        let ws = _mm256_set1_epi32((self.w as i64 + span) as i32);
-        let hs = _mm256_set1_epi32((self.h as i64 + span) as i32);
-        let w = _mm256_set1_epi32(self.w as i32);
-        let minus_one = _mm256_set1_epi32(-1);
-        let zero = _mm256_setzero_si256();
-        let (mut lo, mut hi) = (_mm256_setzero_pd(), _mm256_setzero_pd());
-        for (x8, y8) in xs.iter().zip(ys) {
-            // SAFETY: unaligned loads of eight i32 from arrays of eight.
-            let (x, y) = unsafe {
-                (
-                    _mm256_loadu_si256(x8.as_ptr().cast()),
-                    _mm256_loadu_si256(y8.as_ptr().cast()),
-                )
-            };
-            let (xs_, ys_) = (_mm256_add_epi32(x, shift_x), _mm256_add_epi32(y, shift_y));
-            let inside = _mm256_and_si256(
-                _mm256_and_si256(
-                    _mm256_cmpgt_epi32(xs_, minus_one),
-                    _mm256_cmpgt_epi32(ws, xs_),
-                ),
-                _mm256_and_si256(
-                    _mm256_cmpgt_epi32(ys_, minus_one),
-                    _mm256_cmpgt_epi32(hs, ys_),
-                ),
-            );
-            // `x.max(0)`, `y.max(0)` of `x = xs_ - span`; then `y * w + x` (< w * h).
-            let x = _mm256_max_epi32(_mm256_sub_epi32(xs_, span_v), zero);
-            let y = _mm256_max_epi32(_mm256_sub_epi32(ys_, span_v), zero);
-            let index = _mm256_add_epi32(_mm256_mullo_epi32(y, w), x);
-            // SAFETY: only lanes inside the window are read, at `y * w + x < w * h <=
-            // lv.len()`; the others keep 0.
-            let v = unsafe {
-                _mm256_mask_i32gather_ps::<4>(
-                    _mm256_setzero_ps(),
-                    lv.as_ptr(),
-                    index,
-                    _mm256_castsi256_ps(inside),
-                )
-            };
-            lo = _mm256_add_pd(lo, _mm256_cvtps_pd(_mm256_castps256_ps128(v)));
-            hi = _mm256_add_pd(hi, _mm256_cvtps_pd(_mm256_extractf128_ps::<1>(v)));
-        }
-        let mut lanes = [0.0f64; 4];
-        // SAFETY: a store into a local array of four f64.
-        unsafe { _mm256_storeu_pd(lanes.as_mut_ptr(), _mm256_add_pd(lo, hi)) };
-        let done = xs.len() * 8;
-        let rest = (&cells.x[done..n], &cells.y[done..n]);
-        lanes.iter().sum::<f64>() + self.cell_sum_scalar(rest, level, dx, dy)
+        crate::kernels::cell_sum::cell_sum(self, (&cells.x, &cells.y), level, dx, dy)
     }
 }

@@ -13,13 +13,13 @@ use rayon::prelude::*;
 /// reused buffer gets only the cells its last use wrote set back to zero.
 #[derive(Debug, Clone)]
 pub struct PointField {
-    pub(super) origin_x_m: f64,
-    pub(super) origin_y_m: f64,
-    pub(super) resolution_m: f64,
-    pub(super) w: usize,
-    pub(super) h: usize,
+    pub(crate) origin_x_m: f64,
+    pub(crate) origin_y_m: f64,
+    pub(crate) resolution_m: f64,
+    pub(crate) w: usize,
+    pub(crate) h: usize,
     /// `levels[0]` = the field, `levels[k]` = max over `2^k x 2^k` blocks.
-    pub(super) levels: Vec<Buffer>,
+    pub(crate) levels: Vec<Buffer>,
 }
 
 /// The larger of two field values, which are never NaN nor -0: the same value as
@@ -295,7 +295,7 @@ impl PointField {
     }
 
     #[inline]
-    pub(super) fn at(&self, level: usize, i: i64, j: i64) -> f32 {
+    pub(crate) fn at(&self, level: usize, i: i64, j: i64) -> f32 {
         if i < 0 || j < 0 || i >= self.w as i64 || j >= self.h as i64 {
             return 0.0;
         }

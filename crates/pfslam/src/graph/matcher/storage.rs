@@ -11,8 +11,8 @@ pub(super) const TILE_SHIFT: u32 = TILE.trailing_zeros();
 /// A level's cells (row-major, at least `w * h`; zero outside the written runs) and the runs
 /// `(start, len)` written.
 #[derive(Debug, Clone, Default)]
-pub(super) struct Buffer {
-    pub(super) cells: Vec<f32>,
+pub(crate) struct Buffer {
+    pub(crate) cells: Vec<f32>,
     pub(super) written: Vec<(usize, usize)>,
 }
 

@@ -1,6 +1,7 @@
 //! Applying a traced scan: the per-tile runs of marks merged into the log-odds and bins.
 
 use super::*;
+use crate::kernels::heights::BinUpdater;
 
 /// Counts of what one insertion did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -78,14 +79,13 @@ pub(super) fn drain_heights(
     }
     let n = touched.len();
     out.heights = true;
+    // Zeroed, then every element overwritten: the runs partition `0..n` and each tile's runs
+    // fill its range (its count from the first pass).
     out.updates.clear();
     out.bin_marks.clear();
-    out.updates.reserve(n);
-    out.bin_marks.reserve(n);
-    let (updates, marks) = (
-        &mut out.updates.spare_capacity_mut()[..n],
-        &mut out.bin_marks.spare_capacity_mut()[..n],
-    );
+    out.updates.resize(n, 0);
+    out.bin_marks.resize(n, 0);
+    let (updates, marks) = (&mut out.updates[..], &mut out.bin_marks[..]);
     let mut occupied = 0usize;
     for &(b, start, end) in runs.iter() {
         let pos = &mut block_count[b as usize];
@@ -99,16 +99,10 @@ pub(super) fn drain_heights(
             let k = k as usize;
             let v = std::mem::replace(&mut hmask[k], 0);
             occupied += usize::from(v >> 16 != 0);
-            u.write(local_of(k) as u16);
-            m.write(v);
+            *u = local_of(k) as u16;
+            *m = v;
         }
         *pos += run.len() as u32;
-    }
-    // SAFETY: the runs partition `0..n` and each tile's runs fill its range of `0..n` (its
-    // count from the first pass), so every one of the first `n` elements was written.
-    unsafe {
-        out.updates.set_len(n);
-        out.bin_marks.set_len(n);
     }
     for &b in block_order.iter() {
         block_count[b as usize] = 0;

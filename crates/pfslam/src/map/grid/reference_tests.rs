@@ -1,4 +1,8 @@
 use super::*;
+use crate::kernels::heights::{BinUpdater, update_bins};
+use crate::kernels::mask::{
+    fresh_cells, fresh_cells_portable, walk_mask_portable, walk_mask_vector,
+};
 use crate::map::ScanPoint;
 use rand::{RngExt, SeedableRng};
 use std::collections::BTreeMap;
@@ -196,8 +200,7 @@ fn vectorised_walk_equals_the_scalar_walk() {
     // diagonal ones, up to MAX_RAY_CELLS long), each prefix length from 8 to the whole
     // ray: the eight-lane walk writes the scalar walk's indices, and takes every ray
     // that fits in its mask.
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
+    if crate::kernels::cpu().avx2() {
         let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(21);
         let (mut want, mut got) = (Vec::new(), Vec::new());
         let mut taken = 0;
@@ -250,12 +253,9 @@ fn vectorised_walk_equals_the_scalar_walk() {
             };
             want.resize(len, 0);
             got.resize(len, u32::MAX);
-            walk_mask_scalar(from, to, &layout, &mut want);
-            // SAFETY: AVX2 is present (checked above).
-            assert!(
-                unsafe { walk_mask_avx2(from, to, &layout, &mut got) },
-                "case {case}"
-            );
+            walk_mask_portable(from, to, &layout, &mut want);
+            let took = walk_mask_vector(from, to, &layout, &mut got);
+            assert_eq!(took, Some(true), "case {case}");
             assert_eq!(got, want, "case {case}: {from:?} -> {to:?}, {len} cells");
             taken += 1;
         }
@@ -270,8 +270,8 @@ fn vectorised_walk_equals_the_scalar_walk() {
             mj0: 0,
         };
         let mut out = vec![0u32; 10];
-        // SAFETY: AVX2 is present (checked above).
-        assert!(!unsafe { walk_mask_avx2(Cell::new(60, 0), Cell::new(70, 3), &layout, &mut out) });
+        let took = walk_mask_vector(Cell::new(60, 0), Cell::new(70, 3), &layout, &mut out);
+        assert_eq!(took, Some(false));
     }
 }
 
@@ -300,7 +300,7 @@ fn fresh_cells_are_the_cells_unlike_the_previous_rays() {
         let mut out = vec![u32::MAX; common + 8];
         let n = fresh_cells(ray, prev, &mut out);
         assert_eq!(&out[..n], &want[..], "case {case}");
-        let n = fresh_cells_scalar(ray, prev, &mut out, 0, 0);
+        let n = fresh_cells_portable(ray, prev, &mut out, 0, 0);
         assert_eq!(&out[..n], &want[..], "case {case}, scalar");
     }
 }
@@ -365,14 +365,12 @@ fn vectorised_bin_updates_equal_the_per_bin_rule() {
         }
         assert!(each == plain, "case {case}: single updates differ");
         // The SSE4.1 path on its own (the updater above takes AVX-512 where it can).
-        #[cfg(target_arch = "x86_64")]
-        if model.min <= model.max && std::arch::is_x86_feature_detected!("sse4.1") {
+        if let Some(sse41) = BinUpdater::sse41_only(&model) {
             let mut sse = start(&mut rng);
             let mut plain = sse.clone();
             for (&u, &m) in updates.iter().zip(&marks) {
                 let local = usize::from(u) & (TILE_CELLS - 1);
-                // SAFETY: the CPU has SSE4.1 (checked above).
-                unsafe { update_bins_sse41(&mut sse[local], m, &model) };
+                sse41.update(&mut sse[local], m, &model);
                 update_bins(&mut plain[local], m, &model);
             }
             assert!(sse == plain, "case {case}: SSE4.1 updates differ");
@@ -458,6 +456,9 @@ fn vectorised_ray_bins_equal_the_per_step_bin() {
         out.clear();
         out.resize(n, 0);
         layer.fill_bits(z0, dz, &mut out);
+        let mut portable = vec![0; n];
+        crate::kernels::heights::fill_bits_portable(&layer, z0, dz, &mut portable);
+        assert_eq!(out, portable, "{z0} {dz}");
         for (s, &b) in out.iter().enumerate() {
             assert_eq!(
                 b,

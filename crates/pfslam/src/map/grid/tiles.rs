@@ -6,8 +6,8 @@ use super::*;
 pub const TILE_SHIFT: u32 = 6;
 /// Tile side (cells).
 pub const TILE_SIZE: usize = 1 << TILE_SHIFT;
-pub(super) const TILE_MASK: i32 = (TILE_SIZE as i32) - 1;
-pub(super) const TILE_CELLS: usize = TILE_SIZE * TILE_SIZE;
+pub(crate) const TILE_MASK: i32 = (TILE_SIZE as i32) - 1;
+pub(crate) const TILE_CELLS: usize = TILE_SIZE * TILE_SIZE;
 
 /// Cell indices beyond this magnitude are refused (1,677 km at 0.1 m), which bounds the tile
 /// directory whatever a pose says.

@@ -2,6 +2,7 @@
 //! height bins, and the places a scan's tracing may be cut.
 
 use super::*;
+use crate::kernels::mask::walk_mask;
 
 /// The rays of one scan (or one piece of it) to trace, and where the scratch mask lies.
 #[derive(Clone, Copy)]

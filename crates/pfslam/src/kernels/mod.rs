@@ -1,0 +1,115 @@
+//! The vector kernels: every loop written with x86-64 intrinsics, each beside the portable
+//! twin that gives the same bits, and the CPU's features, detected once.
+//!
+//! The rule: `unsafe` code lives here and nowhere else in the crate (`#![deny(unsafe_code)]`
+//! at the crate root, allowed on this module only). One folder per kernel family:
+//! `<family>/mod.rs` holds the safe entry points the domain code calls, which choose the
+//! vector path from [`cpu`], and the portable twin (also public, so that tests can force
+//! it); `<family>/x86.rs` holds the `#[target_feature]` functions and their intrinsics.
+//! Every `unsafe` block says why it is sound in a `// SAFETY:` comment. Every vector
+//! kernel has a test that compares it with its twin bit for bit
+//! (docs/decisions/0011-vector-kernels-with-portable-twins.md).
+//!
+//! The families:
+//! - `likelihood` and `nearest`: the `rbpf` observation model (a scan's log-likelihood
+//!   in a particle's grid, the 3x3 nearest occupied cell);
+//! - `coarse`: the scan-matching coarse search (window indices, block sums);
+//! - `rotation` and `rotation_f32`: the scan-matching refinement's field sums;
+//! - `cell_sum` and `field_score`: the back end's point field (exact cell sums, the
+//!   interpolated score);
+//! - `heights` and `mask`: the grid's height bins and ray walk.
+
+use std::sync::OnceLock;
+
+pub(crate) mod cell_sum;
+pub(crate) mod coarse;
+pub(crate) mod field_score;
+pub(crate) mod heights;
+pub(crate) mod likelihood;
+pub(crate) mod mask;
+pub(crate) mod nearest;
+pub(crate) mod rotation;
+pub(crate) mod rotation_f32;
+
+/// The instruction-set extensions the kernels use, as this CPU (and its operating system)
+/// supports them. Only [`cpu`] makes one: a kernel's `unsafe` call relies on a feature being
+/// reported only where it is present. Everything is false off x86-64.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Cpu {
+    avx2: bool,
+    sse41: bool,
+    avx512bw: bool,
+    avx512vl: bool,
+    bmi1: bool,
+    lzcnt: bool,
+    popcnt: bool,
+}
+
+impl Cpu {
+    #[cfg(target_arch = "x86_64")]
+    fn detect() -> Self {
+        Cpu {
+            avx2: std::arch::is_x86_feature_detected!("avx2"),
+            sse41: std::arch::is_x86_feature_detected!("sse4.1"),
+            avx512bw: std::arch::is_x86_feature_detected!("avx512bw"),
+            avx512vl: std::arch::is_x86_feature_detected!("avx512vl"),
+            bmi1: std::arch::is_x86_feature_detected!("bmi1"),
+            lzcnt: std::arch::is_x86_feature_detected!("lzcnt"),
+            popcnt: std::arch::is_x86_feature_detected!("popcnt"),
+        }
+    }
+
+    #[cfg(not(target_arch = "x86_64"))]
+    fn detect() -> Self {
+        Cpu {
+            avx2: false,
+            sse41: false,
+            avx512bw: false,
+            avx512vl: false,
+            bmi1: false,
+            lzcnt: false,
+            popcnt: false,
+        }
+    }
+
+    /// AVX2 (256-bit integer vectors, gathers).
+    pub fn avx2(&self) -> bool {
+        self.avx2
+    }
+
+    /// SSE4.1.
+    pub fn sse41(&self) -> bool {
+        self.sse41
+    }
+
+    /// AVX-512BW and AVX-512VL together (byte lanes with mask registers on 128-bit vectors).
+    pub fn avx512bw_vl(&self) -> bool {
+        self.avx512bw && self.avx512vl
+    }
+
+    /// AVX2 with BMI1, LZCNT and POPCNT: what the LiDAR rows' vector parser in `pfslam-io`
+    /// needs.
+    pub fn avx2_bit_ops(&self) -> bool {
+        self.avx2 && self.bmi1 && self.lzcnt && self.popcnt
+    }
+}
+
+/// This CPU's features, detected on the first call and kept: every kernel's dispatch reads
+/// them here.
+pub fn cpu() -> &'static Cpu {
+    static CPU: OnceLock<Cpu> = OnceLock::new();
+    CPU.get_or_init(Cpu::detect)
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn features_are_detected_once_and_consistently() {
+        let first = super::cpu();
+        assert!(std::ptr::eq(first, super::cpu()));
+        // The parser's set includes AVX2.
+        assert!(!first.avx2_bit_ops() || first.avx2());
+        #[cfg(not(target_arch = "x86_64"))]
+        assert!(!first.avx2() && !first.sse41() && !first.avx512bw_vl());
+    }
+}
