@@ -136,9 +136,9 @@ fn texture_without_poses_file_exits_2() {
 #[test]
 fn texture_over_the_lidar_map_of_a_simulated_drive() {
     use pfslam::sim::SimOptions;
+    use pfslam::sim::WorldScene;
     use pfslam::sim::car::simulate_car;
     use pfslam::sim::world::World;
-    use pfslam::stereo::render::WorldScene;
     use pfslam_io::tum::write_tum;
     use pfslam_io::ucsd::write_car_dataset;
     // A 6 s drive on the campus: the car's files (with LiDAR), two rendered stereo pairs.

@@ -65,8 +65,8 @@ pub fn write_car_sim(dir: &Path, out: &CarSimOutput) -> Result<(), SimError> {
 /// recording. Each frame is rendered in parallel over rows, pixel by pixel, so the output
 /// does not depend on the thread count.
 pub fn write_stereo_pairs(dir: &Path, out: &CarSimOutput) -> Result<(), SimError> {
+    use pfslam::sim::WorldScene;
     use pfslam::stereo::image::{BayerPattern, encode_gray_png};
-    use pfslam::stereo::render::WorldScene;
     for sub in [STEREO_LEFT_DIR, STEREO_RIGHT_DIR] {
         remove_stamp_pngs(&dir.join(sub))?;
     }

@@ -8,11 +8,10 @@ use nalgebra::Vector3;
 use pfslam::geometry::{Pose2, Rigid3};
 use pfslam::map::{Cell, MapLimits};
 use pfslam::sensors::StereoCalibration;
+use pfslam::sim::WorldScene;
 use pfslam::stereo::disparity::Aggregation;
 use pfslam::stereo::image::{self, BayerPattern, Demosaic, RgbImage};
-use pfslam::stereo::render::{
-    WorldScene, ground_disparity, hash01, render_ground_pair, value_noise,
-};
+use pfslam::stereo::render::{ground_disparity, hash01, render_ground_pair, value_noise};
 use pfslam::stereo::{
     DisparityMap, MatcherOptions, PinholeIntrinsics, RgbdCamera, RgbdFrame, StereoOptions,
     StereoPipeline, TextureMap, accumulate_rgbd, fit_plane_ransac,

@@ -52,7 +52,7 @@
 
 use super::truth::for_each_footprint_cell;
 use super::world::World;
-use super::{SimError, SimOptions};
+use super::{ScanTruthOptions, SimError, SimOptions, TruthRays};
 use crate::geometry::{Pose2, Rigid3};
 use crate::map::{
     BinaryMap, CellState, MapComparison, MapLimits, compare_maps_visible,
@@ -60,69 +60,7 @@ use crate::map::{
 };
 use crate::sensors::LidarGeometry;
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
-
-/// Options of the scan-surface truth (`[sim.scan_truth]`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct ScanTruthOptions {
-    /// Trace from every k-th true pose (10 = 10 Hz for the car's 100 Hz LiDAR).
-    pub pose_step: usize,
-    /// Which rays are traced: "sensor_beams" (the LiDAR's own beam directions: surfaces a
-    /// real beam can reach) or "uniform" (every `angle_step_deg` over the fan: also surfaces
-    /// between the beams, which a beam at a fixed angle never reaches while the car drives
-    /// parallel to them).
-    pub rays: TruthRays,
-    /// Angle between traced rays (deg) when `rays = "uniform"`; the real LMS511 beams are
-    /// 0.666 deg apart.
-    pub angle_step_deg: f64,
-    /// Beams reach this far (m, 3-D range): the mapping's `[map.scan] range_max_m`.
-    pub range_max_m: f64,
-}
-
-/// The rays the scan-surface truth traces from each sampled pose.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum TruthRays {
-    /// The sensor's own beam directions (`LidarGeometry`), as the LiDAR fires them.
-    SensorBeams,
-    /// Rays every `angle_step_deg` over the sensor's fan.
-    Uniform,
-}
-
-impl Default for ScanTruthOptions {
-    fn default() -> Self {
-        ScanTruthOptions {
-            pose_step: 10,
-            rays: TruthRays::SensorBeams,
-            angle_step_deg: 0.1,
-            range_max_m: 75.0,
-        }
-    }
-}
-
-impl ScanTruthOptions {
-    /// Checks ranges.
-    pub fn validate(&self) -> Result<(), SimError> {
-        if self.pose_step == 0 {
-            return Err(SimError::BadOption(
-                "sim.scan_truth.pose_step must be >= 1".into(),
-            ));
-        }
-        if !(0.01..=10.0).contains(&self.angle_step_deg) {
-            return Err(SimError::BadOption(
-                "sim.scan_truth.angle_step_deg must be in [0.01, 10]".into(),
-            ));
-        }
-        if !(self.range_max_m > 0.0 && self.range_max_m.is_finite() && self.range_max_m <= 1000.0) {
-            return Err(SimError::BadOption(
-                "sim.scan_truth.range_max_m must be in (0, 1000]".into(),
-            ));
-        }
-        Ok(())
-    }
-}
 
 /// The two rasters of the rule (module docs), on the same cells.
 #[derive(Debug, Clone, PartialEq)]

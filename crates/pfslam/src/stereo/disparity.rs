@@ -9,7 +9,8 @@
 use super::StereoError;
 use super::image::GrayImage;
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
+
+pub use crate::config::stereo::{Aggregation, MatcherOptions};
 
 /// The value of a pixel without a valid disparity.
 pub const INVALID_DISPARITY: f32 = -1.0;
@@ -19,105 +20,6 @@ const CENSUS_RADIUS: isize = 3;
 
 /// Number of row chunks processed in parallel (fixed so the result never depends on threads).
 const CHUNKS: usize = 16;
-
-/// Options of the block matcher (`[stereo.matcher]`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct MatcherOptions {
-    /// Number of disparities searched: `0 ..= num_disparities - 1` px.
-    pub num_disparities: usize,
-    /// Half-size of the square aggregation window (px): the window is `2 r + 1` wide.
-    /// A constant of the method: not read from the configuration file.
-    #[serde(skip)]
-    pub window_radius: usize,
-    /// Reject a match whose best cost is not at least this fraction below the best cost at a
-    /// disparity more than 1 px away (0 disables).
-    /// A constant of the method: not read from the configuration file.
-    #[serde(skip)]
-    pub uniqueness_ratio: f32,
-    /// Largest allowed difference (px) between the left and the right disparity of a match.
-    /// A constant of the method: not read from the configuration file.
-    #[serde(skip)]
-    pub lr_max_diff_px: u16,
-    /// Cost aggregation: the window alone, or semi-global matching over the window's costs.
-    pub aggregation: Aggregation,
-    /// SGM penalty for a 1 px disparity change between neighbours, in cost units of the
-    /// window (the defaults were tuned with `window_radius = 2`).
-    /// A constant of the method: not read from the configuration file.
-    #[serde(skip)]
-    pub sgm_p1: u16,
-    /// SGM penalty for a larger disparity change.
-    /// A constant of the method: not read from the configuration file.
-    #[serde(skip)]
-    pub sgm_p2: u16,
-}
-
-/// How matching costs are aggregated.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Aggregation {
-    /// Sum over the square window (block matching); rows in parallel.
-    Block,
-    /// Semi-global matching (Hirschmüller 2008) on the window's costs along the five paths
-    /// that come from above or the sides (left, right, top, top-left, top-right), in one
-    /// top-to-bottom pass; sequential over rows.
-    Sgm,
-}
-
-impl Default for MatcherOptions {
-    fn default() -> Self {
-        MatcherOptions {
-            num_disparities: 128,
-            window_radius: 5,
-            uniqueness_ratio: 0.05,
-            lr_max_diff_px: 1,
-            aggregation: Aggregation::Block,
-            sgm_p1: 30,
-            sgm_p2: 400,
-        }
-    }
-}
-
-impl MatcherOptions {
-    /// Checks the options for an image of `width` px.
-    pub fn validate(&self, width: usize) -> Result<(), StereoError> {
-        if self.num_disparities < 2 || self.num_disparities > 1024 {
-            return Err(StereoError::Options(format!(
-                "num_disparities must be in 2..=1024, got {}",
-                self.num_disparities
-            )));
-        }
-        if self.window_radius == 0 || self.window_radius > 15 {
-            return Err(StereoError::Options(format!(
-                "window_radius must be in 1..=15, got {}",
-                self.window_radius
-            )));
-        }
-        if !(self.uniqueness_ratio.is_finite() && (0.0..1.0).contains(&self.uniqueness_ratio)) {
-            return Err(StereoError::Options(format!(
-                "uniqueness_ratio must be in [0, 1), got {}",
-                self.uniqueness_ratio
-            )));
-        }
-        let max_cost = 48 * (2 * self.window_radius + 1).pow(2);
-        if self.aggregation == Aggregation::Sgm
-            && (self.sgm_p1 == 0
-                || self.sgm_p2 < self.sgm_p1
-                || 5 * (max_cost + self.sgm_p2 as usize) > u16::MAX as usize)
-        {
-            return Err(StereoError::Options(format!(
-                "SGM needs 0 < sgm_p1 <= sgm_p2 and 5 (window cost {max_cost} + sgm_p2) < 65536"
-            )));
-        }
-        if width < 2 * self.window_radius + 2 {
-            return Err(StereoError::Size(format!(
-                "image width {width} is too small for window radius {}",
-                self.window_radius
-            )));
-        }
-        Ok(())
-    }
-}
 
 /// A disparity image (px), row-major; [`INVALID_DISPARITY`] where no match was accepted.
 #[derive(Debug, Clone, PartialEq, Default)]

@@ -2,6 +2,8 @@
 
 use super::StereoError;
 use rayon::prelude::*;
+
+pub use crate::config::stereo::{BayerPattern, Demosaic};
 use std::path::Path;
 
 /// A single-channel 8-bit image, row-major.
@@ -170,53 +172,6 @@ pub fn encode_gray_png(img: &GrayImage) -> Result<Vec<u8>, StereoError> {
         img.height,
         image::ExtendedColorType::L8,
     )
-}
-
-/// The colour filter layout, named by the top-left 2x2 block read row by row.
-///
-/// The car's cameras are "Bayer BG": their frames start with a blue pixel, B G / G R, i.e.
-/// [`BayerPattern::Bggr`] (checked on the real pair: with it the traffic cones come out orange
-/// and the tail lights red; with R G / G B they are blue).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum BayerPattern {
-    /// R G / G B.
-    Rggb,
-    /// B G / G R.
-    Bggr,
-    /// G R / B G.
-    Grbg,
-    /// G B / R G.
-    Gbrg,
-}
-
-impl BayerPattern {
-    /// The channel (0 R, 1 G, 2 B) sampled at `(x, y)`.
-    #[inline]
-    pub fn channel(self, x: usize, y: usize) -> usize {
-        let k = ((y & 1) << 1) | (x & 1);
-        let table: [usize; 4] = match self {
-            BayerPattern::Rggb => [0, 1, 1, 2],
-            BayerPattern::Bggr => [2, 1, 1, 0],
-            BayerPattern::Grbg => [1, 0, 2, 1],
-            BayerPattern::Gbrg => [1, 2, 0, 1],
-        };
-        table[k]
-    }
-
-    /// The pattern of the seed car's cameras ("BG": B G / G R).
-    pub const UCSD: BayerPattern = BayerPattern::Bggr;
-}
-
-/// Demosaicing algorithm.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Demosaic {
-    /// Bilinear interpolation of each channel from its own samples.
-    Bilinear,
-    /// Malvar, He & Cutler (2004): bilinear plus a gradient correction from the other channels
-    /// (5x5 linear filters), edge-aware at the same cost.
-    MalvarHeCutler,
 }
 
 /// Mosaics an RGB image into a single-channel Bayer frame (keeps each pixel's own channel).

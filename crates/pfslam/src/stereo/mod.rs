@@ -14,8 +14,9 @@ pub mod rectify;
 pub mod render;
 pub mod texture;
 
-use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
+
+pub use crate::config::stereo::{StereoOptionError, StereoOptions};
 
 pub use disparity::{DisparityMap, DisparityWorkspace, INVALID_DISPARITY, MatcherOptions};
 pub use ground::{ColouredPoint, PlaneFit, RgbdCamera, fit_plane_ransac};
@@ -51,91 +52,12 @@ pub enum StereoError {
     Io(#[from] crate::files::IoError),
 }
 
-/// Options of the stereo component (`[stereo]` in the configuration).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct StereoOptions {
-    /// Colour filter layout of the raw frames (the car: `bggr`).
-    pub bayer_pattern: BayerPattern,
-    /// Demosaicing algorithm. Bilinear by default: Malvar-He-Cutler gains 3.8 dB PSNR on a
-    /// natural test image, but on the real pair it gives 17 % fewer matched road pixels (its
-    /// sharpening also sharpens noise, which the census transform sees) and no better cell
-    /// colours on the rendered ground (5.68 vs 5.62 mean error).
-    /// A constant of the method: not read from the configuration file.
-    #[serde(skip)]
-    pub demosaic: Demosaic,
-    /// Block matcher.
-    pub matcher: MatcherOptions,
-    /// Texture grid cell size (m); 0 takes the occupancy map's resolution (the grid's origin
-    /// is always the map's).
-    pub cell_size_m: f64,
-    /// Points below this world z (m) are not ground.
-    pub ground_z_min_m: f64,
-    /// Points above this world z (m) are not ground.
-    pub ground_z_max_m: f64,
-    /// Points farther than this along the optical axis (m) are dropped (depth error grows
-    /// with the square of the distance).
-    pub max_depth_m: f64,
-    /// Use every n-th pixel in both directions when projecting (1 = all).
-    pub pixel_stride: usize,
-}
-
-impl Default for StereoOptions {
-    fn default() -> Self {
-        StereoOptions {
-            bayer_pattern: BayerPattern::UCSD,
-            demosaic: Demosaic::Bilinear,
-            matcher: MatcherOptions::default(),
-            cell_size_m: 0.0,
-            ground_z_min_m: -0.3,
-            ground_z_max_m: 0.3,
-            max_depth_m: 20.0,
-            pixel_stride: 1,
+impl From<StereoOptionError> for StereoError {
+    fn from(e: StereoOptionError) -> Self {
+        match e {
+            StereoOptionError::Options(m) => StereoError::Options(m),
+            StereoOptionError::Size(m) => StereoError::Size(m),
         }
-    }
-}
-
-impl StereoOptions {
-    /// Checks the options (image width for the matcher's window).
-    pub fn validate(&self, width: usize) -> Result<(), StereoError> {
-        self.matcher.validate(width)?;
-        if !(self.cell_size_m.is_finite() && self.cell_size_m >= 0.0) {
-            return Err(StereoError::Options(format!(
-                "cell_size_m must be >= 0 (0 = the map's), got {}",
-                self.cell_size_m
-            )));
-        }
-        if !(self.ground_z_min_m.is_finite()
-            && self.ground_z_max_m.is_finite()
-            && self.ground_z_min_m < self.ground_z_max_m)
-        {
-            return Err(StereoError::Options(format!(
-                "ground z window [{}, {}] m is empty",
-                self.ground_z_min_m, self.ground_z_max_m
-            )));
-        }
-        if !(self.max_depth_m.is_finite() && self.max_depth_m > 0.0) {
-            return Err(StereoError::Options(format!(
-                "max_depth_m must be positive, got {}",
-                self.max_depth_m
-            )));
-        }
-        if self.pixel_stride == 0 {
-            return Err(StereoError::Options("pixel_stride must be >= 1".into()));
-        }
-        Ok(())
-    }
-}
-
-impl StereoOptions {
-    /// The texture grid: the map's origin, and `cell_size_m` or else the map's resolution.
-    pub fn texture_limits(&self, map: &crate::map::MapOptions) -> crate::map::MapLimits {
-        let res = if self.cell_size_m > 0.0 {
-            self.cell_size_m
-        } else {
-            map.resolution_m
-        };
-        crate::map::MapLimits::new(res, map.origin_x_m, map.origin_y_m)
     }
 }
 
