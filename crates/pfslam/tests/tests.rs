@@ -4,10 +4,12 @@
 mod acceptance;
 mod common;
 mod eval;
+mod field_cache;
 mod filter;
 mod graph;
 mod localize;
 mod map;
+mod map_batches;
 mod motion;
 mod online;
 mod pipeline;

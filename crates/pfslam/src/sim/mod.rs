@@ -127,18 +127,6 @@ pub fn sim_toml(opts: &SimOptions) -> Result<String, SimError> {
         .map_err(|e| SimError::BadOption(format!("cannot serialise the options: {e}")))
 }
 
-/// For tests: the car of `opts` simulated in its built-in world, and its recording with the
-/// default motion options.
-#[cfg(test)]
-pub(crate) fn test_car(opts: &SimOptions) -> (CarSimOutput, crate::sensors::Recording) {
-    let world = World::builtin(opts.world_name()).unwrap();
-    let out = simulate_car(&world, opts).unwrap();
-    let car = out
-        .recording(&crate::motion::MotionOptions::default())
-        .unwrap();
-    (out, car)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
