@@ -17,10 +17,10 @@ pub fn data_dir(test: &str) -> Option<PathBuf> {
 /// motion options.
 #[allow(dead_code)]
 pub fn simulated_car(
-    opts: &pfslam::sim::SimOptions,
-) -> (pfslam::sim::CarSimOutput, pfslam::sensors::Recording) {
-    let world = pfslam::sim::World::builtin(opts.world_name()).unwrap();
-    let out = pfslam::sim::simulate_car(&world, opts).unwrap();
+    opts: &pfslam_sim::SimOptions,
+) -> (pfslam_sim::CarSimOutput, pfslam::sensors::Recording) {
+    let world = pfslam_sim::World::builtin(opts.world_name()).unwrap();
+    let out = pfslam_sim::simulate_car(&world, opts).unwrap();
     let car = out
         .recording(&pfslam::motion::MotionOptions::default())
         .unwrap();

@@ -7,7 +7,7 @@ use pfslam::filter::slam::{BestParticleMap, MapPolicy};
 use pfslam::geometry::{Pose2, Trajectory};
 use pfslam::map::{Cell, CellRect};
 use pfslam::map::{MapOptions, PlanarScan, ScanOptions, ScanProjector};
-use pfslam::sim::SimOptions;
+use pfslam_sim::SimOptions;
 use rand::{RngExt, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
 

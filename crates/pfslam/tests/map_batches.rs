@@ -8,7 +8,7 @@ use pfslam::map::{
     ScanInserter, ScanProjector, map_with_poses, scans_to_map,
 };
 use pfslam::sensors::Recording;
-use pfslam::sim::{CarSimOutput, SimOptions};
+use pfslam_sim::{CarSimOutput, SimOptions};
 
 /// [`map_with_poses`] without batches: each scan inserted in turn (the oracle).
 fn map_with_poses_sequential(

@@ -17,7 +17,4 @@ mod rbpf;
 mod readers;
 mod readers_streamed;
 mod session;
-mod sim;
-mod sim_stereo;
-mod stereo;
 mod ucsd;
