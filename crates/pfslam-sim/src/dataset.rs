@@ -1,6 +1,7 @@
-//! The simulator's outputs written as datasets with `pfslam-io`'s writers: a simulated car recording in the car's layout
-//! ([`write_car_sim`], with its rendered stereo pairs), a simulated humanoid recording in the
-//! humanoid's layout ([`write_humanoid_sim`]), and beside each its ground truth:
+//! The simulator's outputs written as datasets with `pfslam-io`'s writers: a simulated car
+//! recording in the car's layout ([`write_car_sim`], with its rendered stereo pairs), a
+//! simulated humanoid recording in the humanoid's layout ([`write_humanoid_sim`]), and beside
+//! each its ground truth:
 //! `ground_truth.tum`, the true maps (PNG and map_server pairs), `world.world`, `sim.toml` and,
 //! for the humanoid, `beam_labels.csv` (header `timestamp_ns,labels`; per scan one string of N
 //! digits, one per beam: `0` no return, `1` obstacle, `2` floor).

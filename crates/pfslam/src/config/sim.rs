@@ -55,8 +55,9 @@ pub struct SimOptions {
     /// A constant of the method: not read from the configuration file.
     #[serde(skip)]
     pub truth_band_max_m: f64,
-    /// The car's scan-surface truth (`[sim.scan_truth]`, rule in `pfslam_sim::scan_truth`): written as
-    /// `true_map.*` and `true_map_visible.*`; the fixed-band map above is `true_map_band.*`.
+    /// The car's scan-surface truth (`[sim.scan_truth]`, rule in `pfslam_sim::scan_truth`):
+    /// written as `true_map.*` and `true_map_visible.*`; the fixed-band map above is
+    /// `true_map_band.*`.
     /// A constant of the method: not read from the configuration file.
     #[serde(skip)]
     pub scan_truth: ScanTruthOptions,
