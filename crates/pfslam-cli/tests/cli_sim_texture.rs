@@ -6,10 +6,10 @@ use nalgebra::Vector3;
 use pfslam::geometry::{Pose2, Rigid3};
 use pfslam::map::{Cell, MapLimits};
 use pfslam::sensors::StereoCalibration;
-use pfslam::sim::world::World;
-use pfslam::stereo::render::WorldScene;
 use pfslam_io::tum::read_tum;
 use pfslam_io::ucsd::read_stereo_stamps;
+use pfslam_sim::WorldScene;
+use pfslam_sim::world::World;
 use std::path::Path;
 
 /// A float32 `.npy` file: (shape, data).
@@ -156,7 +156,7 @@ fn simulated_stereo_drive_run_writes_a_true_texture() {
     for s in &stamps {
         for side in ["left", "right"] {
             let p = sim.join(format!("stereo_images/stereo_{side}/{s}.png"));
-            let img = pfslam::stereo::image::load_gray_png(&p).unwrap();
+            let img = pfslam_stereo::image::load_gray_png(&p).unwrap();
             assert_eq!((img.width, img.height), (1280, 560));
         }
     }

@@ -3,8 +3,8 @@
 use super::{pfslam, run_ok};
 use pfslam::geometry::Pose2;
 use pfslam::sensors::StereoCalibration;
-use pfslam::stereo::image::{BayerPattern, encode_gray_png};
-use pfslam::stereo::render::render_ground_pair;
+use pfslam_stereo::image::{BayerPattern, encode_gray_png};
+use pfslam_stereo::render::render_ground_pair;
 use std::path::Path;
 
 /// A red square (world x 8-10 m, y -1-1 m) on a textured grey ground.
@@ -135,12 +135,12 @@ fn texture_without_poses_file_exits_2() {
 
 #[test]
 fn texture_over_the_lidar_map_of_a_simulated_drive() {
-    use pfslam::sim::SimOptions;
-    use pfslam::sim::car::simulate_car;
-    use pfslam::sim::world::World;
-    use pfslam::stereo::render::WorldScene;
     use pfslam_io::tum::write_tum;
     use pfslam_io::ucsd::write_car_dataset;
+    use pfslam_sim::SimOptions;
+    use pfslam_sim::WorldScene;
+    use pfslam_sim::car::simulate_car;
+    use pfslam_sim::world::World;
     // A 6 s drive on the campus: the car's files (with LiDAR), two rendered stereo pairs.
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();

@@ -16,8 +16,8 @@
 //!   OpenCV calibration YAML.
 //! - [`run_file`](mod@run_file): a path opened as a dataset (recording file, rosbag2
 //!   directory, car or humanoid directory) and run through the pipeline.
-//! - [`sim`]: the simulator's outputs written as datasets with their ground truth;
-//!   [`stereo_dataset`]: texture mapping of a car dataset's stereo pairs.
+//! - [`stereo_dataset`]: texture mapping of a car dataset's stereo pairs (with
+//!   `pfslam-stereo`).
 //!
 //! Every reader reports malformed input as an [`IoError`] naming the file, the line (1-based)
 //! and the problem; every writer writes to a temporary file in the target directory and renames
@@ -44,7 +44,6 @@ pub mod ros1;
 pub mod ros_assemble;
 pub mod ros_msgs;
 pub mod run_file;
-pub mod sim;
 pub mod stereo_dataset;
 pub mod tum;
 pub mod ucsd;

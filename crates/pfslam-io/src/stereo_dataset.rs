@@ -5,8 +5,8 @@ use crate::ucsd::{STEREO_LEFT_DIR, STEREO_RIGHT_DIR, read_stereo_stamps};
 use pfslam::geometry::Trajectory;
 use pfslam::map::MapLimits;
 use pfslam::sensors::StereoCalibration;
-use pfslam::stereo::image::load_gray_png;
-use pfslam::stereo::{StereoError, StereoOptions, StereoPipeline, TextureMap};
+use pfslam_stereo::image::load_gray_png;
+use pfslam_stereo::{StereoError, StereoOptions, StereoPipeline, TextureMap};
 use serde::Serialize;
 use std::path::Path;
 

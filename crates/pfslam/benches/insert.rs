@@ -90,12 +90,12 @@ fn bench(c: &mut Criterion) {
     });
 
     // A simulated campus scan with the real (tilted) mount.
-    let sim = pfslam::sim::SimOptions {
+    let sim = pfslam_sim::SimOptions {
         duration_s: 12.0,
-        ..pfslam::sim::SimOptions::noise_free()
+        ..pfslam_sim::SimOptions::noise_free()
     };
-    let w = pfslam::sim::World::builtin(sim.world_name()).unwrap();
-    let out = pfslam::sim::simulate_car(&w, &sim).unwrap();
+    let w = pfslam_sim::World::builtin(sim.world_name()).unwrap();
+    let out = pfslam_sim::simulate_car(&w, &sim).unwrap();
     let cal = &out.dataset.calibration;
     let proj_real =
         ScanProjector::new(&cal.lidar, &cal.body_from_lidar, &ScanOptions::default()).unwrap();

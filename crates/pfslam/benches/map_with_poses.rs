@@ -27,12 +27,12 @@ fn sequential(rec: &Recording, poses: &Trajectory, opts: &MapOptions) -> Occupan
 }
 
 fn bench(c: &mut Criterion) {
-    let sim = pfslam::sim::SimOptions {
+    let sim = pfslam_sim::SimOptions {
         duration_s: 10.0,
-        ..pfslam::sim::SimOptions::noise_free()
+        ..pfslam_sim::SimOptions::noise_free()
     };
-    let world = pfslam::sim::World::builtin(sim.world_name()).unwrap();
-    let out = pfslam::sim::simulate_car(&world, &sim).unwrap();
+    let world = pfslam_sim::World::builtin(sim.world_name()).unwrap();
+    let out = pfslam_sim::simulate_car(&world, &sim).unwrap();
     let rec = out
         .recording(&pfslam::motion::MotionOptions::default())
         .unwrap();

@@ -4,7 +4,7 @@
 use pfslam::config::Config;
 use pfslam::geometry::Pose2;
 use pfslam::map::{InsertScratch, OccupancyGrid, PlanarScan, ScanProjector, to_world};
-use pfslam::sim::{SimOptions, World, simulate_car};
+use pfslam_sim::{SimOptions, World, simulate_car};
 
 /// An 8 s simulated drive mapped with the true poses (every `step`-th scan but the last)
 /// with `config`; returns the grid, the last scan in the body frame and the true last pose.

@@ -1,5 +1,8 @@
 //! The resolved configuration: one options struct per component, one TOML section each.
 
+pub mod sim;
+pub mod stereo;
+
 use serde::{Deserialize, Serialize};
 
 /// Every component's options. Missing sections and keys take their defaults; unknown keys
@@ -16,9 +19,9 @@ pub struct Config {
     /// Particle filter (`[filter]`).
     pub filter: crate::filter::FilterOptions,
     /// Simulator (`[sim]`).
-    pub sim: crate::sim::SimOptions,
+    pub sim: sim::SimOptions,
     /// Stereo texture mapping (`[stereo]`).
-    pub stereo: crate::stereo::StereoOptions,
+    pub stereo: stereo::StereoOptions,
     /// Pose-graph back end: loop closure after the filter (`[graph]`).
     pub graph: crate::graph::GraphOptions,
     /// Monte Carlo localisation in a fixed map (`[localize]`, `pfslam localize`).

@@ -1,7 +1,7 @@
 //! # pfslam — particle-filter SLAM for 2-D LiDAR
 //!
-//! pfslam estimates where a robot drove and draws the map it saw: a log-odds occupancy grid,
-//! its binary map and the ground colours seen by a stereo camera.
+//! pfslam estimates where a robot drove and draws the map it saw: a log-odds occupancy grid
+//! and its binary map.
 //!
 //! ## Use it incrementally
 //!
@@ -17,7 +17,6 @@
 //!  sensors ──► motion ──► filter ◄──► map ──► eval
 //!  (typed       (odometry   (particles,  (grid,     (metrics)
 //!   streams)     models)     weights)     rays)
-//!  sim: simulated recordings with ground truth      stereo: image pairs -> ground colour
 //! ```
 //!
 //! - [`sensors`] holds typed, timestamped measurements ([`sensors::CarDataset`],
@@ -32,18 +31,18 @@
 //!   insertion.
 //! - [`filter`] is the particle filter (prediction, map correlation, weights, resampling).
 //! - [`eval`] measures accuracy (ATE, RPE, the Kümmerle relations metric).
-//! - [`sim`] simulates the seed car and the humanoid in built-in or user worlds.
-//! - [`stereo`] demosaics, rectifies and matches stereo pairs to colour the ground.
 //!
-//! [`config::Config`] gathers one options struct per component; each is one TOML section.
+//! [`config::Config`] gathers one options struct per component; each is one TOML section,
+//! including those of the crates beside this one (`[sim]`: [`config::sim`], `[stereo]`:
+//! [`config::stereo`]).
 //!
 //! The recording and dataset formats (the car's CSV layout, calibration files, TUM
 //! trajectories, CARMEN logs, ROS bags, MCAP, map files, relations files), opening a path as a
-//! dataset and running it (`pfslam_io::run_file`) and writing simulated datasets are the
-//! `pfslam-io` crate's; pictures of the results (map images, trajectory plots, MCAP run
-//! records) are the `pfslam-viz` crate's. Both sit on top of this one, which reads only its
-//! own files: the configuration, saved sessions ([`session`]), world files ([`sim`]) and
-//! stereo images ([`stereo`]).
+//! dataset and running it (`pfslam_io::run_file`) are the `pfslam-io` crate's; pictures of the results (map images, trajectory plots, MCAP run
+//! records) are the `pfslam-viz` crate's; the simulator (worlds, vehicles, true maps, writing
+//! simulated datasets) is `pfslam-sim`'s and stereo texture mapping (demosaicing,
+//! rectification, disparity, ground colours) `pfslam-stereo`'s. All of them sit on top of this
+//! one, which reads only its own files: the configuration and saved sessions ([`session`]).
 //!
 //! Conventions: frames in names (`world_from_body`), units in names (`range_m`, `yaw_rad`),
 //! time as `i64` nanoseconds (`stamp_ns`), angles in radians, z up, yaw counter-clockwise.
@@ -68,8 +67,6 @@ pub mod pipeline;
 pub mod quality;
 pub mod sensors;
 pub mod session;
-pub mod sim;
-pub mod stereo;
 
 pub use config::Config;
 pub use online::{OnlineError, ScanInput, SensorSetup, Slam, check_imu_yaw, check_odometry};

@@ -12,3 +12,17 @@ pub fn data_dir(test: &str) -> Option<PathBuf> {
     }
     d
 }
+
+/// The car of `opts` simulated in its built-in world, and its recording with the default
+/// motion options.
+#[allow(dead_code)]
+pub fn simulated_car(
+    opts: &pfslam_sim::SimOptions,
+) -> (pfslam_sim::CarSimOutput, pfslam::sensors::Recording) {
+    let world = pfslam_sim::World::builtin(opts.world_name()).unwrap();
+    let out = pfslam_sim::simulate_car(&world, opts).unwrap();
+    let car = out
+        .recording(&pfslam::motion::MotionOptions::default())
+        .unwrap();
+    (out, car)
+}

@@ -358,7 +358,7 @@ fn slam_is_bit_identical_with_1_and_4_threads() {
 #[test]
 fn scan_match_mode_is_bit_identical_with_1_and_4_threads() {
     use pfslam::filter::slam::{anchor_odometry_to_ground_truth, run_slam};
-    use pfslam::sim::{SimOptions, World, simulate_car};
+    use pfslam_sim::{SimOptions, World, simulate_car};
     let opts = SimOptions {
         duration_s: 12.0,
         ..SimOptions::default()
@@ -458,7 +458,7 @@ struct SimRun {
 
 fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> SimRun {
     use pfslam::filter::slam::anchor_odometry_to_ground_truth;
-    use pfslam::sim::{SimOptions, World, simulate_car};
+    use pfslam_sim::{SimOptions, World, simulate_car};
     let mut opts = SimOptions {
         duration_s,
         ..SimOptions::default()
@@ -467,7 +467,7 @@ fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> 
         opts.truth_band_max_m = b;
     }
     if std::env::var("PF_NOISEFREE").is_ok() {
-        opts.car = pfslam::sim::CarSimOptions::noise_free();
+        opts.car = pfslam_sim::CarSimOptions::noise_free();
     }
     let world = World::builtin(opts.world_name()).unwrap();
     let out = simulate_car(&world, &opts).unwrap();
@@ -624,7 +624,7 @@ fn simulated_car_slam_ate_is_5x_below_dead_reckoning() {
 }
 
 /// The map target on the same drive, as written: precision and recall >= 0.9 against
-/// the scan-surface truth (`pfslam::sim::scan_truth`), the map rebuilt along the final
+/// the scan-surface truth (`pfslam_sim::scan_truth`), the map rebuilt along the final
 /// trajectory with the height bins as `pfslam run` writes it, in the true map's frame (the
 /// SLAM map is anchored at the true start pose, not aligned). Not reached: recall 0.824 /
 /// 0.865 / 0.861 / 0.814 / 0.957 over seeds 1-5 (precision 0.94-0.98). Through the ATE's SE(2) alignment both are >= 0.98 (asserted in

@@ -393,8 +393,9 @@ fn biased_loop() -> (
     pfslam::geometry::Trajectory,
 ) {
     use pfslam::geometry::{StampedPose2, Trajectory};
-    use pfslam::sim::{SimOptions, World, simulate_car};
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("worlds/example.world");
+    use pfslam_sim::{SimOptions, World, simulate_car};
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../pfslam-sim/worlds/example.world");
     let world = World::from_file(&path).unwrap();
     let mut opts = SimOptions {
         duration_s: 140.0,
@@ -548,7 +549,7 @@ fn humanoid_back_end_takes_no_odometry_yaw_edges() {
     use pfslam::eval::{Association, ate::ate};
     use pfslam::geometry::Trajectory;
     use pfslam::pipeline::{PipelineOptions, run_pipeline};
-    use pfslam::sim::{SimOptions, Vehicle, World, simulate_humanoid};
+    use pfslam_sim::{SimOptions, Vehicle, World, simulate_humanoid};
     let opts = SimOptions {
         vehicle: Vehicle::Humanoid,
         ..SimOptions::default()

@@ -210,7 +210,7 @@ fn synthetic_drive_with_exact_poses_matches_the_truth() {
 ///   where the band is free. The default band (1-4 m) contains car roofs and canopy bottoms
 ///   that rays pass over or under; the figures against it are printed too.
 fn campus_leg(z_window_m: [f64; 2], band_m: [f64; 2]) -> (OccupancyGrid, BinaryMap, BinaryMap) {
-    use pfslam::sim::{SimOptions, TrueMap, World, simulate_car};
+    use pfslam_sim::{SimOptions, TrueMap, World, simulate_car};
     let sim_opts = SimOptions {
         duration_s: 36.0,
         ..SimOptions::noise_free()
@@ -250,7 +250,7 @@ fn campus_leg(z_window_m: [f64; 2], band_m: [f64; 2]) -> (OccupancyGrid, BinaryM
     let dir = tempfile::tempdir().unwrap();
     let read = |band: [f64; 2], stem: &str| {
         let t = TrueMap::rasterize(&world, sim_opts.truth_map_resolution_m, band, 20.0);
-        pfslam_io::sim::write_true_map(&t, dir.path(), stem).unwrap();
+        pfslam_sim::dataset::write_true_map(&t, dir.path(), stem).unwrap();
         read_map_server(&dir.path().join(format!("{stem}.yaml"))).unwrap()
     };
     let matched = read(band_m, "true_map_band");
@@ -324,7 +324,7 @@ fn map_files_roundtrip_for_a_mapped_grid() {
 }
 
 /// Mapping the whole default drive (180 s, default simulated errors) with the true poses,
-/// judged by the simulator's scan-surface truth (`pfslam::sim::scan_truth`: what the tilted
+/// judged by the simulator's scan-surface truth (`pfslam_sim::scan_truth`: what the tilted
 /// LiDAR's beams can face with line of sight within 75 m, traced from the world's solids and
 /// the true poses, never from the simulated ranges). Measured with the default `[map.height]`
 /// bins and the default truth (the sensor's 286 beams from every 10th pose): precision
@@ -334,7 +334,7 @@ fn map_files_roundtrip_for_a_mapped_grid() {
 /// log-odds value per cell (bins off) against the older 0.1 deg uniform-ray truth: 0.681.
 #[test]
 fn whole_default_drive_with_ground_truth_vs_scan_surface_truth() {
-    use pfslam::sim::{SimOptions, World, simulate_car};
+    use pfslam_sim::{SimOptions, World, simulate_car};
     let sim_opts = SimOptions::default();
     let world = World::builtin(sim_opts.world_name()).unwrap();
     let out = simulate_car(&world, &sim_opts).unwrap();

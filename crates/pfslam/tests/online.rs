@@ -213,7 +213,7 @@ fn bad_input_is_refused_with_its_reason() {
 fn a_humanoid_fed_its_imu_yaw_and_head_mounts_gives_the_batch_run() {
     use pfslam::filter::prediction::PredictionModel;
     use pfslam::motion::odometry_model::OdometryModelOptions;
-    use pfslam::sim::{SimOptions, Vehicle, World, simulate_humanoid};
+    use pfslam_sim::{SimOptions, Vehicle, World, simulate_humanoid};
     let opts = SimOptions {
         vehicle: Vehicle::Humanoid,
         duration_s: 30.0,

@@ -14,9 +14,9 @@ use pfslam::config::Config;
 use pfslam::filter::slam::{SlamResult, StageTimings, anchor_odometry_to_ground_truth};
 use pfslam::geometry::Pose2;
 use pfslam::pipeline::{PipelineOptions, process_cpu_s, run_pipeline};
-use pfslam::sim::{SimOptions, World};
 use pfslam_io::map_files::write_map_server;
 use pfslam_io::tum::write_tum;
+use pfslam_sim::{SimOptions, World};
 use pfslam_viz::map_image::{MapImageOptions, TrajectoryOverlay, write_binary_png, write_map_png};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -250,8 +250,8 @@ fn simulate(args: &Args, config: &Config, work: &Path) -> anyhow::Result<PathBuf
     let world = World::from_name_or_file(opts.world_name())?;
     let dir = work.join("dataset");
     let t = Instant::now();
-    let out = pfslam::sim::simulate_car(&world, &opts)?;
-    pfslam_io::sim::write_car_sim(&dir, &out)
+    let out = pfslam_sim::simulate_car(&world, &opts)?;
+    pfslam_sim::dataset::write_car_sim(&dir, &out)
         .with_context(|| format!("writing {}", dir.display()))?;
     say!(
         "simulated {:.1} s ({} scans, {} FOG rows) into {} in {:.1} s (not timed below)",

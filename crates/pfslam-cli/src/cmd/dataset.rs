@@ -47,7 +47,7 @@ pub fn load_dataset(
 }
 
 /// A true map (map_server yaml) and, when a `<stem>_visible.yaml` lies beside it (the
-/// simulator's scan-surface truth, see `pfslam::sim::scan_truth`), its visibility raster.
+/// simulator's scan-surface truth, see `pfslam_sim::scan_truth`), its visibility raster.
 pub struct TrueMaps {
     /// Occupancy truth: precision is counted against it.
     pub occupancy: BinaryMap,

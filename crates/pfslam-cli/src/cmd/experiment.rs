@@ -8,7 +8,7 @@ use pfslam::eval::{Association, ate::ate};
 use pfslam::filter::slam::{anchor_odometry_to_ground_truth, run_slam};
 use pfslam::geometry::{StampedPose2, Trajectory};
 use pfslam::motion::VelocityNoise;
-use pfslam::sim::{SimOptions, World, simulate_car};
+use pfslam_sim::{SimOptions, World, simulate_car};
 use std::fmt::Write as _;
 use std::path::PathBuf;
 

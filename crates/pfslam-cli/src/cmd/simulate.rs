@@ -2,7 +2,7 @@
 //! write the dataset with its ground truth.
 
 use anyhow::Context;
-use pfslam::sim::{SimOptions, Vehicle, World};
+use pfslam_sim::{SimOptions, Vehicle, World};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -44,8 +44,8 @@ pub fn options(args: &Args) -> anyhow::Result<SimOptions> {
         None => SimOptions::default(),
     };
     if args.noise_free {
-        opts.car = pfslam::sim::CarSimOptions::noise_free();
-        opts.humanoid = pfslam::sim::HumanoidSimOptions::noise_free();
+        opts.car = pfslam_sim::CarSimOptions::noise_free();
+        opts.humanoid = pfslam_sim::HumanoidSimOptions::noise_free();
     }
     if let Some(v) = &args.vehicle {
         opts.vehicle = if v == "humanoid" {
@@ -77,9 +77,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let t0 = Instant::now();
     match opts.vehicle {
         Vehicle::Car => {
-            let out = pfslam::sim::simulate_car(&world, &opts)?;
+            let out = pfslam_sim::simulate_car(&world, &opts)?;
             let t_sim = t0.elapsed().as_secs_f64();
-            pfslam_io::sim::write_car_sim(&args.out, &out)
+            pfslam_sim::dataset::write_car_sim(&args.out, &out)
                 .with_context(|| format!("writing {}", args.out.display()))?;
             let t_all = t0.elapsed().as_secs_f64();
             let ds = &out.dataset;
@@ -104,9 +104,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             );
         }
         Vehicle::Humanoid => {
-            let out = pfslam::sim::simulate_humanoid(&world, &opts)?;
+            let out = pfslam_sim::simulate_humanoid(&world, &opts)?;
             let t_sim = t0.elapsed().as_secs_f64();
-            pfslam_io::sim::write_humanoid_sim(&args.out, &out)
+            pfslam_sim::dataset::write_humanoid_sim(&args.out, &out)
                 .with_context(|| format!("writing {}", args.out.display()))?;
             let t_all = t0.elapsed().as_secs_f64();
             say!(

@@ -12,13 +12,13 @@ use pfslam::config::Config;
 use pfslam::geometry::{StampedPose2, Trajectory};
 use pfslam::map::{CellRect, CellState, OccupancyGrid, map_with_poses};
 use pfslam::sensors::StereoCalibration;
-use pfslam::stereo::TextureMap;
-use pfslam::stereo::image::{RgbImage, encode_rgb_png};
 use pfslam_io::map_files::write_npy_f32;
 use pfslam_io::stereo_dataset::{TextureStats, texture_dataset};
 use pfslam_io::tum::read_tum;
 use pfslam_io::ucsd::{PARAM_DIR, STEREO_LEFT_DIR, read_car_calibration, read_stereo_stamps};
 use pfslam_io::{write_atomic, write_bytes_atomic};
+use pfslam_stereo::TextureMap;
+use pfslam_stereo::image::{RgbImage, encode_rgb_png};
 use std::path::{Path, PathBuf};
 
 /// Longest side of `texture.png` (px); larger rasters are reduced by an integer factor.

@@ -18,7 +18,7 @@
 //!   counts, without tolerance, the estimated free cells whose centre is truly occupied.
 //!
 //! [`compare_maps_visible`] judges against a truth that says what the sensor could observe
-//! (the simulator's scan-surface truth, [`crate::sim::ScanSurfaceTruth`]): besides the occupancy
+//! (the simulator's scan-surface truth, `pfslam_sim::ScanSurfaceTruth`): besides the occupancy
 //! truth (precision, as above) a *visibility* raster whose occupied cells are the surfaces a
 //! beam could reach first within range and whose free cells are where a beam could pass
 //! freely. Recall is then counted over every visible surface cell (an estimated occupied cell
