@@ -90,7 +90,7 @@ impl LikelihoodField {
     pub fn tracking_with_gradient(&self, x_m: f64, y_m: f64) -> (f32, [f32; 2]) {
         let (cx, cy) = self.limits.cell_coords(x_m, y_m);
         let (u, v) = (cx - 0.5, cy - 0.5);
-        let (i0, j0) = (u.floor(), v.floor());
+        let (i0, j0) = (floor_f64(u), floor_f64(v));
         let (w, h) = (self.width as f64, self.height as f64);
         if !(i0 >= 0.0 && j0 >= 0.0 && i0 + 1.0 < w && j0 + 1.0 < h) {
             return (
@@ -132,7 +132,7 @@ impl LikelihoodField {
     #[inline]
     pub fn log_likelihood_at_centres(&self, sharpness: Sharpness, u: f64, v: f64) -> f32 {
         let table = &self.tables[sharpness as usize];
-        let (i0, j0) = (u.floor(), v.floor());
+        let (i0, j0) = (floor_f64(u), floor_f64(v));
         let (fx, fy) = ((u - i0) as f32, (v - j0) as f32);
         let (w, h) = (self.width as f64, self.height as f64);
         if i0 >= 0.0 && j0 >= 0.0 && i0 + 1.0 < w && j0 + 1.0 < h {
@@ -170,12 +170,19 @@ impl LikelihoodField {
     #[inline]
     fn index(&self, x_m: f64, y_m: f64) -> Option<usize> {
         let (ci, cj) = self.limits.cell_coords(x_m, y_m);
-        let (i, j) = (ci.floor(), cj.floor());
+        let (i, j) = (floor_f64(ci), floor_f64(cj));
         if i < 0.0 || j < 0.0 || i >= self.width as f64 || j >= self.height as f64 {
             return None;
         }
         Some(j as usize * self.width + i as usize)
     }
+}
+
+/// `v.floor()` for the cell coordinates of the raster (within +-2^31 cells; saturating
+/// beyond, which stays off the raster) without the libm call of baseline x86-64.
+#[inline(always)]
+fn floor_f64(v: f64) -> f64 {
+    f64::from(crate::map::limits::floor_to_i32(v))
 }
 
 /// Squared distance (cells²) from every cell to the nearest occupied cell, at most `cap`
