@@ -62,9 +62,14 @@ impl StaleScans {
         }
         let n = self.recent.len();
         if n >= 3 {
-            let share = |k: &Kept| agreement(ranges_m, lidar, k);
-            let latest = share(&self.recent[n - 1]).max(share(&self.recent[n - 2]));
-            let older = self.recent.iter().take(n - 2).map(|k| (share(k), k));
+            let share = |k: &Kept, at_least: f64| agreement(ranges_m, lidar, k, at_least);
+            let latest = share(&self.recent[n - 1], 0.0).max(share(&self.recent[n - 2], 0.0));
+            let needed = MIN_SHARE.max(MIN_RATIO * latest);
+            let older = self
+                .recent
+                .iter()
+                .take(n - 2)
+                .map(|k| (share(k, needed), k));
             if let Some((best, kept)) = older.max_by(|a, b| a.0.total_cmp(&b.0))
                 && best >= MIN_SHARE
                 && best >= MIN_RATIO * latest
@@ -84,17 +89,28 @@ impl StaleScans {
 }
 
 /// The share of the bearings with a return in both scans where the two ranges agree (0 for
-/// scans of other beam layouts).
-fn agreement(ranges_m: &[f32], lidar: &LidarGeometry, kept: &Kept) -> f64 {
+/// scans of other beam layouts); -1 as soon as the share cannot reach `at_least` (most
+/// comparisons end halfway).
+fn agreement(ranges_m: &[f32], lidar: &LidarGeometry, kept: &Kept, at_least: f64) -> f64 {
     if kept.lidar != *lidar || kept.ranges_m.len() != ranges_m.len() {
         return 0.0;
     }
     let valid = |r: f32| r > lidar.range_min_m && r < lidar.range_max_m;
     let (mut both, mut agree) = (0usize, 0usize);
-    for (&a, &b) in ranges_m.iter().zip(&kept.ranges_m) {
-        if valid(a) && valid(b) {
-            both += 1;
-            agree += usize::from((a - b).abs() < AGREE_M);
+    let pairs = ranges_m.chunks(32).zip(kept.ranges_m.chunks(32));
+    let mut left = ranges_m.len();
+    for (new, old) in pairs {
+        for (&a, &b) in new.iter().zip(old) {
+            if valid(a) && valid(b) {
+                both += 1;
+                agree += usize::from((a - b).abs() < AGREE_M);
+            }
+        }
+        left -= new.len();
+        // The best share left: every remaining bearing valid in both and agreeing (a
+        // margin of 1e-9 keeps rounding from ending a comparison that could reach it).
+        if ((agree + left) as f64) < at_least * (1.0 - 1e-9) * (both + left) as f64 {
+            return -1.0;
         }
     }
     agree as f64 / both.max(1) as f64
