@@ -227,21 +227,11 @@ pub fn read_beam_labels(path: &Path, beam_count: usize) -> Result<(Vec<i64>, Vec
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{Prism, World};
     use pfslam_io::map_files::read_map_server;
 
     #[test]
     fn true_map_reads_back_as_map_server() {
-        let w = World {
-            name: "t".into(),
-            prisms: vec![
-                Prism::rect("b", [5.0, 5.0], 2.0, 2.0, 0.0, 0.0, 3.0).unwrap(),
-                Prism::rect("low", [-5.0, 5.0], 2.0, 2.0, 0.0, 0.0, 0.3).unwrap(),
-                Prism::rect("pole", [0.0, -5.0], 0.05, 0.05, 0.0, 0.0, 5.0).unwrap(),
-            ],
-            ground: Default::default(),
-            route: vec![],
-        };
+        let w = crate::truth::tests::three_prisms();
         let m = TrueMap::rasterize(&w, 0.1, [1.0, 4.0], 1.0);
         let dir = tempfile::tempdir().unwrap();
         write_true_map(&m, dir.path(), "true_map").unwrap();

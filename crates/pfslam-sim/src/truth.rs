@@ -161,13 +161,13 @@ pub(crate) fn for_each_footprint_cell(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::world::Prism;
 
-    #[test]
-    fn band_rule_and_raster() {
-        let w = World {
+    /// A 3 m block, a 0.3 m block below the band and a thin 5 m pole.
+    pub(crate) fn three_prisms() -> World {
+        World {
             name: "t".into(),
             prisms: vec![
                 Prism::rect("b", [5.0, 5.0], 2.0, 2.0, 0.0, 0.0, 3.0).unwrap(),
@@ -176,7 +176,12 @@ mod tests {
             ],
             ground: Default::default(),
             route: vec![],
-        };
+        }
+    }
+
+    #[test]
+    fn band_rule_and_raster() {
+        let w = three_prisms();
         let m = TrueMap::rasterize(&w, 0.1, [1.0, 4.0], 1.0);
         assert!(m.is_occupied_at(5.0, 5.0));
         assert!(m.is_occupied_at(4.05, 5.0));
