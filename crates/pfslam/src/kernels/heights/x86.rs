@@ -50,10 +50,10 @@ pub(super) fn update_bin_run_avx512(
     }
 }
 
-/// [`super::update_bins`] as one 16-lane vector operation (see [`super::BinUpdater`]).
 // `update_bins_avx512` loads and stores a column as one 16-byte vector.
 const _: () = assert!(MAX_BINS == 16);
 
+/// [`super::update_bins`] as one 16-lane vector operation (see [`super::BinUpdater`]).
 #[target_feature(enable = "avx512bw,avx512vl")]
 #[inline]
 pub(super) fn update_bins_avx512(bins: &mut [i8; MAX_BINS], marks: u32, model: &BinLogOdds) {
