@@ -9,7 +9,7 @@ use crate::config::Config;
 use crate::filter::slam::{SlamError, SlamEvent, SlamResult, run_slam};
 use crate::geometry::{Pose2, StampedPose2, Trajectory};
 pub use crate::graph::BackEndInput;
-use crate::graph::{GraphError, GraphStats, optimize_trajectory};
+use crate::graph::{GraphError, GraphStats, optimize_after_saved, optimize_trajectory};
 use crate::map::consistency::consistency;
 use crate::map::{MapError, OccupancyGrid, map_with_poses};
 use crate::motion::calibration::{CalibrationFit, fit_odometry_calibration};
@@ -212,7 +212,7 @@ pub(crate) fn after_filter(
         };
         let g = optimize_trajectory(recording, &config.map.scan, input, &graph_opts)?;
         let t = Clock::start();
-        let chosen = choose_trajectory(recording, config, &front_end, input, &graph_opts, g)?;
+        let chosen = choose_trajectory(recording, config, &front_end, input, &graph_opts, g, 0)?;
         if let Some(trajectory) = chosen.trajectory {
             result.trajectory = trajectory;
         }
@@ -291,21 +291,24 @@ pub(crate) fn back_end_over(
             loop_closures: Vec::new(),
         });
     }
-    let g = crate::graph::optimize_after_saved(
+    let g = optimize_after_saved(recording, &config.map.scan, front_end, &config.graph, saved)?;
+    choose_trajectory(
         recording,
-        &config.map.scan,
+        config,
+        front_end,
         front_end,
         &config.graph,
+        g,
         saved,
-    )?;
-    choose_trajectory(recording, config, front_end, front_end, &config.graph, g)
+    )
 }
 
 /// The back end's trajectory unless its map is much less consistent than the front end's
 /// (`[graph] max_free_share_ratio`). Then, when it matched consecutive keyframes itself, it
 /// runs again tied by the front end's motion alone (`sequential.matching = "off"`, no
 /// odometry-yaw edges): on Intel its own sequential matches led its closures astray on half
-/// of the seeds (decision 0006). The front end's trajectory when that fails too.
+/// of the seeds (decision 0006). The front end's trajectory when that fails too. The first
+/// `saved` poses of `input` are a saved session's keyframes, kept rigid in the second run too.
 fn choose_trajectory(
     recording: &Recording,
     config: &Config,
@@ -313,6 +316,7 @@ fn choose_trajectory(
     input: &[StampedPose2],
     graph_opts: &crate::graph::GraphOptions,
     g: crate::graph::GraphResult,
+    saved: usize,
 ) -> Result<Chosen, PipelineError> {
     let (back_grid, back_share) = map_and_free_share(recording, &g.trajectory, config)?;
     let ratio = config.graph.max_free_share_ratio;
@@ -355,7 +359,7 @@ fn choose_trajectory(
         let mut retry = graph_opts.clone();
         retry.sequential.matching = crate::graph::Switch::Off;
         retry.sequential.odometry_yaw_edges = crate::graph::Switch::Off;
-        let g2 = optimize_trajectory(recording, &config.map.scan, input, &retry)?;
+        let g2 = optimize_after_saved(recording, &config.map.scan, input, &retry, saved)?;
         let (grid, share) = map_and_free_share(recording, &g2.trajectory, config)?;
         signals.back_end_retried = true;
         signals.free_share_back_end = Some(share);
