@@ -5,9 +5,9 @@
 use anyhow::Context;
 use pfslam::config::Config;
 use pfslam::eval::{Association, ate::ate};
-use pfslam::filter::slam::{anchor_odometry_to_ground_truth, run_slam};
 use pfslam::geometry::{StampedPose2, Trajectory};
 use pfslam::motion::VelocityNoise;
+use pfslam::slam::{anchor_odometry_to_ground_truth, run_slam};
 use pfslam_sim::{SimOptions, World, simulate_car};
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -50,7 +50,7 @@ fn ate_rmse(est: &[StampedPose2], gt: &[StampedPose2]) -> anyhow::Result<f64> {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let mut config = match &args.config {
         Some(p) => Config::from_toml_file(p)?,
-        None => pfslam::filter::seed_config(),
+        None => pfslam::slam::seed_config(),
     };
     if let Some(d) = args.duration_s {
         config.sim.duration_s = d;
