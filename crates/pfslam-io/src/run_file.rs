@@ -13,13 +13,13 @@ use crate::recording::{Opened, ReadError, open_recording};
 use crate::tum::read_tum;
 use crate::ucsd::{ReadOptions, TimestampPolicy, read_car_dataset};
 use pfslam::config::{Config, OptionError};
-use pfslam::filter::slam::anchor_odometry_to_ground_truth;
 use pfslam::map::MapError;
 use pfslam::motion::MotionError;
 use pfslam::online::{OnlineError, Slam};
 use pfslam::pipeline::{PipelineOptions, PipelineResult, ensure_odometry};
 use pfslam::sensors::CarDataset;
 use pfslam::sensors::Recording;
+use pfslam::slam::anchor_odometry_to_ground_truth;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 

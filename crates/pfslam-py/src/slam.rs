@@ -9,10 +9,10 @@ use crate::errors::{PfslamError, online_error};
 use crate::occupancy::occupancy;
 use crate::result::{RunContext, RunResult, run_result};
 use numpy::{PyArray1, PyArray2, PyArrayMethods};
-use pfslam::filter::slam::SlamEvent;
 use pfslam::geometry::{Pose2, Rigid3, StampedPose2};
 use pfslam::pipeline::PipelineOptions;
 use pfslam::sensors::LidarGeometry;
+use pfslam::slam::SlamEvent;
 use pfslam::{Config, OnlineError, ScanInput, SensorSetup, Slam, check_imu_yaw, check_odometry};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -133,11 +133,9 @@ impl PySlam {
     /// with the sensor's `range_min` and `range_max` (m). Returns its pose `(t, x, y, yaw)`,
     /// or None while it waits for the odometry to reach its stamp.
     #[pyo3(signature = (t, ranges, angle_min, angle_increment, range_min, range_max))]
-    // The Python signature: the stamp, the ranges and the beams' four numbers.
-    #[allow(clippy::too_many_arguments)]
+    // The parameters are the Python signature's alone: the `Python` token comes from `ranges`.
     fn add_scan<'py>(
         &mut self,
-        py: Python<'py>,
         t: f64,
         ranges: &Bound<'py, PyAny>,
         angle_min: f64,
@@ -146,15 +144,13 @@ impl PySlam {
         range_max: f32,
     ) -> PyResult<Option<Bound<'py, PyTuple>>> {
         let beams = (angle_min, angle_increment, range_min, range_max);
-        self.push_scan(py, nanoseconds(t)?, ranges, beams)
+        self.push_scan(nanoseconds(t)?, ranges, beams)
     }
 
     /// `add_scan` with the stamp in integer nanoseconds.
     #[pyo3(signature = (stamp_ns, ranges, angle_min, angle_increment, range_min, range_max))]
-    #[allow(clippy::too_many_arguments)]
     fn add_scan_ns<'py>(
         &mut self,
-        py: Python<'py>,
         stamp_ns: i64,
         ranges: &Bound<'py, PyAny>,
         angle_min: f64,
@@ -163,7 +159,7 @@ impl PySlam {
         range_max: f32,
     ) -> PyResult<Option<Bound<'py, PyTuple>>> {
         let beams = (angle_min, angle_increment, range_min, range_max);
-        self.push_scan(py, stamp_ns, ranges, beams)
+        self.push_scan(stamp_ns, ranges, beams)
     }
 
     /// The pose `(t, x, y, yaw)` of the latest scan handled, None before the first.
@@ -232,11 +228,11 @@ impl PySlam {
     /// can; the scan's pose once handled.
     fn push_scan<'py>(
         &mut self,
-        py: Python<'py>,
         stamp_ns: i64,
         ranges: &Bound<'py, PyAny>,
         (angle_min_rad, angle_increment_rad, range_min_m, range_max_m): (f64, f64, f32, f32),
     ) -> PyResult<Option<Bound<'py, PyTuple>>> {
+        let py = ranges.py();
         self.check_running()?;
         let ranges_m = ranges_f32(ranges)?;
         let lidar = LidarGeometry {

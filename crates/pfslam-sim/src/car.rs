@@ -71,18 +71,7 @@ pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, Si
     opts.validate()?;
     let c = &opts.car;
     let calib = CarCalibration::ucsd();
-    let motion = Motion::plan(
-        world,
-        opts.duration_s,
-        &DriveProfile {
-            cruise_mps: c.cruise_speed_mps,
-            accel_mps2: c.max_accel_mps2,
-            decel_mps2: c.max_decel_mps2,
-            lateral_mps2: c.max_lateral_accel_mps2,
-            corner_radius_m: c.corner_radius_m,
-            standstill_s: c.initial_standstill_s,
-        },
-    )?;
+    let motion = plan_drive(world, opts)?;
 
     // Independent streams: stamps, encoder, fog, row drops, lidar blocks.
     let [
@@ -92,51 +81,25 @@ pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, Si
         mut rng_drop,
         lidar_base,
     ] = jumped_streams(Xoshiro256PlusPlus::seed_from_u64(opts.seed));
-    let jitter = c.errors.stamp_jitter_std_ns;
-    let enc_times = sample_times(opts, c.encoder_rate_hz, 0.0, jitter, &mut rng_stamps);
-    let fog_times = sample_times(opts, c.fog_rate_hz, 0.000_37, jitter, &mut rng_stamps);
-    let lidar_times = sample_times(opts, c.lidar_rate_hz, 0.003_1, jitter, &mut rng_stamps);
-    // Drawn last, so switching stereo on leaves every other stream unchanged.
-    let stereo_times = if c.stereo_rate_hz > 0.0 {
-        sample_times(opts, c.stereo_rate_hz, 0.007_3, jitter, &mut rng_stamps)
-    } else {
-        Vec::new()
-    };
+    let times = SensorTimes::sample(opts, &mut rng_stamps);
 
-    let mut encoder = simulate_encoder(&motion, c, &calib, &enc_times, &mut rng_enc);
-    let mut fog = simulate_fog(&motion, c, &fog_times, &mut rng_fog);
-    let nb = calib.lidar.beam_count;
-    let ranges = cast_scans(world, &motion, &calib, (c, &lidar_times), lidar_base);
-    let mut ground_truth = Vec::with_capacity(lidar_times.len());
-    let mut lidar = ScanSet::new(nb);
-    lidar.stamps_ns.reserve(lidar_times.len());
-    lidar.ranges_m.reserve(ranges.len());
-    let dropped = |rng: &mut Xoshiro256PlusPlus| {
-        c.errors.drop_row_prob > 0.0 && rng.random::<f64>() < c.errors.drop_row_prob
-    };
-    for (i, &(t, stamp_ns)) in lidar_times.iter().enumerate() {
-        if dropped(&mut rng_drop) {
-            continue;
-        }
-        lidar.push(stamp_ns, &ranges[i * nb..(i + 1) * nb]);
-        ground_truth.push(StampedPose2 {
-            stamp_ns,
-            pose: motion.pose_at(t).0,
-        });
-    }
-    // The first rows are never dropped: they anchor the streams.
-    let mut k = 0usize;
-    encoder.retain(|_| {
-        k += 1;
-        k == 1 || !dropped(&mut rng_drop)
-    });
-    let mut k = 0usize;
-    fog.retain(|_| {
-        k += 1;
-        k == 1 || !dropped(&mut rng_drop)
-    });
+    let mut encoder = simulate_encoder(&motion, c, &calib, &times.encoder, &mut rng_enc);
+    let mut fog = simulate_fog(&motion, c, &times.fog, &mut rng_fog);
+    let ranges = cast_scans(world, &motion, &calib, (c, &times.lidar), lidar_base);
+    let drop_prob = c.errors.drop_row_prob;
+    // The row drops draw from one stream: the LiDAR rows, then the encoder's, then the FOG's.
+    let (lidar, ground_truth) = keep_scans(
+        &motion,
+        &times.lidar,
+        (&ranges, calib.lidar.beam_count),
+        drop_prob,
+        &mut rng_drop,
+    );
+    drop_rows_after_first(&mut encoder, drop_prob, &mut rng_drop);
+    drop_rows_after_first(&mut fog, drop_prob, &mut rng_drop);
 
-    let stereo_poses: Vec<StampedPose2> = stereo_times
+    let stereo_poses: Vec<StampedPose2> = times
+        .stereo
         .iter()
         .map(|&(t, stamp_ns)| StampedPose2 {
             stamp_ns,
@@ -169,6 +132,94 @@ pub fn simulate_car(world: &World, opts: &SimOptions) -> Result<CarSimOutput, Si
         stereo_poses,
         world: world.clone(),
     })
+}
+
+/// The car's drive along the world's route with the speed limits of `[sim.car]`.
+fn plan_drive(world: &World, opts: &SimOptions) -> Result<Motion, SimError> {
+    let c = &opts.car;
+    Motion::plan(
+        world,
+        opts.duration_s,
+        &DriveProfile {
+            cruise_mps: c.cruise_speed_mps,
+            accel_mps2: c.max_accel_mps2,
+            decel_mps2: c.max_decel_mps2,
+            lateral_mps2: c.max_lateral_accel_mps2,
+            corner_radius_m: c.corner_radius_m,
+            standstill_s: c.initial_standstill_s,
+        },
+    )
+}
+
+/// The true sampling times and recorded stamps `(seconds, stamp_ns)` of each sensor.
+struct SensorTimes {
+    encoder: Vec<(f64, i64)>,
+    fog: Vec<(f64, i64)>,
+    lidar: Vec<(f64, i64)>,
+    stereo: Vec<(f64, i64)>,
+}
+
+impl SensorTimes {
+    /// Every sensor's times from the one stamp stream `rng`, each with its own phase.
+    fn sample(opts: &SimOptions, rng: &mut Xoshiro256PlusPlus) -> Self {
+        let c = &opts.car;
+        let jitter = c.errors.stamp_jitter_std_ns;
+        let encoder = sample_times(opts, c.encoder_rate_hz, 0.0, jitter, rng);
+        let fog = sample_times(opts, c.fog_rate_hz, 0.000_37, jitter, rng);
+        let lidar = sample_times(opts, c.lidar_rate_hz, 0.003_1, jitter, rng);
+        // Drawn last, so switching stereo on leaves every other stream unchanged.
+        let stereo = if c.stereo_rate_hz > 0.0 {
+            sample_times(opts, c.stereo_rate_hz, 0.007_3, jitter, rng)
+        } else {
+            Vec::new()
+        };
+        SensorTimes {
+            encoder,
+            fog,
+            lidar,
+            stereo,
+        }
+    }
+}
+
+/// Whether `rng` drops a row, with probability `drop_prob` (no draw when it is 0).
+fn dropped(drop_prob: f64, rng: &mut Xoshiro256PlusPlus) -> bool {
+    drop_prob > 0.0 && rng.random::<f64>() < drop_prob
+}
+
+/// The scans recorded at `lidar_times` (`ranges`: `beams` per scan, in order) less the rows
+/// dropped, and the true pose at each one kept.
+fn keep_scans(
+    motion: &Motion,
+    lidar_times: &[(f64, i64)],
+    (ranges, beams): (&[f32], usize),
+    drop_prob: f64,
+    rng: &mut Xoshiro256PlusPlus,
+) -> (ScanSet, Vec<StampedPose2>) {
+    let mut ground_truth = Vec::with_capacity(lidar_times.len());
+    let mut lidar = ScanSet::new(beams);
+    lidar.stamps_ns.reserve(lidar_times.len());
+    lidar.ranges_m.reserve(ranges.len());
+    for (i, &(t, stamp_ns)) in lidar_times.iter().enumerate() {
+        if dropped(drop_prob, rng) {
+            continue;
+        }
+        lidar.push(stamp_ns, &ranges[i * beams..(i + 1) * beams]);
+        ground_truth.push(StampedPose2 {
+            stamp_ns,
+            pose: motion.pose_at(t).0,
+        });
+    }
+    (lidar, ground_truth)
+}
+
+/// Drops rows with probability `drop_prob`, never the first: it anchors the stream.
+fn drop_rows_after_first<T>(rows: &mut Vec<T>, drop_prob: f64, rng: &mut Xoshiro256PlusPlus) {
+    let mut k = 0usize;
+    rows.retain(|_| {
+        k += 1;
+        k == 1 || !dropped(drop_prob, rng)
+    });
 }
 
 /// The wheel encoders at `times` (seconds, stamp): cumulative true wheel rotation (m of

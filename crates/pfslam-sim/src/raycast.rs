@@ -37,6 +37,65 @@ struct Segment {
     prism: u32,
 }
 
+/// The nearest hit of a ray so far: its distance, `kind` = `None` while there is none (then
+/// `t` is the range limit).
+struct Nearest {
+    t: f64,
+    kind: Option<HitKind>,
+}
+
+impl Nearest {
+    /// Takes the hit at `t` when it is nearer (a tie keeps the earlier one).
+    #[inline]
+    fn offer(&mut self, t: f64, kind: HitKind) {
+        if t < self.t {
+            self.t = t;
+            self.kind = Some(kind);
+        }
+    }
+}
+
+/// A ray's walk through the grid's cells in the xy projection (Amanatides & Woo): the cell
+/// it is in, and the 3-D distances at which it crosses the next x and y cell boundaries.
+struct GridWalk {
+    cx: isize,
+    cy: isize,
+    step_x: isize,
+    step_y: isize,
+    t_delta_x: f64,
+    t_delta_y: f64,
+    t_max_x: f64,
+    t_max_y: f64,
+}
+
+impl GridWalk {
+    /// The index of the current cell in a grid `nx` cells wide.
+    #[inline]
+    fn cell(&self, nx: usize) -> usize {
+        self.cy as usize * nx + self.cx as usize
+    }
+
+    /// The distance at which the ray leaves the current cell.
+    #[inline]
+    fn t_next(&self) -> f64 {
+        self.t_max_x.min(self.t_max_y)
+    }
+
+    /// Steps into the next cell; false when that leaves the `nx` x `ny` grid.
+    #[inline]
+    fn advance(&mut self, nx: usize, ny: usize) -> bool {
+        if self.t_max_x < self.t_max_y {
+            self.cx += self.step_x;
+            self.t_max_x += self.t_delta_x;
+            self.cx >= 0 && self.cx < nx as isize
+        } else {
+            self.cy += self.step_y;
+            self.t_max_y += self.t_delta_y;
+            self.cy >= 0 && self.cy < ny as isize
+        }
+    }
+}
+
 /// A world prepared for fast ray casting.
 #[derive(Debug, Clone)]
 pub struct RayCaster {
@@ -161,36 +220,48 @@ impl RayCaster {
     /// Casts a ray from `o` along the unit direction `d` (world frame, m); returns the first
     /// hit closer than `max_range_m`, or `None`.
     pub fn cast(&self, o: [f64; 3], d: [f64; 3], max_range_m: f64) -> Option<Hit> {
-        let mut best_t = max_range_m;
-        let mut best_kind = None;
+        let mut best = Nearest {
+            t: max_range_m,
+            kind: None,
+        };
         if d[2] < 0.0 && o[2] > 0.0 {
-            let tg = -o[2] / d[2];
-            if tg < best_t {
-                best_t = tg;
-                best_kind = Some(HitKind::Ground);
-            }
+            best.offer(-o[2] / d[2], HitKind::Ground);
         }
         // Nothing lies above the highest obstacle: the walk ends there.
-        let mut t_end = best_t;
+        let mut t_end = best.t;
         if d[2] > 0.0 && o[2] < self.top_z_m {
             t_end = t_end.min((self.top_z_m - o[2]) / d[2]);
         } else if d[2] >= 0.0 && o[2] >= self.top_z_m {
             t_end = 0.0;
         }
         // Grid walk in the xy projection; the parameter t is the 3-D distance.
+        if let Some(mut walk) = self.walk_from(o, d) {
+            loop {
+                self.nearest_in_cell(walk.cell(self.nx), o, d, &mut best);
+                // The cells beyond lie farther than the nearest hit (or the walk's end).
+                if walk.t_next() >= best.t.min(t_end) || !walk.advance(self.nx, self.ny) {
+                    break;
+                }
+            }
+        }
+        best.kind.map(|kind| Hit {
+            range_m: best.t,
+            kind,
+        })
+    }
+
+    /// The walk of the ray from `o` along `d` through the grid's cells, `None` when `o` lies
+    /// outside the grid.
+    #[inline]
+    fn walk_from(&self, o: [f64; 3], d: [f64; 3]) -> Option<GridWalk> {
         let (dx, dy) = (d[0], d[1]);
         let fx = (o[0] - self.origin[0]) / self.cell_m;
         let fy = (o[1] - self.origin[1]) / self.cell_m;
         if fx < 0.0 || fy < 0.0 || fx >= self.nx as f64 || fy >= self.ny as f64 {
-            return best_kind.map(|kind| Hit {
-                range_m: best_t,
-                kind,
-            });
+            return None;
         }
-        let mut cx = fx as isize;
-        let mut cy = fy as isize;
-        let step_x: isize = if dx > 0.0 { 1 } else { -1 };
-        let step_y: isize = if dy > 0.0 { 1 } else { -1 };
+        let cx = fx as isize;
+        let cy = fy as isize;
         let t_delta_x = if dx != 0.0 {
             self.cell_m / dx.abs()
         } else {
@@ -201,66 +272,52 @@ impl RayCaster {
         } else {
             f64::INFINITY
         };
-        let mut t_max_x = if dx > 0.0 {
+        let t_max_x = if dx > 0.0 {
             ((cx + 1) as f64 - fx) * t_delta_x
         } else if dx < 0.0 {
             (fx - cx as f64) * t_delta_x
         } else {
             f64::INFINITY
         };
-        let mut t_max_y = if dy > 0.0 {
+        let t_max_y = if dy > 0.0 {
             ((cy + 1) as f64 - fy) * t_delta_y
         } else if dy < 0.0 {
             (fy - cy as f64) * t_delta_y
         } else {
             f64::INFINITY
         };
-        loop {
-            let c = cy as usize * self.nx + cx as usize;
-            let (s0, s1) = (self.cell_start[c] as usize, self.cell_start[c + 1] as usize);
-            for &si in &self.cell_items[s0..s1] {
-                let s = &self.segments[si as usize];
-                if let Some(t) = self.intersect(s, o, d)
-                    && t < best_t
-                {
-                    best_t = t;
-                    best_kind = Some(HitKind::Obstacle(s.prism));
-                }
-            }
-            let (p0, p1) = (
-                self.prism_start[c] as usize,
-                self.prism_start[c + 1] as usize,
-            );
-            for &pi in &self.prism_items[p0..p1] {
-                if let Some(t) = self.face_hit(pi, o, d)
-                    && t < best_t
-                {
-                    best_t = t;
-                    best_kind = Some(HitKind::Obstacle(pi));
-                }
-            }
-            let t_next = t_max_x.min(t_max_y);
-            if t_next >= best_t.min(t_end) {
-                break;
-            }
-            if t_max_x < t_max_y {
-                cx += step_x;
-                t_max_x += t_delta_x;
-                if cx < 0 || cx >= self.nx as isize {
-                    break;
-                }
-            } else {
-                cy += step_y;
-                t_max_y += t_delta_y;
-                if cy < 0 || cy >= self.ny as isize {
-                    break;
-                }
+        Some(GridWalk {
+            cx,
+            cy,
+            step_x: if dx > 0.0 { 1 } else { -1 },
+            step_y: if dy > 0.0 { 1 } else { -1 },
+            t_delta_x,
+            t_delta_y,
+            t_max_x,
+            t_max_y,
+        })
+    }
+
+    /// Offers `best` the walls binned in cell `c` and the top and bottom faces of the prisms
+    /// over it.
+    #[inline]
+    fn nearest_in_cell(&self, c: usize, o: [f64; 3], d: [f64; 3], best: &mut Nearest) {
+        let (s0, s1) = (self.cell_start[c] as usize, self.cell_start[c + 1] as usize);
+        for &si in &self.cell_items[s0..s1] {
+            let s = &self.segments[si as usize];
+            if let Some(t) = self.intersect(s, o, d) {
+                best.offer(t, HitKind::Obstacle(s.prism));
             }
         }
-        best_kind.map(|kind| Hit {
-            range_m: best_t,
-            kind,
-        })
+        let (p0, p1) = (
+            self.prism_start[c] as usize,
+            self.prism_start[c + 1] as usize,
+        );
+        for &pi in &self.prism_items[p0..p1] {
+            if let Some(t) = self.face_hit(pi, o, d) {
+                best.offer(t, HitKind::Obstacle(pi));
+            }
+        }
     }
 
     /// Distance to the top face (ray going down from above it) or the bottom face (going up

@@ -153,28 +153,9 @@ impl ScanSurfaceTruth {
         }
         let res = resolution_m;
         let sampled: Vec<Pose2> = poses.iter().step_by(opts.pose_step).copied().collect();
-        // Raster: every sensor position plus the range, so every traced cell fits.
         let o_body = body_from_lidar.translation;
-        let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
-        for p in &sampled {
-            let (x, y) = p.transform_point(o_body.x, o_body.y);
-            x0 = x0.min(x);
-            y0 = y0.min(y);
-            x1 = x1.max(x);
-            y1 = y1.max(y);
-        }
-        if sampled.is_empty() {
-            let b = world.bounds();
-            (x0, y0, x1, y1) = (b[0], b[1], b[2], b[3]);
-        }
         let margin = opts.range_max_m + 2.0 * res;
-        let origin = [
-            ((x0 - margin) / res).floor() * res,
-            ((y0 - margin) / res).floor() * res,
-        ];
-        let width = ((x1 + margin - origin[0]) / res).ceil().max(1.0) as usize;
-        let height = ((y1 + margin - origin[1]) / res).ceil().max(1.0) as usize;
-        let cells = width * height;
+        let (origin, [width, height]) = raster_around(world, &sampled, o_body, margin, res);
         let coverage = coverage(world, origin, res, [width, height])?;
         let z_range: Vec<[f64; 2]> = world
             .prisms
@@ -182,27 +163,7 @@ impl ScanSurfaceTruth {
             .map(|p| [p.z_min_m, p.z_max_m])
             .collect();
         let top_z = z_range.iter().map(|z| z[1]).fold(0.0, f64::max);
-        // Ray directions in the body frame: the sensor's beams, or every angle_step over
-        // its fan.
-        let angles: Vec<f64> = match opts.rays {
-            TruthRays::SensorBeams => (0..geometry.beam_count)
-                .map(|k| geometry.beam_angle_rad(k))
-                .collect(),
-            TruthRays::Uniform => {
-                let a0 = geometry.angle_min_rad;
-                let a1 = geometry.beam_angle_rad(geometry.beam_count.saturating_sub(1));
-                let step = opts.angle_step_deg.to_radians();
-                let n_rays = ((a1 - a0) / step).floor().max(0.0) as usize + 1;
-                (0..n_rays).map(|k| a0 + k as f64 * step).collect()
-            }
-        };
-        let dirs: Vec<[f64; 3]> = angles
-            .iter()
-            .map(|&a| {
-                let d = body_from_lidar.rotation * nalgebra::Vector3::new(a.cos(), a.sin(), 0.0);
-                [d.x, d.y, d.z]
-            })
-            .collect();
+        let dirs = ray_directions(geometry, body_from_lidar, opts);
         let tracer = Tracer {
             origin,
             res,
@@ -213,40 +174,14 @@ impl ScanSurfaceTruth {
             top_z,
             range_max_m: opts.range_max_m,
         };
-        let n_prisms = world.prisms.len();
-        let marks = sampled
-            .par_chunks(16)
-            .fold(
-                || Marks::new(cells, n_prisms),
-                |mut m, chunk| {
-                    for pose in chunk {
-                        tracer.trace_pose(pose, o_body, &dirs, &mut m);
-                    }
-                    m
-                },
-            )
-            .reduce(|| Marks::new(cells, n_prisms), Marks::merge);
-        let limits = MapLimits::new(res, origin[0], origin[1]);
-        let mut occupancy = BinaryMap::filled(limits, width, height, CellState::Unknown);
-        let mut visible = occupancy.clone();
-        for i in 0..cells {
-            if marks.surface.get(i) {
-                visible.cells[i] = CellState::Occupied;
-            } else if marks.free.get(i) {
-                visible.cells[i] = CellState::Free;
-            }
-            if marks.free.get(i) || marks.surface.get(i) {
-                occupancy.cells[i] = CellState::Free;
-            }
-        }
-        for (p, seen) in world.prisms.iter().zip(&marks.seen) {
-            if *seen {
-                for_each_footprint_cell(p, origin, res, [width, height], |i| {
-                    occupancy.cells[i] = CellState::Occupied;
-                });
-            }
-        }
-        Ok(ScanSurfaceTruth { occupancy, visible })
+        let marks = tracer.trace_poses(&sampled, o_body, &dirs, world.prisms.len());
+        Ok(truth_from_marks(
+            world,
+            &marks,
+            origin,
+            res,
+            [width, height],
+        ))
     }
 
     /// The truth of a simulated car drive: the car's calibration and its true poses.
@@ -293,6 +228,98 @@ impl ScanSurfaceTruth {
             truth_from_estimate,
         )
     }
+}
+
+/// The truth raster: its origin (a multiple of `res`) and size in cells, covering every
+/// sensor position of `sampled` plus `margin` (so every traced cell fits), or the world's
+/// bounds plus `margin` without poses.
+fn raster_around(
+    world: &World,
+    sampled: &[Pose2],
+    o_body: nalgebra::Vector3<f64>,
+    margin: f64,
+    res: f64,
+) -> ([f64; 2], [usize; 2]) {
+    let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
+    for p in sampled {
+        let (x, y) = p.transform_point(o_body.x, o_body.y);
+        x0 = x0.min(x);
+        y0 = y0.min(y);
+        x1 = x1.max(x);
+        y1 = y1.max(y);
+    }
+    if sampled.is_empty() {
+        let b = world.bounds();
+        (x0, y0, x1, y1) = (b[0], b[1], b[2], b[3]);
+    }
+    let origin = [
+        ((x0 - margin) / res).floor() * res,
+        ((y0 - margin) / res).floor() * res,
+    ];
+    let width = ((x1 + margin - origin[0]) / res).ceil().max(1.0) as usize;
+    let height = ((y1 + margin - origin[1]) / res).ceil().max(1.0) as usize;
+    (origin, [width, height])
+}
+
+/// The traced rays' directions in the body frame: the sensor's beams, or every
+/// `angle_step_deg` over its fan, turned by the mount.
+fn ray_directions(
+    geometry: &LidarGeometry,
+    body_from_lidar: &Rigid3,
+    opts: &ScanTruthOptions,
+) -> Vec<[f64; 3]> {
+    let angles: Vec<f64> = match opts.rays {
+        TruthRays::SensorBeams => (0..geometry.beam_count)
+            .map(|k| geometry.beam_angle_rad(k))
+            .collect(),
+        TruthRays::Uniform => {
+            let a0 = geometry.angle_min_rad;
+            let a1 = geometry.beam_angle_rad(geometry.beam_count.saturating_sub(1));
+            let step = opts.angle_step_deg.to_radians();
+            let n_rays = ((a1 - a0) / step).floor().max(0.0) as usize + 1;
+            (0..n_rays).map(|k| a0 + k as f64 * step).collect()
+        }
+    };
+    angles
+        .iter()
+        .map(|&a| {
+            let d = body_from_lidar.rotation * nalgebra::Vector3::new(a.cos(), a.sin(), 0.0);
+            [d.x, d.y, d.z]
+        })
+        .collect()
+}
+
+/// The two rasters of the rule from what the traces marked: visible surface and passed-free
+/// cells as they are; for the occupancy truth, every reached cell free first, then the whole
+/// footprint of each solid seen occupied.
+fn truth_from_marks(
+    world: &World,
+    marks: &Marks,
+    origin: [f64; 2],
+    res: f64,
+    [width, height]: [usize; 2],
+) -> ScanSurfaceTruth {
+    let limits = MapLimits::new(res, origin[0], origin[1]);
+    let mut occupancy = BinaryMap::filled(limits, width, height, CellState::Unknown);
+    let mut visible = occupancy.clone();
+    for i in 0..width * height {
+        if marks.surface.get(i) {
+            visible.cells[i] = CellState::Occupied;
+        } else if marks.free.get(i) {
+            visible.cells[i] = CellState::Free;
+        }
+        if marks.free.get(i) || marks.surface.get(i) {
+            occupancy.cells[i] = CellState::Free;
+        }
+    }
+    for (p, seen) in world.prisms.iter().zip(&marks.seen) {
+        if *seen {
+            for_each_footprint_cell(p, origin, res, [width, height], |i| {
+                occupancy.cells[i] = CellState::Occupied;
+            });
+        }
+    }
+    ScanSurfaceTruth { occupancy, visible }
 }
 
 /// Rasterises which prisms cover each cell (footprint interior and outline).
@@ -371,6 +398,31 @@ struct Tracer<'a> {
 }
 
 impl Tracer<'_> {
+    /// Traces `dirs` from every pose of `sampled` (the sensor at `o_body` in the body frame)
+    /// in parallel over chunks of poses; the marks of `n_prisms` solids merged (an OR, so the
+    /// result does not depend on the split).
+    fn trace_poses(
+        &self,
+        sampled: &[Pose2],
+        o_body: nalgebra::Vector3<f64>,
+        dirs: &[[f64; 3]],
+        n_prisms: usize,
+    ) -> Marks {
+        let cells = self.width * self.height;
+        sampled
+            .par_chunks(16)
+            .fold(
+                || Marks::new(cells, n_prisms),
+                |mut m, chunk| {
+                    for pose in chunk {
+                        self.trace_pose(pose, o_body, dirs, &mut m);
+                    }
+                    m
+                },
+            )
+            .reduce(|| Marks::new(cells, n_prisms), Marks::merge)
+    }
+
     fn trace_pose(
         &self,
         pose: &Pose2,

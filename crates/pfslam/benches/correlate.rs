@@ -14,10 +14,10 @@ use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use mapped_drive::mapped_drive;
 use pfslam::config::Config;
 use pfslam::filter::correlate::{CorrelationScratch, best_match};
-use pfslam::filter::slam::BestParticleMap;
 use pfslam::filter::{ParticleFilter, SharedMap};
 use pfslam::geometry::Pose2;
 use pfslam::map::OccupancyGrid;
+use pfslam::slam::BestParticleMap;
 use std::hint::black_box;
 
 fn bench(c: &mut Criterion) {

@@ -5,7 +5,7 @@
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use pfslam::config::Config;
-use pfslam::filter::slam::run_slam;
+use pfslam::slam::run_slam;
 use pfslam_sim::{SimOptions, World, simulate_car};
 use std::hint::black_box;
 use std::time::Duration;

@@ -29,12 +29,16 @@
 //!   the noise models the particle filter samples from.
 //! - [`map`] is the occupancy grid: [`map::MapLimits`] for world <-> cell, log-odds, ray
 //!   insertion.
-//! - [`filter`] is the particle filter (prediction, map correlation, weights, resampling).
+//! - [`filter`] is the particle filter (prediction, map correlation, weights, resampling)
+//!   and its options; [`slam`] runs it over a recording with a whole [`config::Config`]
+//!   (the front ends fed one scan at a time, [`slam::run_slam`], [`slam::SlamResult`]).
 //! - [`eval`] measures accuracy (ATE, RPE, the Kümmerle relations metric).
 //!
 //! [`config::Config`] gathers one options struct per component; each is one TOML section,
 //! including those of the crates beside this one (`[sim]`: [`config::sim`], `[stereo]`:
-//! [`config::stereo`]).
+//! [`config::stereo`]). The options structs and the components' building blocks sit below
+//! `config`; what takes a whole `Config` ([`slam`], [`pipeline`], [`online`], [`session`])
+//! sits above it.
 //!
 //! The recording and dataset formats (the car's CSV layout, calibration files, TUM
 //! trajectories, CARMEN logs, ROS bags, MCAP, map files, relations files), opening a path as a
@@ -67,6 +71,7 @@ pub mod pipeline;
 pub mod quality;
 pub mod sensors;
 pub mod session;
+pub mod slam;
 
 pub use config::Config;
 pub use online::{OnlineError, ScanInput, SensorSetup, Slam, check_imu_yaw, check_odometry};

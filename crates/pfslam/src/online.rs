@@ -33,11 +33,11 @@
 
 use crate::config::Config;
 use crate::filter::odometry::OdometryCursor;
-use crate::filter::slam::{AnyFrontEnd, FrontEnd, SlamError, SlamEvent, feed_scan};
 use crate::geometry::{Pose2, Rigid3, StampedPose2};
 use crate::map::{MapError, OccupancyGrid};
 use crate::pipeline::{PipelineError, PipelineOptions, PipelineResult, after_filter};
 use crate::sensors::{LidarGeometry, Recording, ScanSet};
+use crate::slam::{AnyFrontEnd, FrontEnd, SlamError, SlamEvent, feed_scan};
 use std::time::Instant;
 
 /// The sensors a [`Slam`] is fed, known before the first scan.

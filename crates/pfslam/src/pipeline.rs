@@ -6,7 +6,6 @@
 //! its per-stage CPU seconds) compute the same result.
 
 use crate::config::Config;
-use crate::filter::slam::{SlamError, SlamEvent, SlamResult, run_slam};
 use crate::geometry::{Pose2, StampedPose2, Trajectory};
 pub use crate::graph::BackEndInput;
 use crate::graph::{GraphError, GraphStats, optimize_after_saved, optimize_trajectory};
@@ -15,6 +14,7 @@ use crate::map::{MapError, OccupancyGrid, map_with_poses};
 use crate::motion::calibration::{CalibrationFit, fit_odometry_calibration};
 use crate::quality::{Quality, QualitySignals};
 use crate::sensors::Recording;
+use crate::slam::{SlamError, SlamEvent, SlamResult, run_slam};
 use std::time::Instant;
 
 /// Errors of the pipeline: the failing stage's error.

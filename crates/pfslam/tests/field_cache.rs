@@ -3,10 +3,10 @@
 
 use pfslam::filter::field_cache::FieldCache;
 use pfslam::filter::scanmatch::LikelihoodField;
-use pfslam::filter::slam::{BestParticleMap, MapPolicy};
 use pfslam::geometry::{Pose2, Trajectory};
 use pfslam::map::{Cell, CellRect};
 use pfslam::map::{MapOptions, PlanarScan, ScanOptions, ScanProjector};
+use pfslam::slam::{BestParticleMap, MapPolicy};
 use pfslam_sim::SimOptions;
 use rand::{RngExt, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;

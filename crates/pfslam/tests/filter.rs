@@ -300,9 +300,9 @@ fn run_synthetic(
     rec: &pfslam::sensors::Recording,
     particles: usize,
     seed: u64,
-) -> pfslam::filter::slam::SlamResult {
-    use pfslam::filter::slam::{BestParticleMap, run_slam_with};
-    let mut config = pfslam::filter::seed_config();
+) -> pfslam::slam::SlamResult {
+    use pfslam::slam::{BestParticleMap, run_slam_with};
+    let mut config = pfslam::slam::seed_config();
     config.filter.particles = particles;
     config.map.scan.range_min_m = 0.5;
     config.map.scan.range_max_m = 29.0;
@@ -357,7 +357,7 @@ fn slam_is_bit_identical_with_1_and_4_threads() {
 /// 4 threads, with resampling exercised, and the seed matters.
 #[test]
 fn scan_match_mode_is_bit_identical_with_1_and_4_threads() {
-    use pfslam::filter::slam::{anchor_odometry_to_ground_truth, run_slam};
+    use pfslam::slam::{anchor_odometry_to_ground_truth, run_slam};
     use pfslam_sim::{SimOptions, World, simulate_car};
     let opts = SimOptions {
         duration_s: 12.0,
@@ -394,7 +394,7 @@ fn correlation_search_recovers_a_perturbed_pose() {
     use pfslam::filter::correlate::{CorrelationScratch, best_match, correlation};
     use pfslam::map::{InsertScratch, OccupancyGrid, PlanarScan, ScanProjector, to_world};
     let rec = synthetic::recording(1.0, 3);
-    let mut config = pfslam::filter::seed_config();
+    let mut config = pfslam::slam::seed_config();
     config.map.scan.range_min_m = 0.5;
     config.map.scan.range_max_m = 29.0;
     let truth = rec.ground_truth.as_ref().unwrap()[0].pose;
@@ -453,11 +453,11 @@ struct SimRun {
     recall: f64,
     /// The map compared through the trajectory's SE(2) alignment onto the ground truth.
     aligned: pfslam::map::MapComparison,
-    result: pfslam::filter::slam::SlamResult,
+    result: pfslam::slam::SlamResult,
 }
 
 fn sim_car_slam(duration_s: f64, config: &pfslam::config::Config, seed: u64) -> SimRun {
-    use pfslam::filter::slam::anchor_odometry_to_ground_truth;
+    use pfslam::slam::anchor_odometry_to_ground_truth;
     use pfslam_sim::{SimOptions, World, simulate_car};
     let mut opts = SimOptions {
         duration_s,

@@ -354,7 +354,7 @@ fn mit_csail_back_end_beats_the_front_end() {
     // 0 m it ends 1.63 m off and the back end behind it at 0.377 m (how much a back end's
     // result depends on its input is measured in docs/decisions/0045).
     config.map.scan.range_min_m = 2.0;
-    let slam = pfslam::filter::slam::run_slam(&recording, &config, 1, &mut |_| {}).unwrap();
+    let slam = pfslam::slam::run_slam(&recording, &config, 1, &mut |_| {}).unwrap();
     let g = pfslam::graph::optimize_trajectory(
         &recording,
         &config.map.scan,

@@ -5,7 +5,7 @@
 use crate::filter::{ate_rmse, synthetic};
 use pfslam::config::Config;
 use pfslam::filter::FilterMode;
-use pfslam::filter::slam::{SlamResult, run_slam};
+use pfslam::slam::{SlamResult, run_slam};
 
 fn rbpf_config(particles: usize) -> Config {
     let mut config = Config::default();

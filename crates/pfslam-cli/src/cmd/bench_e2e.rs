@@ -11,9 +11,9 @@
 use super::dataset::{Dataset, load_dataset};
 use anyhow::Context;
 use pfslam::config::Config;
-use pfslam::filter::slam::{SlamResult, StageTimings, anchor_odometry_to_ground_truth};
 use pfslam::geometry::Pose2;
 use pfslam::pipeline::{PipelineOptions, process_cpu_s, run_pipeline};
+use pfslam::slam::{SlamResult, StageTimings, anchor_odometry_to_ground_truth};
 use pfslam_io::map_files::write_map_server;
 use pfslam_io::tum::write_tum;
 use pfslam_sim::{SimOptions, World};

@@ -50,6 +50,14 @@ fn stage(n: usize, what: &str) {
     say!("== {n}/4 {what}");
 }
 
+/// The demo's output folders, one per stage.
+struct StageDirs {
+    sim: PathBuf,
+    dead_reckoning: PathBuf,
+    map: PathBuf,
+    slam: PathBuf,
+}
+
 /// Runs the demo.
 pub fn run(args: Args) -> anyhow::Result<()> {
     if !(args.duration_s.is_finite() && args.duration_s > 0.0) {
@@ -60,10 +68,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let t0 = Instant::now();
     let out = &args.out;
-    let sim_dir = out.join("sim");
-    let dr_dir = out.join("dead_reckoning");
-    let map_dir = out.join("map_ground_truth");
-    let slam_dir = out.join("slam");
+    let dirs = StageDirs {
+        sim: out.join("sim"),
+        dead_reckoning: out.join("dead_reckoning"),
+        map: out.join("map_ground_truth"),
+        slam: out.join("slam"),
+    };
     say!(
         "pfslam demo: simulating {} s of the seed car in the built-in campus world, then dead \
          reckoning, mapping with known poses, particle-filter SLAM and the ground's colours from \
@@ -71,7 +81,32 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.duration_s,
         out.display()
     );
+    simulate(&args, &dirs)?;
+    dead_reckon(&dirs)?;
+    map_with_true_poses(&dirs)?;
+    run_slam(&args, &dirs)?;
 
+    say!();
+    say!("== summary ({:.1} s)", t0.elapsed().as_secs_f64());
+    print_summary(&dirs.slam.join("summary.json"))?;
+    say!("pictures:");
+    for p in [
+        dirs.sim.join("true_map.png"),
+        dirs.dead_reckoning.join("trajectory.png"),
+        dirs.map.join("map.png"),
+        dirs.slam.join("map.png"),
+        dirs.slam.join("binary_map.png"),
+        dirs.slam.join("texture.png"),
+    ] {
+        if p.is_file() {
+            say!("  {}", p.display());
+        }
+    }
+    Ok(())
+}
+
+/// Stage 1: `simulate` of the seed car in its default world.
+fn simulate(args: &Args, dirs: &StageDirs) -> anyhow::Result<()> {
     stage(1, "simulate");
     super::simulate::run(super::simulate::Args {
         vehicle: None,
@@ -81,25 +116,32 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         stereo_rate_hz: Some(args.stereo_rate_hz),
         noise_free: false,
         config: None,
-        out: sim_dir.clone(),
+        out: dirs.sim.clone(),
     })
-    .context("simulate")?;
+    .context("simulate")
+}
 
+/// Stage 2: `dead-reckon` on the simulated dataset.
+fn dead_reckon(dirs: &StageDirs) -> anyhow::Result<()> {
     stage(2, "dead reckoning (wheel encoders + FOG)");
     super::dead_reckon::run(super::dead_reckon::Args {
-        dataset: sim_dir.clone(),
-        out: dr_dir.clone(),
+        dataset: dirs.sim.clone(),
+        out: dirs.dead_reckoning.clone(),
         config: None,
         sort_timestamps: false,
         input: Default::default(),
     })
-    .context("dead-reckon")?;
+    .context("dead-reckon")
+}
 
+/// Stage 3: `map` along the ground-truth poses, the dead reckoning drawn over it, compared
+/// with the true map.
+fn map_with_true_poses(dirs: &StageDirs) -> anyhow::Result<()> {
     stage(3, "occupancy map with the ground-truth poses");
     super::map::run(super::map::Args {
-        dataset: sim_dir.clone(),
-        poses: sim_dir.join("ground_truth.tum"),
-        out: map_dir.clone(),
+        dataset: dirs.sim.clone(),
+        poses: dirs.sim.join("ground_truth.tum"),
+        out: dirs.map.clone(),
         config: None,
         resolution: None,
         preset: None,
@@ -107,48 +149,33 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         z_max: None,
         overlays: vec![format!(
             "dead reckoning={}",
-            dr_dir.join("trajectory.tum").display()
+            dirs.dead_reckoning.join("trajectory.tum").display()
         )],
-        truth: Some(sim_dir.join("true_map.yaml")),
+        truth: Some(dirs.sim.join("true_map.yaml")),
         tolerance_cells: 1,
         input: Default::default(),
     })
-    .context("map")?;
+    .context("map")
+}
 
+/// Stage 4: `run` on the simulated dataset (with the texture when it has stereo pairs).
+fn run_slam(args: &Args, dirs: &StageDirs) -> anyhow::Result<()> {
     stage(
         4,
         "particle-filter SLAM (and texture mapping when there are stereo pairs)",
     );
     super::run::run(super::run::Args {
-        dataset: sim_dir.clone(),
+        dataset: dirs.sim.clone(),
         config: None,
         particles: args.particles,
         seed: args.seed,
-        out: slam_dir.clone(),
+        out: dirs.slam.clone(),
         sort_timestamps: false,
         graph_on_odometry: false,
         input: Default::default(),
         ..Default::default()
     })
-    .context("run")?;
-
-    say!();
-    say!("== summary ({:.1} s)", t0.elapsed().as_secs_f64());
-    print_summary(&slam_dir.join("summary.json"))?;
-    say!("pictures:");
-    for p in [
-        sim_dir.join("true_map.png"),
-        dr_dir.join("trajectory.png"),
-        map_dir.join("map.png"),
-        slam_dir.join("map.png"),
-        slam_dir.join("binary_map.png"),
-        slam_dir.join("texture.png"),
-    ] {
-        if p.is_file() {
-            say!("  {}", p.display());
-        }
-    }
-    Ok(())
+    .context("run")
 }
 
 /// Prints the accuracy figures of a `run` summary.

@@ -2,8 +2,8 @@
 //! otherwise), map snapshots in `snapshots/`, the `--record` file, and each scan's pose as a
 //! TUM line at once (`--poses-out`).
 
-use pfslam::filter::slam::SlamEvent;
 use pfslam::geometry::Pose2;
+use pfslam::slam::SlamEvent;
 use pfslam_viz::map_image::{MapImageOptions, TrajectoryOverlay, write_map_png};
 use std::io::IsTerminal;
 use std::path::PathBuf;

@@ -4,9 +4,9 @@
 //! so a failed run leaves no half-written record.
 
 use anyhow::Context;
-use pfslam::filter::slam::SlamEvent;
 use pfslam::geometry::{Pose2, StampedPose2};
 use pfslam::sensors::Recording;
+use pfslam::slam::SlamEvent;
 use pfslam_viz::record::{RunRecord, Topic};
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};

@@ -8,13 +8,13 @@
 use anyhow::Context;
 use pfslam::config::Config;
 use pfslam::eval::{Association, ate::ate, rpe::RpeDelta, rpe::rpe};
-use pfslam::filter::slam::{SlamResult, anchor_odometry_to_ground_truth};
 use pfslam::geometry::{Pose2, StampedPose2, Trajectory};
 use pfslam::graph::GraphStats;
 use pfslam::pipeline::{BackEndInput, PipelineOptions, PipelineResult};
 use pfslam::quality::Quality;
 use pfslam::sensors::Recording;
 use pfslam::session::SessionState;
+use pfslam::slam::{SlamResult, anchor_odometry_to_ground_truth};
 use pfslam_io::account::InputAccount;
 use pfslam_io::map_files::write_map_server;
 use pfslam_io::tum::write_tum;

@@ -13,45 +13,97 @@ const STREET_HALF_M: f64 = 7.0;
 
 pub(super) fn campus() -> World {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(0x00ca_3b05);
+    let (mut regions, markings) = campus_streets();
+    // One random stream for every prism: blocks, then the outer rows, then the furniture.
     let mut prisms = Vec::new();
-    let mut regions = Vec::new();
-    let mut markings = Vec::new();
+    campus_blocks(&mut rng, &mut prisms, &mut regions);
+    campus_outer_rows(&mut rng, &mut prisms);
+    campus_furniture(&mut rng, &mut prisms);
+    // Start on the first street (so the car starts on a straight, at the origin, heading +x),
+    // then the corners of `CAMPUS_ROUTE`.
+    let start = [CAMPUS_X[0] + 20.0, CAMPUS_Y[0]];
+    let corners = CAMPUS_ROUTE
+        .iter()
+        .map(|&(i, j)| [CAMPUS_X[i], CAMPUS_Y[j]]);
+    let route = std::iter::once(start).chain(corners).collect();
+    let mut w = World {
+        name: "campus".to_string(),
+        prisms,
+        ground: GroundTexture {
+            default_rgb: [120, 115, 105],
+            regions,
+            markings,
+        },
+        route,
+    };
+    w.translate(-start[0], -start[1]);
+    w
+}
+
+/// The campus route after its start, as street crossings `(i, j)` = (`CAMPUS_X[i]`,
+/// `CAMPUS_Y[j]`): loop 1 around block (0,0), then the long perimeter past the park, then
+/// around block (1,1) and (0,1): the same streets are driven several times in both
+/// directions of travel.
+const CAMPUS_ROUTE: [(usize, usize); 12] = [
+    (1, 0),
+    (1, 1),
+    (0, 1),
+    (0, 0),
+    (3, 0),
+    (3, 2),
+    (2, 2),
+    (2, 1),
+    (1, 1),
+    (1, 2),
+    (0, 2),
+    (0, 0),
+];
+
+/// The campus streets' asphalt and lane lines: one region and one line per street.
+fn campus_streets() -> (Vec<GroundRegion>, Vec<GroundMarking>) {
     let (x0, x1) = (CAMPUS_X[0], CAMPUS_X[3]);
     let (y0, y1) = (CAMPUS_Y[0], CAMPUS_Y[2]);
-    // Asphalt on the streets, grass in the park, lane lines.
-    for &x in &CAMPUS_X {
+    let mut regions = Vec::new();
+    let mut markings = Vec::new();
+    let mut street = |polygon, points| {
         regions.push(GroundRegion {
             rgb: [60, 60, 64],
-            polygon: rect_poly(
-                x - STREET_HALF_M,
-                y0 - STREET_HALF_M,
-                x + STREET_HALF_M,
-                y1 + STREET_HALF_M,
-            ),
+            polygon,
         });
         markings.push(GroundMarking {
             rgb: [230, 230, 230],
             width_m: 0.15,
-            points: vec![[x, y0], [x, y1]],
+            points,
         });
+    };
+    for &x in &CAMPUS_X {
+        let polygon = rect_poly(
+            x - STREET_HALF_M,
+            y0 - STREET_HALF_M,
+            x + STREET_HALF_M,
+            y1 + STREET_HALF_M,
+        );
+        street(polygon, vec![[x, y0], [x, y1]]);
     }
     for &y in &CAMPUS_Y {
-        regions.push(GroundRegion {
-            rgb: [60, 60, 64],
-            polygon: rect_poly(
-                x0 - STREET_HALF_M,
-                y - STREET_HALF_M,
-                x1 + STREET_HALF_M,
-                y + STREET_HALF_M,
-            ),
-        });
-        markings.push(GroundMarking {
-            rgb: [230, 230, 230],
-            width_m: 0.15,
-            points: vec![[x0, y], [x1, y]],
-        });
+        let polygon = rect_poly(
+            x0 - STREET_HALF_M,
+            y - STREET_HALF_M,
+            x1 + STREET_HALF_M,
+            y + STREET_HALF_M,
+        );
+        street(polygon, vec![[x0, y], [x1, y]]);
     }
-    // Blocks between the streets; block (2, 0) is an open park (the LiDAR sees little there).
+    (regions, markings)
+}
+
+/// The blocks between the streets: buildings on their four sides, except block (2, 0), an
+/// open park of grass (the LiDAR sees little there).
+fn campus_blocks(
+    rng: &mut Xoshiro256PlusPlus,
+    prisms: &mut Vec<Prism>,
+    regions: &mut Vec<GroundRegion>,
+) {
     for i in 0..3 {
         for j in 0..2 {
             let bx0 = CAMPUS_X[i] + STREET_HALF_M + 4.0;
@@ -65,12 +117,18 @@ pub(super) fn campus() -> World {
                 });
                 continue;
             }
-            block_buildings(&mut rng, &mut prisms, [bx0, by0, bx1, by1]);
+            block_buildings(rng, prisms, [bx0, by0, bx1, by1]);
         }
     }
-    // Outer row of buildings, except south of the park (open field on both sides there).
+}
+
+/// The outer row of buildings along the outside of the outer streets, except south of the
+/// park (open field on both sides there).
+fn campus_outer_rows(rng: &mut Xoshiro256PlusPlus, prisms: &mut Vec<Prism>) {
+    let (x0, x1) = (CAMPUS_X[0], CAMPUS_X[3]);
+    let (y0, y1) = (CAMPUS_Y[0], CAMPUS_Y[2]);
     let outer = STREET_HALF_M + 6.0;
-    // (start, end, normal towards the street) along the outside of the outer streets
+    // (start, end, normal towards the street)
     let sides: [([f64; 2], [f64; 2], [f64; 2]); 4] = [
         (
             [x0 - 20.0, y0 - outer],
@@ -90,20 +148,17 @@ pub(super) fn campus() -> World {
         ),
     ];
     for (a, b, n) in sides {
-        facade_row(&mut rng, &mut prisms, a, b, n);
+        facade_row(rng, prisms, a, b, n);
     }
-    // Street furniture: poles, trees, parked cars along every street segment.
+}
+
+/// Street furniture (poles, trees, parked cars) along every street segment between two
+/// crossings; the street past the park gets only sparse poles.
+fn campus_furniture(rng: &mut Xoshiro256PlusPlus, prisms: &mut Vec<Prism>) {
     for (k, &x) in CAMPUS_X.iter().enumerate() {
         for j in 0..2 {
             let open = false;
-            street_furniture(
-                &mut rng,
-                &mut prisms,
-                [x, CAMPUS_Y[j]],
-                [x, CAMPUS_Y[j + 1]],
-                open,
-                k,
-            );
+            street_furniture(rng, prisms, [x, CAMPUS_Y[j]], [x, CAMPUS_Y[j + 1]], open, k);
         }
     }
     for (k, &y) in CAMPUS_Y.iter().enumerate() {
@@ -111,8 +166,8 @@ pub(super) fn campus() -> World {
             // the park stretch: only sparse poles
             let open = k == 0 && i == 2;
             street_furniture(
-                &mut rng,
-                &mut prisms,
+                rng,
+                prisms,
                 [CAMPUS_X[i], y],
                 [CAMPUS_X[i + 1], y],
                 open,
@@ -120,38 +175,6 @@ pub(super) fn campus() -> World {
             );
         }
     }
-    let p = |i: usize, j: usize| [CAMPUS_X[i], CAMPUS_Y[j]];
-    // Start on the first street (so the car starts on a straight, at the origin, heading +x);
-    // loop 1 around block (0,0), then the long perimeter past the park, then around block
-    // (1,1) and (0,1): the same streets are driven several times in both directions of travel.
-    let start = [CAMPUS_X[0] + 20.0, CAMPUS_Y[0]];
-    let route = vec![
-        start,
-        p(1, 0),
-        p(1, 1),
-        p(0, 1),
-        p(0, 0),
-        p(3, 0),
-        p(3, 2),
-        p(2, 2),
-        p(2, 1),
-        p(1, 1),
-        p(1, 2),
-        p(0, 2),
-        p(0, 0),
-    ];
-    let mut w = World {
-        name: "campus".to_string(),
-        prisms,
-        ground: GroundTexture {
-            default_rgb: [120, 115, 105],
-            regions,
-            markings,
-        },
-        route,
-    };
-    w.translate(-start[0], -start[1]);
-    w
 }
 
 fn rect_poly(x0: f64, y0: f64, x1: f64, y1: f64) -> Vec<[f64; 2]> {
@@ -280,65 +303,58 @@ fn street_furniture(
 /// Walls of the office are this thick (m) and high (m).
 const WALL_T_M: f64 = 0.15;
 const WALL_H_M: f64 = 2.7;
+/// The office's outer size (m): x from 0 to `OFFICE_W_M`, y from 0 to `OFFICE_H_M`.
+const OFFICE_W_M: f64 = 40.0;
+const OFFICE_H_M: f64 = 24.0;
+/// The corridor runs along x between these y (m); rooms 8 m wide on both sides.
+const CORRIDOR_Y_M: [f64; 2] = [10.5, 13.5];
+/// Width of a room's door onto the corridor (m).
+const DOOR_M: f64 = 1.2;
+
+/// The humanoid's route, from its start: in the corridor heading +x, tour a south room, a
+/// north room at the east end, walk back west and tour the first north room; rooms are
+/// entered and left through their doors, around their tables.
+const OFFICE_ROUTE: [[f64; 2]; 25] = [
+    [6.0, 12.0],
+    [20.0, 12.0],
+    [20.0, 7.0],
+    [17.5, 7.0],
+    [17.5, 3.5],
+    [22.5, 3.5],
+    [22.5, 7.0],
+    [20.0, 7.0],
+    [20.0, 12.0],
+    [36.0, 12.0],
+    [36.0, 16.5],
+    [33.0, 16.5],
+    [33.0, 20.5],
+    [38.0, 20.5],
+    [38.0, 16.5],
+    [36.0, 16.5],
+    [36.0, 12.0],
+    [4.0, 12.0],
+    [4.0, 16.5],
+    [1.5, 16.5],
+    [1.5, 20.5],
+    [6.5, 20.5],
+    [6.5, 16.5],
+    [4.0, 16.5],
+    [4.0, 12.0],
+];
 
 pub(super) fn office() -> World {
+    let (w, h) = (OFFICE_W_M, OFFICE_H_M);
+    let [cy0, cy1] = CORRIDOR_Y_M;
     let mut prisms = Vec::new();
-    let wall = |out: &mut Vec<Prism>, x0: f64, y0: f64, x1: f64, y1: f64| {
-        // axis-aligned wall from (x0,y0) to (x1,y1), thickness WALL_T_M
-        let h = 0.5 * WALL_T_M;
-        let (ax, bx) = (x0.min(x1) - h, x0.max(x1) + h);
-        let (ay, by) = (y0.min(y1) - h, y0.max(y1) + h);
-        if let Some(p) = Prism::new("wall", rect_poly(ax, ay, bx, by), 0.0, WALL_H_M) {
-            out.push(p);
-        }
-    };
-    let (w, h) = (40.0, 24.0);
     // outer walls
     wall(&mut prisms, 0.0, 0.0, w, 0.0);
     wall(&mut prisms, 0.0, h, w, h);
     wall(&mut prisms, 0.0, 0.0, 0.0, h);
     wall(&mut prisms, w, 0.0, w, h);
-    // corridor between y = 10.5 and y = 13.5; rooms 8 m wide on both sides, 1.2 m doors
-    let (cy0, cy1) = (10.5, 13.5);
-    let door = 1.2;
     for k in 0..5 {
         let rx0 = 8.0 * k as f64;
-        let rx1 = rx0 + 8.0;
-        let dx = rx0 + 4.0;
-        // south rooms' corridor wall with a door at dx
-        wall(&mut prisms, rx0, cy0, dx - 0.5 * door, cy0);
-        wall(&mut prisms, dx + 0.5 * door, cy0, rx1, cy0);
-        wall(&mut prisms, rx0, cy1, dx - 0.5 * door, cy1);
-        wall(&mut prisms, dx + 0.5 * door, cy1, rx1, cy1);
-        if k > 0 {
-            wall(&mut prisms, rx0, 0.0, rx0, cy0);
-            wall(&mut prisms, rx0, cy1, rx0, h);
-        }
-        // furniture: desks (0.75 m) and a cabinet (1.9 m) along the outer walls
-        for (yd, yc) in [(2.0, 0.5), (h - 2.0, h - 0.5)] {
-            if let Some(p) = Prism::rect("desk", [rx0 + 2.0, yd], 1.6, 0.8, 0.0, 0.0, 0.75) {
-                prisms.push(p);
-            }
-            if let Some(p) = Prism::rect("desk", [rx0 + 6.0, yd], 1.6, 0.8, 0.0, 0.0, 0.75) {
-                prisms.push(p);
-            }
-            if let Some(p) = Prism::rect("cabinet", [rx0 + 4.0, yc], 1.2, 0.5, 0.0, 0.0, 1.9) {
-                prisms.push(p);
-            }
-        }
-        // a table in the middle of each room, floating top on four legs
-        for yt in [5.0, h - 5.0] {
-            if let Some(p) = Prism::rect("table", [rx0 + 4.0, yt], 1.4, 0.9, 0.0, 0.7, 0.75) {
-                prisms.push(p);
-            }
-            for (lx, ly) in [(-0.6, -0.35), (0.6, -0.35), (0.6, 0.35), (-0.6, 0.35)] {
-                if let Some(p) =
-                    Prism::rect("leg", [rx0 + 4.0 + lx, yt + ly], 0.06, 0.06, 0.0, 0.0, 0.7)
-                {
-                    prisms.push(p);
-                }
-            }
-        }
+        office_room_walls(&mut prisms, rx0, k > 0);
+        office_room_furniture(&mut prisms, rx0);
     }
     // pillars in the corridor walls' line
     for x in [12.0, 28.0] {
@@ -346,37 +362,7 @@ pub(super) fn office() -> World {
             prisms.push(p);
         }
     }
-    // Route: start in the corridor heading +x, tour a south room, a north room at the east
-    // end, walk back west and tour the first north room; rooms are entered and left through
-    // their doors, around their tables.
-    let start = [6.0, 12.0];
-    let route = vec![
-        start,
-        [20.0, 12.0],
-        [20.0, 7.0],
-        [17.5, 7.0],
-        [17.5, 3.5],
-        [22.5, 3.5],
-        [22.5, 7.0],
-        [20.0, 7.0],
-        [20.0, 12.0],
-        [36.0, 12.0],
-        [36.0, 16.5],
-        [33.0, 16.5],
-        [33.0, 20.5],
-        [38.0, 20.5],
-        [38.0, 16.5],
-        [36.0, 16.5],
-        [36.0, 12.0],
-        [4.0, 12.0],
-        [4.0, 16.5],
-        [1.5, 16.5],
-        [1.5, 20.5],
-        [6.5, 20.5],
-        [6.5, 16.5],
-        [4.0, 16.5],
-        [4.0, 12.0],
-    ];
+    let start = OFFICE_ROUTE[0];
     let mut w = World {
         name: "office".to_string(),
         prisms,
@@ -388,8 +374,64 @@ pub(super) fn office() -> World {
             }],
             markings: Vec::new(),
         },
-        route,
+        route: OFFICE_ROUTE.to_vec(),
     };
     w.translate(-start[0], -start[1]);
     w
+}
+
+/// An axis-aligned wall from (x0, y0) to (x1, y1), `WALL_T_M` thick.
+fn wall(out: &mut Vec<Prism>, x0: f64, y0: f64, x1: f64, y1: f64) {
+    let h = 0.5 * WALL_T_M;
+    let (ax, bx) = (x0.min(x1) - h, x0.max(x1) + h);
+    let (ay, by) = (y0.min(y1) - h, y0.max(y1) + h);
+    if let Some(p) = Prism::new("wall", rect_poly(ax, ay, bx, by), 0.0, WALL_H_M) {
+        out.push(p);
+    }
+}
+
+/// The walls of the two rooms starting at x = `rx0`, south and north of the corridor: their
+/// corridor walls with a door in the middle, and (`divider`) the wall west of them.
+fn office_room_walls(prisms: &mut Vec<Prism>, rx0: f64, divider: bool) {
+    let [cy0, cy1] = CORRIDOR_Y_M;
+    let rx1 = rx0 + 8.0;
+    let dx = rx0 + 4.0;
+    wall(prisms, rx0, cy0, dx - 0.5 * DOOR_M, cy0);
+    wall(prisms, dx + 0.5 * DOOR_M, cy0, rx1, cy0);
+    wall(prisms, rx0, cy1, dx - 0.5 * DOOR_M, cy1);
+    wall(prisms, dx + 0.5 * DOOR_M, cy1, rx1, cy1);
+    if divider {
+        wall(prisms, rx0, 0.0, rx0, cy0);
+        wall(prisms, rx0, cy1, rx0, OFFICE_H_M);
+    }
+}
+
+/// The furniture of the two rooms starting at x = `rx0`: desks (0.75 m) and a cabinet
+/// (1.9 m) along the outer walls, and a table in the middle of each room, its top floating
+/// on four legs.
+fn office_room_furniture(prisms: &mut Vec<Prism>, rx0: f64) {
+    let h = OFFICE_H_M;
+    for (yd, yc) in [(2.0, 0.5), (h - 2.0, h - 0.5)] {
+        if let Some(p) = Prism::rect("desk", [rx0 + 2.0, yd], 1.6, 0.8, 0.0, 0.0, 0.75) {
+            prisms.push(p);
+        }
+        if let Some(p) = Prism::rect("desk", [rx0 + 6.0, yd], 1.6, 0.8, 0.0, 0.0, 0.75) {
+            prisms.push(p);
+        }
+        if let Some(p) = Prism::rect("cabinet", [rx0 + 4.0, yc], 1.2, 0.5, 0.0, 0.0, 1.9) {
+            prisms.push(p);
+        }
+    }
+    for yt in [5.0, h - 5.0] {
+        if let Some(p) = Prism::rect("table", [rx0 + 4.0, yt], 1.4, 0.9, 0.0, 0.7, 0.75) {
+            prisms.push(p);
+        }
+        for (lx, ly) in [(-0.6, -0.35), (0.6, -0.35), (0.6, 0.35), (-0.6, 0.35)] {
+            if let Some(p) =
+                Prism::rect("leg", [rx0 + 4.0 + lx, yt + ly], 0.06, 0.06, 0.0, 0.0, 0.7)
+            {
+                prisms.push(p);
+            }
+        }
+    }
 }

@@ -7,7 +7,7 @@
 //! floating point.
 
 use crate::geometry::Pose2;
-use crate::map::{Cell, MapLimits, PlanarScan};
+use crate::map::{Cell, MapLimits, OccupancyGrid, PlanarScan};
 
 /// What the correlation needs of a map: its cell frame and which cells are occupied. Cells
 /// outside the map are free. Implemented by the occupancy grid; a per-particle map policy
@@ -17,6 +17,17 @@ pub trait OccupancyLookup: Sync {
     fn cell_limits(&self) -> MapLimits;
     /// True when `cell` is believed occupied.
     fn occupied(&self, cell: Cell) -> bool;
+}
+
+impl OccupancyLookup for OccupancyGrid {
+    #[inline]
+    fn cell_limits(&self) -> MapLimits {
+        *self.limits()
+    }
+    #[inline]
+    fn occupied(&self, cell: Cell) -> bool {
+        self.is_occupied(cell)
+    }
 }
 
 /// The search space around a particle.

@@ -19,15 +19,13 @@ pub mod rbpf;
 pub mod resample;
 pub mod rng;
 pub mod scanmatch;
-pub mod slam;
 pub mod weights;
 
-use crate::config::Config;
-use crate::geometry::Pose2;
+use crate::geometry::{Pose2, StampedPose2};
 use crate::motion::odometry_model::OdometryModelOptions;
 use correlate::{CorrelationScratch, CorrelationSearch, OccupancyLookup, ScanMatch};
 use particles::ParticleSet;
-use prediction::PredictionModel;
+use prediction::{MotionModel, PredictionModel};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use rayon::prelude::*;
 use resample::ResampleMethod;
@@ -242,19 +240,6 @@ impl FilterOptions {
     }
 }
 
-/// The seeds' configuration: `mode = "seed"`, the UCSD log-odds model (one hit makes a cell
-/// occupied), and none of the scan preprocessing the scan-matching mode relies on (ground
-/// removal, densification, partial clearing of climbing beams). Everything else as [`Config::default`].
-pub fn seed_config() -> Config {
-    let mut config = Config::default();
-    config.filter.mode = FilterMode::Seed;
-    config.map.log_odds = crate::map::LogOddsParams::ucsd();
-    config.map.scan.ground_clearance_m = None;
-    config.map.scan.densify_max_gap_m = None;
-    config.map.scan.free_z_max_m = None;
-    config
-}
-
 /// The map each particle is weighed against. One shared map (the seeds) returns the same map
 /// for every particle; per-particle maps return each particle's own.
 pub trait ParticleMaps: Sync {
@@ -262,40 +247,6 @@ pub trait ParticleMaps: Sync {
     type Map: OccupancyLookup + ?Sized;
     /// The map of particle `i`.
     fn map_of(&self, i: usize) -> &Self::Map;
-}
-
-/// The noisy motion model `[filter] motion_model` selects: velocity noise from
-/// `[motion.noise]` or the odometry model of `[filter.odometry_model]` (using the recording's
-/// IMU yaw, when it has one, for the ESE650 variant).
-pub fn motion_model(
-    config: &Config,
-    recording: &crate::sensors::Recording,
-) -> Result<Box<dyn slam::MotionModel>, slam::SlamError> {
-    config
-        .motion
-        .validate()
-        .map_err(|e| slam::SlamError::Motion(e.to_string()))?;
-    Ok(match config.filter.motion_model {
-        PredictionModel::Velocity => Box::new(prediction::VelocityMotion {
-            noise: config.motion.noise,
-            step: config.motion.step,
-        }),
-        PredictionModel::Odometry => {
-            let o = &config.filter.odometry_model;
-            let sigmas = [o.alpha1, o.alpha2, o.alpha3, o.alpha4]
-                .into_iter()
-                .chain(o.ese650_sigma);
-            if sigmas.into_iter().any(|v| !(v.is_finite() && v >= 0.0)) {
-                return Err(slam::SlamError::Motion(
-                    "filter.odometry_model: alphas and sigmas must be finite and >= 0".into(),
-                ));
-            }
-            Box::new(prediction::OdometryMotion {
-                options: *o,
-                imu_yaw: recording.imu_yaw.clone(),
-            })
-        }
-    })
 }
 
 /// One map for all particles (the seeds' behaviour).
@@ -367,6 +318,46 @@ impl ParticleFilter {
         F: Fn(&mut [Pose2], &mut Xoshiro256PlusPlus) + Sync,
     {
         self.par_chunks(true, work);
+    }
+
+    /// Applies the odometry steps `(from, to)` in order to every particle with `motion`, in
+    /// parallel over fixed chunks (deterministic for any thread count).
+    pub fn predict_steps(
+        &mut self,
+        steps: &[(StampedPose2, StampedPose2)],
+        motion: &dyn MotionModel,
+    ) {
+        let parallel = self.particles.len() * steps.len() >= SERIAL_BELOW_PARTICLE_STEPS;
+        self.par_chunks(parallel, |poses, rng| {
+            for (from, to) in steps {
+                for p in poses.iter_mut() {
+                    *p = motion.sample(p, from, to, rng);
+                }
+            }
+        });
+    }
+
+    /// Composes every particle with the odometry steps `(from, to)` in order, without
+    /// noise: [`Self::predict_steps`] with exact odometry, each step's increment computed
+    /// once for all particles instead of per particle (the same bits: the increment is a pure
+    /// function of the step; the per-particle `between` cost two of its three `sin_cos`).
+    /// `increments` is a reusable buffer.
+    pub fn predict_exact(
+        &mut self,
+        steps: &[(StampedPose2, StampedPose2)],
+        increments: &mut Vec<Pose2>,
+    ) {
+        increments.clear();
+        increments.extend(steps.iter().map(|(from, to)| from.pose.between(&to.pose)));
+        let increments = &*increments;
+        let parallel = self.particles.len() * steps.len() >= SERIAL_BELOW_PARTICLE_STEPS;
+        self.par_chunks(parallel, |poses, _| {
+            for d in increments {
+                for p in poses.iter_mut() {
+                    *p = p.compose(d);
+                }
+            }
+        });
     }
 
     /// [`Self::predict_chunks`], in parallel only when `parallel`: the chunks and their
@@ -532,3 +523,6 @@ impl ParticleFilter {
             .unwrap_or_default()
     }
 }
+
+#[cfg(test)]
+mod tests;

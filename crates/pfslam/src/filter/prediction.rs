@@ -2,7 +2,6 @@
 //! module's noisy models (velocity noise of the UCSD seed, relative-odometry noise of the
 //! ESE650 seed and Thrun's model).
 
-use super::slam::MotionModel;
 use crate::geometry::{Pose2, StampedPose2, wrap_angle};
 use crate::motion::odometry_model::{OdometryModelOptions, sample_odometry_motion};
 use crate::motion::{StepModel, VelocityNoise, sample_velocity_step_with};
@@ -20,6 +19,24 @@ pub enum PredictionModel {
     /// Relative motion between odometry poses with noise (`[filter.odometry_model]`: the
     /// ESE650 seed's `[0.005, 0.005, 0.005]` or Thrun's four-parameter model).
     Odometry,
+}
+
+/// A noisy motion model: moves a particle by the odometry step `from -> to`. `Send` too, so
+/// that a [`crate::Slam`] can run on another thread than the one that made it.
+pub trait MotionModel: Send + Sync {
+    /// The particle's new pose after the odometry step `from -> to`, with noise drawn from
+    /// `rng`.
+    fn sample(
+        &self,
+        pose: &Pose2,
+        from: &StampedPose2,
+        to: &StampedPose2,
+        rng: &mut Xoshiro256PlusPlus,
+    ) -> Pose2;
+
+    /// The recording's IMU yaw `(stamp_ns, yaw_rad)` so far, for a model that uses it: the
+    /// series only grows (live input), so a model keeps what it has and takes the rest.
+    fn observe_imu_yaw(&mut self, _series: &[(i64, f64)]) {}
 }
 
 /// The UCSD seed's model: each odometry step as linear and angular velocity plus noise.

@@ -132,7 +132,7 @@ pub struct GraphResult {
 }
 
 /// Runs the back end on `trajectory` (a pose at some scans of `recording`, e.g.
-/// [`crate::filter::slam::SlamResult::trajectory`]), using `scan_opts` for preprocessing.
+/// [`crate::slam::SlamResult::trajectory`]), using `scan_opts` for preprocessing.
 pub fn optimize_trajectory(
     recording: &Recording,
     scan_opts: &ScanOptions,

@@ -290,109 +290,133 @@ impl CarCalibration {
     }
 }
 
-// Digits exactly as OpenCV wrote them in the calibration YAML.
+/// One of the seed car's cameras as its calibration YAML gives it (1280x560, `plumb_bob`),
+/// the digits exactly as OpenCV wrote them.
+struct UcsdCamera {
+    camera_matrix: [f64; 9],
+    distortion: [f64; 5],
+    rectification: [f64; 9],
+    projection: [f64; 12],
+}
+
+impl UcsdCamera {
+    /// The camera as the stereo pipeline takes it.
+    fn info(&self) -> CameraInfo {
+        CameraInfo {
+            width: 1280,
+            height: 560,
+            camera_matrix: self.camera_matrix,
+            distortion_model: "plumb_bob".to_string(),
+            distortion: self.distortion.to_vec(),
+            rectification: self.rectification,
+            projection: self.projection,
+        }
+    }
+}
+
+/// The seed car's left camera (`left_camera.yaml`).
 #[allow(clippy::excessive_precision)]
+const UCSD_LEFT_CAMERA: UcsdCamera = UcsdCamera {
+    camera_matrix: [
+        8.1690378992770002e+02,
+        5.0510166700000003e-01,
+        6.0850726281690004e+02,
+        0.,
+        8.1156803828490001e+02,
+        2.6347599764440002e+02,
+        0.,
+        0.,
+        1.,
+    ],
+    distortion: [
+        -5.6143027800000002e-02,
+        1.3952563200000001e-01,
+        -1.2155906999999999e-03,
+        -9.7281389999999998e-04,
+        -8.0878168799999997e-02,
+    ],
+    rectification: [
+        9.9996942080938533e-01,
+        3.6208456669806118e-04,
+        -7.8119357978017733e-03,
+        -3.4412461339106772e-04,
+        9.9999729518344416e-01,
+        2.3002617343453663e-03,
+        7.8127475572218850e-03,
+        -2.2975031148170580e-03,
+        9.9996684067775188e-01,
+    ],
+    projection: [
+        7.7537235550066748e+02,
+        0.,
+        6.1947309112548828e+02,
+        0.,
+        0.,
+        7.7537235550066748e+02,
+        2.5718049049377441e+02,
+        0.,
+        0.,
+        0.,
+        1.,
+        0.,
+    ],
+};
+
+/// The seed car's right camera (`right_camera.yaml`).
+#[allow(clippy::excessive_precision)]
+const UCSD_RIGHT_CAMERA: UcsdCamera = UcsdCamera {
+    camera_matrix: [
+        8.1378205539589999e+02,
+        3.4880336220000002e-01,
+        6.1386419539320002e+02,
+        0.,
+        8.0852165574269998e+02,
+        2.4941049348650000e+02,
+        0.,
+        0.,
+        1.,
+    ],
+    distortion: [
+        -5.4921981799999998e-02,
+        1.4243657430000001e-01,
+        7.5412299999999996e-05,
+        -6.7560530000000001e-04,
+        -8.5665408299999996e-02,
+    ],
+    rectification: [
+        9.9998812489422739e-01,
+        2.4089155522231892e-03,
+        -4.2364131513853301e-03,
+        -2.4186483057924992e-03,
+        9.9999444433315865e-01,
+        -2.2937835970734117e-03,
+        4.2308640843048539e-03,
+        2.3040027516418276e-03,
+        9.9998839561287933e-01,
+    ],
+    projection: [
+        7.7537235550066748e+02,
+        0.,
+        6.1947309112548828e+02,
+        -3.6841758740842312e+02,
+        0.,
+        7.7537235550066748e+02,
+        2.5718049049377441e+02,
+        0.,
+        0.,
+        0.,
+        1.,
+        0.,
+    ],
+};
+
 impl StereoCalibration {
     /// The seed car's stereo rig (`left_camera.yaml`, `right_camera.yaml`,
     /// `stereo_param.txt`, `Vehicle2Stereo.txt`), built in.
     pub fn ucsd() -> Self {
         StereoCalibration {
-            left: CameraInfo {
-                width: 1280,
-                height: 560,
-                camera_matrix: [
-                    8.1690378992770002e+02,
-                    5.0510166700000003e-01,
-                    6.0850726281690004e+02,
-                    0.,
-                    8.1156803828490001e+02,
-                    2.6347599764440002e+02,
-                    0.,
-                    0.,
-                    1.,
-                ],
-                distortion_model: "plumb_bob".to_string(),
-                distortion: vec![
-                    -5.6143027800000002e-02,
-                    1.3952563200000001e-01,
-                    -1.2155906999999999e-03,
-                    -9.7281389999999998e-04,
-                    -8.0878168799999997e-02,
-                ],
-                rectification: [
-                    9.9996942080938533e-01,
-                    3.6208456669806118e-04,
-                    -7.8119357978017733e-03,
-                    -3.4412461339106772e-04,
-                    9.9999729518344416e-01,
-                    2.3002617343453663e-03,
-                    7.8127475572218850e-03,
-                    -2.2975031148170580e-03,
-                    9.9996684067775188e-01,
-                ],
-                projection: [
-                    7.7537235550066748e+02,
-                    0.,
-                    6.1947309112548828e+02,
-                    0.,
-                    0.,
-                    7.7537235550066748e+02,
-                    2.5718049049377441e+02,
-                    0.,
-                    0.,
-                    0.,
-                    1.,
-                    0.,
-                ],
-            },
-            right: CameraInfo {
-                width: 1280,
-                height: 560,
-                camera_matrix: [
-                    8.1378205539589999e+02,
-                    3.4880336220000002e-01,
-                    6.1386419539320002e+02,
-                    0.,
-                    8.0852165574269998e+02,
-                    2.4941049348650000e+02,
-                    0.,
-                    0.,
-                    1.,
-                ],
-                distortion_model: "plumb_bob".to_string(),
-                distortion: vec![
-                    -5.4921981799999998e-02,
-                    1.4243657430000001e-01,
-                    7.5412299999999996e-05,
-                    -6.7560530000000001e-04,
-                    -8.5665408299999996e-02,
-                ],
-                rectification: [
-                    9.9998812489422739e-01,
-                    2.4089155522231892e-03,
-                    -4.2364131513853301e-03,
-                    -2.4186483057924992e-03,
-                    9.9999444433315865e-01,
-                    -2.2937835970734117e-03,
-                    4.2308640843048539e-03,
-                    2.3040027516418276e-03,
-                    9.9998839561287933e-01,
-                ],
-                projection: [
-                    7.7537235550066748e+02,
-                    0.,
-                    6.1947309112548828e+02,
-                    -3.6841758740842312e+02,
-                    0.,
-                    7.7537235550066748e+02,
-                    2.5718049049377441e+02,
-                    0.,
-                    0.,
-                    0.,
-                    1.,
-                    0.,
-                ],
-            },
+            left: UCSD_LEFT_CAMERA.info(),
+            right: UCSD_RIGHT_CAMERA.info(),
             baseline_m: 0.475143600050775,
             body_from_camera: Rigid3::from_row_major(
                 [

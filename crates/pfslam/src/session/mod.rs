@@ -107,7 +107,7 @@ pub enum SessionError {
     Map(#[from] crate::map::MapError),
     /// The filter failed.
     #[error(transparent)]
-    Slam(#[from] crate::filter::slam::SlamError),
+    Slam(#[from] crate::slam::SlamError),
 }
 
 impl SessionState {

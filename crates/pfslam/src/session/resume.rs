@@ -4,13 +4,12 @@
 use super::{SessionError, SessionState};
 use crate::config::Config;
 use crate::filter::FilterMode;
-use crate::filter::rbpf::{PriorMap, run_rbpf_in};
-use crate::filter::slam::SlamEvent;
 use crate::geometry::{Pose2, StampedPose2, Trajectory};
 use crate::localize::localize;
 use crate::map::{OccupancyGrid, map_with_poses};
 use crate::quality::Quality;
 use crate::sensors::{LidarGeometry, Recording, ScanSet};
+use crate::slam::{PriorMap, SlamEvent, run_rbpf_in};
 
 /// What [`resume`] produced.
 #[derive(Debug, Clone)]

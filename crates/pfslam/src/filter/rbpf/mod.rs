@@ -1,9 +1,10 @@
 //! The Rao-Blackwellised particle filter (`[filter] mode = "rbpf"`), after GMapping
 //! (Grisetti, Stachniss, Burgard 2007).
 //!
-//! - Every particle carries its own [`OccupancyGrid`]. Grids are tiled with `Arc` tiles and
-//!   copy-on-write, so a resampled copy shares all tiles with its ancestor and memory grows
-//!   with the tiles particles actually changed, not with the particle count.
+//! - Every particle carries its own [`OccupancyGrid`](crate::map::OccupancyGrid). Grids are
+//!   tiled with `Arc` tiles and copy-on-write, so a resampled copy shares all tiles with its
+//!   ancestor and memory grows with the tiles particles actually changed, not with the
+//!   particle count.
 //! - Updates happen only once the odometry moved `linear_update_m` or turned
 //!   `angular_update_deg` since the last one. At an update each particle composes the
 //!   odometry increment onto its pose (no noise), scan-matches from there against its OWN
@@ -21,13 +22,15 @@
 //!   every scan has a pose.
 //! - Randomness: one `jump()`ed stream per fixed chunk of particles (`filter::rng`), the
 //!   master stream for resampling: results do not depend on the thread count.
+//!
+//! The filter is fed a recording scan by scan, and its final path re-matched in the best
+//! map, by `crate::slam::RbpfFrontEnd`.
 
 mod likelihood;
 mod matcher;
 mod options;
 mod particles;
 mod path;
-mod run;
 #[cfg(test)]
 mod tests;
 
@@ -36,4 +39,3 @@ pub use matcher::*;
 pub use options::*;
 pub use particles::*;
 pub use path::*;
-pub use run::*;

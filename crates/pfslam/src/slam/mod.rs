@@ -1,31 +1,47 @@
-//! The SLAM loop: predict at every odometry step, update every k-th scan (`[filter] mode`:
-//! the seeds' correlation, or the scan-matching proposal of [`super::scanmatch`]), reweight,
-//! resample on low Neff, map with the best particle (the scan-matching mode also maps the
-//! scans between updates at the odometry-composed pose), output a pose at every scan.
+//! The particle filter run over a recording: the driver above the filter's building blocks
+//! ([`crate::filter`]) that takes the whole [`Config`]. The loop predicts at every odometry
+//! step, updates every k-th scan (`[filter] mode`: the seeds' correlation, or the
+//! scan-matching proposal of [`crate::filter::scanmatch`]), reweights, resamples on low
+//! Neff, maps with the best particle (the scan-matching mode also maps the scans between
+//! updates at the odometry-composed pose) and outputs a pose at every scan; the `rbpf` mode's
+//! front end ([`RbpfFrontEnd`]) updates once the odometry moved far enough and re-matches its
+//! final path.
+//!
+//! - [`run_slam`]: the mode `[filter] mode` selects (`auto` resolved); [`run_slam_with`]:
+//!   an explicit motion model and map policy; [`run_rbpf_in`]: the `rbpf` mode continuing a
+//!   saved map.
+//! - [`FrontEnd`]: a filter fed one scan at a time, shared by the batch loop and
+//!   [`crate::Slam`]; [`MapPolicy`]: how the maps are kept; [`SlamResult`] and
+//!   [`SlamEvent`]: what a run produces and reports.
+//! - [`seed_config`] and [`motion_model`]: the configuration of the seeds and the noisy
+//!   motion model a configuration selects.
 
-use super::correlate::{CorrelationSearch, OccupancyLookup};
-use super::odometry::OdometryCursor;
-use super::scanmatch;
-use super::{FilterError, FilterMode, ParticleFilter, ParticleMaps, SERIAL_BELOW_PARTICLE_STEPS};
 use crate::config::Config;
+use crate::filter::correlate::CorrelationSearch;
+use crate::filter::odometry::OdometryCursor;
+use crate::filter::prediction::{self, PredictionModel};
+use crate::filter::scanmatch;
+use crate::filter::{FilterError, FilterMode, ParticleFilter, ParticleMaps};
 use crate::geometry::{Pose2, StampedPose2};
 use crate::map::{
-    BatchScratch, Cell, CellChange, ChangeLog, InsertScratch, MapError, MapLimits, OccupancyGrid,
-    PlanarScan, ScanProjector, ScanUpdates, split_rays, to_world,
+    BatchScratch, CellChange, ChangeLog, InsertScratch, MapError, OccupancyGrid, PlanarScan,
+    ScanProjector, ScanUpdates, split_rays, to_world,
 };
 use crate::sensors::Recording;
-use rand_xoshiro::Xoshiro256PlusPlus;
 use rayon::prelude::*;
 use serde::Serialize;
 use std::time::Instant;
 
 mod front_end;
 mod maps;
+mod rbpf;
 mod result;
 
+pub use crate::filter::prediction::MotionModel;
 pub use front_end::{FrontEnd, MatchFrontEnd};
 pub(crate) use front_end::{drive, feed_scan};
 pub use maps::*;
+pub use rbpf::*;
 pub use result::*;
 
 /// Errors of a SLAM run.
@@ -50,24 +66,6 @@ pub enum SlamError {
     },
 }
 
-/// A noisy motion model: moves a particle by the odometry step `from -> to`. `Send` too, so
-/// that a [`crate::Slam`] can run on another thread than the one that made it.
-pub trait MotionModel: Send + Sync {
-    /// The particle's new pose after the odometry step `from -> to`, with noise drawn from
-    /// `rng`.
-    fn sample(
-        &self,
-        pose: &Pose2,
-        from: &StampedPose2,
-        to: &StampedPose2,
-        rng: &mut Xoshiro256PlusPlus,
-    ) -> Pose2;
-
-    /// The recording's IMU yaw `(stamp_ns, yaw_rad)` so far, for a model that uses it: the
-    /// series only grows (live input), so a model keeps what it has and takes the rest.
-    fn observe_imu_yaw(&mut self, _series: &[(i64, f64)]) {}
-}
-
 /// After scan `done` of `total`: reports progress about every 0.5 % (and at the end) to
 /// `observer`, and says whether a map snapshot is due (every `snapshot_every_scans`
 /// processed scans; 0 = never). Shared by the filter loops.
@@ -89,7 +87,7 @@ pub(crate) fn report_progress(
 /// at the odometry's pose `start` at scan `first` (the scans before counted as skipped).
 pub enum AnyFrontEnd {
     /// The `rbpf` mode.
-    Rbpf(Box<super::rbpf::RbpfFrontEnd>),
+    Rbpf(Box<RbpfFrontEnd>),
     /// The `scan_match` and `seed` modes.
     Match(Box<MatchFrontEnd<BestParticleMap>>),
 }
@@ -104,10 +102,10 @@ impl AnyFrontEnd {
     ) -> Result<Self, SlamError> {
         let mode = config.filter.mode.resolve(recording);
         if mode == FilterMode::Rbpf {
-            let front = super::rbpf::RbpfFrontEnd::new(recording, config, seed, None, start)?;
+            let front = RbpfFrontEnd::new(recording, config, seed, None, start)?;
             return Ok(AnyFrontEnd::Rbpf(Box::new(front.skipped(first))));
         }
-        let motion = super::motion_model(config, recording)?;
+        let motion = motion_model(config, recording)?;
         // `scan_match` matches against a map without height bins
         // (docs/decisions/0015-height-bins.md).
         let grid = if mode == FilterMode::ScanMatch {
@@ -230,6 +228,53 @@ pub(crate) fn check_and_start(
     Ok((first, cursor))
 }
 
+/// The seeds' configuration: `mode = "seed"`, the UCSD log-odds model (one hit makes a cell
+/// occupied), and none of the scan preprocessing the scan-matching mode relies on (ground
+/// removal, densification, partial clearing of climbing beams). Everything else as [`Config::default`].
+pub fn seed_config() -> Config {
+    let mut config = Config::default();
+    config.filter.mode = FilterMode::Seed;
+    config.map.log_odds = crate::map::LogOddsParams::ucsd();
+    config.map.scan.ground_clearance_m = None;
+    config.map.scan.densify_max_gap_m = None;
+    config.map.scan.free_z_max_m = None;
+    config
+}
+
+/// The noisy motion model `[filter] motion_model` selects: velocity noise from
+/// `[motion.noise]` or the odometry model of `[filter.odometry_model]` (using the recording's
+/// IMU yaw, when it has one, for the ESE650 variant).
+pub fn motion_model(
+    config: &Config,
+    recording: &crate::sensors::Recording,
+) -> Result<Box<dyn MotionModel>, SlamError> {
+    config
+        .motion
+        .validate()
+        .map_err(|e| SlamError::Motion(e.to_string()))?;
+    Ok(match config.filter.motion_model {
+        PredictionModel::Velocity => Box::new(prediction::VelocityMotion {
+            noise: config.motion.noise,
+            step: config.motion.step,
+        }),
+        PredictionModel::Odometry => {
+            let o = &config.filter.odometry_model;
+            let sigmas = [o.alpha1, o.alpha2, o.alpha3, o.alpha4]
+                .into_iter()
+                .chain(o.ese650_sigma);
+            if sigmas.into_iter().any(|v| !(v.is_finite() && v >= 0.0)) {
+                return Err(SlamError::Motion(
+                    "filter.odometry_model: alphas and sigmas must be finite and >= 0".into(),
+                ));
+            }
+            Box::new(prediction::OdometryMotion {
+                options: *o,
+                imu_yaw: recording.imu_yaw.clone(),
+            })
+        }
+    })
+}
+
 /// The window of the likelihood field for one update: the matching points seen from `best`,
 /// grown by how far the other particles are from it (at most 5 m) and by `margin_cells`.
 fn field_window(
@@ -264,48 +309,6 @@ fn field_window(
     rect.expanded((grow_m / limits.resolution_m()).ceil() as i32 + margin_cells)
 }
 
-impl ParticleFilter {
-    /// Applies the odometry steps `(from, to)` in order to every particle with `motion`, in
-    /// parallel over fixed chunks (deterministic for any thread count).
-    pub fn predict_steps(
-        &mut self,
-        steps: &[(StampedPose2, StampedPose2)],
-        motion: &dyn MotionModel,
-    ) {
-        let parallel = self.particles.len() * steps.len() >= SERIAL_BELOW_PARTICLE_STEPS;
-        self.par_chunks(parallel, |poses, rng| {
-            for (from, to) in steps {
-                for p in poses.iter_mut() {
-                    *p = motion.sample(p, from, to, rng);
-                }
-            }
-        });
-    }
-
-    /// Composes every particle with the odometry steps `(from, to)` in order, without
-    /// noise: [`Self::predict_steps`] with exact odometry, each step's increment computed
-    /// once for all particles instead of per particle (the same bits: the increment is a pure
-    /// function of the step; the per-particle `between` cost two of its three `sin_cos`).
-    /// `increments` is a reusable buffer.
-    pub fn predict_exact(
-        &mut self,
-        steps: &[(StampedPose2, StampedPose2)],
-        increments: &mut Vec<Pose2>,
-    ) {
-        increments.clear();
-        increments.extend(steps.iter().map(|(from, to)| from.pose.between(&to.pose)));
-        let increments = &*increments;
-        let parallel = self.particles.len() * steps.len() >= SERIAL_BELOW_PARTICLE_STEPS;
-        self.par_chunks(parallel, |poses, _| {
-            for d in increments {
-                for p in poses.iter_mut() {
-                    *p = p.compose(d);
-                }
-            }
-        });
-    }
-}
-
 /// Re-expresses the odometry of `recording` in its ground truth's frame, anchored at the first
 /// scan both cover: `odometry' = gt(t0) * odometry(t0)^-1 * odometry`. SLAM then starts at
 /// the true initial pose, so its map and trajectory can be drawn over and compared with the
@@ -330,9 +333,6 @@ pub fn anchor_odometry_to_ground_truth(recording: &mut Recording) -> bool {
     }
     true
 }
-
-#[cfg(test)]
-mod tests;
 
 #[cfg(test)]
 mod flush_tests;

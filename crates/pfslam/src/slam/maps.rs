@@ -3,17 +3,6 @@
 
 use super::*;
 
-impl OccupancyLookup for OccupancyGrid {
-    #[inline]
-    fn cell_limits(&self) -> MapLimits {
-        *self.limits()
-    }
-    #[inline]
-    fn occupied(&self, cell: Cell) -> bool {
-        self.is_occupied(cell)
-    }
-}
-
 /// How maps are kept: the seeds' single map written by the best particle, or one map per
 /// particle. The filter sees maps only through this trait.
 pub trait MapPolicy: ParticleMaps {

@@ -4,6 +4,8 @@
 
 use super::*;
 use crate::filter::UpdateReport;
+use crate::filter::correlate::hit_points;
+use crate::filter::field_cache::FieldCache;
 
 /// A filter fed one scan at a time.
 pub trait FrontEnd {
@@ -97,7 +99,7 @@ pub struct MatchFrontEnd<P: MapPolicy> {
     hits: Vec<[f64; 2]>,
     match_pts: Vec<[f64; 2]>,
     field: scanmatch::LikelihoodField,
-    field_cache: super::super::field_cache::FieldCache,
+    field_cache: FieldCache,
     match_params: scanmatch::MatchParams,
     resample_threshold: f64,
     increments: Vec<Pose2>,
@@ -161,7 +163,7 @@ impl<P: MapPolicy> MatchFrontEnd<P> {
             hits: Vec::new(),
             match_pts: Vec::new(),
             field,
-            field_cache: super::super::field_cache::FieldCache::new(),
+            field_cache: FieldCache::new(),
             match_params: opts.scan_match.params(config.map.resolution_m),
             resample_threshold,
             increments: Vec::new(),
@@ -186,7 +188,7 @@ impl<P: MapPolicy> MatchFrontEnd<P> {
         self.projector.aim(recording, i);
         let ranges = recording.scans.ranges(i);
         self.projector.to_body(ranges, &mut self.body)?;
-        super::super::correlate::hit_points(&self.body, &mut self.hits);
+        hit_points(&self.body, &mut self.hits);
         self.stats.timings.preprocess_s += t.elapsed().as_secs_f64();
         let best = if k == 0 {
             // The first scan seeds the map at the start pose; nothing to correlate with.

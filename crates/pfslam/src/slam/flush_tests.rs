@@ -1,6 +1,7 @@
 use super::*;
 use crate::map::{MapOptions, ScanPoint};
 use rand::{RngExt, SeedableRng};
+use rand_xoshiro::Xoshiro256PlusPlus;
 
 fn random_body_scan(rng: &mut Xoshiro256PlusPlus, points: usize, heights: bool) -> PlanarScan {
     let range_max = rng.random_range(0.5..12.0);

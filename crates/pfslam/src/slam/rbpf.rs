@@ -1,9 +1,12 @@
-//! The filter's driver over a recording, and the final re-matching of every pose.
+//! The Rao-Blackwellised filter's driver over a recording ([`crate::filter::rbpf`]), and the
+//! final re-matching of every pose.
 
-use super::*;
+use super::{FrontEnd, SlamError, SlamEvent, SlamResult, SlamStats};
 use crate::config::Config;
+use crate::filter::rbpf::{
+    MatchPrior, Rbpf, RbpfOptions, SearchParams, UpdateScan, match_in_own_map, path_poses,
+};
 use crate::filter::scanmatch::match_points;
-use crate::filter::slam::{FrontEnd, SlamError, SlamEvent, SlamResult, SlamStats};
 use crate::geometry::{Pose2, StampedPose2};
 use crate::map::{MapError, OccupancyGrid, PlanarScan, ScanProjector};
 use crate::sensors::Recording;
@@ -43,10 +46,10 @@ pub fn run_rbpf_in(
     prior: Option<&PriorMap<'_>>,
 ) -> Result<SlamResult, SlamError> {
     let t_start = Instant::now();
-    let (first, cursor) = crate::filter::slam::check_and_start(recording, config)?;
+    let (first, cursor) = super::check_and_start(recording, config)?;
     let odom_start = cursor.current().pose;
     let front = RbpfFrontEnd::new(recording, config, seed, prior, odom_start)?.skipped(first);
-    crate::filter::slam::drive(recording, (first, cursor), front, t_start, observer)
+    super::drive(recording, (first, cursor), front, t_start, observer)
 }
 
 /// The filter fed one scan at a time, with its odometry pose: what [`run_rbpf_in`] runs
@@ -269,7 +272,7 @@ impl RbpfFrontEnd {
     /// Progress after `done` of the `total` scans, and a map snapshot when one is due.
     fn report(&self, (done, total): (usize, usize), observer: &mut dyn FnMut(SlamEvent<'_>)) {
         let every = self.opts.snapshot_every_scans;
-        if crate::filter::slam::report_progress(observer, done, total, &self.stats, every) {
+        if super::report_progress(observer, done, total, &self.stats, every) {
             let best = &self.pf.particles[self.pf.best()];
             let trajectory = path_poses(&best.node, &self.dead_reckoning);
             observer(SlamEvent::Snapshot {
