@@ -1,5 +1,6 @@
 //! The resolved configuration: one options struct per component, one TOML section each.
 
+pub mod session;
 pub mod sim;
 pub mod stereo;
 
@@ -27,7 +28,7 @@ pub struct Config {
     /// Monte Carlo localisation in a fixed map (`[localize]`, `pfslam localize`).
     pub localize: crate::localize::LocalizeOptions,
     /// Saved sessions: which scans are kept as keyframes (`[session]`, `--save-state`).
-    pub session: crate::session::SessionOptions,
+    pub session: session::SessionOptions,
 }
 
 /// Errors of loading a configuration.
