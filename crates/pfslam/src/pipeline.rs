@@ -413,7 +413,7 @@ fn map_and_free_share(
     Ok((grid, share))
 }
 
-/// The share of returns of (at most [`FREE_SHARE_SCANS`]) scans posed by `poses` that land
+/// The share of returns of (at most 2,000, evenly spaced) scans posed by `poses` that land
 /// in cells `grid` calls free: the self-check's consistency signal.
 pub fn free_share(
     recording: &Recording,

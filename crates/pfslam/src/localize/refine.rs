@@ -27,7 +27,7 @@ fn score(field: &LikelihoodField, points: &[[f64; 2]], pose: &Pose2) -> f64 {
 }
 
 /// `pose` moved to the best score of `points` (body frame) in `field` by a hill climb (six
-/// moves, step halving); `pose` itself when the climb leaves [`MAX_MOVE`].
+/// moves, step halving); `pose` itself when the climb moves it more than 0.25 m or 5 deg.
 pub fn refine_pose(field: &LikelihoodField, points: &[[f64; 2]], pose: &Pose2) -> Pose2 {
     let mut best = *pose;
     let mut best_score = score(field, points, &best);
@@ -73,8 +73,8 @@ const TRACK_ITERATIONS: u32 = 5;
 /// `pose` moved to a nearby maximum of the tracking score of `points` (body frame) by
 /// Gauss-Newton steps on the bilinear field (residual: the field's peak minus a point's
 /// log-likelihood), each kept only when it raises the score; `pose` itself when the result
-/// leaves [`MAX_MOVE`]. A few passes over the points where [`refine_pose`]'s climb takes
-/// dozens: for the poses between updates, which start close to the answer.
+/// moves it more than 0.25 m or 5 deg. A few passes over the points where [`refine_pose`]'s
+/// climb takes dozens: for the poses between updates, which start close to the answer.
 pub fn track_pose(field: &LikelihoodField, points: &[[f64; 2]], pose: &Pose2) -> Pose2 {
     let peak = f64::from(field.peak());
     let mut best = *pose;

@@ -44,7 +44,7 @@ impl BinLogOdds {
     }
 }
 
-/// Most height bins per cell ([`super::HeightOptions::bins`]).
+/// Most height bins per cell ([`crate::map::HeightOptions::bins`]).
 pub const MAX_BINS: usize = 16;
 
 /// The height bins of one tile: one column of [`MAX_BINS`] fixed-point log-odds per cell (same
