@@ -12,7 +12,7 @@ use crate::graph::{GraphError, GraphStats, optimize_after_saved, optimize_trajec
 use crate::map::consistency::consistency;
 use crate::map::{MapError, OccupancyGrid, map_with_poses};
 use crate::motion::calibration::{CalibrationFit, fit_odometry_calibration};
-use crate::quality::{Quality, QualitySignals};
+use crate::quality::{Quality, QualitySignals, SUSPECT_FREE_SHARE};
 use crate::sensors::Recording;
 use crate::slam::{SlamError, SlamEvent, SlamResult, run_slam};
 use std::time::Instant;
@@ -304,7 +304,8 @@ pub(crate) fn back_end_over(
 }
 
 /// The back end's trajectory unless its map is much less consistent than the front end's
-/// (`[graph] max_free_share_ratio`). Then, when it matched consecutive keyframes itself, it
+/// (`[graph] max_free_share_ratio`), or crosses the self-check's limit
+/// ([`SUSPECT_FREE_SHARE`]) that the front end's stays under (decision 0059). Then, when it matched consecutive keyframes itself, it
 /// runs again tied by the front end's motion alone (`sequential.matching = "off"`, no
 /// odometry-yaw edges): on Intel its own sequential matches led its closures astray on half
 /// of the seeds (decision 0006). The front end's trajectory when that fails too. The first
@@ -337,8 +338,7 @@ fn choose_trajectory(
     }
     let (front_grid, front_share) = map_and_free_share(recording, front_end, config)?;
     signals.free_share_front_end = Some(front_share);
-    let acceptable =
-        |share: f64| share <= (ratio * front_share).max(front_share + MIN_FREE_SHARE_RISE);
+    let acceptable = |share: f64| back_end_acceptable(share, front_share, ratio);
     if acceptable(back_share) {
         return Ok(Chosen {
             loop_closures: closure_ends(&g),
@@ -393,6 +393,17 @@ fn choose_trajectory(
     })
 }
 
+/// Whether a back end whose map has `back_share` of its returns in free cells may replace a
+/// front end with `front_share`: not much less consistent (`ratio` times the share, and at
+/// least [`MIN_FREE_SHARE_RISE`] more), and not carried past the self-check's limit that the
+/// front end's map stays under (however small the ratio).
+fn back_end_acceptable(back_share: f64, front_share: f64, ratio: f64) -> bool {
+    let rise = back_share > front_share + MIN_FREE_SHARE_RISE;
+    let turns_suspect =
+        rise && back_share > SUSPECT_FREE_SHARE && front_share <= SUSPECT_FREE_SHARE;
+    back_share <= (ratio * front_share).max(front_share + MIN_FREE_SHARE_RISE) && !turns_suspect
+}
+
 /// The back end is rejected only when its free share also exceeds the front end's by this
 /// much: between correct solutions the share moves by up to ~1 point (decision 0006), and on
 /// a clean map (a simulator's, ~0.3 %) a ratio alone would reject noise.
@@ -423,4 +434,23 @@ pub fn free_share(
 ) -> Result<f64, PipelineError> {
     let step = recording.scans.len().div_ceil(FREE_SHARE_SCANS).max(1);
     Ok(consistency(recording, poses, grid, &config.map.scan, step)?.free_share())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::back_end_acceptable;
+
+    #[test]
+    fn a_back_end_that_makes_the_map_suspect_is_not_taken_as_it_is() {
+        // Within the ratio, both under the self-check's limit: taken.
+        assert!(back_end_acceptable(0.12, 0.10, 1.5));
+        // Within the ratio of 1.5 but past the 15 % limit the front end stays under (a
+        // resumed session's back end bent at a weave: 15.2 % against 11.0 %).
+        assert!(!back_end_acceptable(0.152, 0.110, 1.5));
+        // Past the limit by less than the least rise between correct solutions: taken.
+        assert!(back_end_acceptable(0.155, 0.149, 1.5));
+        // Both past the limit: the ratio alone decides.
+        assert!(back_end_acceptable(0.20, 0.16, 1.5));
+        assert!(!back_end_acceptable(0.30, 0.16, 1.5));
+    }
 }
