@@ -124,3 +124,21 @@ fn a_place_driven_twice_keeps_the_map_of_one_pass() {
     eprintln!("intel half: {e1:.4} m, driven again {e2:.4} m");
     assert!(e2 <= e1 * 1.1, "{e1:.4} -> {e2:.4} m");
 }
+
+/// MIT-CSAIL's first 210 s driven again: where the robot weaves, the second session's back
+/// end bends (its own sequential matches) and would map a second copy of the corridors (789
+/// keyframes after 440); the guard refuses that back end and the map stays within 1.3x of one
+/// pass (measured 544).
+#[test]
+fn a_bent_back_end_does_not_double_the_map_of_a_place_driven_twice() {
+    let Some(dir) = bag("session_twice_mit_csail", "mit-csail") else {
+        return;
+    };
+    let config = Config::default();
+    let first = read_span(&dir, "mit-csail", None, Some(210.0));
+    let (_, state) = first_session(&first, &config);
+    let r = resume(&state, &first, &config, 1, None, &mut |_| {}).unwrap();
+    let (once, twice) = (state.keyframes.len(), r.state.keyframes.len());
+    eprintln!("mit-csail 210 s: {once} keyframes after one pass, {twice} after two");
+    assert!(twice as f64 <= 1.3 * once as f64, "{once} -> {twice}");
+}
