@@ -103,6 +103,31 @@ fn a_session_starts_where_the_last_one_ended() {
     assert!(e <= 1.5 * 0.0358, "{e:.4} m");
 }
 
+/// `name`'s first `end_s` seconds driven again as a second session (seed 1): the first
+/// pass's trajectory, and the keyframes after one pass and after two, and the second pass.
+struct DrivenTwice {
+    first: Vec<StampedPose2>,
+    once: usize,
+    twice: usize,
+    second: Vec<StampedPose2>,
+}
+
+fn driven_twice(dir: &std::path::Path, name: &str, end_s: f64) -> DrivenTwice {
+    let config = Config::default();
+    let span = read_span(dir, name, None, Some(end_s));
+    let (first, state) = first_session(&span, &config);
+    let r = resume(&state, &span, &config, 1, None, &mut |_| {}).unwrap();
+    let (once, twice) = (state.keyframes.len(), r.state.keyframes.len());
+    eprintln!("{name}, first {end_s} s: {once} keyframes after one pass, {twice} after two");
+    assert!(twice as f64 <= 1.3 * once as f64, "{once} -> {twice}");
+    DrivenTwice {
+        first,
+        once,
+        twice,
+        second: r.trajectory,
+    }
+}
+
 /// The Intel bag's first half driven again as a second session: at most 1.3x the keyframes
 /// of one pass (measured 726 -> 732), and the second pass, in the known map, no worse.
 #[test]
@@ -110,16 +135,11 @@ fn a_place_driven_twice_keeps_the_map_of_one_pass() {
     let Some(dir) = bag("session_twice_intel", "intel") else {
         return;
     };
-    let config = Config::default();
-    let half = read_span(&dir, "intel", None, Some(1350.0));
-    let (first, state) = first_session(&half, &config);
-    let r = resume(&state, &half, &config, 1, None, &mut |_| {}).unwrap();
-    let (once, twice) = (state.keyframes.len(), r.state.keyframes.len());
-    eprintln!("intel half: {once} keyframes after one pass, {twice} after two");
-    assert!(twice as f64 <= 1.3 * once as f64, "{once} -> {twice}");
+    let run = driven_twice(&dir, "intel", 1350.0);
+    assert!(run.twice >= run.once);
     let (e1, e2) = (
-        relations_m(&dir, "intel", first),
-        relations_m(&dir, "intel", r.trajectory),
+        relations_m(&dir, "intel", run.first),
+        relations_m(&dir, "intel", run.second),
     );
     eprintln!("intel half: {e1:.4} m, driven again {e2:.4} m");
     assert!(e2 <= e1 * 1.1, "{e1:.4} -> {e2:.4} m");
@@ -128,17 +148,12 @@ fn a_place_driven_twice_keeps_the_map_of_one_pass() {
 /// MIT-CSAIL's first 210 s driven again: where the robot weaves, the second session's back
 /// end bends (its own sequential matches) and would map a second copy of the corridors (789
 /// keyframes after 440); the guard refuses that back end and the map stays within 1.3x of one
-/// pass (measured 544).
+/// pass (measured 544; the 1.3x is asserted by `driven_twice`).
 #[test]
 fn a_bent_back_end_does_not_double_the_map_of_a_place_driven_twice() {
     let Some(dir) = bag("session_twice_mit_csail", "mit-csail") else {
         return;
     };
-    let config = Config::default();
-    let first = read_span(&dir, "mit-csail", None, Some(210.0));
-    let (_, state) = first_session(&first, &config);
-    let r = resume(&state, &first, &config, 1, None, &mut |_| {}).unwrap();
-    let (once, twice) = (state.keyframes.len(), r.state.keyframes.len());
-    eprintln!("mit-csail 210 s: {once} keyframes after one pass, {twice} after two");
-    assert!(twice as f64 <= 1.3 * once as f64, "{once} -> {twice}");
+    let run = driven_twice(&dir, "mit-csail", 210.0);
+    assert!(run.twice >= run.once);
 }
