@@ -18,6 +18,11 @@
 //! - `cell_sum` and `field_score`: the back end's point field (exact cell sums, the
 //!   interpolated score);
 //! - `heights` and `mask`: the grid's height bins and ray walk.
+//!
+//! The grid's kernels (`likelihood`, `nearest`, `heights`, `mask`) use nothing of `map` or
+//! `filter`: they take plain slices, the families' own parameter structs and, for the
+//! particle grid's tile directory, the [`likelihood::TileGrid`] trait. The tile layout and
+//! the height bins' count are defined here once and re-exported by `map`.
 
 use std::sync::OnceLock;
 
@@ -30,6 +35,18 @@ pub(crate) mod mask;
 pub(crate) mod nearest;
 pub(crate) mod rotation;
 pub(crate) mod rotation_f32;
+
+/// log2 of a grid tile's side.
+pub const TILE_SHIFT: u32 = 6;
+/// Tile side (cells).
+pub const TILE_SIZE: usize = 1 << TILE_SHIFT;
+/// A cell index's place within its tile (`i & TILE_MASK`).
+pub const TILE_MASK: i32 = (TILE_SIZE as i32) - 1;
+/// Cells of one tile.
+pub const TILE_CELLS: usize = TILE_SIZE * TILE_SIZE;
+
+/// Most height bins per cell (one 16-byte column, one vector).
+pub const MAX_BINS: usize = 16;
 
 /// The instruction-set extensions the kernels use, as this CPU (and its operating system)
 /// supports them. Only [`cpu`] makes one: a kernel's `unsafe` call relies on a feature being
