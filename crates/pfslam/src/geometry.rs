@@ -9,6 +9,8 @@ use nalgebra::{Matrix3, Matrix4, Vector3};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
+pub mod cells;
+
 /// Wraps an angle into `(-pi, pi]`.
 #[inline]
 pub fn wrap_angle(angle_rad: f64) -> f64 {

@@ -18,8 +18,22 @@
 //! - `cell_sum` and `field_score`: the back end's point field (exact cell sums, the
 //!   interpolated score);
 //! - `heights` and `mask`: the grid's height bins and ray walk.
+//!
+//! The layering: the kernels sit below the modules whose data they walk (`filter`, `graph`,
+//! `map`) and use nothing of the crate but `geometry` (poses, cells, the world <-> cell
+//! frame). They take plain slices and small `Copy` views defined here ([`FieldWindow`] of
+//! the scan matcher's likelihood field, [`PointLevel`] of the back end's point field, the
+//! families' own parameter structs) or, for the particle grid's tile directory, the
+//! [`likelihood::TileGrid`] trait; the owning modules build these and call the kernels. The
+//! constants both sides must agree on (the tile layout, the height bins, the lanes of the
+//! interpolations) are defined here once and re-exported by their owners.
 
 use std::sync::OnceLock;
+
+mod views;
+
+pub use views::F32_LIM;
+pub(crate) use views::{FieldWindow, PointLevel};
 
 pub(crate) mod cell_sum;
 pub(crate) mod coarse;
@@ -30,6 +44,40 @@ pub(crate) mod mask;
 pub(crate) mod nearest;
 pub(crate) mod rotation;
 pub(crate) mod rotation_f32;
+
+/// log2 of a grid tile's side.
+pub const TILE_SHIFT: u32 = 6;
+/// Tile side (cells).
+pub const TILE_SIZE: usize = 1 << TILE_SHIFT;
+/// A cell index's place within its tile (`i & TILE_MASK`).
+pub const TILE_MASK: i32 = (TILE_SIZE as i32) - 1;
+/// Cells of one tile.
+pub const TILE_CELLS: usize = TILE_SIZE * TILE_SIZE;
+
+/// Most height bins per cell (one 16-byte column, one vector).
+pub const MAX_BINS: usize = 16;
+
+/// Points per batch of the f64 interpolations (the scan matcher's refinement and the back
+/// end's matcher).
+pub const LANES: usize = 4;
+
+/// Zero bytes kept after a likelihood field's cells (never read as cells): the coarse sums'
+/// 8-byte row loads may run past the last cell.
+pub const FIELD_PAD: usize = 8;
+
+/// The bilinear mix per lane of corners `[f00, f10, f01, f11]` at fractions `(ax, ay)`, in
+/// the order of the scalar interpolations (so the same bits).
+#[inline(always)]
+pub fn mix_lanes(f: &[[f64; 4]; LANES], ax: &[f64; LANES], ay: &[f64; LANES]) -> [f64; LANES] {
+    let mut out = [0.0; LANES];
+    for k in 0..LANES {
+        let [f00, f10, f01, f11] = f[k];
+        let bottom = f00 * (1.0 - ax[k]) + f10 * ax[k];
+        let top = f01 * (1.0 - ax[k]) + f11 * ax[k];
+        out[k] = bottom * (1.0 - ay[k]) + top * ay[k];
+    }
+    out
+}
 
 /// The instruction-set extensions the kernels use, as this CPU (and its operating system)
 /// supports them. Only [`cpu`] makes one: a kernel's `unsafe` call relies on a feature being

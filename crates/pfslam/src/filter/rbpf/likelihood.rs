@@ -4,20 +4,8 @@
 use crate::geometry::Pose2;
 use crate::map::OccupancyGrid;
 
-/// The smooth observation model on a log-odds grid, per point: `-d^2 / (2 sigma^2)` with `d`
-/// the distance from the point to the centre of the nearest occupied cell within `kernel`
-/// cells, floored at `no_hit` (also the value when none is found).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ObservationModel {
-    /// Search half-width (cells).
-    pub kernel: i32,
-    /// Fixed-point log-odds above which a cell is occupied.
-    pub occupied_fixed: i16,
-    /// `resolution^2 / (2 sigma^2)`: converts squared cell distances to log-likelihood.
-    pub res2_over_2s2: f64,
-    /// Floor of a point's log-likelihood.
-    pub no_hit: f64,
-}
+/// The observation model and a candidate's bar, defined with their kernels.
+pub use crate::kernels::likelihood::{Bar, ObservationModel};
 
 /// Log-likelihood of the body-frame `points` seen from `pose` in `grid` (sum over points).
 ///
@@ -35,16 +23,6 @@ pub fn scan_log_likelihood(
     pose: &Pose2,
 ) -> f64 {
     scan_log_likelihood_above(grid, model, points, pose, None)
-}
-
-/// A candidate's bar in [`scan_log_likelihood_above`]: it wins only if
-/// `log-likelihood - penalty > bar`.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Bar {
-    /// Subtracted from the log-likelihood before the comparison (the prior's term).
-    pub penalty: f64,
-    /// The value to beat (strictly).
-    pub bar: f64,
 }
 
 /// [`scan_log_likelihood`], but with a `bar` it may stop early: every point's term is <= 0,

@@ -1,18 +1,16 @@
 //! The likelihood field: a window of the map where each cell holds its closeness to the
 //! nearest occupied cell, built per update (banded, cached).
 
-use super::*;
 use crate::filter::field_cache::FieldCache;
-use crate::kernels::rotation_f32::F32_LIM;
-use crate::map::limits::floor_to_i32;
+use crate::kernels::{F32_LIM, FieldWindow};
 use crate::map::{Cell, CellRect, MapLimits, OccupancyGrid};
 use rayon::prelude::*;
 
 /// Rows per parallel band of the field build.
 pub(super) const FIELD_BAND_ROWS: usize = 32;
 
-/// Zero bytes kept after a field's cells (never read as cells).
-pub(super) const FIELD_PAD: usize = 8;
+/// Zero bytes kept after a field's cells, as the kernels read them.
+pub(super) use crate::kernels::FIELD_PAD;
 
 /// A window of the likelihood field (see the module docs), in the map's cell frame.
 #[derive(Debug, Clone, Default)]
@@ -166,93 +164,35 @@ impl LikelihoodField {
         self.values.extend_from_slice(&[0; FIELD_PAD]);
     }
 
-    /// The vector kernel's preconditions: cell indices fit in i32 and the spare bytes are
-    /// there.
+    /// The window as the kernels read it.
+    #[inline(always)]
+    pub(crate) fn window(&self) -> FieldWindow<'_> {
+        FieldWindow {
+            values: &self.values,
+            i0: self.i0,
+            j0: self.j0,
+            w: self.w,
+            h: self.h,
+        }
+    }
+
+    /// The vector kernels' preconditions ([`FieldWindow::vector_ok`]).
+    #[cfg(test)]
     pub(crate) fn vector_ok(&self) -> bool {
-        self.w
-            .checked_mul(self.h)
-            .is_some_and(|n| n < i32::MAX as usize / 2 && self.values.len() >= n + FIELD_PAD)
+        self.window().vector_ok()
     }
 
     /// Field value of a cell (0 outside the window).
     #[inline]
     pub fn at(&self, cell: Cell) -> u8 {
-        let (li, lj) = (cell.i - self.i0, cell.j - self.j0);
-        if li < 0 || lj < 0 || li as usize >= self.w || lj as usize >= self.h {
-            return 0;
-        }
-        self.values[lj as usize * self.w + li as usize]
+        self.window().at(cell)
     }
 
     /// Bilinear interpolation between cell centres at continuous cell coordinates `(u, v)`
-    /// (cell `(i, j)` spans `[i, i+1) x [j, j+1)`), in field units (0..=255).
-    /// Always inlined: it is the refinement's inner loop (a call per point cost ~10 %).
-    #[inline(always)]
+    /// ([`FieldWindow::bilinear`]), in field units (0..=255).
+    #[cfg(test)]
     pub(crate) fn bilinear(&self, u: f64, v: f64) -> f64 {
-        let (x, y) = (u - 0.5, v - 0.5);
-        // `floor` is a libm call on baseline x86-64; the integer floor gives the same value
-        // (and, after the subtraction below, the same fraction) inside the i32 range, which
-        // every window lies in. Outside it, the reference path.
-        const LIM: f64 = 1e9;
-        if !(x.abs() < LIM && y.abs() < LIM) {
-            return self.bilinear_reference(u, v);
-        }
-        let (i, j) = (floor_to_i32(x), floor_to_i32(y));
-        let (ax, ay) = (x - f64::from(i), y - f64::from(j));
-        let [f00, f10, f01, f11] = self.corners(i, j);
-        let bottom = f00 * (1.0 - ax) + f10 * ax;
-        let top = f01 * (1.0 - ax) + f11 * ax;
-        bottom * (1.0 - ay) + top * ay
-    }
-
-    /// [`Self::bilinear`] of `LANES` points at once: the same operations per lane (so the same
-    /// bits), written lane-wise so that the arithmetic vectorises; only the four byte loads
-    /// per point stay scalar. A lane outside the fast path's range takes [`Self::bilinear`].
-    #[inline(always)]
-    pub(crate) fn bilinear_lanes(&self, u: &[f64; LANES], v: &[f64; LANES]) -> [f64; LANES] {
-        const LIM: f64 = 1e9;
-        let mut x = [0.0; LANES];
-        let mut y = [0.0; LANES];
-        let mut ok = true;
-        for k in 0..LANES {
-            x[k] = u[k] - 0.5;
-            y[k] = v[k] - 0.5;
-            ok &= x[k].abs() < LIM && y[k].abs() < LIM;
-        }
-        if !ok {
-            return std::array::from_fn(|k| self.bilinear(u[k], v[k]));
-        }
-        let mut ax = [0.0; LANES];
-        let mut ay = [0.0; LANES];
-        let mut f = [[0.0; 4]; LANES];
-        for k in 0..LANES {
-            let (i, j) = (floor_to_i32(x[k]), floor_to_i32(y[k]));
-            ax[k] = x[k] - f64::from(i);
-            ay[k] = y[k] - f64::from(j);
-            f[k] = self.corners(i, j);
-        }
-        mix_lanes(&f, &ax, &ay)
-    }
-
-    /// The field values at cells `(i, j)`, `(i+1, j)`, `(i, j+1)`, `(i+1, j+1)`: one bounds
-    /// check when all four lie inside the window (nearly always).
-    #[inline(always)]
-    pub(crate) fn corners(&self, i: i32, j: i32) -> [f64; 4] {
-        let (li, lj) = (i - self.i0, j - self.j0);
-        if li >= 0 && lj >= 0 && (li as usize) + 1 < self.w && (lj as usize) + 1 < self.h {
-            let k = lj as usize * self.w + li as usize;
-            let row0 = &self.values[k..k + 2];
-            let row1 = &self.values[k + self.w..k + self.w + 2];
-            [
-                f64::from(row0[0]),
-                f64::from(row0[1]),
-                f64::from(row1[0]),
-                f64::from(row1[1]),
-            ]
-        } else {
-            let f = |di, dj| f64::from(self.at(Cell::new(i + di, j + dj)));
-            [f(0, 0), f(1, 0), f(0, 1), f(1, 1)]
-        }
+        self.window().bilinear(u, v)
     }
 
     /// The f32 kernel's preconditions: both sides below its coordinate bound.
@@ -272,50 +212,9 @@ impl LikelihoodField {
         ]
     }
 
-    /// [`Self::bilinear`] in f32 at `(x, y)` in the frame of [`Self::f32_origin`]: the same
-    /// operations, cells outside the window 0; beyond [`F32_LIM`] (outside any window
-    /// `f32_ok` admits) 0, NaN for NaN. The f32 kernel's reference per lane.
-    #[inline(always)]
-    pub(crate) fn bilinear_f32(&self, x: f32, y: f32) -> f32 {
-        if !(x.abs() < F32_LIM && y.abs() < F32_LIM) {
-            return if x.is_nan() || y.is_nan() {
-                f32::NAN
-            } else {
-                0.0
-            };
-        }
-        // The floor by truncation (a libm call otherwise on baseline x86-64): exact below
-        // 2^23, as the fraction `x - floor(x)` is.
-        let floor = |x: f32| {
-            let t = x as i32;
-            if t as f32 > x { t - 1 } else { t }
-        };
-        let (i, j) = (floor(x), floor(y));
-        let (ax, ay) = (x - i as f32, y - j as f32);
-        let at = |i: i32, j: i32| {
-            if i >= 0 && j >= 0 && (i as usize) < self.w && (j as usize) < self.h {
-                f32::from(self.values[j as usize * self.w + i as usize])
-            } else {
-                0.0
-            }
-        };
-        let (f00, f10, f01, f11) = (at(i, j), at(i + 1, j), at(i, j + 1), at(i + 1, j + 1));
-        let omx = 1.0 - ax;
-        let bottom = f00 * omx + f10 * ax;
-        let top = f01 * omx + f11 * ax;
-        bottom * (1.0 - ay) + top * ay
-    }
-
-    /// [`Self::bilinear`] as first written (the reference the fast path must equal).
-    #[cold]
+    /// [`Self::bilinear`] as first written ([`FieldWindow::bilinear_reference`]).
+    #[cfg(test)]
     pub(super) fn bilinear_reference(&self, u: f64, v: f64) -> f64 {
-        let (x, y) = (u - 0.5, v - 0.5);
-        let (fx, fy) = (x.floor(), y.floor());
-        let (ax, ay) = (x - fx, y - fy);
-        let (i, j) = (fx as i32, fy as i32);
-        let f = |di, dj| f64::from(self.at(Cell::new(i + di, j + dj)));
-        let bottom = f(0, 0) * (1.0 - ax) + f(1, 0) * ax;
-        let top = f(0, 1) * (1.0 - ax) + f(1, 1) * ax;
-        bottom * (1.0 - ay) + top * ay
+        self.window().bilinear_reference(u, v)
     }
 }

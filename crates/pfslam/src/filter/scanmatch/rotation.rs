@@ -1,6 +1,5 @@
 //! The refinement's rotations of a scan, cached per yaw ([`RotatedPoints`]), their field sums
-//! in batches (the kernels in `crate::kernels::rotation` and `crate::kernels::rotation_f32`),
-//! and the lane helpers shared with the back end's matcher.
+//! in batches (the kernels in `crate::kernels::rotation` and `crate::kernels::rotation_f32`).
 
 use super::*;
 use crate::geometry::Pose2;
@@ -23,7 +22,7 @@ pub(super) fn sums_batched(
             let sums = Rotation::sums::<K>(
                 std::array::from_fn(|i| r[i]),
                 std::array::from_fn(|i| a[i]),
-                field,
+                &field.window(),
                 limits,
             );
             o.copy_from_slice(&sums);
@@ -211,27 +210,6 @@ impl RotatedPoints {
 /// pass sums.
 pub(super) const NEIGHBOURS: usize = 6;
 
-/// Points per batch of the interpolations (here and in the back end's matcher).
-pub(crate) const LANES: usize = 4;
-
-/// The bilinear mix per lane of corners `[f00, f10, f01, f11]` at fractions `(ax, ay)`, in
-/// the order of the scalar interpolations (so the same bits).
-#[inline(always)]
-pub(crate) fn mix_lanes(
-    f: &[[f64; 4]; LANES],
-    ax: &[f64; LANES],
-    ay: &[f64; LANES],
-) -> [f64; LANES] {
-    let mut out = [0.0; LANES];
-    for k in 0..LANES {
-        let [f00, f10, f01, f11] = f[k];
-        let bottom = f00 * (1.0 - ax[k]) + f10 * ax[k];
-        let top = f01 * (1.0 - ax[k]) + f11 * ax[k];
-        out[k] = bottom * (1.0 - ay[k]) + top * ay[k];
-    }
-    out
-}
-
 /// The sums of [`RotationF32::sums`] for any number of candidates, as [`sums_batched`].
 pub(super) fn sums_batched_f32(
     rots: &[&RotationF32],
@@ -245,7 +223,7 @@ pub(super) fn sums_batched_f32(
             let sums = RotationF32::sums::<K>(
                 std::array::from_fn(|i| r[i]),
                 std::array::from_fn(|i| a[i]),
-                field,
+                &field.window(),
             );
             o.copy_from_slice(&sums);
         });

@@ -228,7 +228,7 @@ pub fn match_scan(
     for &dyaw in &params.yaw_offsets_rad {
         let (s, c) = (predicted.yaw_rad + dyaw).sin_cos();
         let coarse = CoarseYaw {
-            field,
+            field: field.window(),
             limits: &limits,
             predicted,
             sin_cos: (s, c),

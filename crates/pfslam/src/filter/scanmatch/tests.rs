@@ -461,13 +461,13 @@ fn vector_kernels_equal_the_portable_ones_bit_for_bit() {
         );
         let (s, c) = pose.yaw_rad.sin_cos();
         rot.fill(&pts, s, c);
-        let portable = rot.sum_portable(&field, &limits, pose.x_m, pose.y_m);
-        let [vector] = Rotation::sums([&rot], [[pose.x_m, pose.y_m]], &field, &limits);
+        let portable = rot.sum_portable(&field.window(), &limits, pose.x_m, pose.y_m);
+        let [vector] = Rotation::sums([&rot], [[pose.x_m, pose.y_m]], &field.window(), &limits);
         assert_eq!(vector.to_bits(), portable.to_bits(), "case {case}");
         let r = rng.random_range(0..5);
         want.clear();
         let coarse = CoarseYaw {
-            field: &field,
+            field: field.window(),
             limits: &limits,
             predicted: &pose,
             sin_cos: (s, c),
@@ -554,17 +554,20 @@ fn batched_field_sums_equal_the_single_candidate_ones_bit_for_bit() {
         let want: Vec<u64> = rots
             .iter()
             .zip(&at)
-            .map(|(r, a)| r.sum_portable(&field, &limits, a[0], a[1]).to_bits())
+            .map(|(r, a)| {
+                r.sum_portable(&field.window(), &limits, a[0], a[1])
+                    .to_bits()
+            })
             .collect();
         macro_rules! check {
             ($k:literal) => {
                 if k == $k {
                     let r: [&Rotation; $k] = std::array::from_fn(|i| rots[i]);
                     let a: [[f64; 2]; $k] = std::array::from_fn(|i| at[i]);
-                    let got = Rotation::sums_portable(r, a, &field, &limits);
+                    let got = Rotation::sums_portable(r, a, &field.window(), &limits);
                     assert_eq!(got.map(f64::to_bits).to_vec(), want, "case {case}");
                     // The AVX2 kernel where the CPU has it.
-                    let got = Rotation::sums(r, a, &field, &limits);
+                    let got = Rotation::sums(r, a, &field.window(), &limits);
                     assert_eq!(got.map(f64::to_bits).to_vec(), want, "case {case}");
                 }
             };
@@ -660,9 +663,9 @@ fn f32_kernel_agrees_with_the_f64_one_and_its_avx2_version_with_the_portable_bit
                 if k == $k {
                     let r: [&RotationF32; $k] = std::array::from_fn(|i| &rot32[pick[i]]);
                     let a: [[f32; 2]; $k] = std::array::from_fn(|i| at[i]);
-                    let portable = RotationF32::sums_portable(r, a, &field);
+                    let portable = RotationF32::sums_portable(r, a, &field.window());
                     if avx2 {
-                        let got = RotationF32::sums(r, a, &field);
+                        let got = RotationF32::sums(r, a, &field.window());
                         assert_eq!(
                             got.map(f64::to_bits),
                             portable.map(f64::to_bits),
@@ -671,15 +674,19 @@ fn f32_kernel_agrees_with_the_f64_one_and_its_avx2_version_with_the_portable_bit
                     }
                     // Each candidate's bits do not depend on its batch.
                     for i in 0..$k {
-                        let [alone] = RotationF32::sums_portable([r[i]], [a[i]], &field);
+                        let [alone] = RotationF32::sums_portable([r[i]], [a[i]], &field.window());
                         assert_eq!(alone.to_bits(), portable[i].to_bits(), "case {case}");
                     }
                     if case % 2 == 1 {
                         for i in 0..$k {
                             let (s, c) = yaws[pick[i]].sin_cos();
                             rot64.fill(&pts, s, c);
-                            let f64_sum =
-                                rot64.sum_portable(&field, &limits, at_m[i][0], at_m[i][1]);
+                            let f64_sum = rot64.sum_portable(
+                                &field.window(),
+                                &limits,
+                                at_m[i][0],
+                                at_m[i][1],
+                            );
                             let diff = (portable[i] - f64_sum).abs();
                             let tol = 1e-5 * 255.0 * n as f64;
                             worst = worst.max(diff / (255.0 * n.max(1) as f64));

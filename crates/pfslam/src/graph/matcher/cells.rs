@@ -57,6 +57,6 @@ impl PointField {
     /// 2^22 of them is a multiple of 2^-30 below 2^22, which `f64` holds exactly, and so
     /// is every partial sum. With AVX2, eight points at a time (gathered).
     pub(super) fn cell_sum(&self, cells: &PointCells, level: usize, dx: i64, dy: i64) -> f64 {
-        crate::kernels::cell_sum::cell_sum(self, (&cells.x, &cells.y), level, dx, dy)
+        crate::kernels::cell_sum::cell_sum(self.level(level), (&cells.x, &cells.y), level, dx, dy)
     }
 }

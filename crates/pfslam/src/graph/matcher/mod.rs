@@ -38,14 +38,4 @@ pub struct SearchWindow {
     pub yaw_step_rad: f64,
 }
 
-/// `floor(v)` as `i64` without the libm call (`f64::floor` on baseline x86-64); the same
-/// value as `v.floor() as i64` for every finite `v` within +-2^53 (cells always are).
-#[inline(always)]
-pub(crate) fn floor_to_i64(v: f64) -> i64 {
-    let t = v as i64;
-    if (t as f64) > v {
-        t.saturating_sub(1)
-    } else {
-        t
-    }
-}
+pub(crate) use crate::geometry::cells::floor_to_i64;

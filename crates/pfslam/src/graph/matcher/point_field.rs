@@ -3,6 +3,7 @@
 
 use super::floor_to_i64;
 use super::storage::{Buffer, TILE, TILE_SHIFT};
+use crate::kernels::PointLevel;
 use rayon::prelude::*;
 
 /// A likelihood-field window with max-pooled levels.
@@ -294,12 +295,21 @@ impl PointField {
         self.levels.len() - 1
     }
 
-    #[inline]
-    pub(crate) fn at(&self, level: usize, i: i64, j: i64) -> f32 {
-        if i < 0 || j < 0 || i >= self.w as i64 || j >= self.h as i64 {
-            return 0.0;
+    /// Level `level` as the kernels read it.
+    #[inline(always)]
+    pub(crate) fn level(&self, level: usize) -> PointLevel<'_> {
+        PointLevel {
+            cells: &self.levels[level].cells,
+            w: self.w,
+            h: self.h,
+            origin_x_m: self.origin_x_m,
+            origin_y_m: self.origin_y_m,
+            resolution_m: self.resolution_m,
         }
-        let k = j as usize * self.w + i as usize;
-        self.levels[level].cells.get(k).copied().unwrap_or(0.0)
+    }
+
+    #[cfg(test)]
+    pub(crate) fn at(&self, level: usize, i: i64, j: i64) -> f32 {
+        self.level(level).at(i, j)
     }
 }

@@ -38,7 +38,7 @@ impl PointField {
         poses: [Pose2; K],
         sin_cos: [(f64, f64); K],
     ) -> [f64; K] {
-        crate::kernels::field_score::scores(self, points_body, poses, sin_cos)
+        crate::kernels::field_score::scores(&self.level(0), points_body, poses, sin_cos)
     }
 
     /// [`Self::scores_rotated`] of any number of poses into `out`, up to [`PASS`] per pass (a

@@ -244,8 +244,12 @@ fn batched_scores_and_refine_give_the_sequential_bits() {
             let plain = score_plain(&f, part, p);
             assert_eq!(g.to_bits(), plain.to_bits(), "{k} {p:?}");
             // The portable kernel too (the batch above takes AVX2 where the CPU has it).
-            let [portable] =
-                crate::kernels::field_score::portable(&f, part, [*p], [p.yaw_rad.sin_cos()]);
+            let [portable] = crate::kernels::field_score::portable(
+                &f.level(0),
+                part,
+                [*p],
+                [p.yaw_rad.sin_cos()],
+            );
             assert_eq!(portable.to_bits(), plain.to_bits(), "{k} {p:?} portable");
         }
     }
@@ -333,8 +337,13 @@ fn cell_sum_in_any_order_equals_the_point_order_sum() {
         for level in 0..=f.pooled_levels() {
             for (dx, dy) in [(0, 0), (-3, 7), (25, -40), (-(1 << 21), 5), (3, 1 << 25)] {
                 let fast = f.cell_sum(&cells, level, dx, dy);
-                let plain =
-                    crate::kernels::cell_sum::portable(&f, (&cells.x, &cells.y), level, dx, dy);
+                let plain = crate::kernels::cell_sum::portable(
+                    f.level(level),
+                    (&cells.x, &cells.y),
+                    level,
+                    dx,
+                    dy,
+                );
                 assert_eq!(fast.to_bits(), plain.to_bits(), "{trial} {level} {dx} {dy}");
             }
         }

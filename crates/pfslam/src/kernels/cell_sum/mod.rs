@@ -1,16 +1,17 @@
 //! The back end's exact cell sums: a scan's cells (at one heading) shifted by a whole-cell
-//! offset, summed over a level of a [`PointField`]; the AVX2 kernel in `x86.rs`.
+//! offset, summed over a level of the point field ([`PointLevel`]); the AVX2 kernel in
+//! `x86.rs`.
 
-use crate::graph::matcher::PointField;
+use super::PointLevel;
 
 #[cfg(target_arch = "x86_64")]
 mod x86;
 
-/// [`PointField::cell_sum`] over the cell columns `(xs, ys)`: eight points at a time in
-/// AVX2 where the CPU has it, else [`portable`]; the same bits (see
-/// [`PointField::cell_sum`]).
+/// The point field's exact cell sum over the cell columns `(xs, ys)` in `field`, its level
+/// `level` (cells pooled over `2^level` blocks): eight points at a time in AVX2 where the
+/// CPU has it, else [`portable`]; the same bits.
 pub fn cell_sum(
-    field: &PointField,
+    field: PointLevel<'_>,
     (xs, ys): (&[i32], &[i32]),
     level: usize,
     dx: i64,
@@ -27,13 +28,13 @@ pub fn cell_sum(
 /// [`cell_sum`] a point at a time, in point order, over the columns `(x, y)`: the portable
 /// twin.
 pub fn portable(
-    field: &PointField,
+    field: PointLevel<'_>,
     (xs, ys): (&[i32], &[i32]),
     level: usize,
     dx: i64,
     dy: i64,
 ) -> f64 {
-    let lv = &field.levels[level].cells[..];
+    let lv = field.cells;
     let (w, h) = (field.w as u64, field.h as u64);
     // A pooled cell `c` covers `c ..= c + span`: one left of or below the window still
     // covers window cells up to `span` away, whose maximum cell 0 of that row or column

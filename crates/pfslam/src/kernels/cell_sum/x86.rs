@@ -1,21 +1,21 @@
 //! [`super::cell_sum`] in AVX2.
 
 use super::portable;
-use crate::graph::matcher::PointField;
+use crate::kernels::PointLevel;
 
 /// [`super::cell_sum`] eight points at a time: the offsets, the window test and the index
 /// in `i32` lanes, the values gathered where inside (the others not read), summed in two
 /// `f64` accumulators; the last points as [`portable`].
 #[target_feature(enable = "avx2")]
 pub(super) fn cell_sum_avx2(
-    field: &PointField,
+    field: PointLevel<'_>,
     (xs_all, ys_all): (&[i32], &[i32]),
     level: usize,
     dx: i64,
     dy: i64,
 ) -> f64 {
     use std::arch::x86_64::*;
-    let lv = &field.levels[level].cells[..];
+    let lv = field.cells;
     let span = (1i64 << level) - 1;
     let n = xs_all.len().min(ys_all.len());
     // Offsets beyond any window (2^14 cells) and clamped cells (2^30) stay apart in i32:

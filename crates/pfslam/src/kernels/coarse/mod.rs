@@ -2,9 +2,9 @@
 //! ([`CoarseYaw::bases`]) and the field sums of every whole-cell x/y offset at once
 //! ([`coarse_sums`] and its variants); the AVX2 kernels in `x86.rs`.
 
-use crate::filter::scanmatch::{LANES, LikelihoodField};
+use super::{FieldWindow, LANES};
 use crate::geometry::Pose2;
-use crate::map::{Cell, MapLimits};
+use crate::geometry::cells::{Cell, MapLimits};
 
 #[cfg(target_arch = "x86_64")]
 mod x86;
@@ -87,7 +87,7 @@ pub fn coarse_sums_any(values: &[u8], w: usize, side: usize, base: &[usize], sum
 /// and the search's half-width `r` (cells).
 #[derive(Clone, Copy)]
 pub struct CoarseYaw<'a> {
-    pub field: &'a LikelihoodField,
+    pub field: FieldWindow<'a>,
     pub limits: &'a MapLimits,
     pub predicted: &'a Pose2,
     pub sin_cos: (f64, f64),

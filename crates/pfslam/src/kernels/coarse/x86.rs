@@ -1,7 +1,7 @@
 //! The coarse search's AVX2 kernels: [`CoarseYaw::bases`] and [`super::coarse_sums`].
 
 use super::CoarseYaw;
-use crate::filter::scanmatch::LANES;
+use crate::kernels::LANES;
 
 /// [`super::coarse_sums`] for sides up to 8 in AVX2: each row of the block is one 8-byte load
 /// widened to eight u16 lanes and added to that row's accumulator (u16 lanes cannot

@@ -1,20 +1,21 @@
 //! The back end's interpolated score: a scan's mean bilinear field value in a
-//! [`PointField`] for several poses in one pass; the AVX2 interpolation in `x86.rs`.
+//! the point field's level 0 ([`PointLevel`]) for several poses in one pass; the AVX2
+//! interpolation in `x86.rs`.
 
-use crate::filter::scanmatch::{LANES, mix_lanes};
+use super::{LANES, PointLevel, mix_lanes};
 use crate::geometry::Pose2;
-use crate::graph::matcher::{PointField, floor_to_i64};
+use crate::geometry::cells::floor_to_i64;
 
 #[cfg(target_arch = "x86_64")]
 mod x86;
 
-/// [`PointField::score`] of `K` poses (`sin_cos[k]` of `poses[k]`'s yaw) in one pass over
+/// The point field's score (the mean interpolated value of the points) of `K` poses (`sin_cos[k]` of `poses[k]`'s yaw) in one pass over
 /// the points: the four lanes' interpolation in AVX2 where the CPU has it, else
 /// [`portable`]; the same bits. Each pose has its own accumulator and adds its own values in
 /// its own order, so each score is the bits of the pose scored alone; the independent
 /// chains of additions can overlap.
 pub fn scores<const K: usize>(
-    field: &PointField,
+    field: &PointLevel<'_>,
     points_body: &[[f64; 2]],
     poses: [Pose2; K],
     sin_cos: [(f64, f64); K],
@@ -29,7 +30,7 @@ pub fn scores<const K: usize>(
 
 /// [`scores`] without vector instructions: the portable twin.
 pub fn portable<const K: usize>(
-    field: &PointField,
+    field: &PointLevel<'_>,
     points_body: &[[f64; 2]],
     poses: [Pose2; K],
     sin_cos: [(f64, f64); K],
@@ -42,7 +43,7 @@ pub fn portable<const K: usize>(
 /// The body of [`scores`] and [`portable`], with `lanes` the interpolation of four points.
 #[inline(always)]
 pub(super) fn scores_with<const K: usize>(
-    field: &PointField,
+    field: &PointLevel<'_>,
     points_body: &[[f64; 2]],
     poses: [Pose2; K],
     sin_cos: [(f64, f64); K],
@@ -91,7 +92,7 @@ pub(super) fn scores_with<const K: usize>(
 
 /// Bilinear interpolation between cell centres (0 outside).
 #[inline]
-fn bilinear(field: &PointField, x_m: f64, y_m: f64) -> f64 {
+fn bilinear(field: &PointLevel<'_>, x_m: f64, y_m: f64) -> f64 {
     let u = (x_m - field.origin_x_m) / field.resolution_m - 0.5;
     let v = (y_m - field.origin_y_m) / field.resolution_m - 0.5;
     bilinear_lane(field, u, v)
@@ -100,7 +101,7 @@ fn bilinear(field: &PointField, x_m: f64, y_m: f64) -> f64 {
 /// [`bilinear`] of `LANES` points given as cell coordinates minus one half (`u`,
 /// `v` of `bilinear`), lane-wise so that the arithmetic vectorises.
 #[inline(always)]
-fn bilinear_lanes(field: &PointField, u: &[f64; LANES], v: &[f64; LANES]) -> [f64; LANES] {
+fn bilinear_lanes(field: &PointLevel<'_>, u: &[f64; LANES], v: &[f64; LANES]) -> [f64; LANES] {
     let mut au = [0.0; LANES];
     let mut av = [0.0; LANES];
     let mut f = [[0.0; 4]; LANES];
@@ -116,7 +117,7 @@ fn bilinear_lanes(field: &PointField, u: &[f64; LANES], v: &[f64; LANES]) -> [f6
 /// [`bilinear`] from cell coordinates minus one half (`u`, `v`); one lane of
 /// [`bilinear_lanes`].
 #[inline(always)]
-pub(super) fn bilinear_lane(field: &PointField, u: f64, v: f64) -> f64 {
+pub(super) fn bilinear_lane(field: &PointLevel<'_>, u: f64, v: f64) -> f64 {
     // `f64::floor` is a libm call on baseline x86-64; the integer floor is the same value.
     let (i, j) = (floor_to_i64(u), floor_to_i64(v));
     let (au, av) = (u - i as f64, v - j as f64);
@@ -129,18 +130,18 @@ pub(super) fn bilinear_lane(field: &PointField, u: f64, v: f64) -> f64 {
 /// Level-0 values at `(i, j)`, `(i+1, j)`, `(i, j+1)`, `(i+1, j+1)` (0 outside): one
 /// bounds check when the 2x2 block lies inside (nearly always).
 #[inline(always)]
-fn corners(field: &PointField, i: i64, j: i64) -> [f32; 4] {
+fn corners(field: &PointLevel<'_>, i: i64, j: i64) -> [f32; 4] {
     let (w, h) = (field.w as i64, field.h as i64);
     let block = (i >= 0 && j >= 0 && i + 1 < w && j + 1 < h)
         .then(|| {
             let k = (j * w + i) as usize;
-            let lv = &field.levels[0].cells;
+            let lv = field.cells;
             let row0 = lv.get(k..k + 2)?;
             let row1 = lv.get(k + w as usize..k + w as usize + 2)?;
             Some([row0[0], row0[1], row1[0], row1[1]])
         })
         .flatten();
     block.unwrap_or_else(|| {
-        [(0, 0), (1, 0), (0, 1), (1, 1)].map(|(di, dj)| field.at(0, i + di, j + dj))
+        [(0, 0), (1, 0), (0, 1), (1, 1)].map(|(di, dj)| field.at(i + di, j + dj))
     })
 }

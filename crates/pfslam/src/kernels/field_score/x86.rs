@@ -1,15 +1,14 @@
 //! [`super::scores`] with the four lanes' interpolation in AVX2.
 
 use super::{bilinear_lane, scores_with};
-use crate::filter::scanmatch::LANES;
 use crate::geometry::Pose2;
-use crate::graph::matcher::PointField;
+use crate::kernels::{LANES, PointLevel};
 
 /// [`super::scores`] with the four lanes' interpolation in AVX2
 /// ([`bilinear_lanes_avx2`]); the same bits.
 #[target_feature(enable = "avx2")]
 pub(super) fn scores_avx2<const K: usize>(
-    field: &PointField,
+    field: &PointLevel<'_>,
     points_body: &[[f64; 2]],
     poses: [Pose2; K],
     sin_cos: [(f64, f64); K],
@@ -27,9 +26,9 @@ pub(super) fn scores_avx2<const K: usize>(
 /// [`bilinear_lane`].
 #[target_feature(enable = "avx2")]
 #[inline]
-fn bilinear_lanes_avx2(field: &PointField, u: &[f64; LANES], v: &[f64; LANES]) -> [f64; LANES] {
+fn bilinear_lanes_avx2(field: &PointLevel<'_>, u: &[f64; LANES], v: &[f64; LANES]) -> [f64; LANES] {
     use std::arch::x86_64::*;
-    let lv = &field.levels[0].cells[..];
+    let lv = field.cells;
     // SAFETY: unaligned loads of four f64 from arrays of four.
     let (uv, vv) = unsafe { (_mm256_loadu_pd(u.as_ptr()), _mm256_loadu_pd(v.as_ptr())) };
     let (fu, fv) = (_mm256_floor_pd(uv), _mm256_floor_pd(vv));

@@ -2,16 +2,62 @@
 //! updates ([`BinUpdater`]: AVX-512BW/VL, else SSE4.1, else [`update_bins`]); the vector
 //! code in `x86.rs`.
 
-use crate::map::grid::{BinLogOdds, HeightLayer, MAX_BINS, TILE_CELLS};
+use super::{MAX_BINS, TILE_CELLS};
 
 #[cfg(target_arch = "x86_64")]
 mod x86;
 
+/// The log-odds model of a height bin in its fixed point (`i8`; `BIN_SCALE` units per log-odds unit in `map`, which builds it).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BinLogOdds {
+    /// Hit increment.
+    pub hit: i8,
+    /// Miss increment.
+    pub miss: i8,
+    /// Lower clamp bound.
+    pub min: i8,
+    /// Upper clamp bound.
+    pub max: i8,
+    /// A bin is occupied at this value.
+    pub occupied: i8,
+}
+
+impl BinLogOdds {
+    /// `v + delta`, clamped to `min..=max`.
+    #[inline(always)]
+    pub(crate) fn apply(&self, v: i8, delta: i8) -> i8 {
+        (v as i16 + delta as i16).clamp(self.min as i16, self.max as i16) as i8
+    }
+}
+
+/// The heights of a cell's bins: bin `b` covers `[z_min + b / bins_per_m, z_min + (b + 1) /
+/// bins_per_m)`, the first bin extending down and the last up without bound.
+#[derive(Clone, Copy, Debug)]
+pub struct BinScale {
+    /// Bins in use (1..=[`MAX_BINS`]).
+    pub bins: usize,
+    /// Bottom of bin 0 (m).
+    pub z_min_m: f32,
+    /// Bins per metre.
+    pub bins_per_m: f32,
+}
+
+impl BinScale {
+    /// The bit of the bin holding height `z_m`.
+    #[inline(always)]
+    pub fn bit(&self, z_m: f32) -> u32 {
+        // Truncation, not floor (a libm call here): both give bin 0 for everything below the
+        // window once clamped. The float -> int conversion saturates; NaN gives 0.
+        let b = (((z_m - self.z_min_m) * self.bins_per_m) as i32).clamp(0, self.bins as i32 - 1);
+        1 << b
+    }
+}
+
 /// `out[s] = layer.bit(z0 + s as f32 * dz)` for every `s`: the bins of a ray's steps, the
-/// same bits as [`HeightLayer::bit`] step by step, four steps per vector instruction on
+/// same bits as [`BinScale::bit`] step by step, four steps per vector instruction on
 /// x86-64 (the scalar form's saturating conversion and clamps cost ~40 % of a binned ray
 /// walk).
-pub fn fill_bits(layer: &HeightLayer, z0: f32, dz: f32, out: &mut [u32]) {
+pub fn fill_bits(layer: &BinScale, z0: f32, dz: f32, out: &mut [u32]) {
     #[cfg(target_arch = "x86_64")]
     {
         // SAFETY: SSE2 is part of the x86-64 baseline: every x86-64 CPU has it.
@@ -24,13 +70,13 @@ pub fn fill_bits(layer: &HeightLayer, z0: f32, dz: f32, out: &mut [u32]) {
 
 /// [`fill_bits`] a step at a time: the portable twin.
 #[cfg(any(test, not(target_arch = "x86_64")))]
-pub fn fill_bits_portable(layer: &HeightLayer, z0: f32, dz: f32, out: &mut [u32]) {
+pub fn fill_bits_portable(layer: &BinScale, z0: f32, dz: f32, out: &mut [u32]) {
     fill_bits_from(layer, z0, dz, out, 0);
 }
 
 /// [`fill_bits`] of the steps from `start` on, a step at a time.
 #[inline(always)]
-fn fill_bits_from(layer: &HeightLayer, z0: f32, dz: f32, out: &mut [u32], start: usize) {
+fn fill_bits_from(layer: &BinScale, z0: f32, dz: f32, out: &mut [u32], start: usize) {
     for (s, o) in out.iter_mut().enumerate().skip(start) {
         *o = layer.bit(z0 + s as f32 * dz);
     }

@@ -1,11 +1,12 @@
 //! The height bins' vector kernels: a ray's bins in SSE2, a column's update in AVX-512BW/VL
 //! and in SSE4.1.
 
-use crate::map::grid::{BinLogOdds, HeightLayer, MAX_BINS, TILE_CELLS};
+use super::{BinLogOdds, BinScale};
+use crate::kernels::{MAX_BINS, TILE_CELLS};
 
 /// [`super::fill_bits`] of the whole groups of four steps; returns how many steps it did.
 #[target_feature(enable = "sse2")]
-pub(super) fn fill_bits_sse2(layer: &HeightLayer, z0: f32, dz: f32, out: &mut [u32]) -> usize {
+pub(super) fn fill_bits_sse2(layer: &BinScale, z0: f32, dz: f32, out: &mut [u32]) -> usize {
     use std::arch::x86_64::*;
     let top = (layer.bins - 1) as f32;
     let (z0v, dzv) = (_mm_set1_ps(z0), _mm_set1_ps(dz));

@@ -2,13 +2,10 @@
 //! point, the portable kernel (a point at a time) and what both share; the AVX2 kernel for
 //! the default 3x3 search in `x86.rs`.
 
-use crate::filter::rbpf::{Bar, ObservationModel};
+use super::nearest::{TilePoint, nearest_3x3};
+use super::{TILE_SHIFT, TILE_SIZE};
 use crate::geometry::Pose2;
-use crate::kernels::nearest::{TilePoint, nearest_3x3};
-use crate::map::TILE_SIZE;
-use crate::map::grid::TILE_SHIFT;
-use crate::map::limits::{MapLimits, floor_to_i32};
-use crate::map::{Cell, OccupancyGrid};
+use crate::geometry::cells::{Cell, MapLimits, floor_to_i32};
 
 #[cfg(target_arch = "x86_64")]
 mod x86;
@@ -16,10 +13,50 @@ mod x86;
 const TS: i32 = TILE_SIZE as i32;
 const MASK: i32 = TS - 1;
 
-/// [`crate::filter::rbpf::scan_log_likelihood_above`]: in AVX2 for the 3x3 kernel where the
-/// CPU has it, else [`portable`]; the same bits either way.
-pub fn scan_log_likelihood_above(
-    grid: &OccupancyGrid,
+/// The smooth observation model on a log-odds grid, per point: `-d^2 / (2 sigma^2)` with `d`
+/// the distance from the point to the centre of the nearest occupied cell within `kernel`
+/// cells, floored at `no_hit` (also the value when none is found).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObservationModel {
+    /// Search half-width (cells).
+    pub kernel: i32,
+    /// Fixed-point log-odds above which a cell is occupied.
+    pub occupied_fixed: i16,
+    /// `resolution^2 / (2 sigma^2)`: converts squared cell distances to log-likelihood.
+    pub res2_over_2s2: f64,
+    /// Floor of a point's log-likelihood.
+    pub no_hit: f64,
+}
+
+/// A candidate's bar in [`scan_log_likelihood_above`]: it wins only if
+/// `log-likelihood - penalty > bar`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Bar {
+    /// Subtracted from the log-likelihood before the comparison (the prior's term).
+    pub penalty: f64,
+    /// The value to beat (strictly).
+    pub bar: f64,
+}
+
+/// A particle's grid as the kernels read it: tiles of `TILE_SIZE x TILE_SIZE` fixed-point
+/// log-odds (row-major), found by tile coordinates, unwritten tiles all 0. The map's grid
+/// implements it; a trait rather than a view because the tile directory's layout is the
+/// map's own.
+pub trait TileGrid {
+    /// The world <-> cell frame.
+    fn limits(&self) -> &MapLimits;
+    /// The cells of the tile at tile coordinates `(ti, tj)` (cell coordinates shifted right
+    /// by `TILE_SHIFT`); `None` when never written.
+    fn tile_cells(&self, ti: i32, tj: i32) -> Option<&[i16]>;
+    /// A cell's fixed-point log-odds (0 when never written).
+    fn logodds_fixed(&self, cell: Cell) -> i16;
+}
+
+/// The scan's log-likelihood with an optional bar (the `rbpf` observation model's
+/// `scan_log_likelihood_above`): in AVX2 for the 3x3 kernel where the CPU has it, else
+/// [`portable`]; the same bits either way.
+pub fn scan_log_likelihood_above<G: TileGrid + ?Sized>(
+    grid: &G,
     model: &ObservationModel,
     points: &[[f64; 2]],
     pose: &Pose2,
@@ -76,7 +113,7 @@ impl<'a> TileCache<'a> {
     }
 
     #[inline(always)]
-    fn get(&mut self, grid: &'a OccupancyGrid, key: (i32, i32)) -> Option<&'a [i16]> {
+    fn get<G: TileGrid + ?Sized>(&mut self, grid: &'a G, key: (i32, i32)) -> Option<&'a [i16]> {
         if key != self.key {
             self.key = key;
             self.tile = grid.tile_cells(key.0, key.1);
@@ -99,8 +136,8 @@ fn point_term(model: &ObservationModel, best: f64) -> f64 {
 /// centre of an occupied cell within the kernel; infinity if none. `nearest` is the 3x3
 /// kernel's minimum within one tile.
 #[inline(always)]
-fn point_best<'a>(
-    grid: &'a OccupancyGrid,
+fn point_best<'a, G: TileGrid + ?Sized>(
+    grid: &'a G,
     model: &ObservationModel,
     (u, v, i, j): (f64, f64, i32, i32),
     cache: &mut TileCache<'a>,
@@ -155,8 +192,8 @@ fn point_best<'a>(
 
 /// [`scan_log_likelihood_above`] without AVX2 (or for kernels other than 3x3): a point at a
 /// time.
-pub fn portable(
-    grid: &OccupancyGrid,
+pub fn portable<G: TileGrid + ?Sized>(
+    grid: &G,
     model: &ObservationModel,
     points: &[[f64; 2]],
     pose: &Pose2,

@@ -1,13 +1,11 @@
 //! [`super::scan_log_likelihood_above`] for the 3x3 kernel in AVX2, four points at a time.
 
+use super::{Bar, ObservationModel, TileGrid};
 use super::{MASK, Projected, TS, TileCache, point_best, point_term, project_scalar};
-use crate::filter::rbpf::{Bar, ObservationModel};
 use crate::geometry::Pose2;
+use crate::geometry::cells::{MapLimits, floor_to_i32};
 use crate::kernels::nearest::x86::nearest_3x3_avx2;
-use crate::map::OccupancyGrid;
-use crate::map::TILE_SIZE;
-use crate::map::grid::TILE_SHIFT;
-use crate::map::limits::{MapLimits, floor_to_i32};
+use crate::kernels::{TILE_SHIFT, TILE_SIZE};
 
 /// [`super::scan_log_likelihood_above`] for the 3x3 kernel in AVX2, four points at a time:
 /// projected ([`project4_avx2`]), their kernel rows gathered ([`gather4_avx2`]), their
@@ -15,8 +13,8 @@ use crate::map::limits::{MapLimits, floor_to_i32};
 /// tested after each point. The same bits. (Issuing the next four's gathers before this
 /// four's minima measured no faster.)
 #[target_feature(enable = "avx2")]
-pub(super) fn likelihood_avx2(
-    grid: &OccupancyGrid,
+pub(super) fn likelihood_avx2<G: TileGrid + ?Sized>(
+    grid: &G,
     model: &ObservationModel,
     points: &[[f64; 2]],
     pose: &Pose2,
@@ -137,8 +135,8 @@ struct Gathered4 {
 /// path instead (their rows read never-occupied cells).
 #[target_feature(enable = "avx2")]
 #[inline]
-fn gather4_avx2<'a>(
-    grid: &'a OccupancyGrid,
+fn gather4_avx2<'a, G: TileGrid + ?Sized>(
+    grid: &'a G,
     at: Projected4,
     cache: &mut TileCache<'a>,
 ) -> Gathered4 {
@@ -243,8 +241,8 @@ fn gather4_avx2<'a>(
 /// [`point_best`].
 #[target_feature(enable = "avx2")]
 #[inline]
-fn nearest4_avx2<'a>(
-    grid: &'a OccupancyGrid,
+fn nearest4_avx2<'a, G: TileGrid + ?Sized>(
+    grid: &'a G,
     model: &ObservationModel,
     at: Gathered4,
     cache: &mut TileCache<'a>,

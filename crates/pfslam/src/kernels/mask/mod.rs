@@ -1,14 +1,29 @@
 //! The grid's ray walk into the insertion mask ([`walk_mask`]) and the cells of a ray unlike
 //! the previous ray's ([`fresh_cells`]); the AVX2 kernels in `x86.rs`.
 
-use crate::map::Cell;
-use crate::map::grid::MaskLayout;
+use crate::geometry::cells::Cell;
 
 #[cfg(target_arch = "x86_64")]
 mod x86;
 
-/// Writes the first `out.len()` cells of [`crate::map::ray::bresenham`]`(from, to)` as mask indices into
-/// `out`: the same cells, in the same order, as the callback form. The mask is marked from
+/// Cells -> mask indices of the mask placed with its first cell at `(mi0, mj0)`.
+#[derive(Clone, Copy)]
+pub(crate) struct MaskLayout<'a> {
+    pub(crate) xoff: &'a [u32],
+    pub(crate) yoff: &'a [u32],
+    pub(crate) mi0: i32,
+    pub(crate) mj0: i32,
+}
+
+impl MaskLayout<'_> {
+    #[inline(always)]
+    pub(crate) fn index(&self, c: Cell) -> usize {
+        (self.xoff[(c.i - self.mi0) as usize] + self.yoff[(c.j - self.mj0) as usize]) as usize
+    }
+}
+
+/// Writes the first `out.len()` cells of the Bresenham line `(from, to)` (the map's
+/// `bresenham`) as mask indices into `out`: the same cells, in the same order, as the callback form. The mask is marked from
 /// this list in a second loop, which keeps both loops' state in registers. Eight cells at a
 /// time in AVX2 where the CPU has it (`x86::walk_mask_avx2`).
 #[inline(always)]

@@ -1,8 +1,9 @@
 //! The ray walk's AVX2 kernels: [`super::walk_mask`] and [`super::fresh_cells`].
 
+use super::MaskLayout;
 use super::fresh_cells_portable;
-use crate::map::Cell;
-use crate::map::grid::{MaskLayout, TILE_MASK, TILE_SHIFT};
+use crate::geometry::cells::Cell;
+use crate::kernels::{TILE_MASK, TILE_SHIFT};
 
 /// [`super::walk_mask`] eight cells at a time; returns false (nothing written) for a ray it does not
 /// take: one whose box leaves the mask's tables, a zero-length one, or one so long that its

@@ -1,7 +1,7 @@
 //! The observation model's 3x3 kernel: the nearest occupied cell around a point within one
 //! tile (its AVX2 twin in `x86.rs`, called from the likelihood's AVX2 kernel).
 
-use crate::map::grid::TILE_SHIFT;
+use super::TILE_SHIFT;
 
 #[cfg(target_arch = "x86_64")]
 pub(super) mod x86;

@@ -1,7 +1,7 @@
 //! [`nearest_3x3`](super::nearest_3x3) in AVX2.
 
 use super::TilePoint;
-use crate::map::grid::TILE_SHIFT;
+use crate::kernels::TILE_SHIFT;
 
 /// [`nearest_3x3`](super::nearest_3x3) in AVX2: a row's three cells and squared distances in one vector each
 /// (a fourth lane never occupied), a compare-select per row. The minimum of the same

@@ -2,8 +2,8 @@
 //! its bilinear field sums seen from up to six positions in one pass; the AVX2 kernel in
 //! `x86.rs`.
 
-use crate::filter::scanmatch::{LANES, LikelihoodField};
-use crate::map::MapLimits;
+use super::{FieldWindow, LANES};
+use crate::geometry::cells::MapLimits;
 
 #[cfg(target_arch = "x86_64")]
 pub(super) mod x86;
@@ -47,7 +47,7 @@ impl Rotation {
     pub fn sums<const K: usize>(
         rots: [&Rotation; K],
         at: [[f64; 2]; K],
-        field: &LikelihoodField,
+        field: &FieldWindow<'_>,
         limits: &MapLimits,
     ) -> [f64; K] {
         #[cfg(target_arch = "x86_64")]
@@ -71,7 +71,7 @@ impl Rotation {
     pub fn sums_portable<const K: usize>(
         rots: [&Rotation; K],
         at: [[f64; 2]; K],
-        field: &LikelihoodField,
+        field: &FieldWindow<'_>,
         limits: &MapLimits,
     ) -> [f64; K] {
         let mut sums = [-0.0; K];
@@ -102,7 +102,7 @@ impl Rotation {
     #[cfg(test)]
     pub fn sum_portable(
         &self,
-        field: &LikelihoodField,
+        field: &FieldWindow<'_>,
         limits: &MapLimits,
         x_m: f64,
         y_m: f64,
@@ -124,7 +124,7 @@ impl Rotation {
     /// Adds the field values of the points after the whole blocks to `sum`, in order.
     pub fn sum_tail(
         &self,
-        field: &LikelihoodField,
+        field: &FieldWindow<'_>,
         limits: &MapLimits,
         x_m: f64,
         y_m: f64,

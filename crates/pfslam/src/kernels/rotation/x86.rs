@@ -1,13 +1,13 @@
 //! [`Rotation::sums`] in AVX2, and the corner loads the f32 kernel shares.
 
 use super::Rotation;
-use crate::filter::scanmatch::{LANES, LikelihoodField};
-use crate::map::MapLimits;
+use crate::geometry::cells::MapLimits;
+use crate::kernels::{FieldWindow, LANES};
 use std::arch::x86_64::*;
 
 /// The field values at the four corners `(i, j)`, `(i + 1, j)`, `(i, j + 1)`,
 /// `(i + 1, j + 1)` of four points whose cell floors are `$fx`, `$fy` (finite, within 1e9
-/// cells): `(f00, f10, f01, f11)`, as [`LikelihoodField::corners`] gives them. A macro, not
+/// cells): `(f00, f10, f01, f11)`, as [`FieldWindow::corners`] gives them. A macro, not
 /// a function: it expands into each instance of [`Rotation::sums_avx2`], where a
 /// `#[target_feature]` function of this size was called, not inlined. Only in an `unsafe`
 /// context where `$field.vector_ok()` holds (its sides fit in `i32` and its values cover
@@ -81,7 +81,7 @@ impl Rotation {
     pub(super) unsafe fn sums_avx2<const K: usize>(
         rots: [&Rotation; K],
         at: [[f64; 2]; K],
-        field: &LikelihoodField,
+        field: &FieldWindow<'_>,
         limits: &MapLimits,
     ) -> [f64; K] {
         let (ox, oy) = (limits.origin_x_m(), limits.origin_y_m());

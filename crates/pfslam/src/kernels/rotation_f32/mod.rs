@@ -2,18 +2,14 @@
 //! ([`RotationF32`], 8 points per AVX2 vector) and its field sums; the AVX2 kernels in
 //! `x86.rs`.
 
-use crate::filter::scanmatch::LikelihoodField;
+pub use super::F32_LIM;
+use super::FieldWindow;
 
 #[cfg(target_arch = "x86_64")]
 mod x86;
 
 /// Points per block of the f32 kernel (one 256-bit vector of f32).
 pub const LANES32: usize = 8;
-
-/// The f32 kernel's coordinate bound (cells, 2^23): below it a coordinate's floor and
-/// fraction are exact in f32, and a point beyond it lies outside every window the kernel
-/// takes (`LikelihoodField::f32_ok`).
-pub const F32_LIM: f32 = 8_388_608.0;
 
 /// The points of [`Rotation`](crate::kernels::rotation::Rotation) for the f32 kernel: per point its offset from the pose in
 /// cells, `((c x - s y) / res, (s x + c y) / res)` rounded to f32, in blocks of
@@ -89,15 +85,15 @@ impl RotationF32 {
     }
 
     /// The f32 twin of [`Rotation::sums`](crate::kernels::rotation::Rotation::sums): `at[k]` is candidate `k`'s position in the
-    /// window's cell frame, less half a cell (see [`LikelihoodField::f32_origin`]); per
-    /// point `at + offset` and [`LikelihoodField::bilinear_f32`], summed per lane in f32
+    /// window's cell frame, less half a cell (the scan matcher's `f32_origin`); per
+    /// point `at + offset` and [`FieldWindow::bilinear_f32`], summed per lane in f32
     /// (lane `l` holds the points `l`, `l + 8`, ...), the 8 lanes added in f64 at the end.
-    /// Not the bits of the f64 kernel (see [`KernelPrecision`](crate::filter::scanmatch::KernelPrecision)); the portable and the AVX2
+    /// Not the bits of the f64 kernel (the scan matcher's `KernelPrecision`); the portable and the AVX2
     /// versions give the same bits.
     pub fn sums<const K: usize>(
         rots: [&RotationF32; K],
         at: [[f32; 2]; K],
-        field: &LikelihoodField,
+        field: &FieldWindow<'_>,
     ) -> [f64; K] {
         #[cfg(target_arch = "x86_64")]
         if field.vector_ok() && super::cpu().avx2() {
@@ -111,7 +107,7 @@ impl RotationF32 {
     pub fn sums_portable<const K: usize>(
         rots: [&RotationF32; K],
         at: [[f32; 2]; K],
-        field: &LikelihoodField,
+        field: &FieldWindow<'_>,
     ) -> [f64; K] {
         let mut acc = [[0.0f32; LANES32]; K];
         let blocks = RotationF32::common_blocks(&rots);

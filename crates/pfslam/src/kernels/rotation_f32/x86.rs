@@ -1,7 +1,7 @@
 //! The f32 kernel's AVX2 versions: [`RotationF32::fill_whole`] and [`RotationF32::sums`].
 
 use super::{F32_LIM, LANES32, RotationF32, reduce_lanes};
-use crate::filter::scanmatch::LikelihoodField;
+use crate::kernels::FieldWindow;
 use crate::kernels::rotation::x86::corner_pairs;
 use std::arch::x86_64::*;
 
@@ -67,7 +67,7 @@ impl RotationF32 {
 
     /// [`Self::sums_portable`] in AVX2 (8 lanes of f32): the same IEEE operations per lane,
     /// so the same bits; a block with a lane beyond [`F32_LIM`] (or NaN) or a corner outside
-    /// the window takes [`LikelihoodField::bilinear_f32`] per lane.
+    /// the window takes [`FieldWindow::bilinear_f32`] per lane.
     ///
     /// # Safety
     /// The CPU has AVX2, and `field.vector_ok()`.
@@ -75,7 +75,7 @@ impl RotationF32 {
     pub(super) unsafe fn sums_avx2<const K: usize>(
         rots: [&RotationF32; K],
         at: [[f32; 2]; K],
-        field: &LikelihoodField,
+        field: &FieldWindow<'_>,
     ) -> [f64; K] {
         let lim = _mm256_set1_ps(F32_LIM);
         let sign = _mm256_set1_ps(-0.0);
@@ -128,7 +128,7 @@ impl RotationF32 {
     }
 }
 
-/// [`LikelihoodField::bilinear_f32`] of eight points at window coordinates `x`, `y` (each
+/// [`FieldWindow::bilinear_f32`] of eight points at window coordinates `x`, `y` (each
 /// below [`F32_LIM`] in magnitude), the same operations per lane; none when a corner of
 /// some point lies outside the window.
 ///
@@ -136,7 +136,7 @@ impl RotationF32 {
 /// `field.vector_ok()`: its sides fit in `i32` and its values cover the window.
 #[target_feature(enable = "avx2")]
 #[inline]
-unsafe fn bilinear8(field: &LikelihoodField, x: __m256, y: __m256) -> Option<__m256> {
+unsafe fn bilinear8(field: &FieldWindow<'_>, x: __m256, y: __m256) -> Option<__m256> {
     let one = _mm256_set1_ps(1.0);
     // `vector_ok` guarantees these fit in i32.
     let (w, h) = (field.w as i32, field.h as i32);

@@ -2,27 +2,15 @@
 //! occupancy value (their updates' kernels in `crate::kernels::heights`).
 
 use super::*;
-use crate::kernels::heights::update_bins;
+use crate::kernels::heights::{BinScale, update_bins};
 
 /// Fixed-point units per log-odds unit in a height bin (`i8`: |log-odds| <= 7.9, p within
 /// 0.0004 of 0 or 1; 1/16 resolution). Coarser than the 2-D cells' 1/256, so a column of bins
 /// costs one byte per bin; a bin only has to tell "hit at this height" from "passed free".
 pub const BIN_SCALE: f64 = 16.0;
 
-/// The log-odds model of a height bin in its fixed point (`i8`, see [`BIN_SCALE`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct BinLogOdds {
-    /// Hit increment.
-    pub hit: i8,
-    /// Miss increment.
-    pub miss: i8,
-    /// Lower clamp bound.
-    pub min: i8,
-    /// Upper clamp bound.
-    pub max: i8,
-    /// A bin is occupied at this value.
-    pub occupied: i8,
-}
+/// The log-odds model of a height bin, defined with the bins' kernels (which apply it).
+pub use crate::kernels::heights::BinLogOdds;
 
 impl BinLogOdds {
     /// The bin model of `params`, a bin being occupied at probability `occupied_prob`.
@@ -37,15 +25,11 @@ impl BinLogOdds {
             occupied: q(crate::map::logodds::logit(occupied_prob)).max(1),
         }
     }
-
-    #[inline(always)]
-    pub(crate) fn apply(&self, v: i8, delta: i8) -> i8 {
-        (v as i16 + delta as i16).clamp(self.min as i16, self.max as i16) as i8
-    }
 }
 
-/// Most height bins per cell ([`crate::map::HeightOptions::bins`]).
-pub const MAX_BINS: usize = 16;
+/// Most height bins per cell ([`crate::map::HeightOptions::bins`]), defined with the bins'
+/// kernels.
+pub use crate::kernels::MAX_BINS;
 
 /// The height bins of one tile: one column of [`MAX_BINS`] fixed-point log-odds per cell (same
 /// cell order as [`Tile`]; bins beyond the configured count stay 0). A fixed 16-byte column
@@ -85,16 +69,23 @@ impl HeightLayer {
     /// The bit of the bin holding height `z_m`.
     #[inline(always)]
     pub(crate) fn bit(&self, z_m: f32) -> u32 {
-        // Truncation, not floor (a libm call here): both give bin 0 for everything below the
-        // window once clamped. The float -> int conversion saturates; NaN gives 0.
-        let b = (((z_m - self.z_min_m) * self.bins_per_m) as i32).clamp(0, self.bins as i32 - 1);
-        1 << b
+        self.scale().bit(z_m)
+    }
+
+    /// The bins' heights as the kernels read them.
+    #[inline(always)]
+    pub(crate) fn scale(&self) -> BinScale {
+        BinScale {
+            bins: self.bins,
+            z_min_m: self.z_min_m,
+            bins_per_m: self.bins_per_m,
+        }
     }
 
     /// `out[s] = self.bit(z0 + s as f32 * dz)` for every `s`: the bins of a ray's steps
     /// (the kernel in `crate::kernels::heights`).
     pub(super) fn fill_bits(&self, z0: f32, dz: f32, out: &mut [u32]) {
-        crate::kernels::heights::fill_bits(self, z0, dz, out);
+        crate::kernels::heights::fill_bits(&self.scale(), z0, dz, out);
     }
 }
 

@@ -125,21 +125,8 @@ pub(super) static LOCAL_OF_MASK_CELL: [u16; TILE_CELLS] = {
     t
 };
 
-/// Cells -> mask indices of the mask placed with its first cell at `(mi0, mj0)`.
-#[derive(Clone, Copy)]
-pub(crate) struct MaskLayout<'a> {
-    pub(crate) xoff: &'a [u32],
-    pub(crate) yoff: &'a [u32],
-    pub(crate) mi0: i32,
-    pub(crate) mj0: i32,
-}
-
-impl MaskLayout<'_> {
-    #[inline(always)]
-    pub(super) fn index(&self, c: Cell) -> usize {
-        (self.xoff[(c.i - self.mi0) as usize] + self.yoff[(c.j - self.mj0) as usize]) as usize
-    }
-}
+/// The mask's layout, defined with the ray walk's kernels.
+pub(crate) use crate::kernels::mask::MaskLayout;
 
 /// A scan's planar ray walks: the cells of the ray being walked, those of the ray before it
 /// (already marked free by this scan), and the new ray's cells that differ from the

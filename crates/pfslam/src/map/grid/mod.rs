@@ -192,5 +192,23 @@ impl OccupancyGrid {
     }
 }
 
+/// The grid as the observation model's kernels read it.
+impl crate::kernels::likelihood::TileGrid for OccupancyGrid {
+    #[inline(always)]
+    fn limits(&self) -> &MapLimits {
+        &self.limits
+    }
+
+    #[inline(always)]
+    fn tile_cells(&self, ti: i32, tj: i32) -> Option<&[i16]> {
+        OccupancyGrid::tile_cells(self, ti, tj)
+    }
+
+    #[inline(always)]
+    fn logodds_fixed(&self, cell: Cell) -> i16 {
+        OccupancyGrid::logodds_fixed(self, cell)
+    }
+}
+
 #[cfg(test)]
 mod reference_tests;

@@ -457,7 +457,7 @@ fn vectorised_ray_bins_equal_the_per_step_bin() {
         out.resize(n, 0);
         layer.fill_bits(z0, dz, &mut out);
         let mut portable = vec![0; n];
-        crate::kernels::heights::fill_bits_portable(&layer, z0, dz, &mut portable);
+        crate::kernels::heights::fill_bits_portable(&layer.scale(), z0, dz, &mut portable);
         assert_eq!(out, portable, "{z0} {dz}");
         for (s, &b) in out.iter().enumerate() {
             assert_eq!(

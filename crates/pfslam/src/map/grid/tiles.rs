@@ -2,12 +2,9 @@
 
 use super::*;
 
-/// log2 of the tile side.
-pub const TILE_SHIFT: u32 = 6;
-/// Tile side (cells).
-pub const TILE_SIZE: usize = 1 << TILE_SHIFT;
-pub(crate) const TILE_MASK: i32 = (TILE_SIZE as i32) - 1;
-pub(crate) const TILE_CELLS: usize = TILE_SIZE * TILE_SIZE;
+/// The tile layout, defined with the kernels that walk the tiles.
+pub(crate) use crate::kernels::{TILE_CELLS, TILE_MASK};
+pub use crate::kernels::{TILE_SHIFT, TILE_SIZE};
 
 /// Cell indices beyond this magnitude are refused (1,677 km at 0.1 m), which bounds the tile
 /// directory whatever a pose says.
