@@ -28,7 +28,7 @@ pub struct ObservationModel {
     pub no_hit: f64,
 }
 
-/// A candidate's bar in [`scan_log_likelihood_above`]: it wins only if
+/// A candidate's bar in `scan_log_likelihood_above`: it wins only if
 /// `log-likelihood - penalty > bar`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Bar {
