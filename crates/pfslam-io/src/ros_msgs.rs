@@ -438,8 +438,9 @@ pub mod encode {
         }
     }
 
-    /// `sensor_msgs/msg/LaserScan` as CDR.
-    pub fn scan_cdr(m: &ScanMsg) -> Vec<u8> {
+    /// The fields both laser-scan messages begin with: header, angles, the two times
+    /// (left 0), range limits.
+    fn scan_head(m: &ScanMsg) -> CdrWriter {
         let mut w = CdrWriter::new();
         w.header(m.stamp_ns, &m.frame_id);
         for v in [
@@ -453,6 +454,12 @@ pub mod encode {
         ] {
             w.f32(v);
         }
+        w
+    }
+
+    /// `sensor_msgs/msg/LaserScan` as CDR.
+    pub fn scan_cdr(m: &ScanMsg) -> Vec<u8> {
+        let mut w = scan_head(m);
         w.u32(m.ranges.len() as u32);
         for &r in &m.ranges {
             w.f32(r);
@@ -463,19 +470,7 @@ pub mod encode {
 
     /// `sensor_msgs/msg/MultiEchoLaserScan` as CDR: `echoes[k]` are beam `k`'s echoes.
     pub fn multi_echo_scan_cdr(m: &ScanMsg, echoes: &[Vec<f32>]) -> Vec<u8> {
-        let mut w = CdrWriter::new();
-        w.header(m.stamp_ns, &m.frame_id);
-        for v in [
-            m.angle_min,
-            m.angle_max,
-            m.angle_increment,
-            0.0,
-            0.0,
-            m.range_min,
-            m.range_max,
-        ] {
-            w.f32(v);
-        }
+        let mut w = scan_head(m);
         w.u32(echoes.len() as u32);
         for e in echoes {
             w.u32(e.len() as u32);

@@ -97,11 +97,10 @@ impl PySlam {
             self.early_odometry.push(StampedPose2 { stamp_ns, pose });
             return Ok(None);
         };
-        let poses = &mut self.poses;
-        let before = poses.len();
-        py.detach(|| slam.push_odometry_observed(stamp_ns, pose, &mut collect(poses)))
-            .map_err(|e| online_error(&e))?;
-        latest_since(py, poses, before)
+        let new = push_collect(py, &mut self.poses, |obs| {
+            slam.push_odometry_observed(stamp_ns, pose, obs)
+        })?;
+        new.last().map(|p| pose_tuple(py, p)).transpose()
     }
 
     /// The IMU's absolute yaw (rad) at `t` seconds, for the motion model that takes the turn
@@ -121,11 +120,10 @@ impl PySlam {
             self.early_imu.push((stamp_ns, yaw));
             return Ok(None);
         };
-        let poses = &mut self.poses;
-        let before = poses.len();
-        py.detach(|| slam.push_imu_yaw_observed(stamp_ns, yaw, &mut collect(poses)))
-            .map_err(|e| online_error(&e))?;
-        latest_since(py, poses, before)
+        let new = push_collect(py, &mut self.poses, |obs| {
+            slam.push_imu_yaw_observed(stamp_ns, yaw, obs)
+        })?;
+        new.last().map(|p| pose_tuple(py, p)).transpose()
     }
 
     /// A scan at `t` seconds: `ranges` (m, one per beam; 0, NaN or beyond the limits: no
@@ -252,11 +250,9 @@ impl PySlam {
             lidar: (lidar != slam.recording().lidar).then_some(lidar),
             body_from_lidar: None,
         };
-        let before = poses.len();
-        py.detach(|| slam.push_scan_observed(input, &mut collect(poses)))
-            .map_err(|e| online_error(&e))?;
+        let new = push_collect(py, poses, |obs| slam.push_scan_observed(input, obs))?;
         // its pose, when the odometry already reached it
-        let this = poses[before..].iter().rfind(|p| p.stamp_ns == stamp_ns);
+        let this = new.iter().rfind(|p| p.stamp_ns == stamp_ns);
         this.map(|p| pose_tuple(py, p)).transpose()
     }
 
@@ -297,14 +293,20 @@ impl PySlam {
     }
 }
 
-/// The latest of the poses after the first `before`, when a push added any.
-fn latest_since<'py>(
-    py: Python<'py>,
-    poses: &[StampedPose2],
-    before: usize,
-) -> PyResult<Option<Bound<'py, PyTuple>>> {
-    let latest = poses.get(before..).and_then(|new| new.last());
-    latest.map(|p| pose_tuple(py, p)).transpose()
+/// Hands one input to the filter with the GIL released, keeping the poses it reports in
+/// `poses`; returns the new ones.
+fn push_collect<'a, F>(
+    py: Python<'_>,
+    poses: &'a mut Vec<StampedPose2>,
+    push: F,
+) -> PyResult<&'a [StampedPose2]>
+where
+    F: FnOnce(&mut dyn FnMut(SlamEvent<'_>)) -> Result<Option<StampedPose2>, OnlineError> + Send,
+{
+    let before = poses.len();
+    py.detach(|| push(&mut collect(poses)))
+        .map_err(|e| online_error(&e))?;
+    Ok(&poses[before..])
 }
 
 /// An observer keeping the pose of each scan handled.

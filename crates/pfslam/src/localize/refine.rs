@@ -3,6 +3,7 @@
 //! a local match of every return does not.
 
 use super::field::{LikelihoodField, Sharpness};
+use crate::filter::scanmatch::six_moves;
 use crate::geometry::{Pose2, wrap_angle};
 
 /// The first x/y step of the climb (m); halved `LEVELS` times.
@@ -37,14 +38,7 @@ pub fn refine_pose(field: &LikelihoodField, points: &[[f64; 2]], pose: &Pose2) -
     while level < LEVELS && iterations < 100 {
         iterations += 1;
         let mut moved = false;
-        for (dx, dy, da) in [
-            (sxy, 0.0, 0.0),
-            (-sxy, 0.0, 0.0),
-            (0.0, sxy, 0.0),
-            (0.0, -sxy, 0.0),
-            (0.0, 0.0, syaw),
-            (0.0, 0.0, -syaw),
-        ] {
+        for (dx, dy, da) in six_moves(sxy, syaw) {
             let cand = Pose2::new(best.x_m + dx, best.y_m + dy, best.yaw_rad + da);
             let s = score(field, points, &cand);
             if s > best_score {

@@ -275,22 +275,9 @@ impl MapPair<'_> {
     /// free (or visible), free where truly occupied. Rows in parallel; integer sums are
     /// order-independent.
     fn estimate_counts(&self) -> [usize; 5] {
-        let estimate = self.estimate;
-        (0..estimate.height)
-            .into_par_iter()
-            .map(|j| {
-                let mut n = [0usize; 5];
-                for i in 0..estimate.width {
-                    let s = estimate.cells[j * estimate.width + i];
-                    let (x, y) = estimate
-                        .limits
-                        .cell_centre(super::Cell::new(i as i32, j as i32));
-                    let (x, y) = through(self.to_truth, x, y);
-                    self.count_estimate_cell(s, (x, y), &mut n);
-                }
-                n
-            })
-            .reduce(|| [0; 5], |a, b| std::array::from_fn(|k| a[k] + b[k]))
+        cell_sums(self.estimate, None, self.to_truth, |n, s, _, at| {
+            self.count_estimate_cell(s, at, n)
+        })
     }
 
     /// One estimated cell in state `s` at `(x, y)` in the truth's frame, counted into `n`.
@@ -341,64 +328,65 @@ impl MapPair<'_> {
             ex0 + estimate.width as f64 * er,
             ey0 + estimate.height as f64 * er,
         );
-        (0..truth.height)
-            .into_par_iter()
-            .map(|j| {
-                let mut n = [0usize; 4];
-                for i in 0..truth.width {
-                    if truth.cells[j * truth.width + i] != CellState::Occupied {
-                        continue;
-                    }
-                    let (tx, ty) = truth
-                        .limits
-                        .cell_centre(super::Cell::new(i as i32, j as i32));
-                    let (x, y) = through(self.to_estimate, tx, ty);
-                    if !(x >= ex0 && x < ex1 && y >= ey0 && y < ey1) {
-                        continue;
-                    }
-                    let matched = state_near(estimate, x, y, tol, CellState::Occupied);
-                    n[0] += 1;
-                    n[1] += matched as usize;
-                    if self.visible.is_some() {
-                        // recall is counted over the visibility truth
-                        continue;
-                    }
-                    let observed = matched
-                        || match estimate.state_at(x, y) {
-                            CellState::Occupied => true,
-                            // Free on a wall's boundary cell is within the tolerance.
-                            CellState::Free => !state_near(truth, tx, ty, tol, CellState::Free),
-                            CellState::Unknown => false,
-                        };
-                    if observed {
-                        n[2] += 1;
-                        n[3] += matched as usize;
-                    }
-                }
-                n
-            })
-            .reduce(|| [0; 4], |a, b| std::array::from_fn(|k| a[k] + b[k]))
+        let walls = Some(CellState::Occupied);
+        cell_sums(truth, walls, self.to_estimate, |n, _, (tx, ty), (x, y)| {
+            if !(x >= ex0 && x < ex1 && y >= ey0 && y < ey1) {
+                return;
+            }
+            let matched = state_near(estimate, x, y, tol, CellState::Occupied);
+            n[0] += 1;
+            n[1] += matched as usize;
+            if self.visible.is_some() {
+                // recall is counted over the visibility truth
+                return;
+            }
+            let observed = matched
+                || match estimate.state_at(x, y) {
+                    CellState::Occupied => true,
+                    // Free on a wall's boundary cell is within the tolerance.
+                    CellState::Free => !state_near(truth, tx, ty, tol, CellState::Free),
+                    CellState::Unknown => false,
+                };
+            if observed {
+                n[2] += 1;
+                n[3] += matched as usize;
+            }
+        })
     }
 
     /// The walls of the visibility truth `v`: all, and those the estimate matched.
     fn visible_counts(&self, v: &BinaryMap) -> [usize; 2] {
-        (0..v.height)
-            .into_par_iter()
-            .map(|j| {
-                let mut n = [0usize; 2];
-                for i in 0..v.width {
-                    if v.cells[j * v.width + i] != CellState::Occupied {
-                        continue;
-                    }
-                    let (x, y) = v.limits.cell_centre(super::Cell::new(i as i32, j as i32));
-                    let (x, y) = through(self.to_estimate, x, y);
-                    n[0] += 1;
-                    n[1] += state_near(self.estimate, x, y, self.tol, CellState::Occupied) as usize;
-                }
-                n
-            })
-            .reduce(|| [0; 2], |a, b| [a[0] + b[0], a[1] + b[1]])
+        let walls = Some(CellState::Occupied);
+        cell_sums(v, walls, self.to_estimate, |n, _, _, (x, y)| {
+            n[0] += 1;
+            n[1] += state_near(self.estimate, x, y, self.tol, CellState::Occupied) as usize;
+        })
     }
+}
+
+/// Sums `count(n, state, centre, centre through to)` over the cells of `map` (those in
+/// state `only` when given): rows in parallel; integer sums are order-independent.
+fn cell_sums<const N: usize>(
+    map: &BinaryMap,
+    only: Option<CellState>,
+    to: Option<&Through>,
+    count: impl Fn(&mut [usize; N], CellState, (f64, f64), (f64, f64)) + Sync + Send,
+) -> [usize; N] {
+    (0..map.height)
+        .into_par_iter()
+        .map(|j| {
+            let mut n = [0usize; N];
+            for i in 0..map.width {
+                let s = map.cells[j * map.width + i];
+                if only.is_some_and(|only| s != only) {
+                    continue;
+                }
+                let (x, y) = map.limits.cell_centre(super::Cell::new(i as i32, j as i32));
+                count(&mut n, s, (x, y), through(to, x, y));
+            }
+            n
+        })
+        .reduce(|| [0; N], |a, b| std::array::from_fn(|k| a[k] + b[k]))
 }
 
 #[cfg(test)]

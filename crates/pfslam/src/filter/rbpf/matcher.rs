@@ -194,14 +194,7 @@ impl Best {
     fn best_move(&mut self, f: &Objective, sxy: f64, syaw: f64) -> Option<(Pose2, f64, f64)> {
         let best = self.pose;
         let mut moved: Option<(Pose2, f64, f64)> = None;
-        for (ex, ey, ea) in [
-            (sxy, 0.0, 0.0),
-            (-sxy, 0.0, 0.0),
-            (0.0, sxy, 0.0),
-            (0.0, -sxy, 0.0),
-            (0.0, 0.0, syaw),
-            (0.0, 0.0, -syaw),
-        ] {
+        for (ex, ey, ea) in crate::filter::scanmatch::six_moves(sxy, syaw) {
             let cand = Pose2::new(best.x_m + ex, best.y_m + ey, best.yaw_rad + ea);
             let key = pose_bits(&cand);
             if self.seen.contains(&key) {

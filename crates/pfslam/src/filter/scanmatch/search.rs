@@ -42,6 +42,20 @@ pub(super) fn prior_penalty(p: &MatchParams, dx: f64, dy: f64, dyaw: f64) -> f64
     0.5 * ((dx * dx + dy * dy) * p.inv_var_xy + dyaw * dyaw * p.inv_var_yaw)
 }
 
+/// The six moves of a hill climb's step, `(dx, dy, dyaw)`: +-`step_xy` in x, then in y,
+/// then +-`step_yaw` in yaw. Every climb tries them in this order, which decides its ties.
+#[inline]
+pub(crate) fn six_moves(step_xy: f64, step_yaw: f64) -> [(f64, f64, f64); 6] {
+    [
+        (step_xy, 0.0, 0.0),
+        (-step_xy, 0.0, 0.0),
+        (0.0, step_xy, 0.0),
+        (0.0, -step_xy, 0.0),
+        (0.0, 0.0, step_yaw),
+        (0.0, 0.0, -step_yaw),
+    ]
+}
+
 /// Evaluations [`pattern_search`] remembers (the last ones).
 pub(super) const MEMO: usize = 16;
 
@@ -80,14 +94,7 @@ pub fn pattern_search(
     let mut memo_len = 1usize;
     while level < levels && iterations < max_iterations {
         iterations += 1;
-        let moves = [
-            (step_xy, 0.0, 0.0),
-            (-step_xy, 0.0, 0.0),
-            (0.0, step_xy, 0.0),
-            (0.0, -step_xy, 0.0),
-            (0.0, 0.0, step_yaw),
-            (0.0, 0.0, -step_yaw),
-        ];
+        let moves = six_moves(step_xy, step_yaw);
         let cands = moves.map(|(ex, ey, eyaw)| [at[0] + ex, at[1] + ey, at[2] + eyaw]);
         // Per candidate: its value if remembered, else its index among the new ones. A
         // remembered value is read now (a later insertion of this iteration may reuse its
@@ -169,14 +176,7 @@ pub(crate) fn pattern_search_sequential(
     while level < levels && iterations < max_iterations {
         iterations += 1;
         let mut moved: Option<([f64; 3], (f64, f64))> = None;
-        for (ex, ey, eyaw) in [
-            (step_xy, 0.0, 0.0),
-            (-step_xy, 0.0, 0.0),
-            (0.0, step_xy, 0.0),
-            (0.0, -step_xy, 0.0),
-            (0.0, 0.0, step_yaw),
-            (0.0, 0.0, -step_yaw),
-        ] {
+        for (ex, ey, eyaw) in six_moves(step_xy, step_yaw) {
             let cand = [at[0] + ex, at[1] + ey, at[2] + eyaw];
             let key = cand.map(f64::to_bits);
             let seen = memo[..memo_len.min(MEMO)].iter().find(|m| m.0 == key);
