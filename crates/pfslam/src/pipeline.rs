@@ -305,8 +305,8 @@ pub(crate) fn back_end_over(
 
 /// The back end's trajectory unless its map is much less consistent than the front end's
 /// (`[graph] max_free_share_ratio`), or crosses the self-check's limit
-/// ([`SUSPECT_FREE_SHARE`]) that the front end's stays under (decision 0059). Then, when it matched consecutive keyframes itself, it
-/// runs again tied by the front end's motion alone (`sequential.matching = "off"`, no
+/// ([`SUSPECT_FREE_SHARE`]) that the front end's stays under (decision 0059). Then, when it
+/// matched consecutive keyframes itself, it runs again tied by the front end's motion alone (`sequential.matching = "off"`, no
 /// odometry-yaw edges): on Intel its own sequential matches led its closures astray on half
 /// of the seeds (decision 0006). The front end's trajectory when that fails too. The first
 /// `saved` poses of `input` are a saved session's keyframes, kept rigid in the second run too.
@@ -410,7 +410,7 @@ fn back_end_acceptable(back_share: f64, front_share: f64, ratio: f64) -> bool {
 const MIN_FREE_SHARE_RISE: f64 = 0.02;
 
 /// At most this many scans are scored for the free share (evenly spaced).
-const FREE_SHARE_SCANS: usize = 2000;
+pub const FREE_SHARE_SCANS: usize = 2000;
 
 /// The map along `poses` and the share of returns landing in its free cells.
 fn map_and_free_share(
@@ -424,7 +424,7 @@ fn map_and_free_share(
     Ok((grid, share))
 }
 
-/// The share of returns of (at most 2,000, evenly spaced) scans posed by `poses` that land
+/// The share of returns of (at most [`FREE_SHARE_SCANS`]) scans posed by `poses` that land
 /// in cells `grid` calls free: the self-check's consistency signal.
 pub fn free_share(
     recording: &Recording,

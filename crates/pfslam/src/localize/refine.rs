@@ -14,7 +14,7 @@ const STEP_YAW_DEG: f64 = 1.0;
 const LEVELS: u32 = 4;
 /// A refinement that moves farther than this from the estimate (m, deg) found another basin
 /// and is not used.
-const MAX_MOVE: (f64, f64) = (0.25, 5.0);
+pub const MAX_MOVE: (f64, f64) = (0.25, 5.0);
 
 fn score(field: &LikelihoodField, points: &[[f64; 2]], pose: &Pose2) -> f64 {
     let (s, c) = pose.yaw_rad.sin_cos();
@@ -28,7 +28,7 @@ fn score(field: &LikelihoodField, points: &[[f64; 2]], pose: &Pose2) -> f64 {
 }
 
 /// `pose` moved to the best score of `points` (body frame) in `field` by a hill climb (six
-/// moves, step halving); `pose` itself when the climb moves it more than 0.25 m or 5 deg.
+/// moves, step halving); `pose` itself when the climb leaves [`MAX_MOVE`].
 pub fn refine_pose(field: &LikelihoodField, points: &[[f64; 2]], pose: &Pose2) -> Pose2 {
     let mut best = *pose;
     let mut best_score = score(field, points, &best);
@@ -51,10 +51,7 @@ pub fn refine_pose(field: &LikelihoodField, points: &[[f64; 2]], pose: &Pose2) -
             level += 1;
         }
     }
-    best.yaw_rad = wrap_angle(best.yaw_rad);
-    let far = (best.x_m - pose.x_m).hypot(best.y_m - pose.y_m) > MAX_MOVE.0
-        || wrap_angle(best.yaw_rad - pose.yaw_rad).abs() > MAX_MOVE.1.to_radians();
-    if far { *pose } else { best }
+    within_max_move(pose, best)
 }
 
 /// Floor of a point's squared residual in [`gauss_newton_step`]: a point on the wall has
@@ -67,8 +64,8 @@ const TRACK_ITERATIONS: u32 = 5;
 /// `pose` moved to a nearby maximum of the tracking score of `points` (body frame) by
 /// Gauss-Newton steps on the bilinear field (residual: the field's peak minus a point's
 /// log-likelihood), each kept only when it raises the score; `pose` itself when the result
-/// moves it more than 0.25 m or 5 deg. A few passes over the points where [`refine_pose`]'s
-/// climb takes dozens: for the poses between updates, which start close to the answer.
+/// leaves [`MAX_MOVE`]. A few passes over the points where [`refine_pose`]'s climb takes
+/// dozens: for the poses between updates, which start close to the answer.
 pub fn track_pose(field: &LikelihoodField, points: &[[f64; 2]], pose: &Pose2) -> Pose2 {
     let peak = f64::from(field.peak());
     let mut best = *pose;
@@ -92,10 +89,7 @@ pub fn track_pose(field: &LikelihoodField, points: &[[f64; 2]], pose: &Pose2) ->
         };
         (best, best_score) = taken;
     }
-    best.yaw_rad = wrap_angle(best.yaw_rad);
-    let far = (best.x_m - pose.x_m).hypot(best.y_m - pose.y_m) > MAX_MOVE.0
-        || wrap_angle(best.yaw_rad - pose.yaw_rad).abs() > MAX_MOVE.1.to_radians();
-    if far { *pose } else { best }
+    within_max_move(pose, best)
 }
 
 /// One Gauss-Newton step `(dx, dy, dyaw)` at `pose`; `None` when the normal equations are
@@ -129,4 +123,12 @@ fn gauss_newton_step(
     step.iter()
         .all(|v| v.is_finite())
         .then(|| [step[0], step[1], step[2]])
+}
+
+/// `best` (its yaw wrapped) unless it lies beyond [`MAX_MOVE`] of `pose`: then `pose`.
+fn within_max_move(pose: &Pose2, mut best: Pose2) -> Pose2 {
+    best.yaw_rad = wrap_angle(best.yaw_rad);
+    let far = (best.x_m - pose.x_m).hypot(best.y_m - pose.y_m) > MAX_MOVE.0
+        || wrap_angle(best.yaw_rad - pose.yaw_rad).abs() > MAX_MOVE.1.to_radians();
+    if far { *pose } else { best }
 }
