@@ -103,12 +103,11 @@ fn a_session_starts_where_the_last_one_ended() {
     assert!(e <= 1.5 * 0.0358, "{e:.4} m");
 }
 
-/// `name`'s first `end_s` seconds driven again as a second session (seed 1): the first
-/// pass's trajectory, and the keyframes after one pass and after two, and the second pass.
+/// `name`'s first `end_s` seconds driven again as a second session (seed 1), once the
+/// state after two passes is found to hold at most 1.3x the keyframes of one: the first
+/// pass's trajectory and the second's.
 struct DrivenTwice {
     first: Vec<StampedPose2>,
-    once: usize,
-    twice: usize,
     second: Vec<StampedPose2>,
 }
 
@@ -122,8 +121,6 @@ fn driven_twice(dir: &std::path::Path, name: &str, end_s: f64) -> DrivenTwice {
     assert!(twice as f64 <= 1.3 * once as f64, "{once} -> {twice}");
     DrivenTwice {
         first,
-        once,
-        twice,
         second: r.trajectory,
     }
 }
@@ -136,7 +133,6 @@ fn a_place_driven_twice_keeps_the_map_of_one_pass() {
         return;
     };
     let run = driven_twice(&dir, "intel", 1350.0);
-    assert!(run.twice >= run.once);
     let (e1, e2) = (
         relations_m(&dir, "intel", run.first),
         relations_m(&dir, "intel", run.second),
@@ -154,6 +150,5 @@ fn a_bent_back_end_does_not_double_the_map_of_a_place_driven_twice() {
     let Some(dir) = bag("session_twice_mit_csail", "mit-csail") else {
         return;
     };
-    let run = driven_twice(&dir, "mit-csail", 210.0);
-    assert!(run.twice >= run.once);
+    driven_twice(&dir, "mit-csail", 210.0);
 }
