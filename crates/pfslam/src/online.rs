@@ -198,6 +198,7 @@ impl Slam {
             return Err(OnlineError::Setup(problem));
         }
         config.filter.validate().map_err(SlamError::from)?;
+        config.input.validate().map_err(SlamError::InputOptions)?;
         config
             .map
             .validate()
@@ -242,6 +243,10 @@ impl Slam {
             .into());
         }
         crate::pipeline::ensure_odometry(&mut recording).map_err(SlamError::from)?;
+        crate::pipeline::shift_odometry(
+            &mut recording,
+            config.input.odometry_shift_s.unwrap_or(0.0),
+        );
         let mut slam = Slam::new(config, SensorSetup::of(&recording), seed)?;
         slam.recording = recording;
         Ok(slam)
@@ -265,6 +270,8 @@ impl Slam {
         pose: Pose2,
         observer: &mut dyn FnMut(SlamEvent<'_>),
     ) -> Result<Option<StampedPose2>, OnlineError> {
+        let shift_s = self.config.input.odometry_shift_s.unwrap_or(0.0);
+        let stamp_ns = stamp_ns + (shift_s * 1e9).round() as i64;
         let poses = &mut self.recording.odometry.poses;
         check_odometry(stamp_ns, &pose, poses.last().map(|p| p.stamp_ns))?;
         poses.push(StampedPose2 { stamp_ns, pose });
@@ -387,7 +394,8 @@ impl Slam {
         }
         let result = running.front.finish(recording, running.t_start)?;
         let filter_s = self.filter_s + t.elapsed().as_secs_f64();
-        let pipeline = after_filter(recording, &self.config, options, result, (filter_s, None))?;
+        let (config, seed) = (&self.config, self.seed);
+        let pipeline = after_filter(recording, config, (seed, options), result, (filter_s, None))?;
         Ok((pipeline, self.recording))
     }
 

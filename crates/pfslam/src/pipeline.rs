@@ -12,6 +12,7 @@ use crate::graph::{GraphError, GraphStats, optimize_after_saved, optimize_trajec
 use crate::map::consistency::consistency;
 use crate::map::{MapError, OccupancyGrid, map_with_poses};
 use crate::motion::calibration::{CalibrationFit, fit_odometry_calibration};
+use crate::motion::odometry_timing::{OdometryTiming, estimate_odometry_lag};
 use crate::quality::{Quality, QualitySignals, SUSPECT_FREE_SHARE};
 use crate::sensors::Recording;
 use crate::slam::{SlamError, SlamEvent, SlamResult, run_slam};
@@ -74,6 +75,8 @@ pub struct PipelineResult {
     pub back_end_input: Option<BackEndInput>,
     /// The odometry calibration, when the back end was fed the calibrated odometry.
     pub calibration: Option<CalibrationFit>,
+    /// How far the odometry's stamps are off the scans', and the shift applied.
+    pub odometry_timing: OdometryTimingReport,
     /// Wall seconds of the filter.
     pub filter_s: f64,
     /// Wall seconds of the back end and the map rebuild (0 when disabled).
@@ -139,9 +142,11 @@ pub fn run_pipeline(
         ensure_odometry(&mut with)?;
         return run_pipeline(&with, config, seed, options, observer);
     }
+    let shifted = fixed_shift(recording, config);
+    let recording = shifted.as_ref().unwrap_or(recording);
     let t = Clock::start();
     let result = run_slam(recording, config, seed, observer)?;
-    after_filter(recording, config, options, result, t.elapsed())
+    after_filter(recording, config, (seed, options), result, t.elapsed())
 }
 
 /// The stages after the filter's `result` on `recording` (which took `filter_time`, wall
@@ -150,10 +155,21 @@ pub fn run_pipeline(
 pub(crate) fn after_filter(
     recording: &Recording,
     config: &Config,
-    options: &PipelineOptions,
-    mut result: SlamResult,
+    (seed, options): (u64, &PipelineOptions),
+    result: SlamResult,
     (filter_s, filter_cpu_s): (f64, Option<f64>),
 ) -> Result<PipelineResult, PipelineError> {
+    let t = Clock::start();
+    let mut odometry_timing = OdometryTimingReport::default();
+    let rerun = rerun_if_lagged(recording, config, seed, &result, &mut odometry_timing)?;
+    let (rerun_s, rerun_cpu_s) = t.elapsed();
+    let (filter_s, filter_cpu_s) = (filter_s + rerun_s, filter_cpu_s.zip(rerun_cpu_s));
+    let filter_cpu_s = filter_cpu_s.map(|(a, b)| a + b);
+    let (shifted, mut result) = match rerun {
+        Some((shifted, again)) => (Some(shifted), again),
+        None => (None, result),
+    };
+    let recording = shifted.as_ref().unwrap_or(recording);
     let t = Clock::start();
     let front_end = result.trajectory.clone();
     let mut calibration = None;
@@ -235,6 +251,7 @@ pub(crate) fn after_filter(
         graph,
         back_end_input,
         calibration,
+        odometry_timing,
         filter_s,
         back_end_s,
         filter_cpu_s,
@@ -244,6 +261,96 @@ pub(crate) fn after_filter(
         quality: Quality::assess(signals),
         loop_closures,
     })
+}
+
+/// The odometry's timing in a run: its lag as measured from the filter's trajectory, the
+/// shift applied to its stamps, and the lag left after it.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
+pub struct OdometryTimingReport {
+    /// The lag measured on the filter's first run (none when too little turning).
+    pub measured: Option<OdometryTiming>,
+    /// The shift added to the odometry's stamps (s): `[input] odometry_shift_s`, or the
+    /// measured lag when that is unset and the lag notable (the filter then ran again).
+    pub shift_s: f64,
+    /// The filter ran again on the shifted odometry.
+    pub rerun: bool,
+    /// The lag measured on the filter's run over the shifted odometry, when it ran again.
+    pub after_shift: Option<OdometryTiming>,
+}
+
+/// `recording` with the odometry shifted by `[input] odometry_shift_s`, when set and not 0.
+pub(crate) fn fixed_shift(recording: &Recording, config: &Config) -> Option<Recording> {
+    let shift_s = config.input.odometry_shift_s.filter(|&s| s != 0.0)?;
+    let mut shifted = recording.clone();
+    shift_odometry(&mut shifted, shift_s);
+    Some(shifted)
+}
+
+/// Moves every odometry stamp of `recording` by `shift_s`.
+pub fn shift_odometry(recording: &mut Recording, shift_s: f64) {
+    let shift_ns = (shift_s * 1e9).round() as i64;
+    for p in &mut recording.odometry.poses {
+        p.stamp_ns += shift_ns;
+    }
+}
+
+/// The odometry's lag against the filter's trajectory, with a warning when it is notable.
+fn measure_lag(recording: &Recording, front_end: &[StampedPose2]) -> Option<OdometryTiming> {
+    let timing = estimate_odometry_lag(&recording.odometry, front_end)?;
+    if timing.notable() {
+        tracing::warn!(
+            "the odometry's stamps look {:.0} ms {} against the scans' (+-{:.0} ms; it explains \
+             {:.0} % of the filter's yaw corrections)",
+            timing.lag_s.abs() * 1e3,
+            if timing.lag_s > 0.0 { "early" } else { "late" },
+            timing.standard_error_s * 1e3,
+            timing.explained * 100.0,
+        );
+    }
+    Some(timing)
+}
+
+/// Fills `report` from the filter's `trajectory` on `recording`; returns the lag to run
+/// again with when `[input] odometry_shift_s` is unset and the lag is notable.
+pub(crate) fn lag_to_rerun(
+    recording: &Recording,
+    config: &Config,
+    trajectory: &[StampedPose2],
+    report: &mut OdometryTimingReport,
+) -> Option<f64> {
+    report.shift_s = config.input.odometry_shift_s.unwrap_or(0.0);
+    report.measured = measure_lag(recording, trajectory);
+    match (config.input.odometry_shift_s, report.measured) {
+        (None, Some(t)) if t.notable() => {
+            tracing::info!(
+                "running the filter again on the odometry shifted by {:.3} s",
+                t.lag_s
+            );
+            report.shift_s = t.lag_s;
+            report.rerun = true;
+            Some(t.lag_s)
+        }
+        _ => None,
+    }
+}
+
+/// With a lag to run again with ([`lag_to_rerun`]), the filter run again on `recording`'s
+/// odometry shifted by it: that recording and result.
+fn rerun_if_lagged(
+    recording: &Recording,
+    config: &Config,
+    seed: u64,
+    result: &SlamResult,
+    report: &mut OdometryTimingReport,
+) -> Result<Option<(Recording, SlamResult)>, PipelineError> {
+    let Some(lag) = lag_to_rerun(recording, config, &result.trajectory, report) else {
+        return Ok(None);
+    };
+    let mut shifted = recording.clone();
+    shift_odometry(&mut shifted, lag);
+    let again = run_slam(&shifted, config, seed, &mut |_| {})?;
+    report.after_shift = estimate_odometry_lag(&shifted.odometry, &again.trajectory);
+    Ok(Some((shifted, again)))
 }
 
 /// What [`choose_trajectory`] kept.

@@ -214,6 +214,13 @@ pub(crate) mod synthetic {
     /// A recording: odometry at 50 Hz with a scale error, a yaw drift and white noise; 360
     /// beam scans at 10 Hz with range noise; ground truth at the scan stamps.
     pub fn recording(duration_s: f64, seed: u64) -> Recording {
+        recording_along(duration_s, seed, true_pose)
+    }
+
+    /// [`recording`] of a robot whose true pose at `t` s (driving at `speed` m/s) is
+    /// `path(t, speed)`.
+    pub fn recording_along(duration_s: f64, seed: u64, path: fn(f64, f64) -> Pose2) -> Recording {
+        let true_pose = path;
         let speed = 3.0;
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
         let n01 = Normal::new(0.0, 1.0).unwrap();

@@ -79,6 +79,7 @@ pub fn run(args: &Args, config: &Config) -> anyhow::Result<()> {
             "initial_pose_given": initial_pose.is_some(),
         },
         "quality": r.quality,
+        "odometry_timing": r.odometry_timing,
         "timings_s": { "load": load_s, "resume": run_s },
     });
     super::report::write_summary_and_report(

@@ -210,6 +210,7 @@ fn write_and_commit(
     let (recording, pipeline, out_dir) = (&s.recording, s.pipeline, staging.path());
     // The back end's figures: its statistics, the wall time of the map rebuilt along its
     // trajectory, and its input (the filter's trajectory, or the dead reckoning).
+    let odometry_timing = pipeline.odometry_timing;
     let result = pipeline.result;
     let rebuild_s = pipeline.rebuild_s;
     let front_end = match args.graph_on_odometry {
@@ -242,6 +243,7 @@ fn write_and_commit(
         anchored: s.anchored,
         graph: graph.as_ref(),
         back_end_input,
+        odometry_timing,
         account: &s.account,
         quality: &pipeline.quality,
         out: out_dir,
@@ -314,6 +316,8 @@ struct RunOutputs<'a> {
     /// The back end's statistics, the map rebuild's seconds and its input, when it ran.
     graph: Option<&'a (GraphStats, f64, Vec<StampedPose2>)>,
     back_end_input: serde_json::Value,
+    /// How far the odometry's stamps look off the scans'.
+    odometry_timing: pfslam::pipeline::OdometryTimingReport,
     account: &'a InputAccount,
     quality: &'a Quality,
     out: &'a Path,
@@ -394,6 +398,7 @@ fn summary_json(
         "config": config,
         "stats": result.stats,
         "quality": quality,
+        "odometry_timing": o.odometry_timing,
         "timings_s": {
             "load": load_s,
             "slam": result.stats.timings.total_s,

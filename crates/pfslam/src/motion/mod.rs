@@ -11,6 +11,7 @@ pub mod calibration;
 pub mod dead_reckoning;
 pub mod imu_yaw;
 pub mod odometry_model;
+pub mod odometry_timing;
 pub mod perturb;
 
 pub use dead_reckoning::{

@@ -3,6 +3,9 @@
 
 use serde::{Deserialize, Serialize};
 
+/// The largest odometry shift accepted (s): beyond it the streams are not of one robot run.
+pub const MAX_ODOMETRY_SHIFT_S: f64 = 1.0;
+
 /// Options of all recording readers (`[input]`).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -34,6 +37,11 @@ pub struct ReaderOptions {
     pub start_s: Option<f64>,
     /// Only the part of the recording up to this many seconds after its first scan.
     pub end_s: Option<f64>,
+    /// Added to every odometry stamp (s) before use, for odometry stamped early (positive)
+    /// or late against the scans. Unset: the run measures the odometry's lag from its
+    /// filter's yaw corrections and, where the lag is notable, runs the filter again on the
+    /// odometry shifted by it (`summary.json` `odometry_timing`); 0 turns that off.
+    pub odometry_shift_s: Option<f64>,
 }
 
 impl ReaderOptions {
@@ -49,6 +57,14 @@ impl ReaderOptions {
             if v.is_some_and(|s| !(s.is_finite() && s >= 0.0)) {
                 return Err(format!("input.{k} must be finite and >= 0"));
             }
+        }
+        if self
+            .odometry_shift_s
+            .is_some_and(|s| !(s.is_finite() && s.abs() <= MAX_ODOMETRY_SHIFT_S))
+        {
+            return Err(format!(
+                "input.odometry_shift_s must be finite and within +-{MAX_ODOMETRY_SHIFT_S} s"
+            ));
         }
         if let (Some(a), Some(b)) = (self.start_s, self.end_s)
             && a >= b

@@ -7,6 +7,8 @@ use crate::filter::FilterMode;
 use crate::geometry::{Pose2, StampedPose2, Trajectory};
 use crate::localize::localize;
 use crate::map::{OccupancyGrid, map_with_poses};
+use crate::motion::odometry_timing::estimate_odometry_lag;
+use crate::pipeline::{OdometryTimingReport, fixed_shift, lag_to_rerun, shift_odometry};
 use crate::quality::Quality;
 use crate::sensors::{LidarGeometry, Recording, ScanSet};
 use crate::slam::{PriorMap, SlamEvent, run_rbpf_in};
@@ -31,12 +33,16 @@ pub struct ResumeResult {
     pub state: SessionState,
     /// The self-check.
     pub quality: Quality,
+    /// The new recording's odometry timing, and the shift applied.
+    pub odometry_timing: OdometryTimingReport,
 }
 
 /// Continues `state`'s map with `recording`: localises it in the map the saved keyframes
 /// make (from `initial_pose` at the first scan, or globally, starting where the localisation
 /// stays converged), runs the filter from there with that map in every particle, then the
-/// back end over the saved keyframes and the new scans together.
+/// back end over the saved keyframes and the new scans together. The odometry is shifted
+/// as in [`crate::pipeline::run_pipeline`] (`[input] odometry_shift_s`, or the lag measured
+/// on a first run when notable).
 pub fn resume(
     state: &SessionState,
     recording: &Recording,
@@ -46,6 +52,35 @@ pub fn resume(
     observer: &mut dyn FnMut(SlamEvent<'_>),
 ) -> Result<ResumeResult, SessionError> {
     check_supported(state, recording, config)?;
+    let fixed = fixed_shift(recording, config);
+    let recording = fixed.as_ref().unwrap_or(recording);
+    let first = resume_once(state, recording, config, seed, initial_pose, observer)?;
+    let mut report = OdometryTimingReport::default();
+    let Some(lag) = lag_to_rerun(recording, config, &first.front_end, &mut report) else {
+        return Ok(ResumeResult {
+            odometry_timing: report,
+            ..first
+        });
+    };
+    let mut shifted = recording.clone();
+    shift_odometry(&mut shifted, lag);
+    let again = resume_once(state, &shifted, config, seed, initial_pose, &mut |_| {})?;
+    report.after_shift = estimate_odometry_lag(&shifted.odometry, &again.front_end);
+    Ok(ResumeResult {
+        odometry_timing: report,
+        ..again
+    })
+}
+
+/// [`resume`] with the odometry as it is in `recording`.
+fn resume_once(
+    state: &SessionState,
+    recording: &Recording,
+    config: &Config,
+    seed: u64,
+    initial_pose: Option<Pose2>,
+    observer: &mut dyn FnMut(SlamEvent<'_>),
+) -> Result<ResumeResult, SessionError> {
     let old = saved_recording(state, recording);
     let old_poses: Vec<Pose2> = state.keyframes.iter().map(|k| k.world_from_body).collect();
     let (world_from_odom, start_index) = place(&old, recording, config, seed, initial_pose)?;
@@ -88,6 +123,7 @@ pub fn resume(
         scans_before_start: start_index,
         state: next,
         quality: Quality::assess(chosen.signals),
+        odometry_timing: OdometryTimingReport::default(),
     })
 }
 

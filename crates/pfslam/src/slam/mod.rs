@@ -56,6 +56,9 @@ pub enum SlamError {
     /// Bad motion options.
     #[error("invalid motion options: {0}")]
     Motion(String),
+    /// Bad `[input]` options.
+    #[error("{0}")]
+    InputOptions(String),
     /// Nothing to do.
     #[error("recording {name}: {message}")]
     Input {
@@ -204,6 +207,7 @@ pub(crate) fn check_and_start(
 ) -> Result<(usize, OdometryCursor), SlamError> {
     config.filter.validate()?;
     config.map.validate().map_err(MapError::Options)?;
+    config.input.validate().map_err(SlamError::InputOptions)?;
     let scans = &recording.scans;
     let total = scans.len();
     let input_err = |message: &str| SlamError::Input {
