@@ -207,6 +207,27 @@ impl PlanarScan {
     pub fn hit_count(&self) -> usize {
         self.points.iter().filter(|p| p.hit).count()
     }
+
+    /// A level scan from the origin with a return at each of `points` (x, y in m): the
+    /// tests' hand-made scans.
+    #[cfg(test)]
+    pub(crate) fn hits_from_origin(points: &[[f64; 2]]) -> Self {
+        PlanarScan {
+            sensor_x_m: 0.0,
+            sensor_y_m: 0.0,
+            sensor_z_m: None,
+            points: points
+                .iter()
+                .map(|p| ScanPoint {
+                    x_m: p[0],
+                    y_m: p[1],
+                    hit: true,
+                    free_to: 1.0,
+                    z_m: 0.0,
+                })
+                .collect(),
+        }
+    }
 }
 
 /// Precomputed per-beam directions for one beam geometry and mount: turns ranges into a

@@ -4,7 +4,7 @@ use crate::kernels::coarse::{CoarseYaw, coarse_sums, coarse_sums_fast, coarse_su
 use crate::kernels::rotation::Rotation;
 use crate::kernels::rotation_f32::{LANES32, RotationF32};
 use crate::map::{CellRect, OccupancyGrid};
-use crate::map::{MapOptions, PlanarScan, ScanPoint, to_world};
+use crate::map::{MapOptions, PlanarScan, to_world};
 
 /// A room with walls at x = +-5 m and y = +-4 m, with a pillar, mapped from the origin.
 fn room_scan() -> PlanarScan {
@@ -35,20 +35,9 @@ fn room_scan() -> PlanarScan {
         if disc >= 0.0 && b - disc.sqrt() > 0.0 {
             t = t.min(b - disc.sqrt());
         }
-        points.push(ScanPoint {
-            x_m: c * t,
-            y_m: s * t,
-            hit: true,
-            free_to: 1.0,
-            z_m: 0.0,
-        });
+        points.push([c * t, s * t]);
     }
-    PlanarScan {
-        sensor_x_m: 0.0,
-        sensor_y_m: 0.0,
-        sensor_z_m: None,
-        points,
-    }
+    PlanarScan::hits_from_origin(&points)
 }
 
 #[test]
@@ -87,22 +76,9 @@ fn flat_direction_keeps_the_prediction() {
         let mut points = Vec::new();
         for k in -half_len..=half_len {
             let x = f64::from(k) * 0.1 + 0.05;
-            for y in [-5.95, 6.05] {
-                points.push(ScanPoint {
-                    x_m: x,
-                    y_m: y,
-                    hit: true,
-                    free_to: 1.0,
-                    z_m: 0.0,
-                });
-            }
+            points.extend([[x, -5.95], [x, 6.05]]);
         }
-        PlanarScan {
-            sensor_x_m: 0.0,
-            sensor_y_m: 0.0,
-            sensor_z_m: None,
-            points,
-        }
+        PlanarScan::hits_from_origin(&points)
     };
     // The map's walls run beyond the scan's ends: x is unobservable.
     let mut scratch = crate::map::InsertScratch::new();
