@@ -342,26 +342,8 @@ fn tracking_match_reaches_the_hill_climbs_answer() {
 #[test]
 fn refinement_pulls_a_nearby_estimate_onto_the_scan() {
     let map = building();
-    let field = field::LikelihoodField::new(
-        &map,
-        &field::FieldModel {
-            sigma_hit_m: [0.1, 0.3],
-            z_hit: 0.9,
-            max_distance_m: 2.0,
-            range_max_m: 30.0,
-        },
-    );
     let truth = Pose2::new(9.0, 1.5, 0.3);
-    let geometry = lidar();
-    let points: Vec<[f64; 2]> = cast(&map, &truth, &geometry)
-        .iter()
-        .enumerate()
-        .filter(|(_, r)| **r > 0.0)
-        .map(|(k, r)| {
-            let (s, c) = geometry.beam_angle_rad(k).sin_cos();
-            [f64::from(*r) * c, f64::from(*r) * s]
-        })
-        .collect();
+    let (field, points) = field_and_scan(&map, &truth);
     // The cast stops at a wall cell's near edge, half a cell before the centre the field is
     // drawn from: the best match lies within that of the truth.
     let best = refine::refine_pose(&field, &points, &truth);
