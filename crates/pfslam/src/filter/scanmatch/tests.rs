@@ -473,6 +473,25 @@ fn vector_kernels_equal_the_portable_ones_bit_for_bit() {
     }
 }
 
+/// Asserts that `batched` sums `field` at all of `cands` in one call with the bits `fresh`
+/// gives one candidate at a time.
+fn assert_batch_sums_alone(
+    batched: &mut RotatedPoints,
+    fresh: &mut RotatedPoints,
+    field: &LikelihoodField,
+    pts: &[[f64; 2]],
+    cands: &[(Pose2, bool)],
+    case: usize,
+) {
+    let limits = field.limits.unwrap();
+    let mut got = vec![0.0; cands.len()];
+    batched.field_sums(field, &limits, pts, cands, &mut got);
+    for (i, (pose, keep)) in cands.iter().enumerate() {
+        let one = fresh.field_sum(field, &limits, pts, pose, *keep);
+        assert_eq!(got[i].to_bits(), one.to_bits(), "case {case} cand {i}");
+    }
+}
+
 /// Random body points for the kernel tests: mostly inside the room's field, some across
 /// its edges, far outside it (beyond the fast path's 1e9 cells) and NaN.
 fn kernel_points(rng: &mut rand_xoshiro::Xoshiro256PlusPlus, n: usize) -> Vec<[f64; 2]> {
@@ -571,12 +590,7 @@ fn batched_field_sums_equal_the_single_candidate_ones_bit_for_bit() {
                 }
             })
             .collect();
-        let mut got = vec![0.0; m];
-        batched.field_sums(&field, &limits, &pts, &cands, &mut got);
-        for (i, (pose, keep)) in cands.iter().enumerate() {
-            let one = fresh.field_sum(&field, &limits, &pts, pose, *keep);
-            assert_eq!(got[i].to_bits(), one.to_bits(), "case {case} cand {i}");
-        }
+        assert_batch_sums_alone(&mut batched, &mut fresh, &field, &pts, &cands, case);
     }
 }
 
@@ -690,12 +704,7 @@ fn f32_kernel_agrees_with_the_f64_one_and_its_avx2_version_with_the_portable_bit
                 (Pose2::new(x, y, yaw), rng.random_bool(0.5))
             })
             .collect();
-        let mut got = vec![0.0; m];
-        batched.field_sums(&field, &limits, &pts, &cands, &mut got);
-        for (i, (pose, keep)) in cands.iter().enumerate() {
-            let one = fresh.field_sum(&field, &limits, &pts, pose, *keep);
-            assert_eq!(got[i].to_bits(), one.to_bits(), "case {case} cand {i}");
-        }
+        assert_batch_sums_alone(&mut batched, &mut fresh, &field, &pts, &cands, case);
     }
     eprintln!("worst |f32 - f64| per point / 255: {worst:.3e}");
 }
