@@ -36,6 +36,16 @@ fn short_simulated_drive(dir: &std::path::Path) -> (std::path::PathBuf, std::pat
     (data, cfg)
 }
 
+/// The real-data directory (`$PFSLAM_DATA` or `shared/data` beside the workspace root), or
+/// `None` after printing a skip notice naming the test.
+fn data_dir(test: &str) -> Option<std::path::PathBuf> {
+    let d = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR"));
+    if d.is_none() {
+        eprintln!("SKIP {test}: no real data");
+    }
+    d
+}
+
 /// Runs the command and asserts it succeeded.
 fn run_ok(cmd: &mut Command) -> std::process::Output {
     let out = cmd.output().unwrap();

@@ -4,8 +4,7 @@ use super::pfslam;
 
 #[test]
 fn benchmark_scores_mit_csail_against_its_relations() {
-    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
-        eprintln!("SKIP benchmark_scores_mit_csail_against_its_relations: no real data");
+    let Some(data) = super::data_dir("benchmark_scores_mit_csail_against_its_relations") else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();

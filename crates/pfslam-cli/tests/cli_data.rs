@@ -197,8 +197,7 @@ fn bad_config_exits_2() {
 
 #[test]
 fn dead_reckon_takes_the_odometry_of_a_carmen_log() {
-    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
-        eprintln!("SKIP dead_reckon_takes_the_odometry_of_a_carmen_log: no real data");
+    let Some(data) = super::data_dir("dead_reckon_takes_the_odometry_of_a_carmen_log") else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -218,10 +217,9 @@ fn dead_reckon_takes_the_odometry_of_a_carmen_log() {
 
 #[test]
 fn run_maps_a_log_without_usable_stamps_and_accounts_for_every_scan() {
-    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
-        eprintln!(
-            "SKIP run_maps_a_log_without_usable_stamps_and_accounts_for_every_scan: no real data"
-        );
+    let Some(data) =
+        super::data_dir("run_maps_a_log_without_usable_stamps_and_accounts_for_every_scan")
+    else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -264,8 +262,8 @@ fn info_describes_a_bag_and_names_the_layouts_looked_for() {
         e.contains("no known layout") && e.contains("metadata.yaml"),
         "{e}"
     );
-    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
-        eprintln!("SKIP info_describes_a_bag_and_names_the_layouts_looked_for: no real data");
+    let Some(data) = super::data_dir("info_describes_a_bag_and_names_the_layouts_looked_for")
+    else {
         return;
     };
     let o = super::run_ok(
@@ -314,8 +312,7 @@ fn info_describes_a_bag_and_names_the_layouts_looked_for() {
 
 #[test]
 fn a_span_of_the_recording_and_a_rosbag2_directory() {
-    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
-        eprintln!("SKIP a_span_of_the_recording_and_a_rosbag2_directory: no real data");
+    let Some(data) = super::data_dir("a_span_of_the_recording_and_a_rosbag2_directory") else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -365,8 +362,7 @@ fn a_span_of_the_recording_and_a_rosbag2_directory() {
 
 #[test]
 fn perturb_writes_a_degraded_log_and_its_reference() {
-    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
-        eprintln!("SKIP perturb_writes_a_degraded_log_and_its_reference: no real data");
+    let Some(data) = super::data_dir("perturb_writes_a_degraded_log_and_its_reference") else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -420,8 +416,7 @@ fn perturb_writes_a_degraded_log_and_its_reference() {
 /// corrected poses far better than its degraded odometry.
 #[test]
 fn map_reports_how_consistent_the_poses_are() {
-    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
-        eprintln!("SKIP map_reports_how_consistent_the_poses_are: no real data");
+    let Some(data) = super::data_dir("map_reports_how_consistent_the_poses_are") else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -472,8 +467,7 @@ fn map_reports_how_consistent_the_poses_are() {
 /// each kept scan unchanged, the reference thinned alike.
 #[test]
 fn perturb_thins_a_recording_to_keyframes() {
-    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
-        eprintln!("SKIP perturb_thins_a_recording_to_keyframes: no real data");
+    let Some(data) = super::data_dir("perturb_thins_a_recording_to_keyframes") else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -529,8 +523,7 @@ fn staging_dirs(dir: &std::path::Path) -> Vec<String> {
 
 #[test]
 fn outputs_are_one_unit_and_checked_before_work() {
-    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
-        eprintln!("SKIP outputs_are_one_unit_and_checked_before_work: no real data");
+    let Some(data) = super::data_dir("outputs_are_one_unit_and_checked_before_work") else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -648,8 +641,7 @@ fn outputs_are_one_unit_and_checked_before_work() {
 
 #[test]
 fn benchmark_corpus_scores_logs_against_their_reference() {
-    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
-        eprintln!("SKIP benchmark_corpus_scores_logs_against_their_reference: no real data");
+    let Some(data) = super::data_dir("benchmark_corpus_scores_logs_against_their_reference") else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -756,10 +748,9 @@ fn localize_in_corrected_map(data: &Path, name: &str) -> (f64, serde_json::Value
 
 #[test]
 fn localize_follows_the_corrected_poses_in_a_map_made_from_them() {
-    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
-        eprintln!(
-            "SKIP localize_follows_the_corrected_poses_in_a_map_made_from_them: no real data"
-        );
+    let Some(data) =
+        super::data_dir("localize_follows_the_corrected_poses_in_a_map_made_from_them")
+    else {
         return;
     };
     // seeds 1-3 measured 0.031 / 0.030 / 0.031 m (0.045 without refining the estimate)
@@ -810,8 +801,7 @@ fn localize_rejects_a_bad_pose_and_a_missing_map() {
 /// outputs in one frame, the merged state saved; a file that is not a state exits 2.
 #[test]
 fn a_second_session_continues_a_saved_map() {
-    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
-        eprintln!("SKIP a_second_session_continues_a_saved_map: no real data");
+    let Some(data) = super::data_dir("a_second_session_continues_a_saved_map") else {
         return;
     };
     let log = data.join("carmen/seattle-corrected.log.gz");

@@ -144,8 +144,7 @@ fn eval_bad_input_exits_2_with_position() {
 fn eval_relations_of_raw_odometry_on_real_data() {
     use pfslam::eval::relations::{RelationsOptions, evaluate_relations};
     use pfslam_io::relations::read_relations;
-    let Some(root) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
-        eprintln!("SKIP eval_relations_of_raw_odometry_on_real_data: real data not found");
+    let Some(root) = super::data_dir("eval_relations_of_raw_odometry_on_real_data") else {
         return;
     };
     let dir = root.join("freiburg/aces");

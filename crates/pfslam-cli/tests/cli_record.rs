@@ -102,8 +102,7 @@ fn a_record_where_nothing_can_be_written_fails_before_any_work() {
 
 #[test]
 fn a_real_log_is_recorded_with_its_loop_closures() {
-    let Some(data) = pfslam_io::data_root(env!("CARGO_MANIFEST_DIR")) else {
-        eprintln!("SKIP a_real_log_is_recorded_with_its_loop_closures: no real data");
+    let Some(data) = super::data_dir("a_real_log_is_recorded_with_its_loop_closures") else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();

@@ -55,6 +55,26 @@ impl Nearest {
     }
 }
 
+/// One axis of a grid walk from the fractional cell coordinate `f` (in cell `c`) along the
+/// direction component `d`: the ray length across one cell and to the next cell border on
+/// this axis (both infinite when `d` is 0).
+#[inline]
+fn axis_start(cell_m: f64, f: f64, c: isize, d: f64) -> (f64, f64) {
+    let t_delta = if d != 0.0 {
+        cell_m / d.abs()
+    } else {
+        f64::INFINITY
+    };
+    let t_max = if d > 0.0 {
+        ((c + 1) as f64 - f) * t_delta
+    } else if d < 0.0 {
+        (f - c as f64) * t_delta
+    } else {
+        f64::INFINITY
+    };
+    (t_delta, t_max)
+}
+
 /// A ray's walk through the grid's cells in the xy projection (Amanatides & Woo): the cell
 /// it is in, and the 3-D distances at which it crosses the next x and y cell boundaries.
 struct GridWalk {
@@ -262,30 +282,8 @@ impl RayCaster {
         }
         let cx = fx as isize;
         let cy = fy as isize;
-        let t_delta_x = if dx != 0.0 {
-            self.cell_m / dx.abs()
-        } else {
-            f64::INFINITY
-        };
-        let t_delta_y = if dy != 0.0 {
-            self.cell_m / dy.abs()
-        } else {
-            f64::INFINITY
-        };
-        let t_max_x = if dx > 0.0 {
-            ((cx + 1) as f64 - fx) * t_delta_x
-        } else if dx < 0.0 {
-            (fx - cx as f64) * t_delta_x
-        } else {
-            f64::INFINITY
-        };
-        let t_max_y = if dy > 0.0 {
-            ((cy + 1) as f64 - fy) * t_delta_y
-        } else if dy < 0.0 {
-            (fy - cy as f64) * t_delta_y
-        } else {
-            f64::INFINITY
-        };
+        let (t_delta_x, t_max_x) = axis_start(self.cell_m, fx, cx, dx);
+        let (t_delta_y, t_max_y) = axis_start(self.cell_m, fy, cy, dy);
         Some(GridWalk {
             cx,
             cy,

@@ -368,6 +368,23 @@ pub(crate) struct Chosen {
     pub(crate) loop_closures: Vec<(Pose2, Pose2)>,
 }
 
+impl Chosen {
+    /// The back end `g` kept, with `grid`, the map along its trajectory.
+    fn back_end(
+        g: crate::graph::GraphResult,
+        grid: OccupancyGrid,
+        signals: QualitySignals,
+    ) -> Self {
+        Chosen {
+            loop_closures: closure_ends(&g),
+            trajectory: Some(g.trajectory),
+            grid,
+            signals,
+            stats: g.stats,
+        }
+    }
+}
+
 /// The two ends of each accepted loop closure of `g`, at their corrected poses.
 fn closure_ends(g: &crate::graph::GraphResult) -> Vec<(Pose2, Pose2)> {
     let at = |k: usize| g.keyframes.get(k).map(|p| p.pose);
@@ -435,25 +452,13 @@ fn choose_trajectory(
         ..QualitySignals::default()
     };
     if ratio <= 0.0 {
-        return Ok(Chosen {
-            loop_closures: closure_ends(&g),
-            trajectory: Some(g.trajectory),
-            grid: back_grid,
-            signals,
-            stats: g.stats,
-        });
+        return Ok(Chosen::back_end(g, back_grid, signals));
     }
     let (front_grid, front_share) = map_and_free_share(recording, front_end, config)?;
     signals.free_share_front_end = Some(front_share);
     let acceptable = |share: f64| back_end_acceptable(share, front_share, ratio);
     if acceptable(back_share) {
-        return Ok(Chosen {
-            loop_closures: closure_ends(&g),
-            trajectory: Some(g.trajectory),
-            grid: back_grid,
-            signals,
-            stats: g.stats,
-        });
+        return Ok(Chosen::back_end(g, back_grid, signals));
     }
     tracing::warn!(
         "the back end's map is less consistent than the front end's ({:.1} % of returns in \
@@ -470,8 +475,6 @@ fn choose_trajectory(
         let (grid, share) = map_and_free_share(recording, &g2.trajectory, config)?;
         signals.back_end_retried = true;
         signals.free_share_back_end = Some(share);
-        let ends = closure_ends(&g2);
-        stats = g2.stats;
         if acceptable(share) {
             tracing::warn!(
                 "the back end tied by the front end's motion alone: {:.1} % of returns in free \
@@ -479,14 +482,9 @@ fn choose_trajectory(
                 100.0 * share
             );
             signals.free_share = share;
-            return Ok(Chosen {
-                loop_closures: ends,
-                trajectory: Some(g2.trajectory),
-                grid,
-                signals,
-                stats,
-            });
+            return Ok(Chosen::back_end(g2, grid, signals));
         }
+        stats = g2.stats;
     }
     tracing::warn!("the front end's trajectory is used");
     signals.free_share = front_share;

@@ -421,10 +421,55 @@ fn biased_loop() -> (
     (recording, front, Trajectory::new(sim.ground_truth.clone()))
 }
 
-#[test]
-fn simulated_car_loop_closes_on_dead_reckoning() {
+/// Prints the aligned ATE of the dead reckoning `front` and of the back end `g` on
+/// [`biased_loop`]'s drive, and asserts that `g` removes most of the drift.
+fn assert_removes_the_drift(
+    label: &str,
+    front: &[pfslam::geometry::StampedPose2],
+    g: &pfslam::graph::GraphResult,
+    gt: &pfslam::geometry::Trajectory,
+) {
     use pfslam::eval::{Association, ate::ate};
     use pfslam::geometry::Trajectory;
+    let assoc = Association::Nearest { tolerance_ns: 0 };
+    let rmse = |poses: &[pfslam::geometry::StampedPose2]| {
+        ate(&Trajectory::new(poses.to_vec()), gt, assoc)
+            .unwrap()
+            .aligned_m
+            .rmse
+    };
+    let (before, after) = (rmse(front), rmse(&g.trajectory));
+    eprintln!(
+        "{label}: dead reckoning {before:.3} m -> back end {after:.3} m, {:?}",
+        g.stats
+    );
+    assert!(after < 0.4 * before, "{after} vs {before}");
+}
+
+/// The back end of `g` run again with one keyframe's loop search at a time: asserts the same
+/// trajectory, closures and final cost to the bit, and returns it for further checks.
+fn one_keyframe_at_a_time(
+    recording: &pfslam::sensors::Recording,
+    config: &pfslam::config::Config,
+    front: &[pfslam::geometry::StampedPose2],
+    g: &pfslam::graph::GraphResult,
+) -> pfslam::graph::GraphResult {
+    let one = pfslam::graph::optimize_trajectory_look_ahead(
+        recording,
+        &config.map.scan,
+        front,
+        &config.graph,
+        1,
+    )
+    .unwrap();
+    assert_eq!(one.trajectory, g.trajectory);
+    assert_eq!(one.loop_edges, g.loop_edges);
+    assert_eq!(one.stats.final_cost.to_bits(), g.stats.final_cost.to_bits());
+    one
+}
+
+#[test]
+fn simulated_car_loop_closes_on_dead_reckoning() {
     let (recording, front, gt) = biased_loop();
     let mut config = pfslam::config::Config::default();
     // The front end is the odometry itself, so an odometry-yaw edge would count its yaw
@@ -433,37 +478,16 @@ fn simulated_car_loop_closes_on_dead_reckoning() {
     let g = pfslam::graph::optimize_trajectory(&recording, &config.map.scan, &front, &config.graph)
         .unwrap();
     assert_eq!(g.stats.loop_local, 0, "loop_local_search auto: off here");
-    let assoc = Association::Nearest { tolerance_ns: 0 };
-    let before = ate(&Trajectory::new(front.clone()), &gt, assoc).unwrap();
-    let after = ate(&Trajectory::new(g.trajectory.clone()), &gt, assoc).unwrap();
-    eprintln!(
-        "simulated loop, dead reckoning {:.3} m -> back end {:.3} m, {:?}",
-        before.aligned_m.rmse, after.aligned_m.rmse, g.stats
-    );
+    assert_removes_the_drift("simulated loop", &front, &g, &gt);
     assert_eq!(
         g.stats.sequential_matched, 0,
         "tilted LiDAR: no sequential matching"
     );
     assert!(g.stats.loop_accepted >= 20, "{:?}", g.stats);
     assert_eq!(g.stats.loop_removed_outliers, 0);
-    assert!(
-        after.aligned_m.rmse < 0.4 * before.aligned_m.rmse,
-        "{} vs {}",
-        after.aligned_m.rmse,
-        before.aligned_m.rmse
-    );
     // The loop searches of several keyframes verified in one parallel batch (the default)
     // give the bits of one keyframe at a time.
-    let one = pfslam::graph::optimize_trajectory_look_ahead(
-        &recording,
-        &config.map.scan,
-        &front,
-        &config.graph,
-        1,
-    )
-    .unwrap();
-    assert_eq!(one.trajectory, g.trajectory);
-    assert_eq!(one.loop_edges, g.loop_edges);
+    let one = one_keyframe_at_a_time(&recording, &config, &front, &g);
     assert_eq!(
         (
             one.stats.loop_candidates,
@@ -476,7 +500,6 @@ fn simulated_car_loop_closes_on_dead_reckoning() {
             g.stats.optimizations
         )
     );
-    assert_eq!(one.stats.final_cost.to_bits(), g.stats.final_cost.to_bits());
 }
 
 /// `loops.local.search` on the loop of `simulated_car_loop_closes_on_dead_reckoning`, from
@@ -490,8 +513,6 @@ fn simulated_car_loop_closes_on_dead_reckoning() {
 /// never has enough closures for a local search.
 #[test]
 fn simulated_car_local_loop_search() {
-    use pfslam::eval::{Association, ate::ate};
-    use pfslam::geometry::Trajectory;
     use pfslam::graph::Switch;
     let (recording, front, gt) = biased_loop();
     let mut config = pfslam::config::Config::default();
@@ -505,38 +526,16 @@ fn simulated_car_local_loop_search() {
     config.graph.loops.local.min_closures = 1;
     let g = pfslam::graph::optimize_trajectory(&recording, &config.map.scan, &front, &config.graph)
         .unwrap();
-    let assoc = Association::Nearest { tolerance_ns: 0 };
-    let before = ate(&Trajectory::new(front.clone()), &gt, assoc).unwrap();
-    let after = ate(&Trajectory::new(g.trajectory.clone()), &gt, assoc).unwrap();
-    eprintln!(
-        "simulated loop, local search: dead reckoning {:.3} m -> back end {:.3} m, {:?}",
-        before.aligned_m.rmse, after.aligned_m.rmse, g.stats
-    );
+    assert_removes_the_drift("simulated loop, local search", &front, &g, &gt);
     let s = &g.stats;
     assert!(s.loop_local > s.loop_candidates / 2, "{s:?}");
     assert!(s.loop_local < s.loop_candidates, "full window first: {s:?}");
     assert!(s.loop_local_fallbacks < s.loop_local, "{s:?}");
     assert!(s.loop_accepted >= 20, "{s:?}");
     assert_eq!(s.loop_removed_outliers, 0);
-    assert!(
-        after.aligned_m.rmse < 0.4 * before.aligned_m.rmse,
-        "{} vs {}",
-        after.aligned_m.rmse,
-        before.aligned_m.rmse
-    );
-    let one = pfslam::graph::optimize_trajectory_look_ahead(
-        &recording,
-        &config.map.scan,
-        &front,
-        &config.graph,
-        1,
-    )
-    .unwrap();
-    assert_eq!(one.trajectory, g.trajectory);
-    assert_eq!(one.loop_edges, g.loop_edges);
+    let one = one_keyframe_at_a_time(&recording, &config, &front, &g);
     assert_eq!(one.stats.loop_local, s.loop_local);
     assert_eq!(one.stats.loop_local_fallbacks, s.loop_local_fallbacks);
-    assert_eq!(one.stats.final_cost.to_bits(), s.final_cost.to_bits());
 }
 
 /// The humanoid (LiDAR on a moving head, odometry yaw from the legs, not a gyro): the back end

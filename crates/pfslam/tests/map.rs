@@ -102,11 +102,9 @@ fn synthetic_recording(poses: &[Pose2]) -> Recording {
     }
 }
 
-#[test]
-fn one_known_scan_marks_walls_and_free_space() {
-    let pose = Pose2::new(4.0, 3.0, 0.3);
-    let rec = synthetic_recording(&[pose]);
-    let opts = MapOptions {
+/// The UCSD log-odds over returns from 0.1 m on, without densification.
+fn plain_map_options() -> MapOptions {
+    MapOptions {
         scan: ScanOptions {
             range_min_m: 0.1,
             densify_max_gap_m: None,
@@ -114,7 +112,14 @@ fn one_known_scan_marks_walls_and_free_space() {
         },
         log_odds: pfslam::map::LogOddsParams::ucsd(),
         ..MapOptions::default()
-    };
+    }
+}
+
+#[test]
+fn one_known_scan_marks_walls_and_free_space() {
+    let pose = Pose2::new(4.0, 3.0, 0.3);
+    let rec = synthetic_recording(&[pose]);
+    let opts = plain_map_options();
     let mut grid = OccupancyGrid::new(&opts).unwrap();
     let projector = ScanProjector::new(&rec.lidar, &rec.body_from_lidar, &opts.scan).unwrap();
     let (mut body, mut world) = Default::default();
@@ -168,15 +173,7 @@ fn synthetic_drive_with_exact_poses_matches_the_truth() {
             })
             .collect(),
     );
-    let opts = MapOptions {
-        scan: ScanOptions {
-            range_min_m: 0.1,
-            densify_max_gap_m: None,
-            ..ScanOptions::default()
-        },
-        log_odds: pfslam::map::LogOddsParams::ucsd(),
-        ..MapOptions::default()
-    };
+    let opts = plain_map_options();
     let (grid, last, stats) = map_with_poses(&rec, &traj, &opts).unwrap();
     assert_eq!(stats.scans_inserted, poses.len());
     assert_eq!(last.points.len(), 360);

@@ -3,7 +3,7 @@
 
 use anyhow::Context;
 use pfslam::eval::ate::{AteResult, ate_of_pairs};
-use pfslam::eval::relations::{RelationsOptions, RelationsResult, evaluate_relations};
+use pfslam::eval::relations::{AbsSquared, RelationsOptions, RelationsResult, evaluate_relations};
 use pfslam::eval::rpe::{RpeDelta, RpeResult, rpe_of_pairs};
 use pfslam::eval::{Association, ErrorStats, associate};
 use pfslam::geometry::Trajectory;
@@ -213,22 +213,21 @@ fn print_relations(r: &RelationsResult) {
         r.relations,
         r.skipped
     );
+    print_abs_squared("translational error:", &r.trans_m, "m", 5);
+    print_abs_squared("rotational error:   ", &r.rot_deg, "deg", 4);
+}
+
+/// One error of the relations metric as a line: mean, spread and maximum, plain and squared
+/// (the squared mean and spread to `digits` decimals).
+fn print_abs_squared(label: &str, e: &AbsSquared, unit: &str, digits: usize) {
+    let (a, s) = (&e.abs, &e.squared);
     say!(
-        "translational error: {:.4} +- {:.4} m (max {:.4}); squared {:.5} +- {:.5} m^2 (max {:.4})",
-        r.trans_m.abs.mean,
-        r.trans_m.abs.std,
-        r.trans_m.abs.max,
-        r.trans_m.squared.mean,
-        r.trans_m.squared.std,
-        r.trans_m.squared.max
-    );
-    say!(
-        "rotational error:    {:.4} +- {:.4} deg (max {:.4}); squared {:.4} +- {:.4} deg^2 (max {:.4})",
-        r.rot_deg.abs.mean,
-        r.rot_deg.abs.std,
-        r.rot_deg.abs.max,
-        r.rot_deg.squared.mean,
-        r.rot_deg.squared.std,
-        r.rot_deg.squared.max
+        "{label} {:.4} +- {:.4} {unit} (max {:.4}); squared {:.digits$} +- {:.digits$} {unit}^2 (max {:.4})",
+        a.mean,
+        a.std,
+        a.max,
+        s.mean,
+        s.std,
+        s.max
     );
 }

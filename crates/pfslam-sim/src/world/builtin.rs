@@ -65,34 +65,24 @@ fn campus_streets() -> (Vec<GroundRegion>, Vec<GroundMarking>) {
     let (y0, y1) = (CAMPUS_Y[0], CAMPUS_Y[2]);
     let mut regions = Vec::new();
     let mut markings = Vec::new();
-    let mut street = |polygon, points| {
+    // A street along its centre line from `a` to `b` (`b` north or east of `a`).
+    let mut street = |a: [f64; 2], b: [f64; 2]| {
+        let h = STREET_HALF_M;
         regions.push(GroundRegion {
             rgb: [60, 60, 64],
-            polygon,
+            polygon: rect_poly(a[0] - h, a[1] - h, b[0] + h, b[1] + h),
         });
         markings.push(GroundMarking {
             rgb: [230, 230, 230],
             width_m: 0.15,
-            points,
+            points: vec![a, b],
         });
     };
     for &x in &CAMPUS_X {
-        let polygon = rect_poly(
-            x - STREET_HALF_M,
-            y0 - STREET_HALF_M,
-            x + STREET_HALF_M,
-            y1 + STREET_HALF_M,
-        );
-        street(polygon, vec![[x, y0], [x, y1]]);
+        street([x, y0], [x, y1]);
     }
     for &y in &CAMPUS_Y {
-        let polygon = rect_poly(
-            x0 - STREET_HALF_M,
-            y - STREET_HALF_M,
-            x1 + STREET_HALF_M,
-            y + STREET_HALF_M,
-        );
-        street(polygon, vec![[x0, y], [x1, y]]);
+        street([x0, y], [x1, y]);
     }
     (regions, markings)
 }

@@ -419,14 +419,9 @@ impl ParticleFilter {
                 *p = m.pose;
             }
         }
-        weights::update_log_space(&mut self.particles.weights, &self.scores, temperature);
-        let best = self.particles.best_index();
-        UpdateReport {
-            neff: self.particles.neff(),
-            resampled: false,
-            best,
-            best_score: self.matches.get(best).map_or(0, |m| m.score),
-        }
+        weigh(&mut self.particles, &self.scores, temperature, |best| {
+            self.matches.get(best).map_or(0, |m| m.score)
+        })
     }
 
     /// Resamples with `method` when Neff < `threshold_fraction * n`; returns the ancestors'
@@ -482,16 +477,11 @@ impl ParticleFilter {
         for (p, m) in self.particles.poses.iter_mut().zip(&results) {
             *p = m.pose;
         }
-        weights::update_log_space(&mut self.particles.weights, &self.scores, temperature);
-        let best = self.particles.best_index();
-        UpdateReport {
-            neff: self.particles.neff(),
-            resampled: false,
-            best,
-            best_score: results
+        weigh(&mut self.particles, &self.scores, temperature, |best| {
+            results
                 .get(best)
-                .map_or(0, |m| (m.fit * points_body.len() as f64).round() as u32),
-        }
+                .map_or(0, |m| (m.fit * points_body.len() as f64).round() as u32)
+        })
     }
 
     /// Adds zero-mean Gaussian noise (`sigma_xy_m` in x and y, `sigma_yaw_rad` in yaw) to
@@ -521,6 +511,24 @@ impl ParticleFilter {
             .get(self.particles.best_index())
             .copied()
             .unwrap_or_default()
+    }
+}
+
+/// Multiplies the weights by `exp(score / temperature)` (log space) and reports Neff and the
+/// heaviest particle, whose score `best_score` gives; no resampling.
+fn weigh(
+    particles: &mut ParticleSet,
+    scores: &[f64],
+    temperature: f64,
+    best_score: impl FnOnce(usize) -> u32,
+) -> UpdateReport {
+    weights::update_log_space(&mut particles.weights, scores, temperature);
+    let best = particles.best_index();
+    UpdateReport {
+        neff: particles.neff(),
+        resampled: false,
+        best,
+        best_score: best_score(best),
     }
 }
 

@@ -280,6 +280,17 @@ mod tests {
         m
     }
 
+    /// The field of a 3 x 3 m map with one occupied cell at (1.05, 1.05) m.
+    fn one_cell_field() -> LikelihoodField {
+        let model = FieldModel {
+            sigma_hit_m: [0.1, 0.3],
+            z_hit: 0.9,
+            max_distance_m: 1.0,
+            range_max_m: 30.0,
+        };
+        LikelihoodField::new(&map_with(&[(10, 10)], 30, 30), &model)
+    }
+
     #[test]
     fn transform_matches_brute_force() {
         let occ = [(3, 4), (17, 2), (9, 15), (0, 0), (12, 12)];
@@ -299,14 +310,7 @@ mod tests {
 
     #[test]
     fn likelihood_falls_with_distance_and_floors_off_map() {
-        let m = map_with(&[(10, 10)], 30, 30);
-        let model = FieldModel {
-            sigma_hit_m: [0.1, 0.3],
-            z_hit: 0.9,
-            max_distance_m: 1.0,
-            range_max_m: 30.0,
-        };
-        let f = LikelihoodField::new(&m, &model);
+        let f = one_cell_field();
         let at = |s, d: f64| f.log_likelihood(s, 1.05 + d, 1.05);
         assert!(at(Sharpness::Tracking, 0.0) > at(Sharpness::Tracking, 0.1));
         assert!(at(Sharpness::Tracking, 0.1) > at(Sharpness::Tracking, 0.3));
@@ -327,14 +331,7 @@ mod tests {
     /// the value is `log_likelihood`'s, and off the raster the slope is 0.
     #[test]
     fn tracking_gradient_is_the_fields_slope() {
-        let m = map_with(&[(10, 10)], 30, 30);
-        let model = FieldModel {
-            sigma_hit_m: [0.1, 0.3],
-            z_hit: 0.9,
-            max_distance_m: 1.0,
-            range_max_m: 30.0,
-        };
-        let f = LikelihoodField::new(&m, &model);
+        let f = one_cell_field();
         let h = 1e-4;
         for (x, y) in [(1.13, 1.01), (0.91, 1.17), (1.32, 0.84)] {
             let (v, [gx, gy]) = f.tracking_with_gradient(x, y);

@@ -42,6 +42,23 @@ fn building() -> BinaryMap {
     m
 }
 
+/// [`localize`] with the default options.
+fn localize_by_default(
+    rec: &Recording,
+    map: &BinaryMap,
+    start: Option<Pose2>,
+    seed: u64,
+) -> Result<LocalizeResult, LocalizeError> {
+    localize(
+        rec,
+        map,
+        &LocalizeOptions::default(),
+        &ScanOptions::default(),
+        start,
+        seed,
+    )
+}
+
 fn lidar() -> LidarGeometry {
     LidarGeometry {
         angle_min_rad: -std::f64::consts::FRAC_PI_2,
@@ -185,15 +202,7 @@ fn tracks_from_the_given_start_despite_drifting_odometry() {
 fn finds_itself_without_a_start_pose() {
     let map = building();
     let (rec, truth) = recording(&map);
-    let r = localize(
-        &rec,
-        &map,
-        &LocalizeOptions::default(),
-        &ScanOptions::default(),
-        None,
-        2,
-    )
-    .unwrap();
+    let r = localize_by_default(&rec, &map, None, 2).unwrap();
     let from = r.converged_from_ns().expect("never converged");
     assert!(
         from <= 20_000_000_000,
@@ -231,15 +240,7 @@ fn recovers_when_carried_elsewhere() {
     // the kick is a jump of the recorded odometry, not a motion: the scans still come from
     // the true path, so the filter must relocalise. Its prediction moves particles by the
     // jump, which leaves them in the wrong place.
-    let r = localize(
-        &rec,
-        &map,
-        &LocalizeOptions::default(),
-        &ScanOptions::default(),
-        Some(truth[0].pose),
-        3,
-    )
-    .unwrap();
+    let r = localize_by_default(&rec, &map, Some(truth[0].pose), 3).unwrap();
     let e = errors_m(&r, &truth);
     let before = rms(e[..half].iter().map(|x| x.1));
     assert!(before < 0.05, "{before}");
@@ -267,17 +268,7 @@ fn same_seed_same_trajectory_on_any_thread_count() {
             .num_threads(threads)
             .build()
             .unwrap();
-        pool.install(|| {
-            localize(
-                &rec,
-                &map,
-                &LocalizeOptions::default(),
-                &ScanOptions::default(),
-                None,
-                4,
-            )
-            .unwrap()
-        })
+        pool.install(|| localize_by_default(&rec, &map, None, 4).unwrap())
     };
     let (a, b) = (run(1), run(3));
     assert_eq!(a.trajectory, b.trajectory);
@@ -295,15 +286,7 @@ fn rejects_bad_options_and_a_map_without_free_space() {
     let e = localize(&rec, &map, &bad, &ScanOptions::default(), None, 1).unwrap_err();
     assert!(e.to_string().contains("max_particles"), "{e}");
     let solid = BinaryMap::filled(map.limits, 10, 10, CellState::Occupied);
-    let e = localize(
-        &rec,
-        &solid,
-        &LocalizeOptions::default(),
-        &ScanOptions::default(),
-        None,
-        1,
-    )
-    .unwrap_err();
+    let e = localize_by_default(&rec, &solid, None, 1).unwrap_err();
     assert!(matches!(e, LocalizeError::NoFreeSpace), "{e}");
 }
 
@@ -359,26 +342,8 @@ fn tracking_match_reaches_the_hill_climbs_answer() {
 #[test]
 fn refinement_pulls_a_nearby_estimate_onto_the_scan() {
     let map = building();
-    let field = field::LikelihoodField::new(
-        &map,
-        &field::FieldModel {
-            sigma_hit_m: [0.1, 0.3],
-            z_hit: 0.9,
-            max_distance_m: 2.0,
-            range_max_m: 30.0,
-        },
-    );
     let truth = Pose2::new(9.0, 1.5, 0.3);
-    let geometry = lidar();
-    let points: Vec<[f64; 2]> = cast(&map, &truth, &geometry)
-        .iter()
-        .enumerate()
-        .filter(|(_, r)| **r > 0.0)
-        .map(|(k, r)| {
-            let (s, c) = geometry.beam_angle_rad(k).sin_cos();
-            [f64::from(*r) * c, f64::from(*r) * s]
-        })
-        .collect();
+    let (field, points) = field_and_scan(&map, &truth);
     // The cast stops at a wall cell's near edge, half a cell before the centre the field is
     // drawn from: the best match lies within that of the truth.
     let best = refine::refine_pose(&field, &points, &truth);

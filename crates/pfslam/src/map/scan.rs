@@ -207,6 +207,27 @@ impl PlanarScan {
     pub fn hit_count(&self) -> usize {
         self.points.iter().filter(|p| p.hit).count()
     }
+
+    /// A level scan from the origin with a return at each of `points` (x, y in m): the
+    /// tests' hand-made scans.
+    #[cfg(test)]
+    pub(crate) fn hits_from_origin(points: &[[f64; 2]]) -> Self {
+        PlanarScan {
+            sensor_x_m: 0.0,
+            sensor_y_m: 0.0,
+            sensor_z_m: None,
+            points: points
+                .iter()
+                .map(|p| ScanPoint {
+                    x_m: p[0],
+                    y_m: p[1],
+                    hit: true,
+                    free_to: 1.0,
+                    z_m: 0.0,
+                })
+                .collect(),
+        }
+    }
 }
 
 /// Precomputed per-beam directions for one beam geometry and mount: turns ranges into a
@@ -491,16 +512,7 @@ mod tests {
             out.points[0]
         );
         // Densification: two returns 0.5 m apart on a wall get joining points every 0.1 m.
-        let g = LidarGeometry {
-            angle_min_rad: 0.0,
-            angle_increment_rad: (0.5f64 / 10.0).atan(),
-            beam_count: 2,
-            range_min_m: 0.0,
-            range_max_m: 80.0,
-        };
-        let p = ScanProjector::new(&g, &Rigid3::IDENTITY, &opts).unwrap();
-        p.to_body(&[10.0, (10.0f64.hypot(0.5)) as f32], &mut out)
-            .unwrap();
+        let out = wall_pair_from(&Rigid3::IDENTITY, &opts);
         assert_eq!(out.points.len(), 6);
         assert!(
             out.points
@@ -517,6 +529,13 @@ mod tests {
             densify_rays: rays,
             ..ScanOptions::default()
         };
+        let mount = Rigid3::from_rpy(0.0, -pitch_deg.to_radians(), 0.0, [0.0, 0.0, 2.0]);
+        wall_pair_from(&mount, &opts)
+    }
+
+    /// Two returns 0.5 m apart on a wall 10 m ahead of a LiDAR at `mount`, projected with
+    /// `opts`.
+    fn wall_pair_from(mount: &Rigid3, opts: &ScanOptions) -> PlanarScan {
         let g = LidarGeometry {
             angle_min_rad: 0.0,
             angle_increment_rad: (0.5f64 / 10.0).atan(),
@@ -524,8 +543,7 @@ mod tests {
             range_min_m: 0.0,
             range_max_m: 80.0,
         };
-        let mount = Rigid3::from_rpy(0.0, -pitch_deg.to_radians(), 0.0, [0.0, 0.0, 2.0]);
-        let p = ScanProjector::new(&g, &mount, &opts).unwrap();
+        let p = ScanProjector::new(&g, mount, opts).unwrap();
         let mut out = PlanarScan::default();
         p.to_body(&[10.0, (10.0f64.hypot(0.5)) as f32], &mut out)
             .unwrap();

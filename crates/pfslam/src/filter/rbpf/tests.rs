@@ -14,6 +14,19 @@ fn node(pose: Pose2, odom: Pose2, scan: usize, parent: &Arc<PathNode>) -> Arc<Pa
     })
 }
 
+/// A 5 cm grid after one scan from the origin with a return at each of `points`.
+fn grid_seeing(points: &[[f64; 2]]) -> OccupancyGrid {
+    use crate::map::MapOptions;
+    let mut grid = OccupancyGrid::new(&MapOptions {
+        resolution_m: 0.05,
+        ..MapOptions::default()
+    })
+    .unwrap();
+    let scan = PlanarScan::hits_from_origin(points);
+    grid.insert_scan(&scan, &mut InsertScratch::new()).unwrap();
+    grid
+}
+
 #[test]
 fn output_path_is_the_survivors_history_with_odometry_between_nodes() {
     let o = |x: f64| Pose2::new(x, 0.0, 0.0);
@@ -253,15 +266,9 @@ fn match_in_own_map_plain(
 
 #[test]
 fn matcher_with_early_stops_equals_the_plain_climb_bit_for_bit() {
-    use crate::map::{MapOptions, ScanPoint};
     use rand::SeedableRng;
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(11);
     let mut uni = |a: f64, b: f64| a + (b - a) * rng.random::<f64>();
-    let mut grid = OccupancyGrid::new(&MapOptions {
-        resolution_m: 0.05,
-        ..MapOptions::default()
-    })
-    .unwrap();
     // Walls of a room and a few posts, seen from its middle.
     let mut wall: Vec<[f64; 2]> = Vec::new();
     for k in 0..160 {
@@ -275,22 +282,7 @@ fn matcher_with_early_stops_equals_the_plain_climb_bit_for_bit() {
             [-2.0 + 0.3 * a.cos(), -1.0 + 0.15 * a.sin()],
         ]);
     }
-    let scan = PlanarScan {
-        sensor_x_m: 0.0,
-        sensor_y_m: 0.0,
-        sensor_z_m: None,
-        points: wall
-            .iter()
-            .map(|p| ScanPoint {
-                x_m: p[0],
-                y_m: p[1],
-                hit: true,
-                free_to: 1.0,
-                z_m: 0.0,
-            })
-            .collect(),
-    };
-    grid.insert_scan(&scan, &mut InsertScratch::new()).unwrap();
+    let grid = grid_seeing(&wall);
     let body: Vec<[f64; 2]> = wall.iter().step_by(3).copied().collect();
     let o = RbpfOptions::default();
     let model = o.observation(0.05);
@@ -322,12 +314,6 @@ fn matcher_with_early_stops_equals_the_plain_climb_bit_for_bit() {
 
 #[test]
 fn likelihood_peaks_at_the_true_pose_and_the_matcher_finds_it() {
-    use crate::map::{MapOptions, ScanPoint};
-    let mut grid = OccupancyGrid::new(&MapOptions {
-        resolution_m: 0.05,
-        ..MapOptions::default()
-    })
-    .unwrap();
     // An L-shaped room corner (walls through cell centres) plus a pillar.
     let mut points = Vec::new();
     for k in 0..200 {
@@ -339,22 +325,7 @@ fn likelihood_peaks_at_the_true_pose_and_the_matcher_finds_it() {
         let a = f64::from(k) * 10f64.to_radians();
         points.push([1.5 + 0.3 * a.cos(), -1.0 + 0.3 * a.sin()]);
     }
-    let scan = PlanarScan {
-        sensor_x_m: 0.0,
-        sensor_y_m: 0.0,
-        sensor_z_m: None,
-        points: points
-            .iter()
-            .map(|p| ScanPoint {
-                x_m: p[0],
-                y_m: p[1],
-                hit: true,
-                free_to: 1.0,
-                z_m: 0.0,
-            })
-            .collect(),
-    };
-    grid.insert_scan(&scan, &mut InsertScratch::new()).unwrap();
+    let grid = grid_seeing(&points);
     let o = RbpfOptions::default();
     let model = o.observation(0.05);
     let search = SearchParams::new(&o, 0.05);

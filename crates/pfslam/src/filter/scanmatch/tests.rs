@@ -4,7 +4,7 @@ use crate::kernels::coarse::{CoarseYaw, coarse_sums, coarse_sums_fast, coarse_su
 use crate::kernels::rotation::Rotation;
 use crate::kernels::rotation_f32::{LANES32, RotationF32};
 use crate::map::{CellRect, OccupancyGrid};
-use crate::map::{MapOptions, PlanarScan, ScanPoint, to_world};
+use crate::map::{MapOptions, PlanarScan, to_world};
 
 /// A room with walls at x = +-5 m and y = +-4 m, with a pillar, mapped from the origin.
 fn room_scan() -> PlanarScan {
@@ -35,20 +35,9 @@ fn room_scan() -> PlanarScan {
         if disc >= 0.0 && b - disc.sqrt() > 0.0 {
             t = t.min(b - disc.sqrt());
         }
-        points.push(ScanPoint {
-            x_m: c * t,
-            y_m: s * t,
-            hit: true,
-            free_to: 1.0,
-            z_m: 0.0,
-        });
+        points.push([c * t, s * t]);
     }
-    PlanarScan {
-        sensor_x_m: 0.0,
-        sensor_y_m: 0.0,
-        sensor_z_m: None,
-        points,
-    }
+    PlanarScan::hits_from_origin(&points)
 }
 
 #[test]
@@ -87,22 +76,9 @@ fn flat_direction_keeps_the_prediction() {
         let mut points = Vec::new();
         for k in -half_len..=half_len {
             let x = f64::from(k) * 0.1 + 0.05;
-            for y in [-5.95, 6.05] {
-                points.push(ScanPoint {
-                    x_m: x,
-                    y_m: y,
-                    hit: true,
-                    free_to: 1.0,
-                    z_m: 0.0,
-                });
-            }
+            points.extend([[x, -5.95], [x, 6.05]]);
         }
-        PlanarScan {
-            sensor_x_m: 0.0,
-            sensor_y_m: 0.0,
-            sensor_z_m: None,
-            points,
-        }
+        PlanarScan::hits_from_origin(&points)
     };
     // The map's walls run beyond the scan's ends: x is unobservable.
     let mut scratch = crate::map::InsertScratch::new();
@@ -497,6 +473,25 @@ fn vector_kernels_equal_the_portable_ones_bit_for_bit() {
     }
 }
 
+/// Asserts that `batched` sums `field` at all of `cands` in one call with the bits `fresh`
+/// gives one candidate at a time.
+fn assert_batch_sums_alone(
+    batched: &mut RotatedPoints,
+    fresh: &mut RotatedPoints,
+    field: &LikelihoodField,
+    pts: &[[f64; 2]],
+    cands: &[(Pose2, bool)],
+    case: usize,
+) {
+    let limits = field.limits.unwrap();
+    let mut got = vec![0.0; cands.len()];
+    batched.field_sums(field, &limits, pts, cands, &mut got);
+    for (i, (pose, keep)) in cands.iter().enumerate() {
+        let one = fresh.field_sum(field, &limits, pts, pose, *keep);
+        assert_eq!(got[i].to_bits(), one.to_bits(), "case {case} cand {i}");
+    }
+}
+
 /// Random body points for the kernel tests: mostly inside the room's field, some across
 /// its edges, far outside it (beyond the fast path's 1e9 cells) and NaN.
 fn kernel_points(rng: &mut rand_xoshiro::Xoshiro256PlusPlus, n: usize) -> Vec<[f64; 2]> {
@@ -595,12 +590,7 @@ fn batched_field_sums_equal_the_single_candidate_ones_bit_for_bit() {
                 }
             })
             .collect();
-        let mut got = vec![0.0; m];
-        batched.field_sums(&field, &limits, &pts, &cands, &mut got);
-        for (i, (pose, keep)) in cands.iter().enumerate() {
-            let one = fresh.field_sum(&field, &limits, &pts, pose, *keep);
-            assert_eq!(got[i].to_bits(), one.to_bits(), "case {case} cand {i}");
-        }
+        assert_batch_sums_alone(&mut batched, &mut fresh, &field, &pts, &cands, case);
     }
 }
 
@@ -714,12 +704,7 @@ fn f32_kernel_agrees_with_the_f64_one_and_its_avx2_version_with_the_portable_bit
                 (Pose2::new(x, y, yaw), rng.random_bool(0.5))
             })
             .collect();
-        let mut got = vec![0.0; m];
-        batched.field_sums(&field, &limits, &pts, &cands, &mut got);
-        for (i, (pose, keep)) in cands.iter().enumerate() {
-            let one = fresh.field_sum(&field, &limits, &pts, pose, *keep);
-            assert_eq!(got[i].to_bits(), one.to_bits(), "case {case} cand {i}");
-        }
+        assert_batch_sums_alone(&mut batched, &mut fresh, &field, &pts, &cands, case);
     }
     eprintln!("worst |f32 - f64| per point / 255: {worst:.3e}");
 }

@@ -7,6 +7,19 @@ use crate::map::ScanPoint;
 use rand::{RngExt, SeedableRng};
 use std::collections::BTreeMap;
 
+/// The last cell the ray of `p` (ending in cell `end`) clears, and whether that falls short
+/// of `end` (a ray cleared only part of the way).
+fn cleared_to(g: &OccupancyGrid, scan: &PlanarScan, p: &ScanPoint, end: Cell) -> (Cell, bool) {
+    if p.free_to < 1.0 {
+        let t = f64::from(p.free_to.max(0.0));
+        let x = scan.sensor_x_m + t * (p.x_m - scan.sensor_x_m);
+        let y = scan.sensor_y_m + t * (p.y_m - scan.sensor_y_m);
+        (g.cell_of(x, y), true)
+    } else {
+        (end, false)
+    }
+}
+
 /// The per-scan rule of [`OccupancyGrid::insert_scan`] written plainly (a map of marks,
 /// per-cell checks on every Bresenham cell): the optimised insertion must equal it.
 fn insert_reference(g: &mut OccupancyGrid, scan: &PlanarScan) -> InsertStats {
@@ -15,14 +28,7 @@ fn insert_reference(g: &mut OccupancyGrid, scan: &PlanarScan) -> InsertStats {
     for p in &scan.points {
         let end = g.cell_of(p.x_m, p.y_m);
         let margin = if p.hit { g.free_margin_cells } else { 0 };
-        let (clear_end, partial) = if p.free_to < 1.0 {
-            let t = f64::from(p.free_to.max(0.0));
-            let x = scan.sensor_x_m + t * (p.x_m - scan.sensor_x_m);
-            let y = scan.sensor_y_m + t * (p.y_m - scan.sensor_y_m);
-            (g.cell_of(x, y), true)
-        } else {
-            (end, false)
-        };
+        let (clear_end, partial) = cleared_to(g, scan, p, end);
         bresenham(origin, clear_end, |c| {
             if (c.i - end.i).abs().max((c.j - end.j).abs()) <= margin || (partial && c == clear_end)
             {
@@ -69,14 +75,7 @@ fn insert_reference_heights(
     for p in &scan.points {
         let end = g.cell_of(p.x_m, p.y_m);
         let margin = if p.hit { g.free_margin_cells } else { 0 };
-        let (clear_end, partial) = if p.free_to < 1.0 {
-            let t = f64::from(p.free_to.max(0.0));
-            let x = scan.sensor_x_m + t * (p.x_m - scan.sensor_x_m);
-            let y = scan.sensor_y_m + t * (p.y_m - scan.sensor_y_m);
-            (g.cell_of(x, y), true)
-        } else {
-            (end, false)
-        };
+        let (clear_end, partial) = cleared_to(g, scan, p, end);
         let n_full = (end.i - origin.i).abs().max((end.j - origin.j).abs());
         let dz = if n_full > 0 {
             (p.z_m - z0) / n_full as f32
