@@ -12,7 +12,8 @@ use crate::graph::{GraphError, GraphStats, optimize_after_saved, optimize_trajec
 use crate::map::consistency::consistency;
 use crate::map::{MapError, OccupancyGrid, map_with_poses};
 use crate::motion::calibration::{CalibrationFit, fit_odometry_calibration};
-use crate::motion::odometry_timing::{OdometryTiming, estimate_odometry_lag};
+pub use crate::motion::odometry_timing::{OdometryTimingReport, shift_odometry};
+use crate::motion::odometry_timing::{estimate_odometry_lag, fixed_shift, lag_to_rerun};
 use crate::quality::{Quality, QualitySignals, SUSPECT_FREE_SHARE};
 use crate::sensors::Recording;
 use crate::slam::{SlamError, SlamEvent, SlamResult, run_slam};
@@ -142,7 +143,7 @@ pub fn run_pipeline(
         ensure_odometry(&mut with)?;
         return run_pipeline(&with, config, seed, options, observer);
     }
-    let shifted = fixed_shift(recording, config);
+    let shifted = fixed_shift(recording, config.input.odometry_shift_s);
     let recording = shifted.as_ref().unwrap_or(recording);
     let t = Clock::start();
     let result = run_slam(recording, config, seed, observer)?;
@@ -263,77 +264,6 @@ pub(crate) fn after_filter(
     })
 }
 
-/// The odometry's timing in a run: its lag as measured from the filter's trajectory, the
-/// shift applied to its stamps, and the lag left after it.
-#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
-pub struct OdometryTimingReport {
-    /// The lag measured on the filter's first run (none when too little turning).
-    pub measured: Option<OdometryTiming>,
-    /// The shift added to the odometry's stamps (s): `[input] odometry_shift_s`, or the
-    /// measured lag when that is unset and the lag notable (the filter then ran again).
-    pub shift_s: f64,
-    /// The filter ran again on the shifted odometry.
-    pub rerun: bool,
-    /// The lag measured on the filter's run over the shifted odometry, when it ran again.
-    pub after_shift: Option<OdometryTiming>,
-}
-
-/// `recording` with the odometry shifted by `[input] odometry_shift_s`, when set and not 0.
-pub(crate) fn fixed_shift(recording: &Recording, config: &Config) -> Option<Recording> {
-    let shift_s = config.input.odometry_shift_s.filter(|&s| s != 0.0)?;
-    let mut shifted = recording.clone();
-    shift_odometry(&mut shifted, shift_s);
-    Some(shifted)
-}
-
-/// Moves every odometry stamp of `recording` by `shift_s`.
-pub fn shift_odometry(recording: &mut Recording, shift_s: f64) {
-    let shift_ns = (shift_s * 1e9).round() as i64;
-    for p in &mut recording.odometry.poses {
-        p.stamp_ns += shift_ns;
-    }
-}
-
-/// The odometry's lag against the filter's trajectory, with a warning when it is notable.
-fn measure_lag(recording: &Recording, front_end: &[StampedPose2]) -> Option<OdometryTiming> {
-    let timing = estimate_odometry_lag(&recording.odometry, front_end)?;
-    if timing.notable() {
-        tracing::warn!(
-            "the odometry's stamps look {:.0} ms {} against the scans' (+-{:.0} ms; it explains \
-             {:.0} % of the filter's yaw corrections)",
-            timing.lag_s.abs() * 1e3,
-            if timing.lag_s > 0.0 { "early" } else { "late" },
-            timing.standard_error_s * 1e3,
-            timing.explained * 100.0,
-        );
-    }
-    Some(timing)
-}
-
-/// Fills `report` from the filter's `trajectory` on `recording`; returns the lag to run
-/// again with when `[input] odometry_shift_s` is unset and the lag is notable.
-pub(crate) fn lag_to_rerun(
-    recording: &Recording,
-    config: &Config,
-    trajectory: &[StampedPose2],
-    report: &mut OdometryTimingReport,
-) -> Option<f64> {
-    report.shift_s = config.input.odometry_shift_s.unwrap_or(0.0);
-    report.measured = measure_lag(recording, trajectory);
-    match (config.input.odometry_shift_s, report.measured) {
-        (None, Some(t)) if t.notable() => {
-            tracing::info!(
-                "running the filter again on the odometry shifted by {:.3} s",
-                t.lag_s
-            );
-            report.shift_s = t.lag_s;
-            report.rerun = true;
-            Some(t.lag_s)
-        }
-        _ => None,
-    }
-}
-
 /// With a lag to run again with ([`lag_to_rerun`]), the filter run again on `recording`'s
 /// odometry shifted by it: that recording and result.
 fn rerun_if_lagged(
@@ -343,7 +273,8 @@ fn rerun_if_lagged(
     result: &SlamResult,
     report: &mut OdometryTimingReport,
 ) -> Result<Option<(Recording, SlamResult)>, PipelineError> {
-    let Some(lag) = lag_to_rerun(recording, config, &result.trajectory, report) else {
+    let shift = config.input.odometry_shift_s;
+    let Some(lag) = lag_to_rerun(recording, shift, &result.trajectory, report) else {
         return Ok(None);
     };
     let mut shifted = recording.clone();

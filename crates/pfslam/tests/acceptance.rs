@@ -26,12 +26,21 @@ fn freiburg_relations_m(name: &str) -> Option<f64> {
 /// Mean translational relations error (m) of the default pipeline with `seed`, and whether
 /// the back end ran a second time tied by the front end's motion.
 fn freiburg_run(name: &str, seed: u64) -> Option<(f64, bool)> {
+    freiburg_run_degraded(name, seed, None)
+}
+
+/// [`freiburg_run`] with the odometry degraded at `level` (with `seed`) when given.
+fn freiburg_run_degraded(name: &str, seed: u64, level: Option<u8>) -> Option<(f64, bool)> {
     let dir = crate::common::data_dir(&format!("acceptance_freiburg_{name}"))?
         .join("freiburg")
         .join(name);
-    let rec =
+    let mut rec =
         pfslam_io::recording::read_recording(&dir.join(format!("{name}.bag")), &Default::default())
             .unwrap();
+    if let Some(level) = level {
+        let errors = OdometryErrors::level(level).unwrap();
+        rec.odometry = perturb_odometry(&rec.odometry, &errors, seed);
+    }
     let relations = read_relations(&dir.join(format!("{name}.relations"))).unwrap();
     let out = run_pipeline(&rec, &Config::default(), seed, &options(), &mut |_| {}).unwrap();
     let retried = out.quality.signals.back_end_retried;
@@ -57,14 +66,25 @@ fn a_back_end_gone_astray_is_rerun_tied_by_the_front_end() {
     }
 }
 
+/// MIT-CSAIL's odometry is stamped ~0.11 s early and its robot weaves at up to 60 deg/s;
+/// degraded further (level 3, seed 2), the filter's heading slipped 26 deg at 57 s and the
+/// run ended 1.31 m off. The lag measured on the first run and the filter run again on the
+/// shifted odometry keep it as good as the undegraded bag.
+#[test]
+fn a_weaving_robot_with_early_odometry_keeps_its_heading() {
+    if let Some((e, _)) = freiburg_run_degraded("mit-csail", 2, Some(3)) {
+        assert!(e < 0.035, "{e:.4} m");
+    }
+}
+
 /// Each bag's seed-1 error may not rise above its recorded figure by more than the spread of
 /// seeds 1-3 (`docs/benchmarks.md`).
 #[test]
 fn freiburg_bags_stay_within_their_recorded_errors() {
     for (name, recorded_m, spread_m) in [
-        ("aces", 0.0358, 0.0014),
+        ("aces", 0.0357, 0.0007),
         ("intel", 0.0208, 0.0009),
-        ("mit-csail", 0.0292, 0.0019),
+        ("mit-csail", 0.0297, 0.0011),
     ] {
         if let Some(e) = freiburg_relations_m(name) {
             assert!(

@@ -6,7 +6,7 @@
 
 use anyhow::Context;
 use pfslam::geometry::{Pose2, StampedPose2};
-use pfslam::localize::{LocalizeQuality, LocalizeResult, localize};
+use pfslam::localize::{LocalizeQuality, LocalizeResult, localize_timed};
 use pfslam_io::map_files::read_map_server;
 use pfslam_io::tum::{format_stamp_s, write_tum};
 use pfslam_viz::map_image::{MapImageOptions, TrajectoryOverlay, write_map_png};
@@ -73,13 +73,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let recording = &dataset.recording;
     let load_s = t_load.elapsed().as_secs_f64();
     let t = Instant::now();
-    let result = localize(
+    let (result, odometry_timing) = localize_timed(
         recording,
         &map,
         &config.localize,
         &config.map.scan,
         initial_pose,
         args.seed,
+        config.input.odometry_shift_s,
     )?;
     let localize_s = t.elapsed().as_secs_f64();
     let quality = LocalizeQuality::assess(&result);
@@ -98,6 +99,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &MapImageOptions::default(),
     )?;
     let mut summary = summary(&args, &config, &result, &quality, [load_s, localize_s]);
+    summary["odometry_timing"] = serde_json::to_value(odometry_timing)?;
     summary["input"] = serde_json::to_value(&dataset.account)?;
     let text = serde_json::to_string_pretty(&summary)?;
     pfslam_io::write_bytes_atomic(&out.join("summary.json"), text.as_bytes())?;

@@ -23,7 +23,7 @@ mod tests;
 
 pub use check::LocalizeQuality;
 pub use options::{LikelihoodOptions, LocalizeOptions, RecoveryOptions};
-pub use run::{LocalizeResult, UpdateRecord, localize};
+pub use run::{LocalizeResult, UpdateRecord, localize, localize_timed};
 
 /// Errors of localisation.
 #[derive(Debug, thiserror::Error)]

@@ -10,6 +10,7 @@ use super::{LocalizeError, LocalizeOptions};
 use crate::geometry::{Pose2, StampedPose2, wrap_angle};
 use crate::map::{BinaryMap, PlanarScan, ScanOptions, ScanProjector};
 use crate::motion::odometry_model::{OdometryModel, OdometryModelOptions};
+use crate::motion::odometry_timing::{OdometryTimingReport, run_timed};
 use crate::sensors::Recording;
 use crate::sensors::stale::StaleScans;
 use serde::Serialize;
@@ -57,6 +58,15 @@ pub struct LocalizeResult {
 }
 
 impl LocalizeResult {
+    /// The trajectory from the start of the final convergence (empty when it never settled).
+    pub fn converged_part(&self) -> &[StampedPose2] {
+        let Some(from) = self.converged_from_ns() else {
+            return &[];
+        };
+        let first = self.trajectory.partition_point(|p| p.stamp_ns < from);
+        &self.trajectory[first..]
+    }
+
     /// The stamp of the update from which the filter stayed converged to the end (`None`
     /// when it was not converged at the end).
     pub fn converged_from_ns(&self) -> Option<i64> {
@@ -82,6 +92,25 @@ impl LocalizeResult {
             .filter(|w| w[0].converged && !w[1].converged)
             .count()
     }
+}
+
+/// [`localize`] with the odometry's timing handled as a SLAM run does
+/// ([`crate::motion::odometry_timing::run_timed`]): shifted by `shift_s` when set
+/// (`[input] odometry_shift_s`), else run again on the odometry shifted by the lag measured
+/// on the converged part of a first run, when that lag is notable.
+pub fn localize_timed(
+    recording: &Recording,
+    map: &BinaryMap,
+    options: &LocalizeOptions,
+    scan_options: &ScanOptions,
+    initial_pose: Option<Pose2>,
+    seed: u64,
+    shift_s: Option<f64>,
+) -> Result<(LocalizeResult, OdometryTimingReport), LocalizeError> {
+    let once = |rec: &Recording, _| localize(rec, map, options, scan_options, initial_pose, seed);
+    run_timed(recording, shift_s, once, |r: &LocalizeResult| {
+        r.converged_part()
+    })
 }
 
 /// Localises `recording` in `map`: from `initial_pose` (world frame of the map) when given,

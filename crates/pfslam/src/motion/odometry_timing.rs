@@ -7,6 +7,7 @@
 //! slope is the lag. Reported, not applied: `[input] odometry_shift_s` applies a shift.
 
 use crate::geometry::{StampedPose2, Trajectory, wrap_angle};
+use crate::sensors::Recording;
 use serde::Serialize;
 
 /// Shortest window between two trajectory poses (s): long enough for the rate to change.
@@ -97,6 +98,102 @@ fn corrections(odometry: &Trajectory, trajectory: &[StampedPose2]) -> Vec<(f64, 
         i = j;
     }
     out
+}
+
+/// The odometry's timing in a run: its lag as measured from the filter's trajectory, the
+/// shift applied to its stamps, and the lag left after it.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct OdometryTimingReport {
+    /// The lag measured on the filter's first run (none when too little turning).
+    pub measured: Option<OdometryTiming>,
+    /// The shift added to the odometry's stamps (s): `[input] odometry_shift_s`, or the
+    /// measured lag when that is unset and the lag notable (the filter then ran again).
+    pub shift_s: f64,
+    /// The filter ran again on the shifted odometry.
+    pub rerun: bool,
+    /// The lag measured on the filter's run over the shifted odometry, when it ran again.
+    pub after_shift: Option<OdometryTiming>,
+}
+
+/// `recording` with the odometry shifted by `shift_s` (`[input] odometry_shift_s`), when
+/// set and not 0.
+pub fn fixed_shift(recording: &Recording, shift_s: Option<f64>) -> Option<Recording> {
+    let shift_s = shift_s.filter(|&s| s != 0.0)?;
+    let mut shifted = recording.clone();
+    shift_odometry(&mut shifted, shift_s);
+    Some(shifted)
+}
+
+/// Moves every odometry stamp of `recording` by `shift_s`.
+pub fn shift_odometry(recording: &mut Recording, shift_s: f64) {
+    let shift_ns = (shift_s * 1e9).round() as i64;
+    for p in &mut recording.odometry.poses {
+        p.stamp_ns += shift_ns;
+    }
+}
+
+/// The odometry's lag against the filter's trajectory, with a warning when it is notable.
+fn measure_lag(recording: &Recording, front_end: &[StampedPose2]) -> Option<OdometryTiming> {
+    let timing = estimate_odometry_lag(&recording.odometry, front_end)?;
+    if timing.notable() {
+        tracing::warn!(
+            "the odometry's stamps look {:.0} ms {} against the scans' (+-{:.0} ms; it explains \
+             {:.0} % of the filter's yaw corrections)",
+            timing.lag_s.abs() * 1e3,
+            if timing.lag_s > 0.0 { "early" } else { "late" },
+            timing.standard_error_s * 1e3,
+            timing.explained * 100.0,
+        );
+    }
+    Some(timing)
+}
+
+/// Fills `report` from a run's `trajectory` on `recording`, whose odometry was shifted by
+/// `shift_s` (`[input] odometry_shift_s`); returns the lag to run again with when that is
+/// unset and the lag is notable.
+pub fn lag_to_rerun(
+    recording: &Recording,
+    shift_s: Option<f64>,
+    trajectory: &[StampedPose2],
+    report: &mut OdometryTimingReport,
+) -> Option<f64> {
+    report.shift_s = shift_s.unwrap_or(0.0);
+    report.measured = measure_lag(recording, trajectory);
+    match (shift_s, report.measured) {
+        (None, Some(t)) if t.notable() => {
+            tracing::info!(
+                "running the filter again on the odometry shifted by {:.3} s",
+                t.lag_s
+            );
+            report.shift_s = t.lag_s;
+            report.rerun = true;
+            Some(t.lag_s)
+        }
+        _ => None,
+    }
+}
+
+/// Runs `run` on `recording` (its odometry shifted by `shift_s` when set and not 0), and
+/// again on the odometry shifted by the lag measured on the first run's trajectory when
+/// [`lag_to_rerun`] says so; `run`'s flag is true on the first run.
+pub fn run_timed<T, E>(
+    recording: &Recording,
+    shift_s: Option<f64>,
+    mut run: impl FnMut(&Recording, bool) -> Result<T, E>,
+    trajectory: impl Fn(&T) -> &[StampedPose2],
+) -> Result<(T, OdometryTimingReport), E> {
+    let fixed = fixed_shift(recording, shift_s);
+    let recording = fixed.as_ref().unwrap_or(recording);
+    let first = run(recording, true)?;
+    let mut report = OdometryTimingReport::default();
+    let Some(lag) = lag_to_rerun(recording, shift_s, trajectory(&first), &mut report) else {
+        return Ok((first, report));
+    };
+    let mut shifted = recording.clone();
+    shift_odometry(&mut shifted, lag);
+    let again = run(&shifted, false)?;
+    report.after_shift = estimate_odometry_lag(&shifted.odometry, trajectory(&again));
+    Ok((again, report))
 }
 
 #[cfg(test)]

@@ -7,8 +7,7 @@ use crate::filter::FilterMode;
 use crate::geometry::{Pose2, StampedPose2, Trajectory};
 use crate::localize::localize;
 use crate::map::{OccupancyGrid, map_with_poses};
-use crate::motion::odometry_timing::estimate_odometry_lag;
-use crate::pipeline::{OdometryTimingReport, fixed_shift, lag_to_rerun, shift_odometry};
+use crate::motion::odometry_timing::{OdometryTimingReport, run_timed};
 use crate::quality::Quality;
 use crate::sensors::{LidarGeometry, Recording, ScanSet};
 use crate::slam::{PriorMap, SlamEvent, run_rbpf_in};
@@ -52,23 +51,15 @@ pub fn resume(
     observer: &mut dyn FnMut(SlamEvent<'_>),
 ) -> Result<ResumeResult, SessionError> {
     check_supported(state, recording, config)?;
-    let fixed = fixed_shift(recording, config);
-    let recording = fixed.as_ref().unwrap_or(recording);
-    let first = resume_once(state, recording, config, seed, initial_pose, observer)?;
-    let mut report = OdometryTimingReport::default();
-    let Some(lag) = lag_to_rerun(recording, config, &first.front_end, &mut report) else {
-        return Ok(ResumeResult {
-            odometry_timing: report,
-            ..first
-        });
+    let shift_s = config.input.odometry_shift_s;
+    let once = |rec: &Recording, first: bool| match first {
+        true => resume_once(state, rec, config, seed, initial_pose, &mut *observer),
+        false => resume_once(state, rec, config, seed, initial_pose, &mut |_| {}),
     };
-    let mut shifted = recording.clone();
-    shift_odometry(&mut shifted, lag);
-    let again = resume_once(state, &shifted, config, seed, initial_pose, &mut |_| {})?;
-    report.after_shift = estimate_odometry_lag(&shifted.odometry, &again.front_end);
+    let (result, odometry_timing) = run_timed(recording, shift_s, once, |r| &r.front_end)?;
     Ok(ResumeResult {
-        odometry_timing: report,
-        ..again
+        odometry_timing,
+        ..result
     })
 }
 
