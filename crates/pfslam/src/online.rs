@@ -271,7 +271,7 @@ impl Slam {
         observer: &mut dyn FnMut(SlamEvent<'_>),
     ) -> Result<Option<StampedPose2>, OnlineError> {
         let shift_s = self.config.input.odometry_shift_s.unwrap_or(0.0);
-        let stamp_ns = stamp_ns + (shift_s * 1e9).round() as i64;
+        let stamp_ns = stamp_ns + crate::motion::odometry_timing::shift_ns(shift_s);
         let poses = &mut self.recording.odometry.poses;
         check_odometry(stamp_ns, &pose, poses.last().map(|p| p.stamp_ns))?;
         poses.push(StampedPose2 { stamp_ns, pose });

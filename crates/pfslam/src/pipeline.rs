@@ -13,7 +13,7 @@ use crate::map::consistency::consistency;
 use crate::map::{MapError, OccupancyGrid, map_with_poses};
 use crate::motion::calibration::{CalibrationFit, fit_odometry_calibration};
 pub use crate::motion::odometry_timing::{OdometryTimingReport, shift_odometry};
-use crate::motion::odometry_timing::{estimate_odometry_lag, fixed_shift, lag_to_rerun};
+use crate::motion::odometry_timing::{fixed_shift, rerun_if_lagged};
 use crate::quality::{Quality, QualitySignals, SUSPECT_FREE_SHARE};
 use crate::sensors::Recording;
 use crate::slam::{SlamError, SlamEvent, SlamResult, run_slam};
@@ -151,8 +151,9 @@ pub fn run_pipeline(
 }
 
 /// The stages after the filter's `result` on `recording` (which took `filter_time`, wall
-/// and CPU seconds): the back end when `[graph] enabled`, guarded by the self-check, and
-/// the map rebuilt along its trajectory when `options.rebuild_map`.
+/// and CPU seconds): the filter again on shifted odometry when the odometry's lag is
+/// notable ([`rerun_if_lagged`]), the back end when `[graph] enabled`, guarded by the
+/// self-check, and the map rebuilt along its trajectory when `options.rebuild_map`.
 pub(crate) fn after_filter(
     recording: &Recording,
     config: &Config,
@@ -161,11 +162,13 @@ pub(crate) fn after_filter(
     (filter_s, filter_cpu_s): (f64, Option<f64>),
 ) -> Result<PipelineResult, PipelineError> {
     let t = Clock::start();
-    let mut odometry_timing = OdometryTimingReport::default();
-    let rerun = rerun_if_lagged(recording, config, seed, &result, &mut odometry_timing)?;
+    let shift_s = config.input.odometry_shift_s;
+    let again = |rec: &Recording| run_slam(rec, config, seed, &mut |_| {});
+    let (odometry_timing, rerun) =
+        rerun_if_lagged(recording, shift_s, &result, |r| &r.trajectory, again)?;
     let (rerun_s, rerun_cpu_s) = t.elapsed();
-    let (filter_s, filter_cpu_s) = (filter_s + rerun_s, filter_cpu_s.zip(rerun_cpu_s));
-    let filter_cpu_s = filter_cpu_s.map(|(a, b)| a + b);
+    let filter_s = filter_s + rerun_s;
+    let filter_cpu_s = filter_cpu_s.zip(rerun_cpu_s).map(|(a, b)| a + b);
     let (shifted, mut result) = match rerun {
         Some((shifted, again)) => (Some(shifted), again),
         None => (None, result),
@@ -262,26 +265,6 @@ pub(crate) fn after_filter(
         quality: Quality::assess(signals),
         loop_closures,
     })
-}
-
-/// With a lag to run again with ([`lag_to_rerun`]), the filter run again on `recording`'s
-/// odometry shifted by it: that recording and result.
-fn rerun_if_lagged(
-    recording: &Recording,
-    config: &Config,
-    seed: u64,
-    result: &SlamResult,
-    report: &mut OdometryTimingReport,
-) -> Result<Option<(Recording, SlamResult)>, PipelineError> {
-    let shift = config.input.odometry_shift_s;
-    let Some(lag) = lag_to_rerun(recording, shift, &result.trajectory, report) else {
-        return Ok(None);
-    };
-    let mut shifted = recording.clone();
-    shift_odometry(&mut shifted, lag);
-    let again = run_slam(&shifted, config, seed, &mut |_| {})?;
-    report.after_shift = estimate_odometry_lag(&shifted.odometry, &again.trajectory);
-    Ok(Some((shifted, again)))
 }
 
 /// What [`choose_trajectory`] kept.

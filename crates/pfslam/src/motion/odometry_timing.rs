@@ -113,6 +113,8 @@ pub struct OdometryTimingReport {
     pub rerun: bool,
     /// The lag measured on the filter's run over the shifted odometry, when it ran again.
     pub after_shift: Option<OdometryTiming>,
+    /// Wall seconds of that second run (0 without).
+    pub rerun_s: f64,
 }
 
 /// `recording` with the odometry shifted by `shift_s` (`[input] odometry_shift_s`), when
@@ -124,9 +126,14 @@ pub fn fixed_shift(recording: &Recording, shift_s: Option<f64>) -> Option<Record
     Some(shifted)
 }
 
+/// A shift (s) in whole nanoseconds, as added to odometry stamps.
+pub fn shift_ns(shift_s: f64) -> i64 {
+    (shift_s * 1e9).round() as i64
+}
+
 /// Moves every odometry stamp of `recording` by `shift_s`.
 pub fn shift_odometry(recording: &mut Recording, shift_s: f64) {
-    let shift_ns = (shift_s * 1e9).round() as i64;
+    let shift_ns = shift_ns(shift_s);
     for p in &mut recording.odometry.poses {
         p.stamp_ns += shift_ns;
     }
@@ -151,7 +158,7 @@ fn measure_lag(recording: &Recording, front_end: &[StampedPose2]) -> Option<Odom
 /// Fills `report` from a run's `trajectory` on `recording`, whose odometry was shifted by
 /// `shift_s` (`[input] odometry_shift_s`); returns the lag to run again with when that is
 /// unset and the lag is notable.
-pub fn lag_to_rerun(
+fn lag_to_rerun(
     recording: &Recording,
     shift_s: Option<f64>,
     trajectory: &[StampedPose2],
@@ -173,9 +180,33 @@ pub fn lag_to_rerun(
     }
 }
 
-/// Runs `run` on `recording` (its odometry shifted by `shift_s` when set and not 0), and
-/// again on the odometry shifted by the lag measured on the first run's trajectory when
-/// [`lag_to_rerun`] says so; `run`'s flag is true on the first run.
+/// The timing of a `first` run on `recording` (its odometry shifted by `shift_s`, the run's
+/// `[input] odometry_shift_s`) and, when `shift_s` is unset and the lag measured on the
+/// run's `trajectory` is notable, `run` again on the odometry shifted by that lag: the
+/// shifted recording and the second result.
+pub fn rerun_if_lagged<T, E>(
+    recording: &Recording,
+    shift_s: Option<f64>,
+    first: &T,
+    trajectory: impl Fn(&T) -> &[StampedPose2],
+    run: impl FnOnce(&Recording) -> Result<T, E>,
+) -> Result<(OdometryTimingReport, Option<(Recording, T)>), E> {
+    let mut report = OdometryTimingReport::default();
+    let Some(lag) = lag_to_rerun(recording, shift_s, trajectory(first), &mut report) else {
+        return Ok((report, None));
+    };
+    let t = std::time::Instant::now();
+    let mut shifted = recording.clone();
+    shift_odometry(&mut shifted, lag);
+    let again = run(&shifted)?;
+    report.rerun_s = t.elapsed().as_secs_f64();
+    report.after_shift = estimate_odometry_lag(&shifted.odometry, trajectory(&again));
+    Ok((report, Some((shifted, again))))
+}
+
+/// Runs `run` on `recording` (its odometry shifted by `shift_s` when set and not 0), then
+/// [`rerun_if_lagged`]; the result kept and the timing. `run`'s flag is true on the first
+/// run.
 pub fn run_timed<T, E>(
     recording: &Recording,
     shift_s: Option<f64>,
@@ -185,15 +216,9 @@ pub fn run_timed<T, E>(
     let fixed = fixed_shift(recording, shift_s);
     let recording = fixed.as_ref().unwrap_or(recording);
     let first = run(recording, true)?;
-    let mut report = OdometryTimingReport::default();
-    let Some(lag) = lag_to_rerun(recording, shift_s, trajectory(&first), &mut report) else {
-        return Ok((first, report));
-    };
-    let mut shifted = recording.clone();
-    shift_odometry(&mut shifted, lag);
-    let again = run(&shifted, false)?;
-    report.after_shift = estimate_odometry_lag(&shifted.odometry, trajectory(&again));
-    Ok((again, report))
+    let again = |rec: &Recording| run(rec, false);
+    let (report, rerun) = rerun_if_lagged(recording, shift_s, &first, trajectory, again)?;
+    Ok((rerun.map_or(first, |(_, again)| again), report))
 }
 
 #[cfg(test)]
