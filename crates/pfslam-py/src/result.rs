@@ -90,6 +90,7 @@ fn summary_json(p: &PipelineResult, ctx: &RunContext<'_>) -> serde_json::Value {
         "config": ctx.config,
         "stats": stats,
         "quality": p.quality,
+        "odometry_timing": p.odometry_timing,
         "timings_s": { "slam": stats.timings.total_s },
     });
     if let Some((account, load_s)) = ctx.loaded {

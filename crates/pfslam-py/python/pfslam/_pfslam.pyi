@@ -45,8 +45,9 @@ class Result:
     summary: Dict[str, Any]
     """The library's part of ``summary.json``: ``recording``, ``seed``, ``config``, ``stats``
     (counts, Neff, stage timings), ``quality`` (the self-check: ``status`` ``ok`` or ``suspect``,
-    ``reasons``, ``signals``), ``timings_s``, ``graph`` and ``graph_input`` (the back end, when
-    it ran) and, from :func:`run`, ``input`` (what the reader read, kept and dropped)."""
+    ``reasons``, ``signals``), ``odometry_timing`` (the odometry's measured lag and the shift
+    applied), ``timings_s``, ``graph`` and ``graph_input`` (the back end, when it ran) and,
+    from :func:`run`, ``input`` (what the reader read, kept and dropped)."""
 
 class Recording:
     """A recording file's contents as read (see :func:`read_recording`)."""
