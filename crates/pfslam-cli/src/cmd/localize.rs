@@ -113,15 +113,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
 /// One line per filter update: what the particles did.
 fn write_updates(path: &std::path::Path, result: &LocalizeResult) -> anyhow::Result<()> {
-    let mut text = String::from("stamp_s,particles,injected,mass,fit,converged,off_wall_share\n");
+    let mut text =
+        String::from("stamp_s,particles,injected,mass,fit,core_fit,converged,off_wall_share\n");
     for u in &result.updates {
         text.push_str(&format!(
-            "{},{},{},{:.4},{:.4},{},{:.4}\n",
+            "{},{},{},{:.4},{:.4},{:.4},{},{:.4}\n",
             format_stamp_s(u.stamp_ns),
             u.particles,
             u.injected,
             u.mass,
             u.fit,
+            u.core_fit,
             u64::from(u.converged),
             u.off_wall_share
         ));

@@ -96,6 +96,13 @@ pub struct RecoveryOptions {
     /// A constant of the method: not read from the configuration file.
     #[serde(skip)]
     pub fit_ratio: f64,
+    /// The fit augmented MCL tracks is that of this share of the returns, the best-fitting
+    /// ones, at the estimate: a person beside the robot can hide a third of a scan from the
+    /// map while the estimate is right, and must not call for random particles, whereas a
+    /// lost robot's scan misses the map nearly everywhere.
+    /// A constant of the method: not read from the configuration file.
+    #[serde(skip)]
+    pub core_share: f64,
     /// Half of the random particles are drawn about the last converged estimate that fitted
     /// well, with this standard deviation (m) plus the odometry's travel since, and any
     /// heading; the other half over the whole free space.
@@ -142,6 +149,7 @@ impl Default for RecoveryOptions {
         RecoveryOptions {
             alphas: [0.001, 0.1],
             fit_ratio: 0.5,
+            core_share: 0.7,
             local_sigma_m: 2.0,
         }
     }

@@ -26,9 +26,11 @@ pub struct UpdateRecord {
     pub injected: usize,
     /// The heaviest cluster's share of the weight.
     pub mass: f64,
-    /// Geometric mean likelihood of a return over the particles (the fit augmented MCL
-    /// tracks).
+    /// Geometric mean likelihood of a return over the particles.
     pub fit: f64,
+    /// Geometric mean likelihood of the best-fitting `core_share` of the returns at the
+    /// estimate (the fit augmented MCL tracks; [`crate::localize::RecoveryOptions`]).
+    pub core_fit: f64,
     /// The heaviest cluster held `converged_mass` of the weight: the filter tracks one place
     /// (else it searches, with the broad likelihood).
     pub converged: bool,
@@ -405,7 +407,6 @@ impl<'a> State<'a> {
         let neff_floor = searching.then_some(self.options.likelihood.global_neff_share);
         let log_mean = self.particles.weigh(field, sharpness, points, neff_floor);
         let fit = (log_mean / points.len() as f64).exp();
-        let inject_probability = self.track_fit(fit);
         let o = self.options;
         self.estimate = estimate(
             &self.particles.poses,
@@ -415,6 +416,14 @@ impl<'a> State<'a> {
                 yaw_rad: o.cluster_radius[1].to_radians(),
             },
         );
+        let core_fit = core_fit(
+            field,
+            sharpness,
+            points,
+            &self.estimate.pose,
+            o.recovery.core_share,
+        );
+        let inject_probability = self.track_fit(core_fit);
         self.converged = self.estimate.mass >= o.converged_mass;
         if inject_probability == 0.0 && self.converged {
             self.last_good = Some((self.estimate.pose, *odom));
@@ -446,6 +455,7 @@ impl<'a> State<'a> {
             injected,
             mass: self.estimate.mass,
             fit,
+            core_fit,
             converged: self.converged,
             off_wall_share: 0.0,
         }
@@ -480,4 +490,28 @@ impl<'a> State<'a> {
             0.0
         }
     }
+}
+
+/// The geometric mean likelihood of the best-fitting `share` of `points_body` (at least one
+/// return) at `pose`: a fit that parts of the scan the map does not hold cannot drag down.
+pub(super) fn core_fit(
+    field: &LikelihoodField,
+    sharpness: Sharpness,
+    points_body: &[[f64; 2]],
+    pose: &Pose2,
+    share: f64,
+) -> f64 {
+    let mut each: Vec<f64> = points_body
+        .iter()
+        .map(|p| {
+            let (x, y) = pose.transform_point(p[0], p[1]);
+            f64::from(field.log_likelihood(sharpness, x, y))
+        })
+        .collect();
+    if each.is_empty() {
+        return 0.0;
+    }
+    each.sort_by(|a, b| b.total_cmp(a));
+    let kept = ((each.len() as f64 * share).ceil() as usize).clamp(1, each.len());
+    (each[..kept].iter().sum::<f64>() / kept as f64).exp()
 }

@@ -225,6 +225,68 @@ fn finds_itself_without_a_start_pose() {
     assert!(r.updates[0].particles > 10 * r.updates.last().unwrap().particles);
 }
 
+/// For a third of the path a person walks beside the robot and hides a third of every
+/// scan (the beams on its right end 0.6 m away, where the map is free): the estimate stays
+/// right, so no random particles are drawn. Tracking the fit of every return instead, the
+/// same disturbance calls for them.
+#[test]
+fn a_person_hiding_a_third_of_the_scan_calls_for_no_random_particles() {
+    let map = building();
+    let (mut rec, truth) = recording(&map);
+    let (n, beams) = (rec.scans.len(), rec.scans.beam_count);
+    for i in n / 3..2 * n / 3 {
+        for r in &mut rec.scans.ranges_m[i * beams..i * beams + beams / 3] {
+            *r = 0.6;
+        }
+    }
+    let injected = |options: &LocalizeOptions| {
+        let r = localize(
+            &rec,
+            &map,
+            options,
+            &ScanOptions::default(),
+            Some(truth[0].pose),
+            1,
+        )
+        .unwrap();
+        let rmse = rms(errors_m(&r, &truth).iter().map(|x| x.1));
+        (r.updates.iter().map(|u| u.injected).sum::<usize>(), rmse)
+    };
+    let (core, rmse) = injected(&LocalizeOptions::default());
+    assert_eq!(core, 0, "random particles drawn (rmse {rmse})");
+    assert!(rmse < 0.05, "{rmse}");
+    let mut every_return = LocalizeOptions::default();
+    every_return.recovery.core_share = 1.0;
+    let (whole, rmse) = injected(&every_return);
+    assert!(
+        whole > 0,
+        "the whole scan's fit called for none either (rmse {rmse})"
+    );
+}
+
+/// The core fit of a scan 30 % hidden is nearly that of the whole scan seen, where the fit
+/// of every return falls by half; at a wrong pose it falls.
+#[test]
+fn core_fit_ignores_the_hidden_share_of_a_scan() {
+    let map = building();
+    let truth = Pose2::new(9.0, 1.5, 0.3);
+    let (field, points) = field_and_scan(&map, &truth);
+    let fit = |points: &[[f64; 2]], pose: &Pose2, share: f64| {
+        run::core_fit(&field, field::Sharpness::Tracking, points, pose, share)
+    };
+    let clean = fit(&points, &truth, 0.7);
+    let mut hidden = points.clone();
+    let hidden_count = hidden.len() * 3 / 10;
+    for p in &mut hidden[..hidden_count] {
+        *p = [0.6 * p[0] / p[0].hypot(p[1]), 0.6 * p[1] / p[0].hypot(p[1])];
+    }
+    let with_person = fit(&hidden, &truth, 0.7);
+    assert!(with_person > 0.8 * clean, "{with_person} against {clean}");
+    assert!(fit(&hidden, &truth, 1.0) < 0.5 * clean);
+    let elsewhere = Pose2::new(14.0, 2.5, 1.2);
+    assert!(fit(&points, &elsewhere, 0.7) < 0.3 * clean);
+}
+
 #[test]
 fn recovers_when_carried_elsewhere() {
     let map = building();
