@@ -17,6 +17,8 @@
 //! - `rotation` and `rotation_f32`: the scan-matching refinement's field sums;
 //! - `cell_sum` and `field_score`: the back end's point field (exact cell sums, the
 //!   interpolated score);
+//! - `field_loglik`: localisation's scan log-likelihood in its f32 field, four poses at a
+//!   time;
 //! - `heights` and `mask`: the grid's height bins and ray walk.
 //!
 //! The layering: the kernels sit below the modules whose data they walk (`filter`, `graph`,
@@ -37,6 +39,7 @@ pub(crate) use views::{FieldWindow, PointLevel};
 
 pub(crate) mod cell_sum;
 pub(crate) mod coarse;
+pub(crate) mod field_loglik;
 pub(crate) mod field_score;
 pub(crate) mod heights;
 pub(crate) mod likelihood;

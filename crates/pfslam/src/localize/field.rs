@@ -2,6 +2,7 @@
 //! there, from its distance to the nearest occupied cell (an exact Euclidean distance
 //! transform). Two tables: sharp for tracking, broad for global localisation.
 
+use crate::kernels::field_loglik::CentreTable;
 use crate::map::{BinaryMap, CellState, MapLimits};
 
 /// Log-likelihood tables over a map's raster.
@@ -126,6 +127,16 @@ impl LikelihoodField {
                 self.limits.origin_y_m() * inv + 0.5,
             ],
         )
+    }
+
+    /// The table of `sharpness` for the kernels, in the coordinates of
+    /// [`Self::log_likelihood_at_centres`].
+    pub(crate) fn centre_table(&self, sharpness: Sharpness) -> CentreTable<'_> {
+        CentreTable {
+            cells: &self.tables[sharpness as usize],
+            width: self.width,
+            height: self.height,
+        }
     }
 
     /// [`Self::log_likelihood`] at coordinates in which cell centres lie at whole numbers.

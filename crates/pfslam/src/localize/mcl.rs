@@ -9,6 +9,7 @@
 use super::field::{LikelihoodField, Sharpness};
 use super::kld::{KldBins, kld_bound};
 use crate::geometry::{Pose2, wrap_angle};
+use crate::kernels::field_loglik::{self, CentrePose, POSES};
 use crate::map::{BinaryMap, CellState};
 use crate::motion::odometry_model::{OdometryModelOptions, sample_odometry_motion};
 use rand::{RngExt, SeedableRng};
@@ -196,15 +197,7 @@ impl ParticleSet {
         points_body: &[[f64; 2]],
         neff_floor: Option<f64>,
     ) -> f64 {
-        let log_likelihood: Vec<f64> = self
-            .poses
-            .par_chunks(CHUNK)
-            .flat_map_iter(|chunk| {
-                chunk
-                    .iter()
-                    .map(|p| scan_log_likelihood(field, sharpness, points_body, p))
-            })
-            .collect();
+        let log_likelihood = log_likelihoods(field, sharpness, points_body, &self.poses);
         let prior: Vec<f64> = self.weights.iter().map(|w| w.ln()).collect();
         let fit = drawn_fit(&prior, &log_likelihood, &self.injected);
         normalise(&prior, &log_likelihood, 1.0, &mut self.weights);
@@ -316,6 +309,33 @@ fn normalise(prior: &[f64], log_likelihood: &[f64], temperature: f64, weights: &
     }
 }
 
+/// [`scan_log_likelihood`] of every pose, in order: four poses at a time in the kernel
+/// (the same bits as one at a time), chunked as the motion noise is.
+pub fn log_likelihoods(
+    field: &LikelihoodField,
+    sharpness: Sharpness,
+    points_body: &[[f64; 2]],
+    poses: &[Pose2],
+) -> Vec<f64> {
+    let table = field.centre_table(sharpness);
+    let off = |u: f64, v: f64| field.log_likelihood_at_centres(sharpness, u, v);
+    poses
+        .par_chunks(CHUNK)
+        .flat_map_iter(|chunk| {
+            let mut quads = chunk.chunks_exact(POSES);
+            let mut out = Vec::with_capacity(chunk.len());
+            for quad in &mut quads {
+                let centred = std::array::from_fn(|k| centre_pose(field, &quad[k]));
+                out.extend(field_loglik::sums4(&table, points_body, centred, off));
+            }
+            for p in quads.remainder() {
+                out.push(scan_log_likelihood(field, sharpness, points_body, p));
+            }
+            out
+        })
+        .collect()
+}
+
 /// The log-likelihood of a scan's returns at `pose`. The pose is folded into the field's
 /// cell-centre coordinates once, so each return costs two multiply-adds per axis.
 #[inline]
@@ -325,16 +345,20 @@ pub fn scan_log_likelihood(
     points_body: &[[f64; 2]],
     pose: &Pose2,
 ) -> f64 {
+    let off = |u: f64, v: f64| field.log_likelihood_at_centres(sharpness, u, v);
+    let table = field.centre_table(sharpness);
+    let [sum] = field_loglik::portable(&table, points_body, [centre_pose(field, pose)], off);
+    sum
+}
+
+/// `pose` in the field's cell-centre coordinates.
+fn centre_pose(field: &LikelihoodField, pose: &Pose2) -> CentrePose {
     let (scale, [ou, ov]) = field.centre_coordinates();
     let (s, c) = pose.yaw_rad.sin_cos();
-    let (cs, ss) = (c * scale, s * scale);
-    let (u0, v0) = (pose.x_m * scale - ou, pose.y_m * scale - ov);
-    points_body
-        .iter()
-        .map(|p| {
-            let u = u0 + cs * p[0] - ss * p[1];
-            let v = v0 + ss * p[0] + cs * p[1];
-            field.log_likelihood_at_centres(sharpness, u, v) as f64
-        })
-        .sum()
+    CentrePose {
+        u0_cells: pose.x_m * scale - ou,
+        v0_cells: pose.y_m * scale - ov,
+        cs_per_m: c * scale,
+        ss_per_m: s * scale,
+    }
 }

@@ -419,3 +419,39 @@ fn refinement_pulls_a_nearby_estimate_onto_the_scan() {
     let far = Pose2::new(14.0, 2.5, 0.3);
     assert_eq!(refine::refine_pose(&field, &points, &far), far);
 }
+
+/// The particles' log-likelihoods, four at a time in the kernel, have the bits of the
+/// field's scalar rule summed point by point, for poses on, across and off the map.
+#[test]
+fn particle_log_likelihoods_have_the_scalar_rules_bits() {
+    let map = building();
+    let (field, points) = field_and_scan(&map, &Pose2::new(9.0, 1.5, 0.3));
+    let poses: Vec<Pose2> = (0..2 * mcl::CHUNK + 7)
+        .map(|k| {
+            let t = k as f64;
+            Pose2::new(
+                9.0 + 12.0 * (t * 0.37).sin(),
+                1.5 + 6.0 * (t * 0.23).cos(),
+                (t * 0.71).sin() * 3.1,
+            )
+        })
+        .collect();
+    let (scale, [ou, ov]) = field.centre_coordinates();
+    for sharpness in [field::Sharpness::Tracking, field::Sharpness::Global] {
+        let got = mcl::log_likelihoods(&field, sharpness, &points, &poses);
+        for (pose, got) in poses.iter().zip(&got) {
+            let (s, c) = pose.yaw_rad.sin_cos();
+            let (cs, ss) = (c * scale, s * scale);
+            let (u0, v0) = (pose.x_m * scale - ou, pose.y_m * scale - ov);
+            let want: f64 = points
+                .iter()
+                .map(|p| {
+                    let u = u0 + cs * p[0] - ss * p[1];
+                    let v = v0 + ss * p[0] + cs * p[1];
+                    field.log_likelihood_at_centres(sharpness, u, v) as f64
+                })
+                .sum();
+            assert_eq!(got.to_bits(), want.to_bits(), "{pose:?}");
+        }
+    }
+}
