@@ -34,6 +34,9 @@ use std::sync::OnceLock;
 
 mod views;
 
+#[cfg(target_arch = "x86_64")]
+mod block_x86;
+
 pub use views::F32_LIM;
 pub(crate) use views::{FieldWindow, PointLevel};
 

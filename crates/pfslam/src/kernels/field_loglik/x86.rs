@@ -60,17 +60,8 @@ fn values_avx2(
     // `(u - i0) as f32`: rounded to nearest as `as` does.
     let fx = _mm256_cvtpd_ps(_mm256_sub_pd(u, fu));
     let fy = _mm256_cvtpd_ps(_mm256_sub_pd(v, fv));
-    // Exact inside the i32 range; beyond it, and for NaN, i32::MIN, which is outside.
-    let (i, j) = (_mm256_cvttpd_epi32(fu), _mm256_cvttpd_epi32(fv));
     let (w, h) = (table.width as i32, table.height as i32);
-    let minus_one = _mm_set1_epi32(-1);
-    let inside = _mm_and_si128(
-        _mm_and_si128(_mm_cmpgt_epi32(i, minus_one), _mm_cmpgt_epi32(j, minus_one)),
-        _mm_and_si128(
-            _mm_cmpgt_epi32(_mm_set1_epi32(w - 1), i),
-            _mm_cmpgt_epi32(_mm_set1_epi32(h - 1), j),
-        ),
-    );
+    let (i, j, inside) = super::super::block_x86::block_inside(fu, fv, w, h);
     let inside_bits = _mm_movemask_ps(_mm_castsi128_ps(inside));
     let mut values = _mm_setzero_ps();
     if inside_bits != 0 {

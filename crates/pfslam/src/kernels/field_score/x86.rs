@@ -34,19 +34,9 @@ fn bilinear_lanes_avx2(field: &PointLevel<'_>, u: &[f64; LANES], v: &[f64; LANES
     let (fu, fv) = (_mm256_floor_pd(uv), _mm256_floor_pd(vv));
     // `u - i as f64` with `i` the floor: the floor itself for the lanes inside (below).
     let (au, av) = (_mm256_sub_pd(uv, fu), _mm256_sub_pd(vv, fv));
-    // The floors in i32: exact inside the i32 range; beyond it, and for NaN, the
-    // conversion gives i32::MIN, which the test below puts outside.
-    let (i, j) = (_mm256_cvttpd_epi32(fu), _mm256_cvttpd_epi32(fv));
-    // `i >= 0 && j >= 0 && i + 1 < w && j + 1 < h` (w, h at most 2^14).
+    // w, h at most 2^14.
     let (w, h) = (field.w as i32, field.h as i32);
-    let minus_one = _mm_set1_epi32(-1);
-    let inside = _mm_and_si128(
-        _mm_and_si128(_mm_cmpgt_epi32(i, minus_one), _mm_cmpgt_epi32(j, minus_one)),
-        _mm_and_si128(
-            _mm_cmpgt_epi32(_mm_set1_epi32(w - 1), i),
-            _mm_cmpgt_epi32(_mm_set1_epi32(h - 1), j),
-        ),
-    );
+    let (i, j, inside) = super::super::block_x86::block_inside(fu, fv, w, h);
     // (A level shorter than `w * h` never happens; it would take the scalar way.)
     let inside_bits = match lv.len() >= field.w * field.h {
         true => _mm_movemask_ps(_mm_castsi128_ps(inside)),
