@@ -243,6 +243,7 @@ impl Slam {
             .into());
         }
         crate::pipeline::ensure_odometry(&mut recording).map_err(SlamError::from)?;
+        config.input.validate().map_err(SlamError::InputOptions)?;
         crate::pipeline::shift_odometry(
             &mut recording,
             config.input.odometry_shift_s.unwrap_or(0.0),

@@ -143,6 +143,7 @@ pub fn run_pipeline(
         ensure_odometry(&mut with)?;
         return run_pipeline(&with, config, seed, options, observer);
     }
+    config.input.validate().map_err(SlamError::InputOptions)?;
     let shifted = fixed_shift(recording, config.input.odometry_shift_s);
     let recording = shifted.as_ref().unwrap_or(recording);
     let t = Clock::start();

@@ -209,3 +209,21 @@ fn odometry_stamped_early_is_measured_and_shifted_back() {
     let plain = pipeline(&on_time, &config(), 2);
     assert!(!plain.odometry_timing.rerun, "{:?}", plain.odometry_timing);
 }
+
+/// An odometry shift beyond a second (or not a number) is refused with the key's name by
+/// the batch and the incremental entry points, before any stamp is moved.
+#[test]
+fn an_odometry_shift_out_of_range_is_refused() {
+    let rec = synthetic::recording(5.0, 5);
+    for shift_s in [5.0, f64::NAN, f64::INFINITY] {
+        let mut bad = config();
+        bad.input.odometry_shift_s = Some(shift_s);
+        let options = PipelineOptions::default();
+        let err = run_pipeline(&rec, &bad, 1, &options, &mut |_| {}).unwrap_err();
+        assert!(err.to_string().contains("odometry_shift_s"), "{err}");
+        let err = pfslam::Slam::with_recording(bad, rec.clone(), 1)
+            .err()
+            .unwrap();
+        assert!(err.to_string().contains("odometry_shift_s"), "{err}");
+    }
+}

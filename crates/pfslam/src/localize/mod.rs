@@ -31,6 +31,9 @@ pub enum LocalizeError {
     /// An option out of range (the message names the key).
     #[error("configuration [localize]: {0}")]
     Options(String),
+    /// A bad odometry shift (`[input] odometry_shift_s`).
+    #[error("configuration [input]: {0}")]
+    Shift(String),
     /// The map has no free cell to place particles in.
     #[error("the map has no free cell")]
     NoFreeSpace,

@@ -109,6 +109,7 @@ pub fn localize_timed(
     seed: u64,
     shift_s: Option<f64>,
 ) -> Result<(LocalizeResult, OdometryTimingReport), LocalizeError> {
+    crate::sensors::reader_options::check_odometry_shift(shift_s).map_err(LocalizeError::Shift)?;
     let once = |rec: &Recording, _| localize(rec, map, options, scan_options, initial_pose, seed);
     run_timed(recording, shift_s, once, |r: &LocalizeResult| {
         r.converged_part()

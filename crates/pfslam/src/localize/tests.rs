@@ -287,6 +287,19 @@ fn core_fit_ignores_the_hidden_share_of_a_scan() {
     assert!(fit(&points, &elsewhere, 0.7) < 0.3 * clean);
 }
 
+/// A shift of the odometry beyond a second is refused, not applied.
+#[test]
+fn localize_timed_refuses_an_odometry_shift_out_of_range() {
+    let map = building();
+    let (rec, truth) = recording(&map);
+    let (options, scan) = (LocalizeOptions::default(), ScanOptions::default());
+    let start = Some(truth[0].pose);
+    for shift_s in [5.0, -1.5, f64::NAN] {
+        let err = localize_timed(&rec, &map, &options, &scan, start, 1, Some(shift_s));
+        assert!(matches!(err, Err(LocalizeError::Shift(_))), "{shift_s}");
+    }
+}
+
 #[test]
 fn recovers_when_carried_elsewhere() {
     let map = building();

@@ -4,7 +4,8 @@
 //! `lag * (rate at the end - rate at the start)`: small on straight runs, degrees where the
 //! robot weaves. So the filter's yaw corrections (its yaw change over a window minus the
 //! odometry's) are regressed on the odometry's change of yaw rate over the same window; the
-//! slope is the lag. Reported, not applied: `[input] odometry_shift_s` applies a shift.
+//! slope is the lag. Where it is notable, [`run_timed`] runs again on the odometry shifted
+//! by it; `[input] odometry_shift_s` sets the shift instead.
 
 use crate::geometry::{StampedPose2, Trajectory, wrap_angle};
 use crate::sensors::Recording;
@@ -135,7 +136,7 @@ pub fn shift_ns(shift_s: f64) -> i64 {
 pub fn shift_odometry(recording: &mut Recording, shift_s: f64) {
     let shift_ns = shift_ns(shift_s);
     for p in &mut recording.odometry.poses {
-        p.stamp_ns += shift_ns;
+        p.stamp_ns = p.stamp_ns.saturating_add(shift_ns);
     }
 }
 

@@ -6,6 +6,16 @@ use serde::{Deserialize, Serialize};
 /// The largest odometry shift accepted (s): beyond it the streams are not of one robot run.
 pub const MAX_ODOMETRY_SHIFT_S: f64 = 1.0;
 
+/// Checks an odometry shift (`[input] odometry_shift_s`); the message names the key.
+pub fn check_odometry_shift(shift_s: Option<f64>) -> Result<(), String> {
+    match shift_s {
+        Some(s) if !(s.is_finite() && s.abs() <= MAX_ODOMETRY_SHIFT_S) => Err(format!(
+            "input.odometry_shift_s must be finite and within +-{MAX_ODOMETRY_SHIFT_S} s"
+        )),
+        _ => Ok(()),
+    }
+}
+
 /// Options of all recording readers (`[input]`).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -58,14 +68,7 @@ impl ReaderOptions {
                 return Err(format!("input.{k} must be finite and >= 0"));
             }
         }
-        if self
-            .odometry_shift_s
-            .is_some_and(|s| !(s.is_finite() && s.abs() <= MAX_ODOMETRY_SHIFT_S))
-        {
-            return Err(format!(
-                "input.odometry_shift_s must be finite and within +-{MAX_ODOMETRY_SHIFT_S} s"
-            ));
-        }
+        check_odometry_shift(self.odometry_shift_s)?;
         if let (Some(a), Some(b)) = (self.start_s, self.end_s)
             && a >= b
         {
