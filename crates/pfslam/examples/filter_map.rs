@@ -6,12 +6,12 @@
 //! `cargo run --release -p pfslam --example filter_map -- DATASET [SCANS] [FLUSH] [ONLY]`
 //! (`ONLY` = `batch`: the batch on one thread alone, to profile it).
 
+mod common;
+
 use pfslam::config::Config;
-use pfslam::geometry::Trajectory;
 use pfslam::map::{
     BatchScratch, InsertScratch, OccupancyGrid, PlanarScan, ScanProjector, ScanUpdates, to_world,
 };
-use pfslam_io::ucsd::{ReadOptions, read_car_dataset};
 use std::hash::{Hash, Hasher};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -25,12 +25,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let flush: usize = args.get(3).map_or(Ok(5), |s| s.parse())?;
     let only_batch = args.get(4).is_some_and(|s| s == "batch");
     let config = Config::default();
-    let mut ds = read_car_dataset(&PathBuf::from(&args[1]), &ReadOptions::default())?;
-    let rec = pfslam::motion::car_recording_taking_scans(&mut ds, &config.motion, "d")?;
-    drop(ds);
-    let truth = Trajectory::new(
-        pfslam_io::tum::read_tum(&PathBuf::from(&args[1]).join("ground_truth.tum"))?.poses,
-    );
+    let (rec, truth) = common::car_recording_at_truth(&PathBuf::from(&args[1]), &config)?;
     let mut opts = config.map.clone();
     opts.height.enabled = false;
     let proj = ScanProjector::new(

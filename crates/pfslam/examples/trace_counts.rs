@@ -6,11 +6,11 @@
 //! `cargo run --release -p pfslam --example trace_counts -- DATASET [EVERY_NTH_SCAN]`
 //! (scans at the poses of `DATASET/ground_truth.tum`).
 
+mod common;
+
 use pfslam::config::Config;
-use pfslam::geometry::Trajectory;
 use pfslam::map::InsertScratch;
 use pfslam::map::{DensifyRays, OccupancyGrid, PlanarScan, ScanProjector, ScanUpdates, to_world};
-use pfslam_io::ucsd::{ReadOptions, read_car_dataset};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -41,12 +41,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     let every: usize = args.get(2).map_or(Ok(10), |s| s.parse())?;
     let config = Config::default();
-    let mut ds = read_car_dataset(&PathBuf::from(&args[1]), &ReadOptions::default())?;
-    let rec = pfslam::motion::car_recording_taking_scans(&mut ds, &config.motion, "d")?;
-    drop(ds);
-    let truth = Trajectory::new(
-        pfslam_io::tum::read_tum(&PathBuf::from(&args[1]).join("ground_truth.tum"))?.poses,
-    );
+    let (rec, truth) = common::car_recording_at_truth(&PathBuf::from(&args[1]), &config)?;
     let mut planar_opts = config.map.clone();
     planar_opts.height.enabled = false;
     let margin = (config.map.free_margin_m / config.map.resolution_m).round() as i32;
