@@ -30,6 +30,11 @@
 //! so scans wait for the odometry that follows them. Fed a recording's odometry and scans in
 //! any interleaving, the result is the batch run's ([`crate::pipeline::run_pipeline`]) bit
 //! for bit: both hand each scan to the same front end through the same step.
+//!
+//! A run of the `rbpf` filter longer than `[session] consolidate_every_scans` scans is
+//! consolidated window by window (`session::rolling`): it then holds the scans of one window
+//! and the keyframes of the area mapped, whatever its length. `run_pipeline` keeps every scan;
+//! [`Slam::with_recording`] consolidates as pushes do.
 
 use crate::config::Config;
 use crate::filter::odometry::OdometryCursor;
@@ -37,6 +42,7 @@ use crate::geometry::{Pose2, Rigid3, StampedPose2};
 use crate::map::{MapError, OccupancyGrid};
 use crate::pipeline::{PipelineError, PipelineOptions, PipelineResult, after_filter};
 use crate::sensors::{LidarGeometry, Recording, ScanSet};
+use crate::session::Rolling;
 use crate::slam::{AnyFrontEnd, FrontEnd, SlamError, SlamEvent, feed_scan};
 use std::time::Instant;
 
@@ -117,6 +123,9 @@ pub enum OnlineError {
         /// What is wrong.
         message: String,
     },
+    /// Bad `[session]` options.
+    #[error("configuration [session]: {0}")]
+    Session(String),
     /// A sensor setup that cannot be used.
     #[error("sensor setup: {0}")]
     Setup(String),
@@ -180,6 +189,10 @@ pub struct Slam {
     next_scan: usize,
     /// Wall seconds spent in the filter.
     filter_s: f64,
+    /// The consolidated part of a long run (`[session] consolidate_every_scans`).
+    rolling: Option<Rolling>,
+    /// Scans let go after their window was consolidated.
+    released: usize,
 }
 
 /// The front end once the first scan within the odometry's span arrived.
@@ -199,6 +212,7 @@ impl Slam {
         }
         config.filter.validate().map_err(SlamError::from)?;
         config.input.validate().map_err(SlamError::InputOptions)?;
+        config.session.validate().map_err(OnlineError::Session)?;
         config
             .map
             .validate()
@@ -218,6 +232,8 @@ impl Slam {
             running: None,
             next_scan: 0,
             filter_s: 0.0,
+            rolling: None,
+            released: 0,
         })
     }
 
@@ -349,7 +365,8 @@ impl Slam {
         }
     }
 
-    /// The data pushed so far.
+    /// The data pushed so far: after a consolidation (`[session] consolidate_every_scans`)
+    /// the scans since, and the odometry from the last one handled.
     pub fn recording(&self) -> &Recording {
         &self.recording
     }
@@ -367,7 +384,8 @@ impl Slam {
     }
 
     /// [`Self::finish_with`], reporting the filter's events on the last scans to `observer`;
-    /// also gives back the recording pushed.
+    /// also gives back the recording pushed (after a consolidation: the keyframes kept, with
+    /// their scans).
     pub fn finish_observed(
         mut self,
         options: &PipelineOptions,
@@ -396,8 +414,50 @@ impl Slam {
         let result = running.front.finish(recording, running.t_start)?;
         let filter_s = self.filter_s + t.elapsed().as_secs_f64();
         let (config, seed) = (&self.config, self.seed);
+        if let Some(rolling) = self.rolling.take() {
+            let run = (self.released, filter_s);
+            let last = std::mem::take(&mut self.recording);
+            return Ok(rolling.finish(last, result, run, config)?);
+        }
         let pipeline = after_filter(recording, config, (seed, options), result, (filter_s, None))?;
         Ok((pipeline, self.recording))
+    }
+
+    /// True once the `rbpf` filter handled `[session] consolidate_every_scans` scans since
+    /// the last consolidation.
+    fn window_full(&self) -> bool {
+        let every = self.config.session.consolidate_every_scans;
+        let rbpf = matches!(
+            self.running.as_ref().map(|r| &r.front),
+            Some(AnyFrontEnd::Rbpf(_))
+        );
+        rbpf && every > 0 && self.next_scan >= every
+    }
+
+    /// Consolidates the scans handled so far ([`Rolling::add_window`]) and lets them go.
+    fn consolidate(&mut self) -> Result<(), OnlineError> {
+        let Some(running) = self.running.as_mut() else {
+            return Ok(());
+        };
+        let Some(window) = running.front.take_window(&self.recording)? else {
+            return Ok(());
+        };
+        let scans = self.recording.split_front(self.next_scan);
+        let passed = running.cursor.forget_passed();
+        self.recording.odometry.poses.drain(..passed);
+        let every = self.config.session.consolidate_every_scans;
+        self.recording.scans.reserve_scans(every);
+        self.released += self.next_scan;
+        self.next_scan = 0;
+        let rolling = self.rolling.get_or_insert_with(Rolling::default);
+        rolling.add_window(scans, window, &self.config)?;
+        tracing::info!(
+            "consolidated {} scans to {} keyframes (window {})",
+            self.released,
+            rolling.keyframes(),
+            rolling.windows
+        );
+        Ok(())
     }
 
     /// Appends `scan` to the recording, checked.
@@ -450,8 +510,8 @@ impl Slam {
         observer: &mut dyn FnMut(SlamEvent<'_>),
     ) -> Result<Option<StampedPose2>, OnlineError> {
         let t = Instant::now();
-        let handled_before = self.next_scan;
-        let rec = &self.recording;
+        let mut handled = false;
+        let mut rec = &self.recording;
         while self.next_scan < rec.scans.len() {
             let i = self.next_scan;
             let stamp_ns = rec.scans.stamps_ns[i];
@@ -483,12 +543,13 @@ impl Slam {
                 feed_scan(&mut r.front, rec, i, feed, observer)?;
             }
             self.next_scan += 1;
+            handled = true;
+            if self.window_full() {
+                self.consolidate()?;
+            }
+            rec = &self.recording;
         }
         self.filter_s += t.elapsed().as_secs_f64();
-        Ok(if self.next_scan > handled_before {
-            self.pose()
-        } else {
-            None
-        })
+        Ok(if handled { self.pose() } else { None })
     }
 }

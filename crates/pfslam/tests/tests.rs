@@ -3,6 +3,7 @@
 
 mod acceptance;
 mod common;
+mod consolidation;
 mod eval;
 mod field_cache;
 mod filter;

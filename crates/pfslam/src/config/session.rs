@@ -1,5 +1,5 @@
 //! Options of saved sessions (`[session]` in the configuration): which scans a session keeps
-//! as keyframes. The sessions themselves (state files, resuming) are in [`crate::session`];
+//! as keyframes, and how often a long run is consolidated to them. The sessions themselves (state files, resuming) are in [`crate::session`];
 //! the options live here so [`crate::Config`] holds them without depending on that module.
 
 use serde::{Deserialize, Serialize};
@@ -17,6 +17,10 @@ pub struct SessionOptions {
     /// ... and this heading difference (deg): the map holds that view already, so driving a
     /// mapped place again adds no keyframes.
     pub prune_angle_deg: f64,
+    /// A run of the `rbpf` filter is consolidated every this many scans: the back end
+    /// places them with the keyframes kept so far, and only keyframes stay (0: never).
+    /// Memory then follows the mapped area, not the run's length.
+    pub consolidate_every_scans: usize,
 }
 
 impl Default for SessionOptions {
@@ -26,6 +30,7 @@ impl Default for SessionOptions {
             keyframe_angle_deg: 10.0,
             prune_radius_m: 0.3,
             prune_angle_deg: 20.0,
+            consolidate_every_scans: DEFAULT_CONSOLIDATE_EVERY_SCANS,
         }
     }
 }
@@ -51,6 +56,19 @@ impl SessionOptions {
                 return Err(format!("{key} must be >= 0, got {v}"));
             }
         }
+        let every = self.consolidate_every_scans;
+        if every != 0 && every < MIN_CONSOLIDATE_EVERY_SCANS {
+            return Err(format!(
+                "consolidate_every_scans must be 0 (never) or at least \
+                 {MIN_CONSOLIDATE_EVERY_SCANS}, got {every}"
+            ));
+        }
         Ok(())
     }
 }
+
+/// The default window: over half an hour of a 10 Hz LiDAR runs as one.
+pub const DEFAULT_CONSOLIDATE_EVERY_SCANS: usize = 20_000;
+
+/// The shortest window: the back end needs a stretch long enough to match along.
+pub const MIN_CONSOLIDATE_EVERY_SCANS: usize = 100;

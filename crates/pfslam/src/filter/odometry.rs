@@ -24,6 +24,15 @@ impl OdometryCursor {
         })
     }
 
+    /// Lets go of the odometry poses the cursor has passed (all but the last), for a
+    /// trajectory that will be kept from that pose on; returns how many to drop from its
+    /// front.
+    pub fn forget_passed(&mut self) -> usize {
+        let dropped = self.next.saturating_sub(1);
+        self.next -= dropped;
+        dropped
+    }
+
     /// The odometry pose the cursor stands on.
     pub fn current(&self) -> StampedPose2 {
         self.last

@@ -178,6 +178,16 @@ impl ScanSet {
         }
     }
 
+    /// Room for `n` more scans of `beam_count` beams, so that a store filled to a known
+    /// size holds no spare capacity.
+    pub fn reserve_scans(&mut self, n: usize) {
+        self.stamps_ns.reserve(n);
+        self.ranges_m.reserve(n * self.beam_count);
+        if !self.starts.is_empty() {
+            self.starts.reserve(n);
+        }
+    }
+
     /// The scans `keep` selects (indices in increasing order or not), in that order.
     pub fn select(&self, keep: &[usize]) -> ScanSet {
         let mut out = ScanSet::new(self.beam_count);
@@ -511,6 +521,36 @@ impl Recording {
         if let Some(m) = &mut self.body_from_lidar_per_scan {
             *m = keep.iter().map(|&i| m[i]).collect();
         }
+    }
+
+    /// Moves the first `n` scans out into a recording of their own, with the odometry of
+    /// their time span (and a pose on each side); this one keeps the later scans, and its
+    /// odometry whole.
+    pub fn split_front(&mut self, n: usize) -> Recording {
+        let n = n.min(self.scans.len());
+        let mut front = Recording {
+            name: self.name.clone(),
+            lidar: self.lidar,
+            body_from_lidar: self.body_from_lidar,
+            scans: self.scans.select(&(0..n).collect::<Vec<_>>()),
+            body_from_lidar_per_scan: self
+                .body_from_lidar_per_scan
+                .as_ref()
+                .map(|m| m[..n].to_vec()),
+            lidar_per_scan: self.lidar_per_scan.as_ref().map(|g| g[..n].to_vec()),
+            ..Recording::default()
+        };
+        self.keep_scans(&(n..self.scans.len()).collect::<Vec<_>>());
+        let stamps = &front.scans.stamps_ns;
+        if let (Some(&first), Some(&last)) = (stamps.first(), stamps.last()) {
+            let poses = &self.odometry.poses;
+            let a = poses
+                .partition_point(|p| p.stamp_ns < first)
+                .saturating_sub(1);
+            let b = (poses.partition_point(|p| p.stamp_ns <= last) + 1).min(poses.len());
+            front.odometry = Trajectory::new(poses[a..b].to_vec());
+        }
+        front
     }
 
     /// True when the mount or the beam geometry changes from scan to scan: a scan projector

@@ -5,12 +5,14 @@
 
 mod keyframes;
 mod resume;
+mod rolling;
 mod state;
 #[cfg(test)]
 mod tests;
 
 pub use keyframes::{KeyframeIndex, select_keyframes};
 pub use resume::{ResumeResult, resume};
+pub(crate) use rolling::Rolling;
 pub use state::{FORMAT_VERSION, MAGIC, SavedKeyframe, SessionInfo, SessionState};
 
 pub use crate::config::session::SessionOptions;

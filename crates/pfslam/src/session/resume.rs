@@ -158,7 +158,7 @@ fn check_supported(
 
 /// The saved keyframes as a recording, stamped one second apart and ending one second
 /// before `next`'s first scan; its odometry is the keyframes' poses.
-fn saved_recording(state: &SessionState, next: &Recording) -> Recording {
+pub(super) fn saved_recording(state: &SessionState, next: &Recording) -> Recording {
     let n = state.keyframes.len() as i64;
     let first_scan = next.scans.stamps_ns.first().copied().unwrap_or(0);
     let first_odometry = next
@@ -259,7 +259,7 @@ fn settled_from_ns(updates: &[crate::localize::UpdateRecord]) -> Option<i64> {
 }
 
 /// The saved keyframes followed by `new`'s scans, its odometry moved into the map frame.
-fn combine(old: &Recording, new: &Recording, world_from_odom: Pose2) -> Recording {
+pub(super) fn combine(old: &Recording, new: &Recording, world_from_odom: Pose2) -> Recording {
     let mut scans = old.scans.clone();
     let n_new = new.scans.len();
     for i in 0..n_new {

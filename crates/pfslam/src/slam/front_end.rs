@@ -33,6 +33,13 @@ pub trait FrontEnd {
 
     /// The trajectory, odometry, map and statistics; `t_start` began the run.
     fn finish(self, recording: &Recording, t_start: Instant) -> Result<SlamResult, SlamError>;
+
+    /// The scans handled since the last window (or the start), as `finish` would give
+    /// their poses; the front end then no longer needs their ranges in `recording`. `None`
+    /// where the front end needs every scan at its finish.
+    fn take_window(&mut self, _recording: &Recording) -> Result<Option<Window>, SlamError> {
+        Ok(None)
+    }
 }
 
 /// Hands scan `i` of `recording` to `front`, with the odometry interpolated at its stamp by

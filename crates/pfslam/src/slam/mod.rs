@@ -166,6 +166,13 @@ impl FrontEnd for AnyFrontEnd {
             AnyFrontEnd::Match(f) => f.finish(recording, t_start),
         }
     }
+
+    fn take_window(&mut self, recording: &Recording) -> Result<Option<Window>, SlamError> {
+        match self {
+            AnyFrontEnd::Rbpf(f) => f.take_window(recording),
+            AnyFrontEnd::Match(f) => f.take_window(recording),
+        }
+    }
 }
 
 /// Runs the seeds' particle-filter SLAM on `recording` with `config` and random `seed`,

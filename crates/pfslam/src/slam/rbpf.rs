@@ -4,7 +4,7 @@
 use super::{FrontEnd, SlamError, SlamEvent, SlamResult, SlamStats};
 use crate::config::Config;
 use crate::filter::rbpf::{
-    MatchPrior, Rbpf, RbpfOptions, SearchParams, UpdateScan, match_in_own_map, path_poses,
+    MatchPrior, Rbpf, RbpfOptions, SearchParams, UpdateScan, match_in_own_map, path_poses_from,
 };
 use crate::filter::scanmatch::match_points;
 use crate::geometry::{Pose2, StampedPose2};
@@ -59,8 +59,16 @@ pub struct RbpfFrontEnd {
     pf: Rbpf,
     projector: ScanProjector,
     stats: SlamStats,
+    /// The odometry pose of each processed scan since `window_start`.
     dead_reckoning: Vec<StampedPose2>,
+    /// The recording's index of each processed scan since `window_start`.
     scan_index: Vec<usize>,
+    /// How many processed scans earlier windows took ([`RbpfFrontEnd::take_window`]).
+    window_start: usize,
+    /// The odometry pose of the latest processed scan.
+    latest_odom: Option<StampedPose2>,
+    /// Scans the recording let go with earlier windows (for progress reports).
+    released_scans: usize,
     body: PlanarScan,
     pts: Vec<[f64; 2]>,
     poses: Vec<Pose2>,
@@ -115,6 +123,9 @@ impl RbpfFrontEnd {
             stats,
             dead_reckoning: Vec::with_capacity(total),
             scan_index: Vec::with_capacity(total),
+            window_start: 0,
+            latest_odom: None,
+            released_scans: 0,
             body: PlanarScan::default(),
             pts: Vec::new(),
             poses: Vec::with_capacity(opts.particles),
@@ -138,8 +149,9 @@ impl FrontEnd for RbpfFrontEnd {
         observer: &mut dyn FnMut(SlamEvent<'_>),
     ) -> Result<(), SlamError> {
         let ro = &self.opts.rbpf;
-        let k = self.dead_reckoning.len();
+        let k = self.window_start + self.dead_reckoning.len();
         self.dead_reckoning.push(odom);
+        self.latest_odom = Some(odom);
         self.scan_index.push(i);
         let delta = self.last_update_odom.between(&odom.pose);
         let due = !self.have_first
@@ -156,7 +168,11 @@ impl FrontEnd for RbpfFrontEnd {
             });
         }
         self.stats.scans_processed += 1;
-        self.report((i + 1, recording.scans.len()), observer);
+        let released = self.released_scans;
+        self.report(
+            (released + i + 1, released + recording.scans.len()),
+            observer,
+        );
         Ok(())
     }
 
@@ -170,7 +186,7 @@ impl FrontEnd for RbpfFrontEnd {
 
     /// The best particle's pose at its last update moved by the odometry since.
     fn latest_pose(&self) -> Option<StampedPose2> {
-        let odom = self.dead_reckoning.last()?;
+        let odom = self.latest_odom.as_ref()?;
         let best = &self.pf.particles[self.pf.best()];
         Some(StampedPose2 {
             stamp_ns: odom.stamp_ns,
@@ -180,29 +196,28 @@ impl FrontEnd for RbpfFrontEnd {
         })
     }
 
+    fn take_window(&mut self, recording: &Recording) -> Result<Option<Window>, SlamError> {
+        let trajectory = self.window_path(recording)?;
+        let dead_reckoning = std::mem::take(&mut self.dead_reckoning);
+        self.window_start += dead_reckoning.len();
+        self.released_scans += self.scan_index.last().map_or(0, |&i| i + 1);
+        self.scan_index.clear();
+        Ok(Some(Window {
+            trajectory,
+            dead_reckoning,
+        }))
+    }
+
     /// The best particle's whole path (each pose re-matched in its final map with
     /// `final_refine.enabled`), its map and the statistics.
     fn finish(mut self, recording: &Recording, t_start: Instant) -> Result<SlamResult, SlamError> {
-        let ro = &self.opts.rbpf;
         // Fed incrementally, the recording grew after the filter started.
         self.stats.scans_total = recording.scans.len();
-        self.stats.odometry_steps = self.dead_reckoning.len();
+        self.stats.odometry_steps = self.window_start + self.dead_reckoning.len();
         self.stats.finish_means(self.neff_sum, self.ll_sum);
-        let best = &self.pf.particles[self.pf.best()];
-        let mut trajectory = path_poses(&best.node, &self.dead_reckoning);
-        if ro.final_refine.enabled && recording.body_from_lidar_per_scan.is_none() {
-            let t = Instant::now();
-            refine_in_final_map(
-                &mut trajectory,
-                &self.scan_index,
-                recording,
-                &self.projector,
-                &best.map,
-                ro,
-            )?;
-            self.stats.timings.correlate_s += t.elapsed().as_secs_f64();
-        }
+        let trajectory = self.window_path(recording)?;
         self.stats.timings.total_s = t_start.elapsed().as_secs_f64();
+        let best = &self.pf.particles[self.pf.best()];
         self.stats.map_memory = Some(self.pf.map_memory());
         Ok(SlamResult {
             trajectory,
@@ -214,6 +229,21 @@ impl FrontEnd for RbpfFrontEnd {
 }
 
 impl RbpfFrontEnd {
+    /// The best particle's path over the scans processed since the window's start, each
+    /// pose re-matched in its map now with `final_refine.enabled`.
+    fn window_path(&mut self, recording: &Recording) -> Result<Vec<StampedPose2>, MapError> {
+        let ro = &self.opts.rbpf;
+        let best = &self.pf.particles[self.pf.best()];
+        let mut trajectory = path_poses_from(&best.node, &self.dead_reckoning, self.window_start);
+        if ro.final_refine.enabled && recording.body_from_lidar_per_scan.is_none() {
+            let t = Instant::now();
+            let scans = (self.scan_index.as_slice(), recording);
+            refine_in_final_map(&mut trajectory, scans, &self.projector, &best.map, ro)?;
+            self.stats.timings.correlate_s += t.elapsed().as_secs_f64();
+        }
+        Ok(trajectory)
+    }
+
     /// The same, counting the `first` scans before the odometry's start as skipped.
     pub(crate) fn skipped(mut self, first: usize) -> Self {
         self.stats.scans_skipped = first;
@@ -274,7 +304,7 @@ impl RbpfFrontEnd {
         let every = self.opts.snapshot_every_scans;
         if super::report_progress(observer, done, total, &self.stats, every) {
             let best = &self.pf.particles[self.pf.best()];
-            let trajectory = path_poses(&best.node, &self.dead_reckoning);
+            let trajectory = path_poses_from(&best.node, &self.dead_reckoning, self.window_start);
             observer(SlamEvent::Snapshot {
                 scans_done: done,
                 map: &best.map,
@@ -282,6 +312,15 @@ impl RbpfFrontEnd {
             });
         }
     }
+}
+
+/// A stretch of the front end's output: a pose and an odometry pose per processed scan.
+#[derive(Debug, Clone, Default)]
+pub struct Window {
+    /// The front end's pose of each scan.
+    pub trajectory: Vec<StampedPose2>,
+    /// The odometry's pose of each scan.
+    pub dead_reckoning: Vec<StampedPose2>,
 }
 
 /// Maps `prior`'s scans at their poses into `grid`, as the particles map theirs.
@@ -316,8 +355,7 @@ fn insert_prior(
 /// each result depends only on its scan, so any thread count gives the same output.
 fn refine_in_final_map(
     trajectory: &mut [StampedPose2],
-    scan_index: &[usize],
-    recording: &Recording,
+    (scan_index, recording): (&[usize], &Recording),
     projector: &ScanProjector,
     map: &OccupancyGrid,
     ro: &RbpfOptions,

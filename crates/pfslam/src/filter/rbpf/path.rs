@@ -46,10 +46,21 @@ pub fn ancestry(leaf: &Arc<PathNode>) -> Vec<&PathNode> {
 /// node at or before it, composed with the odometry increment from that node to the scan.
 /// `odometry[k]` is the odometry pose of processed scan `k`.
 pub fn path_poses(leaf: &Arc<PathNode>, odometry: &[StampedPose2]) -> Vec<StampedPose2> {
+    path_poses_from(leaf, odometry, 0)
+}
+
+/// [`path_poses`] for the processed scans from `first` on: `odometry[j]` is the odometry
+/// pose of processed scan `first + j`.
+pub fn path_poses_from(
+    leaf: &Arc<PathNode>,
+    odometry: &[StampedPose2],
+    first: usize,
+) -> Vec<StampedPose2> {
     let nodes = ancestry(leaf);
     let mut out = Vec::with_capacity(odometry.len());
     let mut n = 0;
-    for (k, o) in odometry.iter().enumerate() {
+    for (j, o) in odometry.iter().enumerate() {
+        let k = first + j;
         while n + 1 < nodes.len() && nodes[n + 1].scan <= k {
             n += 1;
         }
