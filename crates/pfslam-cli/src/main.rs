@@ -73,6 +73,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 }
 
 fn main() -> ExitCode {
+    pfslam::kernels::allocator::unmap_large_blocks();
     cmd::interrupt::install();
     let cli = Cli::parse();
     pfslam_cli::exit_code(run(cli))

@@ -31,6 +31,7 @@ pub enum Command {
 }
 
 fn main() -> ExitCode {
+    pfslam::kernels::allocator::unmap_large_blocks();
     cmd::interrupt::install();
     let cli = Cli::parse();
     pfslam_cli::init_logging(&cli.global.log);

@@ -19,7 +19,8 @@
 //!   interpolated score);
 //! - `field_loglik`: localisation's scan log-likelihood in its f32 field, four poses at a
 //!   time;
-//! - `heights` and `mask`: the grid's height bins and ray walk.
+//! - `heights` and `mask`: the grid's height bins and ray walk;
+//! - `allocator`: a setting of the C library's allocator for long runs.
 //!
 //! The layering: the kernels sit below the modules whose data they walk (`filter`, `graph`,
 //! `map`) and use nothing of the crate but `geometry` (poses, cells, the world <-> cell
@@ -33,6 +34,8 @@
 use std::sync::OnceLock;
 
 mod views;
+
+pub mod allocator;
 
 #[cfg(target_arch = "x86_64")]
 mod block_x86;
