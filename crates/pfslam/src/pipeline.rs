@@ -183,43 +183,12 @@ pub(crate) fn after_filter(
     let mut signals = QualitySignals::default();
     let mut loop_closures = Vec::new();
     let graph = if config.graph.enabled {
-        let mut which = options
+        let which = options
             .back_end_input
             .unwrap_or(config.graph.input)
             .resolve(recording);
-        let mut calibrated = Vec::new();
-        if which == BackEndInput::CalibratedOdometry {
-            match fit_odometry_calibration(
-                &result.dead_reckoning,
-                &result.trajectory,
-                &config.graph.calibration,
-            ) {
-                Ok(fit) => {
-                    tracing::info!(
-                        "odometry calibration: scale {:.5}, yaw-rate bias {:.3e} rad/s; the \
-                         filter's increments differ from it by {:.4} m RMS ({:.4} m uncorrected; \
-                         {} increments)",
-                        fit.calibration.scale,
-                        fit.calibration.yaw_rate_bias_rad_per_s,
-                        fit.rms_m,
-                        fit.rms_uncorrected_m,
-                        fit.increments
-                    );
-                    // Starts at the odometry's first pose, as the filter does: the map frame
-                    // is the start pose (aligning it to the filter's whole path instead would
-                    // carry the filter's global heading error into it: 0.18 deg on seed 3 of
-                    // the default drive, 0.9 m at its far end).
-                    calibrated = fit.calibration.apply(&result.dead_reckoning);
-                    calibration = Some(fit);
-                }
-                Err(e) => {
-                    // A filter that lost its way (or too short a recording) must not stop
-                    // the run: the back end then takes the filter's trajectory as it is.
-                    tracing::warn!("{e}; the back end is fed the filter's trajectory instead");
-                    which = BackEndInput::FrontEnd;
-                }
-            }
-        }
+        let (which, calibrated, fit) = calibrated_input(which, &result, config);
+        calibration = fit;
         back_end_input = Some(which);
         let input = match which {
             BackEndInput::FrontEnd | BackEndInput::Auto => &result.trajectory,
@@ -266,6 +235,48 @@ pub(crate) fn after_filter(
         quality: Quality::assess(signals),
         loop_closures,
     })
+}
+
+/// The back end's input `which` with the odometry calibrated against the filter's
+/// trajectory for `CalibratedOdometry` (the poses and the fit); the filter's trajectory when
+/// the fit fails.
+fn calibrated_input(
+    which: BackEndInput,
+    result: &SlamResult,
+    config: &Config,
+) -> (BackEndInput, Vec<StampedPose2>, Option<CalibrationFit>) {
+    if which != BackEndInput::CalibratedOdometry {
+        return (which, Vec::new(), None);
+    }
+    match fit_odometry_calibration(
+        &result.dead_reckoning,
+        &result.trajectory,
+        &config.graph.calibration,
+    ) {
+        Ok(fit) => {
+            tracing::info!(
+                "odometry calibration: scale {:.5}, yaw-rate bias {:.3e} rad/s; the filter's \
+                 increments differ from it by {:.4} m RMS ({:.4} m uncorrected; {} increments)",
+                fit.calibration.scale,
+                fit.calibration.yaw_rate_bias_rad_per_s,
+                fit.rms_m,
+                fit.rms_uncorrected_m,
+                fit.increments
+            );
+            // Starts at the odometry's first pose, as the filter does: the map frame is the
+            // start pose (aligning it to the filter's whole path instead would carry the
+            // filter's global heading error into it: 0.18 deg on seed 3 of the default
+            // drive, 0.9 m at its far end).
+            let calibrated = fit.calibration.apply(&result.dead_reckoning);
+            (which, calibrated, Some(fit))
+        }
+        Err(e) => {
+            // A filter that lost its way (or too short a recording) must not stop the run:
+            // the back end then takes the filter's trajectory as it is.
+            tracing::warn!("{e}; the back end is fed the filter's trajectory instead");
+            (BackEndInput::FrontEnd, Vec::new(), None)
+        }
+    }
 }
 
 /// What [`choose_trajectory`] kept.
