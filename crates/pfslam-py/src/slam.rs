@@ -214,8 +214,9 @@ impl PySlam {
             (_, true) => format!("Slam({handled} scans handled, finished)"),
             (None, false) => "Slam(no scan yet)".to_string(),
             (Some(s), false) => {
-                let pushed = s.recording().scans.len();
-                format!("Slam({handled} scans handled of {pushed} pushed)")
+                // A long run lets go of consolidated scans: this counts the ones it holds.
+                let held = s.recording().scans.len();
+                format!("Slam({handled} scans handled, {held} held)")
             }
         }
     }
