@@ -46,7 +46,7 @@ fn live(rec: &Recording, config: &Config) -> Live {
             let scan = ScanInput {
                 stamp_ns: rec.scans.stamps_ns[s],
                 ranges_m: rec.scans.ranges(s),
-                lidar: None,
+                lidar: rec.lidar_per_scan.as_ref().map(|g| g[s]),
                 body_from_lidar: None,
             };
             poses += usize::from(slam.push_scan_with(scan).unwrap().is_some());
@@ -108,9 +108,18 @@ fn a_long_run_holds_a_window_of_scans_and_the_keyframes_of_its_area() {
     assert!(two.result.result.trajectory.len() < six.result.trajectory.len());
 }
 
+/// With two lasers' beams in turn, so that the consolidated windows carry per-scan beams.
 #[test]
 fn a_consolidated_run_fed_live_gives_the_run_of_the_whole_recording() {
-    let rec = synthetic::recording(60.0, 6);
+    let mut rec = synthetic::recording(60.0, 6);
+    let mut narrow = rec.lidar;
+    narrow.range_max_m *= 0.5;
+    let n = rec.scans.len();
+    rec.lidar_per_scan = Some(
+        (0..n)
+            .map(|i| if i % 3 == 0 { narrow } else { rec.lidar })
+            .collect(),
+    );
     let config = config(WINDOW_SCANS);
     let fed = live(&rec, &config);
     // Every push that handled a scan reports its pose, consolidating or not.
