@@ -5,6 +5,7 @@
 //! A CARMEN log whose laser lines carry their poses and clean stamps is streamed
 //! ([`pfslam_io::carmen::stream_scan_poses`]): memory does not grow with its length.
 
+use super::thinned::Thinned;
 use anyhow::Context;
 use pfslam::geometry::StampedPose2;
 use pfslam::sensors::sync::poses_at_stamps;
@@ -140,32 +141,6 @@ impl Summary {
     }
 }
 
-/// At most this many poses are drawn: every k-th pose, k doubling as the path grows.
-const PLOT_POSES_MAX: usize = 1 << 14;
-
-/// Poses kept for the plot in bounded memory: every `step`-th, `step` doubling as needed.
-struct Thinned {
-    poses: Vec<StampedPose2>,
-    step: usize,
-    seen: usize,
-}
-
-impl Thinned {
-    fn push(&mut self, p: StampedPose2) {
-        if self.seen.is_multiple_of(self.step) {
-            if self.poses.len() == PLOT_POSES_MAX {
-                self.step *= 2;
-                let keep: Vec<StampedPose2> = self.poses.iter().step_by(2).copied().collect();
-                self.poses = keep;
-            }
-            if self.seen.is_multiple_of(self.step) {
-                self.poses.push(p);
-            }
-        }
-        self.seen += 1;
-    }
-}
-
 /// Dead reckoning of a CARMEN log streamed scan by scan into `out` (see the module docs);
 /// `None` when the dataset is not such a log or must be read whole.
 fn streamed_carmen(
@@ -192,11 +167,7 @@ fn streamed_carmen(
     writeln!(tum, "# stamp_s x y z qx qy qz qw")?;
     writeln!(csv, "{CSV_HEADER}")?;
     let mut summary = Summary::new(0);
-    let mut plot = Thinned {
-        poses: Vec::new(),
-        step: 1,
-        seen: 0,
-    };
+    let mut plot = Thinned::default();
     let account = pfslam_io::carmen::stream_scan_poses(
         &args.dataset,
         &pfslam_io::carmen::CarmenOptions::from_reader(input),

@@ -200,7 +200,7 @@ impl LiveRun<'_> {
             .with_context(|| format!("--out {}: cannot create it", self.args.out.display()))?;
         let overlay = TrajectoryOverlay {
             label: "SLAM",
-            poses,
+            poses: &poses.poses,
         };
         let path = self.args.out.join(LIVE_MAP);
         write_map_png(&path, map, &[overlay], None, &MapImageOptions::default())

@@ -35,6 +35,7 @@ pub mod resume;
 pub mod run;
 pub mod simulate;
 pub mod texture;
+pub mod thinned;
 
 /// Set when standard output carries data (`run --poses-out -`): the messages go to standard
 /// error then.

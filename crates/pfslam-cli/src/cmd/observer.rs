@@ -20,8 +20,8 @@ pub struct RunObserver {
     pub recorder: Option<super::record::Recorder>,
     /// `--poses-out`: each scan's pose, flushed at once.
     poses_out: Option<Box<dyn std::io::Write>>,
-    /// Each scan's pose so far, when kept (live snapshots draw it).
-    pub poses: Option<Vec<Pose2>>,
+    /// The scans' poses so far, thinned, when kept (live snapshots draw them).
+    pub poses: Option<super::thinned::Thinned<Pose2>>,
 }
 
 impl RunObserver {
@@ -69,7 +69,7 @@ impl RunObserver {
         if let Some(b) = self.bar.take() {
             b.finish_and_clear();
         }
-        self.poses = Some(Vec::new());
+        self.poses = Some(super::thinned::Thinned::default());
         self
     }
 

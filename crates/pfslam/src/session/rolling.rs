@@ -87,6 +87,12 @@ impl Rolling {
         if let (Some(c), Some(f)) = (corrected.last(), window.trajectory.last()) {
             self.world_from_front = c.pose.compose(&f.pose.inverse());
         }
+        // Grown a window at a time, without a doubling's spare capacity: these are what a
+        // long run's memory still grows by.
+        self.trajectory.reserve_exact(corrected.len());
+        self.front_end.reserve_exact(window.trajectory.len());
+        self.dead_reckoning
+            .reserve_exact(window.dead_reckoning.len());
         self.trajectory.extend_from_slice(corrected);
         self.front_end.extend_from_slice(&window.trajectory);
         self.dead_reckoning
