@@ -191,8 +191,6 @@ pub struct Slam {
     filter_s: f64,
     /// The consolidated part of a long run (`[session] consolidate_every_scans`).
     rolling: Option<Rolling>,
-    /// Scans let go after their window was consolidated.
-    released: usize,
 }
 
 /// The front end once the first scan within the odometry's span arrived.
@@ -233,7 +231,6 @@ impl Slam {
             next_scan: 0,
             filter_s: 0.0,
             rolling: None,
-            released: 0,
         })
     }
 
@@ -415,9 +412,8 @@ impl Slam {
         let filter_s = self.filter_s + t.elapsed().as_secs_f64();
         let (config, seed) = (&self.config, self.seed);
         if let Some(rolling) = self.rolling.take() {
-            let run = (self.released, filter_s);
             let last = std::mem::take(&mut self.recording);
-            return Ok(rolling.finish(last, result, run, config)?);
+            return Ok(rolling.finish(last, result, filter_s, config)?);
         }
         let pipeline = after_filter(recording, config, (seed, options), result, (filter_s, None))?;
         Ok((pipeline, self.recording))
@@ -439,21 +435,21 @@ impl Slam {
         let Some(running) = self.running.as_mut() else {
             return Ok(());
         };
-        let Some(window) = running.front.take_window(&self.recording)? else {
+        let let_go = self.next_scan;
+        let Some(window) = running.front.take_window(&self.recording, let_go)? else {
             return Ok(());
         };
-        let scans = self.recording.split_front(self.next_scan);
+        let scans = self.recording.split_front(let_go);
         let passed = running.cursor.forget_passed();
         self.recording.odometry.poses.drain(..passed);
         let every = self.config.session.consolidate_every_scans;
         self.recording.scans.reserve_scans(every);
-        self.released += self.next_scan;
         self.next_scan = 0;
         let rolling = self.rolling.get_or_insert_with(Rolling::default);
         rolling.add_window(scans, window, &self.config)?;
         tracing::info!(
             "consolidated {} scans to {} keyframes (window {})",
-            self.released,
+            rolling.trajectory.len(),
             rolling.keyframes(),
             rolling.windows
         );

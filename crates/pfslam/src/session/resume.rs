@@ -167,24 +167,36 @@ pub(super) fn saved_recording(state: &SessionState, next: &Recording) -> Recordi
         .first()
         .map_or(first_scan, |p| p.stamp_ns);
     let end = first_scan.min(first_odometry);
-    let mut scans = ScanSet::new(state.keyframes[0].lidar.beam_count);
-    let mut poses = Vec::with_capacity(state.keyframes.len());
-    let mut geometry: Vec<LidarGeometry> = Vec::with_capacity(state.keyframes.len());
-    for (k, kf) in state.keyframes.iter().enumerate() {
-        let stamp_ns = end - (n - k as i64) * 1_000_000_000;
-        scans.push_any(stamp_ns, &kf.ranges_m);
-        poses.push(StampedPose2 {
+    let mut old = keyframe_scans(state, next.lidar, |k| end - (n - k as i64) * 1_000_000_000);
+    let poses = (old.scans.stamps_ns.iter().zip(&state.keyframes))
+        .map(|(&stamp_ns, kf)| StampedPose2 {
             stamp_ns,
             pose: kf.world_from_body,
-        });
+        })
+        .collect();
+    old.name = "saved keyframes".into();
+    old.odometry = Trajectory::new(poses);
+    old
+}
+
+/// The scans of `state`'s keyframes, keyframe `k` stamped `stamp_of(k)`, with their beams
+/// (per scan where they differ; `lidar` without keyframes) and the saved mount.
+pub(super) fn keyframe_scans(
+    state: &SessionState,
+    lidar: LidarGeometry,
+    stamp_of: impl Fn(usize) -> i64,
+) -> Recording {
+    let first = state.keyframes.first().map_or(lidar, |kf| kf.lidar);
+    let mut scans = ScanSet::new(first.beam_count);
+    let mut geometry: Vec<LidarGeometry> = Vec::with_capacity(state.keyframes.len());
+    for (k, kf) in state.keyframes.iter().enumerate() {
+        scans.push_any(stamp_of(k), &kf.ranges_m);
         geometry.push(kf.lidar);
     }
-    let varies = geometry.iter().any(|g| g != &geometry[0]);
+    let varies = geometry.iter().any(|g| *g != first);
     Recording {
-        name: "saved keyframes".into(),
-        odometry: Trajectory::new(poses),
         scans,
-        lidar: geometry[0],
+        lidar: first,
         body_from_lidar: state.body_from_lidar(),
         lidar_per_scan: varies.then_some(geometry),
         ..Recording::default()

@@ -11,7 +11,7 @@ use crate::pipeline::{
     BackEndInput, Chosen, OdometryTimingReport, PipelineError, PipelineResult, back_end_over,
 };
 use crate::quality::Quality;
-use crate::sensors::{Recording, ScanSet};
+use crate::sensors::Recording;
 use crate::slam::{SlamResult, Window};
 use std::time::Instant;
 
@@ -112,24 +112,25 @@ impl Rolling {
     /// The run's result once the filter's `last` window (its scans in `scans`) is
     /// consolidated too: every scan's pose, the map of the kept keyframes and the last
     /// window's scans, and a recording of the keyframes kept (what the run holds then).
-    /// `released` scans were let go before; the filter took `filter_s` wall seconds.
+    /// The filter took `filter_s` wall seconds.
     pub(crate) fn finish(
         mut self,
         scans: Recording,
         last: SlamResult,
-        (released, filter_s): (usize, f64),
+        filter_s: f64,
         config: &Config,
     ) -> Result<(PipelineResult, Recording), PipelineError> {
         let SlamResult {
             trajectory,
             dead_reckoning,
-            mut stats,
+            stats,
             ..
         } = last;
         let window = Window {
             trajectory,
             dead_reckoning,
         };
+        // What the returned recording keeps of the last window's.
         let sensors = Recording {
             name: scans.name.clone(),
             lidar: scans.lidar,
@@ -138,8 +139,14 @@ impl Rolling {
             ..Recording::default()
         };
         let chosen = self.add_window(scans, window, config)?;
-        stats.scans_total += released;
-        let kept = self.kept_recording(&sensors);
+        let kept = match &self.state {
+            Some(state) => Recording {
+                name: sensors.name,
+                ground_truth: sensors.ground_truth,
+                ..resume::keyframe_scans(state, sensors.lidar, |k| state.keyframes[k].stamp_ns)
+            },
+            None => sensors,
+        };
         let odometry_timing = OdometryTimingReport {
             shift_s: config.input.odometry_shift_s.unwrap_or(0.0),
             ..OdometryTimingReport::default()
@@ -166,25 +173,5 @@ impl Rolling {
             loop_closures: self.loop_closures,
         };
         Ok((result, kept))
-    }
-
-    /// The kept keyframes as a recording (at their own stamps), with `last`'s sensors.
-    fn kept_recording(&self, last: &Recording) -> Recording {
-        let keyframes = self.state.as_ref().map_or(&[][..], |s| &s.keyframes[..]);
-        let mut scans = ScanSet::new(last.lidar.beam_count);
-        for kf in keyframes {
-            scans.push_any(kf.stamp_ns, &kf.ranges_m);
-        }
-        let geometry: Vec<_> = keyframes.iter().map(|k| k.lidar).collect();
-        let varies = geometry.iter().any(|g| *g != last.lidar);
-        Recording {
-            name: last.name.clone(),
-            scans,
-            lidar: last.lidar,
-            body_from_lidar: last.body_from_lidar,
-            lidar_per_scan: varies.then_some(geometry),
-            ground_truth: last.ground_truth.clone(),
-            ..Recording::default()
-        }
     }
 }

@@ -35,9 +35,14 @@ pub trait FrontEnd {
     fn finish(self, recording: &Recording, t_start: Instant) -> Result<SlamResult, SlamError>;
 
     /// The scans handled since the last window (or the start), as `finish` would give
-    /// their poses; the front end then no longer needs their ranges in `recording`. `None`
-    /// where the front end needs every scan at its finish.
-    fn take_window(&mut self, _recording: &Recording) -> Result<Option<Window>, SlamError> {
+    /// their poses; the caller then lets the first `let_go` scans of `recording` go (later
+    /// indices shift down by that much). `None` where the front end needs every scan at its
+    /// finish (nothing may be let go then).
+    fn take_window(
+        &mut self,
+        _recording: &Recording,
+        _let_go: usize,
+    ) -> Result<Option<Window>, SlamError> {
         Ok(None)
     }
 }

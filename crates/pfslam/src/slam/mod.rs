@@ -167,10 +167,14 @@ impl FrontEnd for AnyFrontEnd {
         }
     }
 
-    fn take_window(&mut self, recording: &Recording) -> Result<Option<Window>, SlamError> {
+    fn take_window(
+        &mut self,
+        recording: &Recording,
+        let_go: usize,
+    ) -> Result<Option<Window>, SlamError> {
         match self {
-            AnyFrontEnd::Rbpf(f) => f.take_window(recording),
-            AnyFrontEnd::Match(f) => f.take_window(recording),
+            AnyFrontEnd::Rbpf(f) => f.take_window(recording, let_go),
+            AnyFrontEnd::Match(f) => f.take_window(recording, let_go),
         }
     }
 }

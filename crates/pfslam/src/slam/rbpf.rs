@@ -67,7 +67,8 @@ pub struct RbpfFrontEnd {
     window_start: usize,
     /// The odometry pose of the latest processed scan.
     latest_odom: Option<StampedPose2>,
-    /// Scans the recording let go with earlier windows (for progress reports).
+    /// Scans the recording let go with earlier windows (counted in progress and in
+    /// `scans_total`).
     released_scans: usize,
     body: PlanarScan,
     pts: Vec<[f64; 2]>,
@@ -196,11 +197,15 @@ impl FrontEnd for RbpfFrontEnd {
         })
     }
 
-    fn take_window(&mut self, recording: &Recording) -> Result<Option<Window>, SlamError> {
+    fn take_window(
+        &mut self,
+        recording: &Recording,
+        let_go: usize,
+    ) -> Result<Option<Window>, SlamError> {
         let trajectory = self.window_path(recording)?;
         let dead_reckoning = std::mem::take(&mut self.dead_reckoning);
         self.window_start += dead_reckoning.len();
-        self.released_scans += self.scan_index.last().map_or(0, |&i| i + 1);
+        self.released_scans += let_go;
         self.scan_index.clear();
         Ok(Some(Window {
             trajectory,
@@ -212,7 +217,7 @@ impl FrontEnd for RbpfFrontEnd {
     /// `final_refine.enabled`), its map and the statistics.
     fn finish(mut self, recording: &Recording, t_start: Instant) -> Result<SlamResult, SlamError> {
         // Fed incrementally, the recording grew after the filter started.
-        self.stats.scans_total = recording.scans.len();
+        self.stats.scans_total = self.released_scans + recording.scans.len();
         self.stats.odometry_steps = self.window_start + self.dead_reckoning.len();
         self.stats.finish_means(self.neff_sum, self.ll_sum);
         let trajectory = self.window_path(recording)?;
