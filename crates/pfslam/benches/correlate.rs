@@ -13,10 +13,10 @@ use cpu_time::ThreadCpuTime;
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use mapped_drive::mapped_drive;
 use pfslam::config::Config;
-use pfslam::filter::correlate::{CorrelationScratch, best_match};
 use pfslam::filter::{ParticleFilter, SharedMap};
 use pfslam::geometry::Pose2;
 use pfslam::map::OccupancyGrid;
+use pfslam::matching::correlation::{CorrelationScratch, best_match};
 use pfslam::slam::BestParticleMap;
 use std::hint::black_box;
 
@@ -25,7 +25,7 @@ fn bench(c: &mut Criterion) {
     config.map.scan.z_min_m = Some(0.5);
     let (grid, body, pose) = mapped_drive(&config, 5);
     let mut hits = Vec::new();
-    pfslam::filter::correlate::hit_points(&body, &mut hits);
+    pfslam::matching::correlation::hit_points(&body, &mut hits);
     let search = config.filter.search();
     let mut g = c.benchmark_group("correlate");
     let mut scratch = CorrelationScratch::default();
@@ -63,7 +63,7 @@ fn bench(c: &mut Criterion) {
 fn scan_match_setup(
     config: &Config,
 ) -> (OccupancyGrid, Vec<[f64; 2]>, Pose2, pfslam::map::CellRect) {
-    use pfslam::filter::scanmatch::match_points;
+    use pfslam::matching::likelihood_field::match_points;
     let (grid, body, pose) = mapped_drive(config, 1);
     let sm = &config.filter.scan_match;
     let mut pts = Vec::new();
@@ -79,7 +79,7 @@ fn scan_match_setup(
 }
 
 fn scan_match(c: &mut Criterion) {
-    use pfslam::filter::scanmatch::{LikelihoodField, MatchScratch, match_scan};
+    use pfslam::matching::likelihood_field::{LikelihoodField, MatchScratch, match_scan};
     let config = Config::default();
     let sm = &config.filter.scan_match;
     let (grid, pts, pose, rect) = scan_match_setup(&config);
@@ -136,7 +136,7 @@ fn scan_match(c: &mut Criterion) {
 /// time (figures that hold on a loaded machine): the whole match, and the coarse search
 /// alone (`refine_levels = 0`); their difference is the refinement.
 fn scan_match_cpu(c: &mut Criterion<ThreadCpuTime>) {
-    use pfslam::filter::scanmatch::{LikelihoodField, MatchScratch, match_scan};
+    use pfslam::matching::likelihood_field::{LikelihoodField, MatchScratch, match_scan};
     let config = Config::default();
     let sm = &config.filter.scan_match;
     let (grid, pts, pose, rect) = scan_match_setup(&config);
@@ -151,7 +151,8 @@ fn scan_match_cpu(c: &mut Criterion<ThreadCpuTime>) {
     let cloud = pf.particles.poses.clone();
     let mut g = c.benchmark_group("scan_match_cpu");
     g.sample_size(20);
-    use pfslam::filter::scanmatch::{KernelPrecision, MatchParams, ScanMatchOptions};
+    use pfslam::filter::scan_match::ScanMatchOptions;
+    use pfslam::matching::likelihood_field::{KernelPrecision, MatchParams};
     for (name, levels, kernel_precision) in [
         ("match_100_jittered", sm.refine_levels, KernelPrecision::F64),
         (

@@ -9,11 +9,10 @@ mod mapped_drive;
 use criterion::{Criterion, criterion_group, criterion_main};
 use mapped_drive::mapped_drive;
 use pfslam::config::Config;
-use pfslam::filter::rbpf::{
-    MatchPrior, RbpfOptions, SearchParams, match_in_own_map, scan_log_likelihood,
-};
-use pfslam::filter::scanmatch::match_points;
+use pfslam::filter::rbpf::RbpfOptions;
 use pfslam::geometry::Pose2;
+use pfslam::matching::likelihood_field::match_points;
+use pfslam::matching::nearest_occupied::{MatchPrior, match_in_own_map, scan_log_likelihood};
 use std::hint::black_box;
 
 fn bench(c: &mut Criterion) {
@@ -25,7 +24,7 @@ fn bench(c: &mut Criterion) {
     let mut points = Vec::new();
     match_points(&body, o.range_max_m, o.beam_decimation, &mut points);
     let model = o.observation(0.05);
-    let mut search = SearchParams::new(&o, 0.05);
+    let mut search = o.search_params(0.05);
     // The prior's smallest sigmas (as after a short step).
     search.prior = Some(MatchPrior {
         inv_var_xy: 1.0 / (o.search.prior_min_xy_m * o.search.prior_min_xy_m),

@@ -29,9 +29,12 @@
 //!   the noise models the particle filter samples from.
 //! - [`map`] is the occupancy grid: [`map::MapLimits`] for world <-> cell, log-odds, ray
 //!   insertion.
-//! - [`filter`] is the particle filter (prediction, map correlation, weights, resampling)
-//!   and its options; [`slam`] runs it over a recording with a whole [`config::Config`]
-//!   (the front ends fed one scan at a time, [`slam::run_slam`], [`slam::SlamResult`]).
+//! - [`matching`] holds the scan matchers, for every filter mode and the back end: a scan
+//!   placed against a map (hit counts, likelihood fields, nearest occupied cells).
+//! - [`filter`] is the particle filter (prediction, weighting by a scan matcher,
+//!   resampling) and its options; [`slam`] runs it over a recording with a whole
+//!   [`config::Config`] (the front ends fed one scan at a time, [`slam::run_slam`],
+//!   [`slam::SlamResult`]).
 //! - [`eval`] measures accuracy (ATE, RPE, the Kümmerle relations metric).
 //!
 //! [`config::Config`] gathers one options struct per component; each is one TOML section,
@@ -65,6 +68,7 @@ pub mod graph;
 pub mod kernels;
 pub mod localize;
 pub mod map;
+pub mod matching;
 pub mod motion;
 pub mod online;
 pub mod pipeline;

@@ -1,11 +1,11 @@
 //! The likelihood field's cache: equal to a fresh build after every flush of the simulated
 //! car's scans.
 
-use pfslam::filter::field_cache::FieldCache;
-use pfslam::filter::scanmatch::LikelihoodField;
 use pfslam::geometry::{Pose2, Trajectory};
 use pfslam::map::{Cell, CellRect};
 use pfslam::map::{MapOptions, PlanarScan, ScanOptions, ScanProjector};
+use pfslam::matching::likelihood_field::LikelihoodField;
+use pfslam::matching::likelihood_field::cache::FieldCache;
 use pfslam::slam::{BestParticleMap, MapPolicy};
 use pfslam_sim::SimOptions;
 use rand::{RngExt, SeedableRng};

@@ -398,8 +398,8 @@ fn scan_match_mode_is_bit_identical_with_1_and_4_threads() {
 /// Build a map from one scan at a known pose; a perturbed particle finds the pose again.
 #[test]
 fn correlation_search_recovers_a_perturbed_pose() {
-    use pfslam::filter::correlate::{CorrelationScratch, best_match, correlation};
     use pfslam::map::{InsertScratch, OccupancyGrid, PlanarScan, ScanProjector, to_world};
+    use pfslam::matching::correlation::{CorrelationScratch, best_match, correlation};
     let rec = synthetic::recording(1.0, 3);
     let mut config = pfslam::slam::seed_config();
     config.map.scan.range_min_m = 0.5;
@@ -413,7 +413,7 @@ fn correlation_search_recovers_a_perturbed_pose() {
     let mut grid = OccupancyGrid::new(&config.map).unwrap();
     grid.insert_scan(&world, &mut InsertScratch::new()).unwrap();
     let mut hits = Vec::new();
-    pfslam::filter::correlate::hit_points(&body, &mut hits);
+    pfslam::matching::correlation::hit_points(&body, &mut hits);
     let at_truth = correlation(&grid, &hits, &truth);
     assert!(
         at_truth as usize > hits.len() * 9 / 10,

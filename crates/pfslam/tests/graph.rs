@@ -3,9 +3,9 @@
 //! world (known offset found, corridor rejected as ambiguous), and MIT-CSAIL end to end.
 
 use pfslam::geometry::Pose2;
-use pfslam::graph::matcher::{PointField, SearchWindow};
 use pfslam::graph::optimize::{Edge, OptimizeOptions, PoseGraph};
 use pfslam::graph::{GraphOptions, Verdict, verify_closure, verify_closure_in};
+use pfslam::matching::point_field::{PointField, SearchWindow};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 use rand_xoshiro::Xoshiro256PlusPlus;

@@ -5,25 +5,31 @@
 //! - [`particles`]: the weighted set; [`weights`]: log-space softmax and Neff;
 //!   [`resample`]: stratified, systematic and multinomial resampling;
 //!   [`rng`]: per-chunk random streams, so results do not depend on the thread count;
-//!   [`correlate`]: the seeds' map-correlation search; [`scanmatch`]: the default mode's
-//!   likelihood field and scan-matching proposal;
+//!   [`scan_match`]: the scan-matching mode's options; [`rbpf`]: the Rao-Blackwellised
+//!   mode (options, particles with their own maps, paths);
+//! - the scan matchers the modes weigh and move particles with are in [`crate::matching`]:
+//!   the seeds' map correlation ([`crate::matching::correlation`]), the scan-matching mode's
+//!   likelihood field and proposal ([`crate::matching::likelihood_field`]), the
+//!   Rao-Blackwellised mode's match in a particle's own map
+//!   ([`crate::matching::nearest_occupied`]);
 //! - [`ParticleFilter`] ties them together; the map is reached only through
 //!   [`ParticleMaps`], so one shared map (the seeds) and per-particle maps fit the same code.
 
-pub mod correlate;
-pub mod field_cache;
 pub mod odometry;
 pub mod particles;
 pub mod prediction;
 pub mod rbpf;
 pub mod resample;
 pub mod rng;
-pub mod scanmatch;
+pub mod scan_match;
 pub mod weights;
 
 use crate::geometry::{Pose2, StampedPose2};
+use crate::matching::correlation::{
+    self, CorrelationScratch, CorrelationSearch, OccupancyLookup, ScanMatch,
+};
+use crate::matching::likelihood_field;
 use crate::motion::odometry_model::OdometryModelOptions;
-use correlate::{CorrelationScratch, CorrelationSearch, OccupancyLookup, ScanMatch};
 use particles::ParticleSet;
 use prediction::{MotionModel, PredictionModel};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -133,7 +139,7 @@ pub struct FilterOptions {
     /// sigmas `[0.005, 0.005, 0.005]`; "thrun": four alphas).
     pub odometry_model: OdometryModelOptions,
     /// The scan-matching mode's options.
-    pub scan_match: scanmatch::ScanMatchOptions,
+    pub scan_match: scan_match::ScanMatchOptions,
     /// The Rao-Blackwellised mode's options.
     pub rbpf: rbpf::RbpfOptions,
 }
@@ -156,7 +162,7 @@ impl Default for FilterOptions {
             motion_model: PredictionModel::Velocity,
             odometry_model: OdometryModelOptions::ese650(),
             mode: FilterMode::default(),
-            scan_match: scanmatch::ScanMatchOptions::default(),
+            scan_match: scan_match::ScanMatchOptions::default(),
             rbpf: rbpf::RbpfOptions::default(),
         }
     }
@@ -409,7 +415,7 @@ impl ParticleFilter {
             .zip(self.particles.poses.par_iter())
             .enumerate()
             .for_each_init(CorrelationScratch::default, |scratch, (i, (m, pose))| {
-                *m = correlate::best_match(maps.map_of(i), points_body, pose, search, scratch);
+                *m = correlation::best_match(maps.map_of(i), points_body, pose, search, scratch);
             });
         self.scores.clear();
         self.scores
@@ -447,25 +453,25 @@ impl ParticleFilter {
     }
 
     /// Scan-matching update: every particle is matched against `field` around its pose
-    /// (see [`scanmatch`]), moved to the optimum, and its log-weight grows by the objective /
+    /// (see [`likelihood_field`]), moved to the optimum, and its log-weight grows by the objective /
     /// `temperature`. Returns Neff after reweighting and the best particle; does not resample.
     pub fn scan_match_update(
         &mut self,
-        field: &scanmatch::LikelihoodField,
+        field: &likelihood_field::LikelihoodField,
         points_body: &[[f64; 2]],
-        params: &scanmatch::MatchParams,
+        params: &likelihood_field::MatchParams,
         temperature: f64,
     ) -> UpdateReport {
         let n = self.particles.len();
         let mut results = vec![
-            scanmatch::MatchResult {
+            likelihood_field::MatchResult {
                 pose: Pose2::IDENTITY,
                 objective: 0.0,
                 fit: 0.0,
             };
             n
         ];
-        scanmatch::match_particles(
+        likelihood_field::match_particles(
             field,
             points_body,
             &self.particles.poses,

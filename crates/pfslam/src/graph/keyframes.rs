@@ -167,7 +167,7 @@ impl<'a> ScanPoints<'a> {
         self.projector
             .to_body(rec.scans.ranges(i), &mut self.body)?;
         let mut pts = Vec::new();
-        crate::filter::scanmatch::match_points(&self.body, self.range_max_m, 1, &mut pts);
+        crate::matching::likelihood_field::match_points(&self.body, self.range_max_m, 1, &mut pts);
         if pts.len() > self.max_points {
             let n = pts.len();
             pts = (0..self.max_points)

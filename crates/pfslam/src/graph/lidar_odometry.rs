@@ -3,9 +3,9 @@
 //! around a constant-velocity prediction with a Gaussian prior, then sub-cell refinement) and
 //! the poses are chained. The filter then runs on this odometry as on a wheel odometry.
 
-use super::matcher::{PointField, Prior, SearchWindow};
 use crate::geometry::{Pose2, StampedPose2, Trajectory};
 use crate::map::{MapError, PlanarScan, ScanOptions, ScanProjector, to_world};
+use crate::matching::point_field::{PointField, Prior, SearchWindow};
 use crate::sensors::Recording;
 use std::collections::VecDeque;
 

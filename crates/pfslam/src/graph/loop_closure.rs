@@ -5,9 +5,9 @@
 
 use super::GraphOptions;
 use super::keyframes::{Keyframe, bounds_around, clip_to_points, gather_points};
-use super::matcher::{PointField, SearchWindow};
 use super::optimize::PoseGraph;
 use crate::geometry::Pose2;
+use crate::matching::point_field::{PointField, SearchWindow};
 
 /// Keyframes due for a loop search verified in one parallel batch, up to the next periodic
 /// optimisation: the loop-closure verifications of a keyframe with one candidate left a

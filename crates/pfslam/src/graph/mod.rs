@@ -26,10 +26,10 @@
 //! to the previous keyframe) and `loop_search` (the loop searches of a keyframe). The
 //! options are in `options`, keyframes and their submaps in `keyframes`, loop-closure search
 //! and verification in `loop_closure`, the refinement of the scans between keyframes in
-//! `refine`, the matcher in [`matcher`] and the pose graph in [`optimize`].
+//! `refine`, and the pose graph in [`optimize`]. The scan-to-submap matcher is
+//! [`crate::matching::point_field`].
 
 pub mod lidar_odometry;
-pub mod matcher;
 pub mod optimize;
 
 mod back_end;
@@ -45,6 +45,7 @@ pub use options::{BackEndInput, GraphOptions, Switch};
 
 use crate::geometry::{Pose2, StampedPose2};
 use crate::map::{MapError, ScanOptions};
+use crate::matching::point_field::{PointField, Prior, SearchWindow};
 use crate::sensors::Recording;
 use keyframes::{
     Keyframe, bounds_around, clip_to_points, correct_trajectory, gather_points, select_keyframes,
@@ -53,7 +54,6 @@ use loop_closure::{
     AheadJob, Checked, ClosurePair, LOOK_AHEAD_UNBOUNDED, LookAhead, Search, Vouches,
     look_ahead_jobs, loop_candidates, verify_candidate,
 };
-use matcher::{PointField, Prior, SearchWindow};
 use optimize::{Edge, OptimizeOptions, PoseGraph};
 use rayon::prelude::*;
 use refine::refine_scans;

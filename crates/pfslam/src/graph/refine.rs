@@ -2,10 +2,10 @@
 //! them (`graph refine.scans`).
 
 use super::keyframes::{Keyframe, ScanPoints, bounds_around, clip_to_points, gather_points};
-use super::matcher::{PointField, Prior, SearchWindow};
 use super::{GraphError, GraphOptions};
 use crate::geometry::{Pose2, StampedPose2};
 use crate::map::ScanOptions;
+use crate::matching::point_field::{PointField, Prior, SearchWindow};
 use crate::sensors::Recording;
 use rayon::prelude::*;
 

@@ -22,14 +22,14 @@
 //! - `heights` and `mask`: the grid's height bins and ray walk;
 //! - `allocator`: a setting of the C library's allocator for long runs.
 //!
-//! The layering: the kernels sit below the modules whose data they walk (`filter`, `graph`,
-//! `map`) and use nothing of the crate but `geometry` (poses, cells, the world <-> cell
-//! frame). They take plain slices and small `Copy` views defined here (`FieldWindow` of
-//! the scan matcher's likelihood field, `PointLevel` of the back end's point field, the
-//! families' own parameter structs) or, for the particle grid's tile directory, the
-//! `likelihood::TileGrid` trait; the owning modules build these and call the kernels. The
-//! constants both sides must agree on (the tile layout, the height bins, the lanes of the
-//! interpolations) are defined here once and re-exported by their owners.
+//! The layering: the kernels sit below the modules whose data they walk (`matching`,
+//! `localize`, `map`) and use nothing of the crate but `geometry` (poses, cells, the
+//! world <-> cell frame). They take plain slices and small `Copy` views defined here
+//! (`FieldWindow` of the scan matcher's likelihood field, `PointLevel` of the back end's
+//! point field, the families' own parameter structs) or, for the particle grid's tile
+//! directory, the `likelihood::TileGrid` trait; the owning modules build these and call the
+//! kernels. The constants both sides must agree on (the tile layout, the height bins, the
+//! lanes of the interpolations) are defined here once and re-exported by their owners.
 
 use std::sync::OnceLock;
 

@@ -3,8 +3,8 @@
 //! a local match of every return does not.
 
 use super::field::{LikelihoodField, Sharpness};
-use crate::filter::scanmatch::six_moves;
 use crate::geometry::{Pose2, wrap_angle};
+use crate::matching::likelihood_field::six_moves;
 
 /// The first x/y step of the climb (m); halved `LEVELS` times.
 const STEP_XY_M: f64 = 0.05;

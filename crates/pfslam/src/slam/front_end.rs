@@ -4,8 +4,8 @@
 
 use super::*;
 use crate::filter::UpdateReport;
-use crate::filter::correlate::hit_points;
-use crate::filter::field_cache::FieldCache;
+use crate::matching::correlation::hit_points;
+use crate::matching::likelihood_field::cache::FieldCache;
 
 /// A filter fed one scan at a time.
 pub trait FrontEnd {
@@ -110,9 +110,9 @@ pub struct MatchFrontEnd<P: MapPolicy> {
     body: PlanarScan,
     hits: Vec<[f64; 2]>,
     match_pts: Vec<[f64; 2]>,
-    field: scanmatch::LikelihoodField,
+    field: likelihood_field::LikelihoodField,
     field_cache: FieldCache,
-    match_params: scanmatch::MatchParams,
+    match_params: likelihood_field::MatchParams,
     resample_threshold: f64,
     increments: Vec<Pose2>,
     last_estimate: Pose2,
@@ -152,7 +152,7 @@ impl<P: MapPolicy> MatchFrontEnd<P> {
             neff_min: f64::INFINITY,
             ..SlamStats::default()
         };
-        let field = scanmatch::LikelihoodField::new();
+        let field = likelihood_field::LikelihoodField::new();
         policy.log_changes(field.source_threshold_on(policy.map_for_output(0)));
         let resample_threshold = match mode {
             FilterMode::Seed => opts.resample_threshold,
@@ -265,7 +265,7 @@ impl<P: MapPolicy> MatchFrontEnd<P> {
     fn scan_match(&mut self) -> UpdateReport {
         let sm = &self.config.filter.scan_match;
         let pf = &mut self.pf;
-        scanmatch::match_points(
+        likelihood_field::match_points(
             &self.body,
             sm.match_range_max_m,
             sm.beam_decimation,

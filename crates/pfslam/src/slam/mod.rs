@@ -1,7 +1,7 @@
 //! The particle filter run over a recording: the driver above the filter's building blocks
 //! ([`crate::filter`]) that takes the whole [`Config`]. The loop predicts at every odometry
 //! step, updates every k-th scan (`[filter] mode`: the seeds' correlation, or the
-//! scan-matching proposal of [`crate::filter::scanmatch`]), reweights, resamples on low
+//! scan-matching proposal of [`crate::matching::likelihood_field`]), reweights, resamples on low
 //! Neff, maps with the best particle (the scan-matching mode also maps the scans between
 //! updates at the odometry-composed pose) and outputs a pose at every scan; the `rbpf` mode's
 //! front end ([`RbpfFrontEnd`]) updates once the odometry moved far enough and re-matches its
@@ -17,16 +17,16 @@
 //!   motion model a configuration selects.
 
 use crate::config::Config;
-use crate::filter::correlate::CorrelationSearch;
 use crate::filter::odometry::OdometryCursor;
 use crate::filter::prediction::{self, PredictionModel};
-use crate::filter::scanmatch;
 use crate::filter::{FilterError, FilterMode, ParticleFilter, ParticleMaps};
 use crate::geometry::{Pose2, StampedPose2};
 use crate::map::{
     BatchScratch, CellChange, ChangeLog, InsertScratch, MapError, OccupancyGrid, PlanarScan,
     ScanProjector, ScanUpdates, split_rays, to_world,
 };
+use crate::matching::correlation::CorrelationSearch;
+use crate::matching::likelihood_field;
 use crate::sensors::Recording;
 use rayon::prelude::*;
 use serde::Serialize;

@@ -3,12 +3,11 @@
 
 use super::{FrontEnd, SlamError, SlamEvent, SlamResult, SlamStats};
 use crate::config::Config;
-use crate::filter::rbpf::{
-    MatchPrior, Rbpf, RbpfOptions, SearchParams, UpdateScan, match_in_own_map, path_poses_from,
-};
-use crate::filter::scanmatch::match_points;
+use crate::filter::rbpf::{Rbpf, RbpfOptions, UpdateScan, path_poses_from};
 use crate::geometry::{Pose2, StampedPose2};
 use crate::map::{MapError, OccupancyGrid, PlanarScan, ScanProjector};
+use crate::matching::likelihood_field::match_points;
+use crate::matching::nearest_occupied::{MatchPrior, match_in_own_map};
 use crate::sensors::Recording;
 use rayon::prelude::*;
 use std::time::Instant;
@@ -367,7 +366,7 @@ fn refine_in_final_map(
 ) -> Result<(), MapError> {
     let res = map.limits().resolution_m();
     let model = ro.observation(res);
-    let mut search = SearchParams::new(ro, res);
+    let mut search = ro.search_params(res);
     search.yaw_offsets_rad = vec![0.0];
     search.xy_cells = 0;
     search.step_xy_m = 0.5 * ro.search.step_xy_m;

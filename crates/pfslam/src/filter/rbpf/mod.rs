@@ -9,12 +9,13 @@
 //!   `angular_update_deg` since the last one. At an update each particle composes the
 //!   odometry increment onto its pose (no noise), scan-matches from there against its OWN
 //!   map (coarse yaw/x/y search, then a hill climb with step halving on a smooth observation
-//!   model, see [`scan_log_likelihood`]; the prior's sigmas are GMapping's four-parameter
-//!   motion noise for the increment, `odometry_noise`), then samples its pose around the
-//!   match (`search.jitter_xy_m`, `search.jitter_yaw_deg`); its log-weight grows by the
-//!   match log-likelihood / `weight_temperature` (GMapping samples the motion noise first
-//!   and matches from the sample: decision 0005). Maps are updated with the particle's pose; resampling is selective (Neff
-//!   below a fraction of N).
+//!   model, see [`scan_log_likelihood`]; the matcher is [`crate::matching::nearest_occupied`];
+//!   the prior's sigmas are GMapping's four-parameter motion noise for the increment,
+//!   `odometry_noise`), then samples its pose around the match (`search.jitter_xy_m`,
+//!   `search.jitter_yaw_deg`); its log-weight grows by the match log-likelihood /
+//!   `weight_temperature` (GMapping samples the motion noise first and matches from the
+//!   sample: decision 0005). Maps are updated with the particle's pose; resampling is
+//!   selective (Neff below a fraction of N).
 //! - Each particle's trajectory is a chain of [`PathNode`]s with `Arc` parent links, one per
 //!   update, so resampled copies share their history. The output is the FINAL best
 //!   particle's whole ancestral path: loop closures found late correct the whole past. Scans
@@ -25,17 +26,15 @@
 //!
 //! The filter is fed a recording scan by scan, and its final path re-matched in the best
 //! map, by `crate::slam::RbpfFrontEnd`.
+//!
+//! [`scan_log_likelihood`]: crate::matching::nearest_occupied::scan_log_likelihood
 
-mod likelihood;
-mod matcher;
 mod options;
 mod particles;
 mod path;
 #[cfg(test)]
 mod tests;
 
-pub use likelihood::*;
-pub use matcher::*;
 pub use options::*;
 pub use particles::*;
 pub use path::*;

@@ -1,7 +1,7 @@
 //! The options of the Rao-Blackwellised filter (`[filter.rbpf]` and its tables
 //! `odometry_noise`, `likelihood`, `search`, `final_refine`).
 
-use super::*;
+use crate::matching::nearest_occupied::{ObservationModel, SearchParams};
 use serde::{Deserialize, Serialize};
 
 /// Options of the Rao-Blackwellised mode (`[filter.rbpf]`). The particle count is
@@ -292,6 +292,27 @@ impl RbpfOptions {
             occupied_fixed: (lik.occupied_logodds * 256.0).round() as i16,
             res2_over_2s2: resolution_m * resolution_m / (2.0 * lik.sigma_m * lik.sigma_m),
             no_hit: lik.no_hit_log_likelihood,
+        }
+    }
+
+    /// The matcher's search parameters these options describe, for maps of `resolution_m`.
+    pub fn search_params(&self, resolution_m: f64) -> SearchParams {
+        let o = &self.search;
+        let steps = (o.coarse_yaw_deg / o.coarse_yaw_step_deg).floor() as i32;
+        let mut yaw_offsets_rad = vec![0.0];
+        for k in 1..=steps {
+            let d = (f64::from(k) * o.coarse_yaw_step_deg).to_radians();
+            yaw_offsets_rad.push(-d);
+            yaw_offsets_rad.push(d);
+        }
+        SearchParams {
+            yaw_offsets_rad,
+            xy_cells: 0,
+            resolution_m,
+            step_xy_m: o.step_xy_m,
+            step_yaw_rad: o.step_yaw_deg.to_radians(),
+            refine_levels: o.refine_levels,
+            prior: None,
         }
     }
 

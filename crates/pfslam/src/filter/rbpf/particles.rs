@@ -6,6 +6,9 @@ use crate::filter::rng::{CHUNK_PARTICLES, FilterRng};
 use crate::filter::weights;
 use crate::geometry::{Pose2, wrap_angle};
 use crate::map::{InsertScratch, MapError, OccupancyGrid, PlanarScan, to_world};
+use crate::matching::nearest_occupied::{
+    MatchPrior, ObservationModel, SearchParams, match_in_own_map,
+};
 use rand::RngExt;
 use rand_distr::StandardNormal;
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -146,7 +149,7 @@ impl Rbpf {
             scratch: InsertBuffers::default(),
             master: rng.master,
             model: options.observation(res),
-            search: SearchParams::new(options, res),
+            search: options.search_params(res),
             options: options.clone(),
             ancestors: Vec::with_capacity(n),
             lls: vec![0.0; n],

@@ -99,7 +99,7 @@ impl PointField {
         let value = |p: &Pose2, s: f64| (s * n_pts - prior.map_or(0.0, |q| q.penalty(p)), s);
         let (s, c) = sin_cos(start.yaw_rad, true);
         let first = value(start, self.score_rotated(points_body, start, s, c));
-        let ([x_m, y_m, yaw_rad], (_, score)) = crate::filter::scanmatch::pattern_search(
+        let ([x_m, y_m, yaw_rad], (_, score)) = crate::matching::likelihood_field::pattern_search(
             [start.x_m, start.y_m, start.yaw_rad],
             first,
             0.5 * self.resolution_m,

@@ -4,7 +4,8 @@ use super::*;
 use crate::geometry::{Pose2, wrap_angle};
 use crate::map::OccupancyGrid;
 
-/// Search parameters of [`match_in_own_map`].
+/// Search parameters of [`match_in_own_map`] (from the `rbpf` mode's options:
+/// [`RbpfOptions::search_params`](crate::filter::rbpf::RbpfOptions::search_params)).
 #[derive(Debug, Clone, PartialEq)]
 pub struct SearchParams {
     /// Coarse yaw offsets (rad), 0 first.
@@ -21,29 +22,6 @@ pub struct SearchParams {
     pub refine_levels: u32,
     /// Prior on the deviation from the sampled pose (set per update from the motion).
     pub prior: Option<MatchPrior>,
-}
-
-impl SearchParams {
-    /// From the options, for maps of `resolution_m`.
-    pub fn new(o: &RbpfOptions, resolution_m: f64) -> Self {
-        let o = &o.search;
-        let steps = (o.coarse_yaw_deg / o.coarse_yaw_step_deg).floor() as i32;
-        let mut yaw_offsets_rad = vec![0.0];
-        for k in 1..=steps {
-            let d = (f64::from(k) * o.coarse_yaw_step_deg).to_radians();
-            yaw_offsets_rad.push(-d);
-            yaw_offsets_rad.push(d);
-        }
-        SearchParams {
-            yaw_offsets_rad,
-            xy_cells: 0,
-            resolution_m,
-            step_xy_m: o.step_xy_m,
-            step_yaw_rad: o.step_yaw_deg.to_radians(),
-            refine_levels: o.refine_levels,
-            prior: None,
-        }
-    }
 }
 
 /// Scan-matches `points` against `grid` around `start`: coarse search over the yaw offsets
@@ -166,7 +144,7 @@ impl Best {
     }
 
     /// Hill climb from the best pose: six moves, steps halved when none improves.
-    /// (Not `scanmatch::pattern_search`: this climb wraps the yaw at every step.)
+    /// (Not `likelihood_field::pattern_search`: this climb wraps the yaw at every step.)
     fn hill_climb(&mut self, f: &Objective, search: &SearchParams) {
         let (mut sxy, mut syaw) = (search.step_xy_m, search.step_yaw_rad);
         let mut level = 0;
@@ -194,7 +172,7 @@ impl Best {
     fn best_move(&mut self, f: &Objective, sxy: f64, syaw: f64) -> Option<(Pose2, f64, f64)> {
         let best = self.pose;
         let mut moved: Option<(Pose2, f64, f64)> = None;
-        for (ex, ey, ea) in crate::filter::scanmatch::six_moves(sxy, syaw) {
+        for (ex, ey, ea) in crate::matching::likelihood_field::six_moves(sxy, syaw) {
             let cand = Pose2::new(best.x_m + ex, best.y_m + ey, best.yaw_rad + ea);
             let key = pose_bits(&cand);
             if self.seen.contains(&key) {

@@ -1,4 +1,4 @@
-//! Scan-to-submap matching for the pose graph's edges.
+//! Scan-to-submap matching for the back end's pose-graph edges ([`crate::graph`]).
 //!
 //! A [`PointField`] is a dense window of a likelihood field built from submap points: each
 //! cell holds `exp(-d^2 / 2 sigma^2)` of the distance `d` to the nearest point (0..1), plus
@@ -10,22 +10,22 @@
 //!   deviation from a prediction (sequential edges: along a corridor the prediction decides).
 //! - [`PointField::refine`]: sub-cell pattern search on the bilinearly interpolated field.
 //!
-//! The field and its storage live in `point_field` and `storage`; the interpolated scores
+//! The field and its storage live in `field` and `storage`; the interpolated scores
 //! (the refinement's objective and the edges' curvature) in `score`; the cell sums of the
 //! grid searches in `cells`; the searches in `branch_and_bound` and `local_search`.
 
 mod branch_and_bound;
 mod cells;
+mod field;
 mod local_search;
-mod point_field;
 mod score;
 mod storage;
 #[cfg(test)]
 mod tests;
 
 pub use branch_and_bound::BnbStart;
+pub use field::PointField;
 pub use local_search::Prior;
-pub use point_field::PointField;
 
 /// A search window around a centre pose.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -1,7 +1,7 @@
 //! The likelihood field: a window of the map where each cell holds its closeness to the
 //! nearest occupied cell, built per update (banded, cached).
 
-use crate::filter::field_cache::FieldCache;
+use super::cache::FieldCache;
 use crate::kernels::{F32_LIM, FieldWindow};
 use crate::map::{Cell, CellRect, MapLimits, OccupancyGrid};
 use rayon::prelude::*;

@@ -1,4 +1,5 @@
-//! The scan-matching mode: a smooth observation model and a scan-matching proposal.
+//! The likelihood-field matcher of the scan-matching mode (`[filter] mode = "scan_match"`):
+//! a smooth observation model and a scan-matching proposal.
 //!
 //! - [`LikelihoodField`]: per update, a local window of the map around the scan where each
 //!   cell holds `255 * exp(-d^2 / 2 sigma^2)`, `d` the distance to the nearest occupied cell
@@ -14,15 +15,23 @@
 //!   temperature; resampling is selective (Neff below a fraction of N).
 //! - [`match_particles`]: every particle matched in full (see
 //!   `docs/decisions/0019-scan-match-refinement.md`).
+//! - [`cache`]: the field kept up to date with the map's logged changes instead of
+//!   rebuilt at every update.
+//!
+//! The parameters of a match ([`MatchParams`]) come from the mode's options
+//! ([`ScanMatchOptions::params`](crate::filter::scan_match::ScanMatchOptions::params)).
+//! The back end's point field shares the pattern search ([`pattern_search`]) and the
+//! batch dispatch of the cached rotations (`by_count!`).
 
+pub mod cache;
 mod field;
-mod options;
+mod params;
 mod rotation;
 mod search;
 #[cfg(test)]
 mod tests;
 
 pub use field::*;
-pub use options::*;
+pub use params::*;
 pub(crate) use rotation::*;
 pub use search::*;

@@ -1,4 +1,5 @@
 use super::*;
+use crate::filter::scan_match::ScanMatchOptions;
 use crate::geometry::Pose2;
 use crate::kernels::coarse::{CoarseYaw, coarse_sums, coarse_sums_fast, coarse_sums_swar};
 use crate::kernels::rotation::Rotation;

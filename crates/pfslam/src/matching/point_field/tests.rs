@@ -198,15 +198,16 @@ fn refine_sequential(
         let s = score_plain(f, points_body, p);
         (s * n_pts - prior.map_or(0.0, |q| q.penalty(p)), s)
     };
-    let ([x_m, y_m, yaw_rad], (_, score)) = crate::filter::scanmatch::pattern_search_sequential(
-        [start.x_m, start.y_m, start.yaw_rad],
-        objective(start),
-        0.5 * f.resolution_m,
-        0.5 * yaw_step_rad,
-        levels,
-        100,
-        |at, _| objective(&Pose2::new(at[0], at[1], at[2])),
-    );
+    let ([x_m, y_m, yaw_rad], (_, score)) =
+        crate::matching::likelihood_field::pattern_search_sequential(
+            [start.x_m, start.y_m, start.yaw_rad],
+            objective(start),
+            0.5 * f.resolution_m,
+            0.5 * yaw_step_rad,
+            levels,
+            100,
+            |at, _| objective(&Pose2::new(at[0], at[1], at[2])),
+        );
     (Pose2::new(x_m, y_m, yaw_rad), score)
 }
 

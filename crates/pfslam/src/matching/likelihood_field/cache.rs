@@ -1,5 +1,5 @@
 //! The scan matcher's likelihood field kept up to date with the map instead of rebuilt at
-//! every update ([`super::scanmatch::LikelihoodField::build_cached`]).
+//! every update ([`super::LikelihoodField::build_cached`]).
 //!
 //! A field value depends on the map through two things only: whether the cell was ever
 //! observed (log-odds not 0) and, for the Gaussian part, which cells within the kernel's

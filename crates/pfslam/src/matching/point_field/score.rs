@@ -52,7 +52,7 @@ impl PointField {
     ) {
         let chunks = poses.chunks(PASS).zip(sin_cos.chunks(PASS));
         for ((p, sc), o) in chunks.zip(out.chunks_mut(PASS)) {
-            crate::filter::scanmatch::by_count!(p.len().min(sc.len()).min(o.len()), K => {
+            crate::matching::likelihood_field::by_count!(p.len().min(sc.len()).min(o.len()), K => {
                 let scores = self.scores_rotated::<K>(
                     points_body,
                     std::array::from_fn(|i| p[i]),
