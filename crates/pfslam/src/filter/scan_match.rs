@@ -2,7 +2,7 @@
 //! takes, derived from them ([`ScanMatchOptions::params`]); the matcher is
 //! [`crate::matching::likelihood_field`].
 
-use crate::matching::likelihood_field::{KernelPrecision, MatchParams};
+use crate::matching::likelihood_field::{MatchParams, MatchSearch};
 use serde::{Deserialize, Serialize};
 
 /// Options of the scan-matching mode (`[filter.scan_match]`).
@@ -125,24 +125,15 @@ impl ScanMatchOptions {
 
     /// The per-update search parameters for a map of `resolution_m`.
     pub fn params(&self, resolution_m: f64) -> MatchParams {
-        let steps = (self.yaw_search_deg / self.yaw_step_deg).floor() as i32;
-        // Order: 0 first, then growing magnitude, so exact ties keep the smallest offset.
-        let mut yaw_offsets_rad = vec![0.0];
-        for k in 1..=steps {
-            let d = (f64::from(k) * self.yaw_step_deg).to_radians();
-            yaw_offsets_rad.push(-d);
-            yaw_offsets_rad.push(d);
-        }
-        MatchParams {
-            resolution_m,
-            xy_radius_cells: self.xy_search_radius_cells as i32,
-            yaw_offsets_rad,
-            yaw_step_rad: self.yaw_step_deg.to_radians(),
-            inv_var_xy: 1.0 / (self.prior_sigma_xy_m * self.prior_sigma_xy_m),
-            inv_var_yaw: 1.0 / self.prior_sigma_yaw_deg.to_radians().powi(2),
-            gain_per_unit: self.point_gain / 255.0,
+        let search = MatchSearch {
+            xy_radius_cells: self.xy_search_radius_cells,
+            yaw_search_deg: self.yaw_search_deg,
+            yaw_step_deg: self.yaw_step_deg,
+            prior_sigma_xy_m: self.prior_sigma_xy_m,
+            prior_sigma_yaw_deg: self.prior_sigma_yaw_deg,
+            point_gain: self.point_gain,
             refine_levels: self.refine_levels,
-            kernel_precision: KernelPrecision::F32,
-        }
+        };
+        MatchParams::new(resolution_m, &search)
     }
 }

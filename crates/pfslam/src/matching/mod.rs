@@ -26,3 +26,16 @@ pub mod correlation;
 pub mod likelihood_field;
 pub mod nearest_occupied;
 pub mod point_field;
+
+/// The coarse yaw offsets of a search `search_deg` to each side in steps of `step_deg`
+/// (rad): 0 first, then growing magnitude, so exact ties keep the smallest offset.
+pub fn yaw_offsets_rad(search_deg: f64, step_deg: f64) -> Vec<f64> {
+    let steps = (search_deg / step_deg).floor() as i32;
+    let mut offsets = vec![0.0];
+    for k in 1..=steps {
+        let d = (f64::from(k) * step_deg).to_radians();
+        offsets.push(-d);
+        offsets.push(d);
+    }
+    offsets
+}

@@ -298,15 +298,11 @@ impl RbpfOptions {
     /// The matcher's search parameters these options describe, for maps of `resolution_m`.
     pub fn search_params(&self, resolution_m: f64) -> SearchParams {
         let o = &self.search;
-        let steps = (o.coarse_yaw_deg / o.coarse_yaw_step_deg).floor() as i32;
-        let mut yaw_offsets_rad = vec![0.0];
-        for k in 1..=steps {
-            let d = (f64::from(k) * o.coarse_yaw_step_deg).to_radians();
-            yaw_offsets_rad.push(-d);
-            yaw_offsets_rad.push(d);
-        }
         SearchParams {
-            yaw_offsets_rad,
+            yaw_offsets_rad: crate::matching::yaw_offsets_rad(
+                o.coarse_yaw_deg,
+                o.coarse_yaw_step_deg,
+            ),
             xy_cells: 0,
             resolution_m,
             step_xy_m: o.step_xy_m,

@@ -1,11 +1,23 @@
 use super::*;
-use crate::filter::scan_match::ScanMatchOptions;
 use crate::geometry::Pose2;
 use crate::kernels::coarse::{CoarseYaw, coarse_sums, coarse_sums_fast, coarse_sums_swar};
 use crate::kernels::rotation::Rotation;
 use crate::kernels::rotation_f32::{LANES32, RotationF32};
 use crate::map::{CellRect, OccupancyGrid};
 use crate::map::{MapOptions, PlanarScan, to_world};
+
+/// The search of the scan-matching mode's default options (`[filter.scan_match]`).
+fn search() -> MatchSearch {
+    MatchSearch {
+        xy_radius_cells: 3,
+        yaw_search_deg: 0.25,
+        yaw_step_deg: 0.25,
+        prior_sigma_xy_m: 0.02,
+        prior_sigma_yaw_deg: 0.05,
+        point_gain: 1.0,
+        refine_levels: 3,
+    }
+}
 
 /// A room with walls at x = +-5 m and y = +-4 m, with a pillar, mapped from the origin.
 fn room_scan() -> PlanarScan {
@@ -44,16 +56,16 @@ fn room_scan() -> PlanarScan {
 #[test]
 fn match_recovers_small_offsets_sub_cell() {
     let (field, pts) = room_field(0.0);
-    let o = ScanMatchOptions {
+    let o = MatchSearch {
         prior_sigma_xy_m: 10.0,
         prior_sigma_yaw_deg: 50.0,
-        ..ScanMatchOptions::default()
+        ..search()
     };
     let mut ms = MatchScratch::default();
     for precision in [KernelPrecision::F64, KernelPrecision::F32] {
         let params = MatchParams {
             kernel_precision: precision,
-            ..o.params(0.1)
+            ..MatchParams::new(0.1, &o)
         };
         for (dx, dy, dyaw_deg) in [(0.17, -0.12, 0.4), (-0.23, 0.08, -0.6), (0.04, 0.26, 0.0)] {
             let predicted = Pose2::new(dx, dy, f64::to_radians(dyaw_deg));
@@ -88,7 +100,7 @@ fn flat_direction_keeps_the_prediction() {
     }
     let scan = street(250);
     let (field, pts) = field_and_points(&grid, &scan, (400, 100), 1);
-    let params = ScanMatchOptions::default().params(opts.resolution_m);
+    let params = MatchParams::new(opts.resolution_m, &search());
     let predicted = Pose2::new(0.137, 0.02, 0.0);
     let m = match_scan(
         &field,
@@ -313,17 +325,17 @@ fn optimised_kernel_equals_the_reference_bit_for_bit() {
         field.build(&grid, &rect, rng.random_range(0.05..0.3), unknown);
         let mut pts = Vec::new();
         match_points(&scan, rng.random_range(3.0..40.0), 1 + case % 3, &mut pts);
-        let o = ScanMatchOptions {
-            xy_search_radius_cells: rng.random_range(0..6),
+        let o = MatchSearch {
+            xy_radius_cells: rng.random_range(0..6),
             yaw_search_deg: rng.random_range(0.0..2.0),
             prior_sigma_xy_m: rng.random_range(0.01..1.0),
             refine_levels: rng.random_range(0..5),
-            ..ScanMatchOptions::default()
+            ..search()
         };
         // The reference is f64 throughout.
         let params = MatchParams {
             kernel_precision: KernelPrecision::F64,
-            ..o.params(0.1)
+            ..MatchParams::new(0.1, &o)
         };
         let predicted = Pose2::new(
             rng.random_range(-0.5..0.5),

@@ -14,8 +14,6 @@
 
 mod likelihood;
 mod matcher;
-#[cfg(test)]
-mod tests;
 
 pub use likelihood::*;
 pub use matcher::*;

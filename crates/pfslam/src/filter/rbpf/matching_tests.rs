@@ -1,7 +1,10 @@
-use super::*;
-use crate::filter::rbpf::{RbpfLikelihood, RbpfOptions};
+//! The particle's matcher and observation model (`crate::matching::nearest_occupied`) with
+//! the parameters `[filter.rbpf]` gives them, against plain references.
+
+use super::{RbpfLikelihood, RbpfOptions};
 use crate::geometry::{Pose2, wrap_angle};
 use crate::map::{Cell, InsertScratch, OccupancyGrid, PlanarScan};
+use crate::matching::nearest_occupied::*;
 use rand::RngExt;
 use rand_xoshiro::Xoshiro256PlusPlus;
 
