@@ -4,9 +4,9 @@
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use pfslam::geometry::Pose2;
-use pfslam::localize::field::{FieldModel, LikelihoodField, Sharpness};
 use pfslam::localize::mcl::{FreeSpace, ParticleSet};
 use pfslam::map::{BinaryMap, CellState, MapLimits};
+use pfslam::matching::map_field::{FieldModel, LikelihoodField, Sharpness};
 use rand::SeedableRng;
 use rand_xoshiro::Xoshiro256PlusPlus;
 use std::hint::black_box;

@@ -6,11 +6,11 @@
 //! numbers whichever thread runs a chunk); resampling and initialisation draw from one
 //! sequential stream. A run is bit-identical for any thread count.
 
-use super::field::{LikelihoodField, Sharpness};
 use super::kld::{KldBins, kld_bound};
 use crate::geometry::{Pose2, wrap_angle};
 use crate::kernels::field_loglik::{self, CentrePose, POSES};
 use crate::map::{BinaryMap, CellState};
+use crate::matching::map_field::{LikelihoodField, Sharpness};
 use crate::motion::odometry_model::{OdometryModelOptions, sample_odometry_motion};
 use rand::{RngExt, SeedableRng};
 use rand_distr::StandardNormal;

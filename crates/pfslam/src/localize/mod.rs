@@ -3,7 +3,6 @@
 //! map_server pair read by `pfslam_io::map_files::read_map_server`), so maps made by other
 //! tools work as well as pfslam's own.
 //!
-//! - [`field`]: the likelihood field (distance to the nearest wall per cell).
 //! - [`mcl`]: the particle set: odometry motion model, weighing, KLD-adaptive resampling
 //!   with augmented MCL's random particles for recovery.
 //! - [`estimate`]: the heaviest cluster's mean and mass (the convergence test).
@@ -12,11 +11,9 @@
 
 pub mod check;
 pub mod estimate;
-pub mod field;
 pub mod kld;
 pub mod mcl;
 pub mod options;
-pub mod refine;
 pub mod run;
 #[cfg(test)]
 mod tests;

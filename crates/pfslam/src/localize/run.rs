@@ -3,12 +3,12 @@
 //! estimate moved on by the odometry).
 
 use super::estimate::{ClusterShape, Estimate, estimate};
-use super::field::{FieldModel, LikelihoodField, Sharpness};
 use super::kld::KldBins;
 use super::mcl::{FreeSpace, ParticleSet, ResamplePlan, Streams};
 use super::{LocalizeError, LocalizeOptions};
 use crate::geometry::{Pose2, StampedPose2, wrap_angle};
 use crate::map::{BinaryMap, PlanarScan, ScanOptions, ScanProjector};
+use crate::matching::map_field::{FieldModel, LikelihoodField, Sharpness, refine_pose, track_pose};
 use crate::motion::odometry_model::{OdometryModel, OdometryModelOptions};
 use crate::motion::odometry_timing::{OdometryTimingReport, run_timed};
 use crate::sensors::Recording;
@@ -227,7 +227,7 @@ impl ScanIo {
         Ok(if self.points.is_empty() {
             *pose
         } else {
-            super::refine::track_pose(field, &self.points, pose)
+            track_pose(field, &self.points, pose)
         })
     }
 
@@ -466,7 +466,7 @@ impl<'a> State<'a> {
     /// every particle with it: the cloud's mean lags behind poor odometry by the cloud's
     /// spread, a match of the whole scan does not.
     fn refine(&mut self, field: &LikelihoodField, points: &[[f64; 2]]) {
-        let refined = super::refine::refine_pose(field, points, &self.estimate.pose);
+        let refined = refine_pose(field, points, &self.estimate.pose);
         let moved = refined.compose(&self.estimate.pose.inverse());
         for p in &mut self.particles.poses {
             *p = moved.compose(p);

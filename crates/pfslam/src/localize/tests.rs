@@ -4,6 +4,7 @@
 use super::*;
 use crate::geometry::{Pose2, Rigid3, StampedPose2, Trajectory};
 use crate::map::{BinaryMap, CellState, MapLimits, ScanOptions};
+use crate::matching::map_field;
 use crate::sensors::{LidarGeometry, Recording, ScanSet};
 
 const RES_M: f64 = 0.05;
@@ -272,7 +273,7 @@ fn core_fit_ignores_the_hidden_share_of_a_scan() {
     let truth = Pose2::new(9.0, 1.5, 0.3);
     let (field, points) = field_and_scan(&map, &truth);
     let fit = |points: &[[f64; 2]], pose: &Pose2, share: f64| {
-        run::core_fit(&field, field::Sharpness::Tracking, points, pose, share)
+        run::core_fit(&field, map_field::Sharpness::Tracking, points, pose, share)
     };
     let clean = fit(&points, &truth, 0.7);
     let mut hidden = points.clone();
@@ -366,10 +367,10 @@ fn rejects_bad_options_and_a_map_without_free_space() {
 }
 
 /// A tracking field over the test building and the points of a scan cast from `truth`.
-fn field_and_scan(map: &BinaryMap, truth: &Pose2) -> (field::LikelihoodField, Vec<[f64; 2]>) {
-    let field = field::LikelihoodField::new(
+fn field_and_scan(map: &BinaryMap, truth: &Pose2) -> (map_field::LikelihoodField, Vec<[f64; 2]>) {
+    let field = map_field::LikelihoodField::new(
         map,
-        &field::FieldModel {
+        &map_field::FieldModel {
             sigma_hit_m: [0.1, 0.3],
             z_hit: 0.9,
             max_distance_m: 2.0,
@@ -397,19 +398,19 @@ fn tracking_match_reaches_the_hill_climbs_answer() {
     let map = building();
     let truth = Pose2::new(9.0, 1.5, 0.3);
     let (field, points) = field_and_scan(&map, &truth);
-    let best = refine::refine_pose(&field, &points, &truth);
+    let best = map_field::refine_pose(&field, &points, &truth);
     for off in [
         Pose2::new(9.04, 1.47, 0.3 + 1.0f64.to_radians()),
         Pose2::new(8.97, 1.53, 0.3 - 2.0f64.to_radians()),
         Pose2::new(9.0, 1.5, 0.3),
     ] {
-        let tracked = refine::track_pose(&field, &points, &off);
+        let tracked = map_field::track_pose(&field, &points, &off);
         let err = (tracked.x_m - best.x_m).hypot(tracked.y_m - best.y_m);
         assert!(err < 0.01, "from {off:?}: {tracked:?} against {best:?}");
         assert!((tracked.yaw_rad - best.yaw_rad).abs() < 0.2f64.to_radians());
     }
     let far = Pose2::new(14.0, 2.5, 0.3);
-    assert_eq!(refine::track_pose(&field, &points, &far), far);
+    assert_eq!(map_field::track_pose(&field, &points, &far), far);
 }
 
 /// A scan seen from the true pose, matched from a pose a few centimetres and a degree off,
@@ -421,16 +422,16 @@ fn refinement_pulls_a_nearby_estimate_onto_the_scan() {
     let (field, points) = field_and_scan(&map, &truth);
     // The cast stops at a wall cell's near edge, half a cell before the centre the field is
     // drawn from: the best match lies within that of the truth.
-    let best = refine::refine_pose(&field, &points, &truth);
+    let best = map_field::refine_pose(&field, &points, &truth);
     let bias = (best.x_m - truth.x_m).hypot(best.y_m - truth.y_m);
     assert!(bias < 0.03, "{best:?}");
     let off = Pose2::new(9.06, 1.46, 0.3 + 1.5f64.to_radians());
-    let refined = refine::refine_pose(&field, &points, &off);
+    let refined = map_field::refine_pose(&field, &points, &off);
     let err = (refined.x_m - best.x_m).hypot(refined.y_m - best.y_m);
     assert!(err < 0.01, "{refined:?} against {best:?}");
     assert!((refined.yaw_rad - best.yaw_rad).abs() < 0.2f64.to_radians());
     let far = Pose2::new(14.0, 2.5, 0.3);
-    assert_eq!(refine::refine_pose(&field, &points, &far), far);
+    assert_eq!(map_field::refine_pose(&field, &points, &far), far);
 }
 
 /// The particles' log-likelihoods, four at a time in the kernel, have the bits of the
@@ -450,7 +451,7 @@ fn particle_log_likelihoods_have_the_scalar_rules_bits() {
         })
         .collect();
     let (scale, [ou, ov]) = field.centre_coordinates();
-    for sharpness in [field::Sharpness::Tracking, field::Sharpness::Global] {
+    for sharpness in [map_field::Sharpness::Tracking, map_field::Sharpness::Global] {
         let got = mcl::log_likelihoods(&field, sharpness, &points, &poses);
         for (pose, got) in poses.iter().zip(&got) {
             let (s, c) = pose.yaw_rad.sin_cos();

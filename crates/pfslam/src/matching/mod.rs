@@ -9,6 +9,9 @@
 //! - [`nearest_occupied`], for the `rbpf` mode ([`crate::filter::rbpf`]): a point scores by
 //!   its distance to the nearest occupied cell of the particle's own grid; a coarse search,
 //!   then a hill climb.
+//! - [`map_field`], for localisation in a fixed map ([`crate::localize`]): a point scores
+//!   by the log-likelihood of the map's cell it ends in, from the distance to the nearest
+//!   wall; the particles are weighed in it and the converged estimate refined by a climb.
 //! - [`point_field`], for the back end ([`crate::graph`]): a point scores by a field of its
 //!   closeness to a submap's points, with max-pooled levels for branch and bound
 //!   (sequential edges, loop closures, the scans between keyframes, the odometry made from
@@ -24,6 +27,7 @@
 
 pub mod correlation;
 pub mod likelihood_field;
+pub mod map_field;
 pub mod nearest_occupied;
 pub mod point_field;
 

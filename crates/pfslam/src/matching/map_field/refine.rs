@@ -2,7 +2,7 @@
 //! particles' mean carries their spread's noise (a cloud of hundreds about the true pose),
 //! a local match of every return does not.
 
-use super::field::{LikelihoodField, Sharpness};
+use super::{LikelihoodField, Sharpness};
 use crate::geometry::{Pose2, wrap_angle};
 use crate::matching::likelihood_field::six_moves;
 
