@@ -29,8 +29,6 @@
 //!
 //! [`scan_log_likelihood`]: crate::matching::nearest_occupied::scan_log_likelihood
 
-#[cfg(test)]
-mod matching_tests;
 mod options;
 mod particles;
 mod path;

@@ -11,8 +11,9 @@ pub enum KernelPrecision {
     F32,
 }
 
-/// Search parameters derived from the scan-matching mode's options once per run
-/// ([`ScanMatchOptions::params`](crate::filter::scan_match::ScanMatchOptions::params)).
+/// The parameters of one match ([`MatchParams::new`] of a [`MatchSearch`]; the
+/// scan-matching mode's options give theirs once per run,
+/// [`ScanMatchOptions::params`](crate::filter::scan_match::ScanMatchOptions::params)).
 #[derive(Debug, Clone, PartialEq)]
 pub struct MatchParams {
     /// Map cell size (m).
@@ -31,8 +32,7 @@ pub struct MatchParams {
     pub gain_per_unit: f64,
     /// Step halvings of the refinement.
     pub refine_levels: u32,
-    /// The refinement's field-sum arithmetic (f32 from
-    /// [`ScanMatchOptions::params`](crate::filter::scan_match::ScanMatchOptions::params)).
+    /// The refinement's field-sum arithmetic (f32 from [`MatchParams::new`]).
     pub kernel_precision: KernelPrecision,
 }
 
